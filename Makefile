@@ -1,0 +1,45 @@
+# The README's two commands: `make demo` and `make test`. Both set up first (idempotent).
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.simreel-setup
+MESA   := $(VENV)/share/simreel/mesa
+DEMO   := demo_out
+PYTEST_ARGS ?=
+
+.PHONY: setup demo test test-all test-gpu lint bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml tools/install_torch.sh tools/fetch_lavapipe.sh
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip setuptools wheel
+	tools/install_torch.sh $(BIN)/pip
+	$(BIN)/pip install -q -e '.[test]'
+	@# Software Vulkan for SAPIEN where no GPU renders; without it simreel still runs state-only.
+	@if command -v nvidia-smi >/dev/null 2>&1; then echo "NVIDIA GPU: no software Vulkan needed"; \
+	 else tools/fetch_lavapipe.sh $(MESA) || echo "warning: no software Vulkan fetched; simreel will run state-only"; fi
+	@touch $(STAMP)
+
+demo: setup
+	@mkdir -p $(DEMO)
+	$(BIN)/simreel record PickCube-v1 -o $(DEMO)/pickcube.h5 -n 3 --seed 0 --overwrite
+	$(BIN)/simreel inspect $(DEMO)/pickcube.h5
+
+lint: setup
+	$(BIN)/ruff check simreel recorders replay viewers tests benchmarks
+
+test: lint
+	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+test-all: lint
+	$(BIN)/python -m pytest -m "not gpu" $(PYTEST_ARGS)
+
+test-gpu: setup
+	$(BIN)/python -m pytest -m gpu $(PYTEST_ARGS)
+
+bench: setup
+	$(BIN)/python benchmarks/record_overhead.py
+
+clean:
+	rm -rf $(DEMO) .pytest_cache .ruff_cache

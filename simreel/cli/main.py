@@ -1,0 +1,68 @@
+"""The `simreel` command: one subcommand module per verb, imported only as far as argparse needs.
+
+Errors a user can cause print one line on stderr and exit 2 (`--debug` shows the traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from simreel import __version__
+from simreel.errors import SimreelError
+
+__all__ = ["main", "COMMANDS"]
+
+COMMANDS = ("record", "inspect", "replay", "audit", "convert", "view")
+"""Subcommand modules under simreel.cli; each has `add_parser(subparsers)` and `run(args) -> int`."""
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse, but a bad option is one line on stderr (not usage + error) and exit 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        sys.stderr.write(f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        sys.exit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _OneLineParser(
+        prog="simreel",
+        description="Record, replay-and-verify, audit and view ManiSkill 3 trajectories.",
+    )
+    parser.add_argument("--version", action="version", version=f"simreel {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks instead of one-line errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_OneLineParser)
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"simreel.cli.{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"simreel.cli.{name}":
+                raise
+            continue
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not args.command:
+        parser.print_help()
+        return 2
+    try:
+        return int(args.run(args) or 0)
+    except SimreelError as e:
+        if args.debug:
+            raise
+        sys.stderr.write(f"simreel {args.command}: error: {e}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"simreel {args.command}: interrupted\n")
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

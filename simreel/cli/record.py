@@ -1,0 +1,144 @@
+"""`simreel record`: run a policy in a ManiSkill env and record its episodes (.h5 or .mcap)."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from typing import Any
+
+from simreel.cli.common import add_env_options, apply_imports
+from simreel.errors import UsageError
+from simreel.policies import POLICY_HELP
+
+__all__ = ["add_parser", "run"]
+
+_DEFAULT_MAX_STEPS = 200
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser("record", help="record episodes of an env to .h5 or .mcap",
+                       description="Run a policy in ENV_ID and record every episode with its full state dict.")
+    p.add_argument("env_id", metavar="ENV_ID")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output file: .h5 or .mcap")
+    p.add_argument("-n", "--episodes", type=int, default=1, help="episodes to record (default 1)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first episode; episode k uses seed+k")
+    p.add_argument("--policy", default="random", help=f"{POLICY_HELP} (default random)")
+    p.add_argument("--max-steps", type=int, default=None,
+                   help=f"steps per episode at most (default: the env's time limit, else {_DEFAULT_MAX_STEPS})")
+    p.add_argument("--contacts", default="auto", metavar="auto|none|A:B,...",
+                   help="contact channels: auto (default), none, or pairs like panda/panda_leftfinger:cube")
+    p.add_argument("--record-obs", action="store_true", help="also record observations")
+    p.add_argument("--poses", action=argparse.BooleanOptionalAction, default=None,
+                   help="record world poses of every body and link (default: on for .mcap, off for .h5)")
+    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_env_options(p)
+    p.set_defaults(run=run)
+
+
+def _done(terminated: Any, truncated: Any) -> Any:
+    from simreel.state_tree import to_numpy
+
+    return to_numpy(terminated).reshape(-1) | to_numpy(truncated).reshape(-1)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.episodes < 1:
+        raise UsageError(f"--episodes must be ≥ 1, got {args.episodes}")
+    if args.max_steps is not None and args.max_steps < 1:
+        raise UsageError(f"--max-steps must be ≥ 1, got {args.max_steps}")
+    if args.num_envs < 1:
+        raise UsageError(f"--num-envs must be ≥ 1, got {args.num_envs}")
+    from simreel.formats import format_of
+
+    format_of(args.output)  # reject a bad suffix before paying for the env
+    apply_imports(args.imports)
+    from simreel.envs import make_env
+    from simreel.policies import load_policy
+
+    policy = load_policy(args.policy, args.env_id)
+    env = make_env(
+        args.env_id,
+        num_envs=args.num_envs,
+        obs_mode=args.obs_mode,
+        control_mode=args.control_mode,
+        reward_mode=args.reward_mode,
+        sim_backend=args.sim_backend,
+        render_backend=args.render_backend,
+        env_kwargs=args.env_kwargs,
+    )
+    from simreel.recorders import RecordWrapper
+
+    try:
+        rec = RecordWrapper(
+            env,
+            args.output,
+            contacts=args.contacts,
+            record_obs=args.record_obs,
+            poses=args.poses,
+            overwrite=args.overwrite,
+            imports=args.imports,
+            command=shlex.join(["simreel", *sys.argv[1:]]),
+        )
+    except BaseException:
+        env.close()
+        raise
+    max_steps = args.max_steps or rec.meta.max_episode_steps or _DEFAULT_MAX_STEPS
+    try:
+        if rec.meta.num_envs == 1:
+            _record_single(rec, policy, args, max_steps)
+        else:
+            _record_batched(rec, policy, args, max_steps)
+    finally:
+        rec.close()
+    _summary(rec)
+    return 0
+
+
+def _progress(args: argparse.Namespace) -> Any:
+    from tqdm import tqdm
+
+    return tqdm(total=args.episodes, unit="ep", desc=f"record {args.env_id}", disable=args.quiet, file=sys.stderr)
+
+
+def _record_single(rec: Any, policy: Any, args: argparse.Namespace, max_steps: int) -> None:
+    with _progress(args) as bar:
+        for k in range(args.episodes):
+            obs, _ = rec.reset(seed=args.seed + k)
+            for _ in range(max_steps):
+                obs, _, terminated, truncated, _ = rec.step(policy(rec, obs))
+                if _done(terminated, truncated).any():
+                    break
+            bar.update()
+
+
+def _record_batched(rec: Any, policy: Any, args: argparse.Namespace, max_steps: int) -> None:
+    """N parallel envs; a finished env is reset alone (partial reset) with the next unused seed."""
+    import numpy as np
+
+    n = rec.meta.num_envs
+    next_seed = args.seed + n
+    obs, _ = rec.reset(seed=[args.seed + i for i in range(n)])
+    steps = np.zeros(n, dtype=np.int64)
+    with _progress(args) as bar:
+        while len(rec.episodes_committed) < args.episodes:
+            obs, _, terminated, truncated, _ = rec.step(policy(rec, obs))
+            steps += 1
+            done = _done(terminated, truncated) | (steps >= max_steps)
+            if done.any():
+                idx = np.flatnonzero(done)
+                before = len(rec.episodes_committed)
+                obs, _ = rec.reset(seed=list(range(next_seed, next_seed + len(idx))), options={"env_idx": idx})
+                next_seed += len(idx)
+                steps[idx] = 0
+                bar.update(min(args.episodes, len(rec.episodes_committed)) - min(args.episodes, before))
+    rec.discard_running()
+
+
+def _summary(rec: Any) -> None:
+    eps = rec.episodes_committed
+    steps = sum(e.length for e in eps)
+    succ = sum(1 for e in eps if e.success)
+    size = rec.path.stat().st_size if rec.path.exists() else 0
+    print(f"recorded {len(eps)} episode(s), {steps} steps, {succ} successful, to {rec.path} ({size / 1024:.0f} KiB)")

@@ -1,0 +1,54 @@
+"""Policies the `record` command can drive an env with: random, zero, scripted, or user code.
+
+A policy is a callable `policy(env, obs) -> action`, `env` being the gym env as the user holds it and
+the action of shape (num_envs, action_dim) or (action_dim,).
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from simreel.errors import UsageError
+
+__all__ = ["Policy", "load_policy", "POLICY_HELP"]
+
+Policy = Callable[[Any, Any], Any]
+POLICY_HELP = "random | zero | scripted (the task's shipped policy) | MODULE:CALLABLE"
+
+
+def _random(env: Any, obs: Any) -> Any:
+    return env.action_space.sample()
+
+
+def _zero(env: Any, obs: Any) -> Any:
+    return np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+
+
+def load_policy(spec: str, env_id: str) -> Policy:
+    """Resolve a `--policy` value; user modules must already be importable (see `--import`)."""
+    if spec == "random":
+        return _random
+    if spec == "zero":
+        return _zero
+    if spec == "scripted":
+        from simreel.tasks.policies import DEFAULT_POLICIES
+
+        if env_id not in DEFAULT_POLICIES:
+            have = ", ".join(sorted(DEFAULT_POLICIES))
+            raise UsageError(f"no scripted policy ships for {env_id}; tasks with one: {have}")
+        return DEFAULT_POLICIES[env_id]
+    module_name, sep, attr = spec.partition(":")
+    if not sep or not module_name or not attr:
+        raise UsageError(f"bad --policy {spec!r}: expected {POLICY_HELP}")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as e:
+        raise UsageError(f"--policy {spec}: cannot import {module_name} ({e})") from None
+    policy = getattr(module, attr, None)
+    if not callable(policy):
+        raise UsageError(f"--policy {spec}: {module_name} has no callable {attr!r}")
+    return policy

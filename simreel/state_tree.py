@@ -1,0 +1,77 @@
+"""Nested state dicts ⇄ flat `"a/b/c"` key paths, and the layout (shape, dtype) of each leaf.
+
+ManiSkill's `get_state_dict()` is nested (`actors/cube`, `articulations/panda`, `controller/arm/...`,
+custom task keys). simreel keeps that nesting as key paths everywhere, so every format and report can
+name the exact leaf ("env_states/actors/cube"), and can rebuild the nested dict for `set_state_dict`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["LeafSpec", "flatten", "unflatten", "to_numpy", "layout_of", "SEP"]
+
+SEP = "/"
+
+
+@dataclass(frozen=True)
+class LeafSpec:
+    """Shape (per env, without the batch dimension) and numpy dtype name of one state leaf."""
+
+    shape: tuple[int, ...]
+    dtype: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"shape": list(self.shape), "dtype": self.dtype}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> LeafSpec:
+        return cls(tuple(int(x) for x in d["shape"]), str(d["dtype"]))
+
+
+def to_numpy(x: Any) -> np.ndarray:
+    """A numpy copy-free view of a numpy array, torch tensor (any device) or scalar."""
+    if isinstance(x, np.ndarray):
+        return x
+    if hasattr(x, "detach"):  # torch.Tensor, without importing torch
+        return x.detach().cpu().numpy()
+    return np.asarray(x)
+
+
+def _walk(tree: Mapping[str, Any], prefix: str) -> Iterator[tuple[str, Any]]:
+    for key, value in tree.items():
+        if SEP in key:
+            raise ValueError(f"state key {key!r} contains {SEP!r}; key paths could not be split back")
+        path = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            yield from _walk(value, path + SEP)
+        else:
+            yield path, value
+
+
+def flatten(tree: Mapping[str, Any], *, prefix: str = "") -> dict[str, np.ndarray]:
+    """Flatten a nested dict of arrays/tensors into `{key_path: np.ndarray}` in insertion order."""
+    return {path: to_numpy(value) for path, value in _walk(tree, prefix)}
+
+
+def unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
+    """Inverse of `flatten`: `{"a/b": x}` → `{"a": {"b": x}}`."""
+    tree: dict[str, Any] = {}
+    for path, value in flat.items():
+        node = tree
+        *parents, leaf = path.split(SEP)
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    return tree
+
+
+def layout_of(flat: Mapping[str, np.ndarray], *, batched: bool) -> dict[str, LeafSpec]:
+    """Per-env layout of flat leaves; `batched` drops the leading num_envs dimension."""
+    return {
+        path: LeafSpec(tuple(a.shape[1:] if batched else a.shape), a.dtype.name) for path, a in flat.items()
+    }
