@@ -11,6 +11,7 @@ each. Importing this package imports mani_skill.
 
 from __future__ import annotations
 
+from simreel.tasks.hetero_drawer import HeteroDrawerEnv
 from simreel.tasks.hetero_pick import HeteroPickEnv
 from simreel.tasks.lift_cube import LiftCubeEnv, LiftCubeLeakyEnv
 
@@ -18,7 +19,8 @@ TASK_IDS = (
     "SimreelLiftCube-v1",
     "SimreelLiftCubeLeaky-v1",
     "SimreelHeteroPick-v1",
+    "SimreelHeteroDrawer-v1",
 )
 """Every env id this package registers."""
 
-__all__ = ["TASK_IDS", "HeteroPickEnv", "LiftCubeEnv", "LiftCubeLeakyEnv"]
+__all__ = ["TASK_IDS", "HeteroDrawerEnv", "HeteroPickEnv", "LiftCubeEnv", "LiftCubeLeakyEnv"]
