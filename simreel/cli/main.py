@@ -15,7 +15,7 @@ from simreel.errors import SimreelError
 
 __all__ = ["main", "COMMANDS"]
 
-COMMANDS = ("record", "inspect", "replay", "audit", "convert", "view")
+COMMANDS = ("record", "inspect", "replay", "audit", "convert", "recover", "view")
 """Subcommand modules under simreel.cli; each has `add_parser(subparsers)` and `run(args) -> int`."""
 
 

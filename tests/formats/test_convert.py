@@ -1,0 +1,83 @@
+"""`simreel convert`: HDF5 ⇄ MCAP through the CLI, bit-exact, and one-line errors for bad arguments."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+from simreel.cli.main import main
+from simreel.formats import open_reader
+
+
+def _load_samples():
+    spec = importlib.util.spec_from_file_location("mcap_samples", Path(__file__).with_name("mcap_samples.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+_samples = _load_samples()
+synthetic_meta, synthetic_episode = _samples.synthetic_meta, _samples.synthetic_episode
+assert_same_episode, write = _samples.assert_same_episode, _samples.write
+
+
+def _source(tmp_path: Path, suffix: str, *, poses: bool = True) -> tuple[Path, list]:
+    meta = synthetic_meta(poses=poses)
+    episodes = [synthetic_episode(meta, i, T) for i, T in enumerate((4, 70, 1))]
+    return write(tmp_path / f"src{suffix}", meta, episodes), episodes
+
+
+@pytest.mark.parametrize(("first", "second"), [(".h5", ".mcap"), (".mcap", ".h5"), (".mcap", ".mcap"), (".h5", ".h5")])
+def test_convert_both_ways_is_bit_exact(tmp_path, capsys, first, second):
+    src, episodes = _source(tmp_path, first)
+    mid, out = tmp_path / f"mid{second}", tmp_path / f"out{first}"
+    assert main(["convert", str(src), str(mid), "-q"]) == 0
+    assert main(["convert", str(mid), str(out), "-q"]) == 0
+    printed = capsys.readouterr().out
+    assert f"converted 3 episode(s), 75 steps, {src} → {mid}" in printed
+    for path in (mid, out):
+        with open_reader(path) as r:
+            assert r.meta.to_json() == synthetic_meta().to_json()
+            for want in episodes:
+                assert_same_episode(r.read_episode(want.meta.index), want)
+
+
+def test_convert_without_poses_notes_what_tf_shows(tmp_path, capsys):
+    src, _ = _source(tmp_path, ".h5", poses=False)
+    assert main(["convert", str(src), str(tmp_path / "out.mcap"), "-q"]) == 0
+    assert "shows the actors and articulation roots of the state dict only" in capsys.readouterr().out
+
+
+def test_progress_bar_counts_episodes(tmp_path, capsys):
+    src, _ = _source(tmp_path, ".h5")
+    assert main(["convert", str(src), str(tmp_path / "out.mcap")]) == 0
+    assert "3/3" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["{src}", "{tmp}/out.txt"], "unknown recording suffix '.txt'"),
+        (["{tmp}/missing.h5", "{tmp}/out.mcap"], "missing.h5: no such file"),
+        (["{src}", "{src}"], "IN and OUT are the same file"),
+        (["{src}", "{tmp}/exists.mcap"], "exists.mcap already exists; pass --overwrite to replace it"),
+    ],
+)
+def test_bad_arguments_are_one_line_and_exit_2(tmp_path, capsys, args, message):
+    src, _ = _source(tmp_path, ".h5")
+    (tmp_path / "exists.mcap").write_bytes(b"keep me")
+    argv = [a.format(src=src, tmp=tmp_path) for a in args]
+    assert main(["convert", *argv, "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("simreel convert: error: ") and message in err, err
+    assert (tmp_path / "exists.mcap").read_bytes() == b"keep me"
+
+
+def test_overwrite_replaces_output(tmp_path):
+    src, episodes = _source(tmp_path, ".h5")
+    (tmp_path / "out.mcap").write_bytes(b"old")
+    assert main(["convert", str(src), str(tmp_path / "out.mcap"), "--overwrite", "-q"]) == 0
+    with open_reader(tmp_path / "out.mcap") as r:
+        assert len(r) == len(episodes)
