@@ -12,8 +12,9 @@ from simreel.state_tree import LeafSpec, flatten, layout_of
 
 __all__ = ["recording_meta", "max_episode_steps_of", "MAKE_KWARGS_IN_META", "flatten_obs"]
 
-MAKE_KWARGS_IN_META = ("obs_mode", "control_mode", "reward_mode", "sim_backend", "render_backend", "num_envs")
-"""gym.make kwargs that RecordingMeta keeps as fields; the rest go to `env_kwargs`."""
+MAKE_KWARGS_IN_META = ("obs_mode", "control_mode", "reward_mode", "sim_backend", "render_backend", "num_envs",
+                       "sim_config", "max_episode_steps")
+"""gym.make kwargs that RecordingMeta keeps as fields of their own; the rest go to `env_kwargs`."""
 
 
 def max_episode_steps_of(env: Any) -> int | None:

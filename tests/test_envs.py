@@ -1,0 +1,289 @@
+"""simreel.envs: building real ManiSkill envs with lavapipe and with no render device at all.
+
+Vulkan must be configured before sapien loads, so each render mode runs in its own subprocess; the
+no-device subprocess builds every env once and the tests below read its JSON answer.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from simreel.envs import camera_use, env_versions, import_user_code
+from simreel.errors import EnvBuildError
+
+STATE_ONLY_TASKS = ["PickCube-v1", "StackCube-v1", "PegInsertionSide-v1", "RotateValveLevel0-v1"]
+
+NO_DEVICE_SCRIPT = textwrap.dedent(
+    """
+    import json, sys, warnings
+    from simreel import norender, render_device
+    from simreel.envs import import_user_code, make_env
+    from simreel.errors import SimreelError
+
+    def error(env_id, **kwargs):
+        try:
+            make_env(env_id, **kwargs)
+        except SimreelError as exc:
+            return [type(exc).__name__, str(exc)]
+        return None
+
+    out = {"backend": render_device.detect_render_backend(), "envs": {}}
+    user_module = import_user_code(sys.argv[1])
+    for env_id in sys.argv[2:]:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            env = make_env(env_id)
+        if env_id == sys.argv[2]:
+            out["version_warnings"] = [str(w.message) for w in caught if w.category is norender.NoRenderVersionWarning]
+        obs, _ = env.reset(seed=0)
+        before = env.unwrapped.get_state_dict()
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        after = env.unwrapped.get_state_dict()
+        out["envs"][env_id] = {
+            "obs_shape": list(obs.shape),
+            "render_backend": env.unwrapped.backend.render_backend,
+            "state": {f"{group}/{name}": list(v.shape) for group in after for name, v in after[group].items()},
+            "moved": any(not (after[g][n] == before[g][n]).all() for g in after for n in after[g]),
+        }
+        env.close()
+    out["norender_installed"] = norender.is_installed()
+    out["user_module_material"] = user_module.RenderMaterial.__name__
+    out["rgb"] = error("PickCube-v1", obs_mode="rgb")
+    out["render_mode"] = error("PickCube-v1", env_kwargs={"render_mode": "rgb_array"})
+    out["push_t"] = error("PushT-v1")
+    out["unknown"] = error("PickCub-v1")
+    out["bad_control_mode"] = error("PickCube-v1", control_mode="bogus")
+    out["bad_kwarg"] = error("PickCube-v1", env_kwargs={"bogus_kwarg": 1})
+    out["repeated_kwarg"] = error("PickCube-v1", env_kwargs={"obs_mode": "state"})
+    out["num_envs"] = error("PickCube-v1", num_envs=2)
+    print(json.dumps(out))
+    """
+)
+
+LAVAPIPE_SCRIPT = textwrap.dedent(
+    """
+    import json
+    from simreel import norender, render_device
+    from simreel.envs import make_env
+    env = make_env("PickCube-v1", obs_mode="rgb")
+    obs, _ = env.reset(seed=0)
+    rgb = obs["sensor_data"]["base_camera"]["rgb"]
+    print(json.dumps({
+        "backend": render_device.detect_render_backend(),
+        "render_backend": env.unwrapped.backend.render_backend,
+        "norender_installed": norender.is_installed(),
+        "shape": list(rgb.shape), "dtype": str(rgb.dtype),
+        "distinct_values": int(rgb.unique().numel()),
+    }))
+    """
+)
+
+
+CUSTOM_TASK = textwrap.dedent(
+    """
+    from mani_skill.envs.tasks.tabletop.pick_cube import PickCubeEnv
+    from mani_skill.utils.registration import register_env
+    from sapien.render import RenderMaterial  # bound before make_env: must be swapped too
+
+    @register_env("SimreelTestPickCube-v1", max_episode_steps=10)
+    class SimreelTestPickCube(PickCubeEnv):
+        pass
+    """
+)
+
+
+def _start(script: str, args: list[str], env: dict[str, str]) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-c", script, *args], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _answer(child: subprocess.Popen[str]) -> dict:
+    out, err = child.communicate(timeout=300)
+    assert child.returncode == 0, err[-3000:]
+    return json.loads(out.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def children(request, no_render_env, tmp_path_factory) -> Iterator[dict[str, subprocess.Popen[str] | str]]:
+    """Both render modes' subprocesses, started together so they overlap; a skip reason where one cannot run."""
+    task_file = tmp_path_factory.mktemp("user_code") / "my_tasks.py"
+    task_file.write_text(CUSTOM_TASK)
+    started: dict[str, subprocess.Popen[str] | str] = {
+        "no_device": _start(NO_DEVICE_SCRIPT, [str(task_file), *STATE_ONLY_TASKS, "SimreelTestPickCube-v1"],
+                            no_render_env),
+    }
+    try:
+        started["lavapipe"] = _start(LAVAPIPE_SCRIPT, [], request.getfixturevalue("lavapipe_env"))
+    except pytest.skip.Exception as skipped:
+        started["lavapipe"] = str(skipped)
+    yield started
+    for child in started.values():
+        if isinstance(child, subprocess.Popen) and child.poll() is None:
+            child.kill()
+            child.communicate()
+
+
+@pytest.fixture(scope="module")
+def no_device(children) -> dict:
+    return _answer(children["no_device"])
+
+
+def test_no_device_is_detected(no_device):
+    assert no_device["backend"] == "none"
+    assert no_device["norender_installed"] is True
+    assert no_device["version_warnings"] == []  # the pinned versions are installed
+
+
+def test_no_render_layer_swaps_names_bound_in_user_code(no_device):
+    assert no_device["user_module_material"] == "InertRenderMaterial"
+
+
+@pytest.mark.parametrize("env_id", [*STATE_ONLY_TASKS, "SimreelTestPickCube-v1"])
+def test_state_only_envs_reset_step_and_give_state(no_device, env_id):
+    built = no_device["envs"][env_id]
+    assert built["render_backend"] == "none"
+    assert built["obs_shape"][0] == 1 and len(built["obs_shape"]) == 2
+    assert built["moved"] is True
+    assert any(key.startswith("articulations/") for key in built["state"])
+    for key, shape in built["state"].items():
+        # actors: 13 floats; articulations: 13 + 2 * dof
+        assert shape[0] == 1 and (shape[1] == 13 or key.startswith("articulations/")), (key, shape)
+
+
+def test_peg_insertion_state_uses_merged_views(no_device):
+    state = no_device["envs"]["PegInsertionSide-v1"]["state"]
+    assert state["actors/peg"] == [1, 13] and state["actors/box_with_hole"] == [1, 13]
+    assert state["articulations/panda_wristcam"] == [1, 31]
+
+
+NO_DEVICE_HELP = (
+    "Run `make setup` to fetch the software Vulkan driver (lavapipe) or use a GPU machine; "
+    "or use obs_mode='state' and no render_mode."
+)
+
+
+@pytest.mark.parametrize(
+    ("case", "kind", "message"),
+    [
+        ("rgb", "RenderUnavailableError",
+         "PickCube-v1: obs_mode='rgb' needs camera images (rgb), but there is no render device "
+         f"(no Vulkan device SAPIEN can render with). {NO_DEVICE_HELP}"),
+        ("render_mode", "RenderUnavailableError",
+         "PickCube-v1: render_mode='rgb_array' renders images, but there is no render device "
+         f"(no Vulkan device SAPIEN can render with). {NO_DEVICE_HELP}"),
+        ("push_t", "RenderUnavailableError",
+         "PushT-v1 cannot be built without a render device: it un-textures the table by reading the render "
+         "shapes of its render body, which is never built without a render device. Run `make setup` to fetch "
+         "the software Vulkan driver (lavapipe), or use a machine with a GPU."),
+        ("unknown", "EnvBuildError",
+         "unknown ManiSkill env id 'PickCub-v1': did you mean PickCube-v1, PickCubeSO100-v1, PokeCube-v1? "
+         "(a custom task must be registered first: pass --import MODULE_OR_FILE.py)"),
+        ("repeated_kwarg", "EnvBuildError",
+         "PickCube-v1: env_kwargs repeats obs_mode; pass them as make_env keyword arguments instead"),
+        ("num_envs", "EnvBuildError",
+         "PickCube-v1: num_envs=2 needs the GPU sim (PhysX CUDA) and this machine has no CUDA device; use "
+         "num_envs=1 (CPU sim), or gymnasium's AsyncVectorEnv for several CPU envs"),
+    ],
+)
+def test_errors_without_a_device(no_device, case, kind, message):
+    assert no_device[case] == [kind, message]
+
+
+@pytest.mark.parametrize(
+    ("case", "original"),
+    [
+        ("bad_control_mode", "AssertionError: bogus not in supported modes: ['pd_joint_delta_pos',"),
+        ("bad_kwarg", "TypeError: BaseEnv.__init__() got an unexpected keyword argument 'bogus_kwarg'"),
+    ],
+)
+def test_bad_kwargs_keep_maniskills_message(no_device, case, original):
+    kind, message = no_device[case]
+    assert kind == "EnvBuildError"
+    assert message.startswith(f"PickCube-v1: could not build the env: {original}")
+    assert "\n" not in message
+
+
+def test_lavapipe_renders_camera_observations(children):
+    if isinstance(children["lavapipe"], str):
+        pytest.skip(children["lavapipe"])
+    out = _answer(children["lavapipe"])
+    assert out["backend"] == "cpu" and out["render_backend"] == "sapien_cpu"
+    assert out["norender_installed"] is False
+    assert out["shape"] == [1, 128, 128, 3] and out["dtype"] == "torch.uint8"
+    assert out["distinct_values"] > 10  # a real picture, not a blank frame
+
+
+def test_importing_simreel_envs_loads_no_simulator():
+    script = (
+        "import json, sys, simreel.envs, simreel.render_device, simreel.norender; "
+        "print(json.dumps([m for m in ('mani_skill', 'sapien', 'torch', 'gymnasium') if m in sys.modules]))"
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=True)
+    assert json.loads(done.stdout) == []
+
+
+@pytest.mark.parametrize(
+    ("obs_mode", "render_mode", "expected"),
+    [
+        ("state", None, None),
+        ("state_dict", None, None),
+        ("none", None, None),
+        ("rgb", None, "obs_mode='rgb' needs camera images (rgb)"),
+        ("rgb+depth+segmentation", None, "obs_mode='rgb+depth+segmentation' needs camera images "
+                                          "(depth, rgb, segmentation)"),
+        ("pointcloud", None, "obs_mode='pointcloud' needs camera images (pointcloud)"),
+        ("sensor_data", None, "obs_mode='sensor_data' needs camera images (sensor_data)"),
+        ("state", "rgb_array", "render_mode='rgb_array' renders images"),
+    ],
+)
+def test_camera_use(obs_mode, render_mode, expected):
+    assert camera_use(obs_mode, render_mode) == expected
+
+
+def test_env_versions_from_metadata():
+    versions = env_versions()
+    assert set(versions) == {"simreel", "mani_skill", "sapien", "torch", "numpy", "gymnasium", "python"}
+    assert versions["mani_skill"] == "3.0.1" and versions["sapien"] == "3.0.3"
+    assert versions["python"] == "{}.{}.{}".format(*sys.version_info[:3])
+
+
+def test_import_user_file(tmp_path: Path):
+    path = tmp_path / "simreel_test_user_policy.py"
+    path.write_text("VALUE = 42\n")
+    module = import_user_code(str(path))
+    assert module.VALUE == 42
+    assert import_user_code(str(path)) is module  # importing twice gives the same module
+    assert import_user_code("simreel_test_user_policy") is module  # its folder is now on sys.path
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda d: str(d / "missing.py"), "--import {d}/missing.py: file not found"),
+        (lambda d: _write(d / "broken.py", "def f(:\n"), "--import {d}/broken.py: SyntaxError: invalid syntax ("),
+        (lambda d: _write(d / "raises.py", "raise RuntimeError('no\\nway')\n"),
+         "--import {d}/raises.py: RuntimeError: no way"),
+        (lambda d: _write(d / "needs_dep.py", "import simreel_no_such_dependency\n"),
+         "--import {d}/needs_dep.py: ModuleNotFoundError: No module named 'simreel_no_such_dependency'"),
+        (lambda d: "simreel_no_such_module.sub",
+         "--import simreel_no_such_module.sub: no module named 'simreel_no_such_module' on sys.path; "
+         "pass a path ending in .py to import a file"),
+    ],
+)
+def test_import_user_code_errors(tmp_path: Path, make, message):
+    with pytest.raises(EnvBuildError) as caught:
+        import_user_code(make(tmp_path))
+    assert str(caught.value).startswith(message.format(d=tmp_path))
+    assert "\n" not in str(caught.value)
+
+
+def _write(path: Path, text: str) -> str:
+    path.write_text(text)
+    return str(path)
