@@ -15,6 +15,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from simreel.recorders.contacts import ContactSampler, contact_channels
+from simreel.recorders.fast_state import CpuStateReader
 from simreel.recorders.step_buffer import StepBuffer
 
 from simreel.body_poses import pose_body_names, sample_body_poses
@@ -87,6 +88,7 @@ class RecordWrapper(gym.Wrapper):
         self._record_obs = record_obs
         self._sampler = ContactSampler(contact_channels(u, contacts))
         self._sampler.bind(u)
+        self._state_reader = CpuStateReader()
         info_layout = layout_of(_scalar_info(u.get_info(), self._n), batched=True)
         obs_layout: dict[str, LeafSpec] = {}
         if record_obs:
@@ -124,7 +126,8 @@ class RecordWrapper(gym.Wrapper):
         obs, info = self.env.reset(seed=seed, options=options or None)
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
         self._sampler.bind(self._u)
-        state = self._state()
+        self._state_reader.bind(self._u)
+        state = flatten(self._u.get_state_dict())
         self._check_layout(state)
         obs_flat = flatten_obs(obs, self._u.obs_mode) if self._record_obs else {}
         poses = self._poses()
@@ -222,7 +225,7 @@ class RecordWrapper(gym.Wrapper):
         return sample_body_poses(self._u, names) if names else None
 
     def _state(self) -> dict[str, np.ndarray]:
-        return flatten(self._u.get_state_dict())
+        return self._state_reader.read()
 
     def _check_layout(self, state: dict[str, np.ndarray]) -> None:
         layout = layout_of(state, batched=True)

@@ -13,9 +13,11 @@ Layout (ManiSkill-compatible where ManiSkill has a convention)::
     <name>.json             ManiSkill's sidecar (env_info, episodes[]) for its own tools
 
 Crash safety: h5py leaves a file that is being written unreadable when the process dies. So a running
-episode streams into its own scratch file under `<name>.h5.partial/`, and the main file is opened only
-for the few milliseconds in which a finished episode is copied in (then closed). A killed recording
-therefore leaves every committed episode readable and loses only the episodes still running.
+episode stays in memory (up to 8 MiB) or streams into its own scratch file under `<name>.h5.partial/`,
+and the main file is opened only for the few milliseconds in which a finished episode is written in
+(then closed). A killed recording therefore leaves every committed episode readable and loses only the
+episodes still running. The JSON sidecar, which only ManiSkill's tools need, is rewritten at most once
+a second while recording and at close.
 """
 
 from __future__ import annotations
@@ -23,13 +25,14 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import Episode, EpisodeMeta, RecordingMeta, json_default
+from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta, json_default
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats.base import EpisodeReader, EpisodeSink, EpisodeWriter, StepBlock
 
@@ -37,6 +40,12 @@ __all__ = ["Hdf5Writer", "Hdf5Reader", "HDF5_MAGIC", "sidecar_path", "partial_di
 
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 _CHUNK_BYTES = 1 << 20
+_CONTIGUOUS_MAX_BYTES = 256 << 10
+_SPILL_BYTES = 8 << 20
+"""A running episode is held in memory up to this size, then streamed to its scratch file."""
+_SIDECAR_PERIOD_S = 1.0
+"""The JSON sidecar is rewritten at most this often while recording (and always at close)."""
+_LOCK_WAIT_S = 30.0
 
 
 def sidecar_path(path: Path) -> Path:
@@ -72,7 +81,62 @@ def _append(group: Any, name: str, rows: np.ndarray, compression: str | None) ->
     ds[n:] = rows
 
 
+def _write_final(group: Any, name: str, data: Any, compression: str | None) -> None:
+    """Write a finished dataset laid out for its size: contiguous when small, chunked + compressed when large.
+
+    Contiguous datasets need no chunk index, which would otherwise be most of a short episode's bytes.
+    `data` is an array or an h5py dataset (copied in slices, so a large one never sits in memory whole).
+    """
+    nbytes = data.size * data.dtype.itemsize
+    if nbytes <= _CONTIGUOUS_MAX_BYTES or data.shape[0] == 0:
+        group.create_dataset(name, data=data[()])
+        return
+    shape = data.shape[1:]
+    rows = _chunk_rows(shape, data.dtype.itemsize)
+    out = group.create_dataset(name, shape=data.shape, dtype=data.dtype, chunks=(rows, *shape),
+                               compression=compression)
+    step = rows * 16
+    for start in range(0, data.shape[0], step):
+        out[start : start + step] = data[start : start + step]
+
+
+def _empty_step_fields(meta: RecordingMeta) -> dict[str, np.ndarray]:
+    """Every per-step dataset with zero rows: a zero-step episode still has them all."""
+    out = {
+        "actions": np.zeros((0, *meta.action_space.get("shape", [0])), np.float32),
+        "rewards": np.zeros(0, np.float32),
+        **{name: np.zeros(0, bool) for name in FLAG_FIELDS},
+        **{f"info/{k}": np.zeros((0, *spec.shape), spec.dtype) for k, spec in meta.info_layout.items()},
+    }
+    if meta.contact_channels:
+        out["contact_forces"] = np.zeros((0, len(meta.contact_channels), 3), np.float32)
+    return out
+
+
+def _block_fields(block: StepBlock) -> dict[str, np.ndarray]:
+    """A block's arrays keyed by their dataset path inside `traj_N`, in their stored dtypes."""
+    out = {
+        "actions": np.asarray(block.actions, dtype=np.float32),
+        "rewards": np.asarray(block.rewards, dtype=np.float32),
+        **{name: np.asarray(getattr(block, name), dtype=bool) for name in FLAG_FIELDS},
+    }
+    for group in ("env_states", "obs", "info"):
+        for p, a in getattr(block, group).items():
+            out[f"{group}/{p}"] = a
+    if block.contact_forces is not None:
+        out["contact_forces"] = np.asarray(block.contact_forces, dtype=np.float32)
+    if block.body_poses is not None:
+        out["body_poses"] = np.asarray(block.body_poses, dtype=np.float32)
+    return out
+
+
 class _Hdf5Sink(EpisodeSink):
+    """Holds an episode in memory up to `_SPILL_BYTES`, then streams it to a scratch file.
+
+    A short episode never touches the disk until its commit writes it into the main file in one go;
+    a long one streams to `<name>.h5.partial/traj_N.h5` so memory stays bounded.
+    """
+
     def __init__(
         self,
         writer: Hdf5Writer,
@@ -81,56 +145,71 @@ class _Hdf5Sink(EpisodeSink):
         initial_obs: dict[str, np.ndarray] | None,
         initial_poses: np.ndarray | None,
     ) -> None:
+        self._writer = writer
+        self._meta = meta
+        self._scratch_path = writer._partial / f"traj_{meta.index}.h5"
+        self._file: Any = None
+        self._pending: dict[str, list[np.ndarray]] = {}
+        self._pending_bytes = 0
+        first = {f"env_states/{p}": np.asarray(a)[None] for p, a in initial_state.items()}
+        first.update({f"obs/{p}": np.asarray(a)[None] for p, a in (initial_obs or {}).items()})
+        if initial_poses is not None:
+            first["body_poses"] = np.asarray(initial_poses, dtype=np.float32)[None]
+        self._hold(first)
+
+    def _hold(self, fields: dict[str, np.ndarray]) -> None:
+        for name, rows in fields.items():
+            self._pending.setdefault(name, []).append(np.array(rows, copy=True))
+            self._pending_bytes += rows.nbytes
+        if self._pending_bytes > _SPILL_BYTES:
+            self._spill()
+
+    def _spill(self) -> None:
         import h5py
 
-        self._writer = writer
-        self._scratch_path = writer._partial / f"traj_{meta.index}.h5"
-        self._file = h5py.File(self._scratch_path, "w")
-        self._traj = self._file.create_group("traj")
-        self._traj.attrs["simreel_episode"] = json.dumps(meta.to_json())
-        c = writer.compression
-        for p, a in initial_state.items():
-            _append(self._traj, f"env_states/{p}", np.asarray(a)[None], c)
-        for p, a in (initial_obs or {}).items():
-            _append(self._traj, f"obs/{p}", np.asarray(a)[None], c)
-        if initial_poses is not None:
-            _append(self._traj, "body_poses", np.asarray(initial_poses, dtype=np.float32)[None], c)
+        if self._file is None:
+            self._file = h5py.File(self._scratch_path, "w")
+        traj = self._file.require_group("traj")
+        for name, parts in self._pending.items():
+            _append(traj, name, np.concatenate(parts), self._writer.compression)
+        self._pending.clear()
+        self._pending_bytes = 0
 
     def append(self, block: StepBlock) -> None:
-        c, t = self._writer.compression, self._traj
-        _append(t, "actions", np.asarray(block.actions, dtype=np.float32), c)
-        _append(t, "rewards", np.asarray(block.rewards, dtype=np.float32), c)
-        for name in ("terminated", "truncated", "success", "fail"):
-            _append(t, name, np.asarray(getattr(block, name), dtype=bool), c)
-        for group in ("env_states", "obs", "info"):
-            for p, a in getattr(block, group).items():
-                _append(t, f"{group}/{p}", a, c)
-        if block.contact_forces is not None:
-            _append(t, "contact_forces", np.asarray(block.contact_forces, dtype=np.float32), c)
-        if block.body_poses is not None:
-            _append(t, "body_poses", np.asarray(block.body_poses, dtype=np.float32), c)
-
-    def _ensure_step_datasets(self) -> None:
-        """A zero-step episode still gets every per-step dataset, empty, with the right row shape."""
-        t, meta = self._traj, self._writer.meta
-        if "actions" in t:
-            return
-        t.create_dataset("actions", shape=(0, *meta.action_space.get("shape", [0])), dtype=np.float32)
-        t.create_dataset("rewards", shape=(0,), dtype=np.float32)
-        for name in ("terminated", "truncated", "success", "fail"):
-            t.create_dataset(name, shape=(0,), dtype=bool)
-        if meta.contact_channels:
-            t.create_dataset("contact_forces", shape=(0, len(meta.contact_channels), 3), dtype=np.float32)
+        self._hold(_block_fields(block))
 
     def commit(self, meta: EpisodeMeta) -> None:
-        self._ensure_step_datasets()
-        self._traj.attrs["simreel_episode"] = json.dumps(meta.to_json())
+        if self._file is None:
+            fields = {name: np.concatenate(parts) for name, parts in self._pending.items()}
+            for name, empty in _empty_step_fields(self._writer.meta).items():
+                fields.setdefault(name, empty)
+            self._writer._commit(meta, lambda group: [
+                _write_final(group, name, a, self._writer.compression) for name, a in fields.items()
+            ])
+            return
+        self._spill()
+        traj = self._file["traj"]
+        for name, empty in _empty_step_fields(self._writer.meta).items():
+            if name not in traj:
+                traj.create_dataset(name, data=empty)
         self._file.close()
-        self._writer._commit_scratch(self._scratch_path, meta)
+        import h5py
+
+        with h5py.File(self._scratch_path, "r") as src:
+            def copy(group: Any) -> None:
+                src["traj"].visititems(
+                    lambda name, obj: _write_final(group, name, obj, self._writer.compression)
+                    if isinstance(obj, h5py.Dataset) else None
+                )
+
+            self._writer._commit(meta, copy)
+        self._scratch_path.unlink()
 
     def discard(self) -> None:
-        self._file.close()
-        self._scratch_path.unlink(missing_ok=True)
+        self._pending.clear()
+        if self._file is not None:
+            self._file.close()
+            self._scratch_path.unlink(missing_ok=True)
 
 
 class Hdf5Writer(EpisodeWriter):
@@ -150,6 +229,7 @@ class Hdf5Writer(EpisodeWriter):
         self.compression = compression
         self._partial = partial_dir(self.path)
         self._committed: list[EpisodeMeta] = []
+        self._sidecar_written = 0.0
         if not self.path.parent.is_dir():
             raise UsageError(f"cannot write {self.path}: folder {self.path.parent} does not exist")
         if self.path.exists() and not overwrite:
@@ -175,14 +255,28 @@ class Hdf5Writer(EpisodeWriter):
     ) -> EpisodeSink:
         return _Hdf5Sink(self, meta, initial_state, initial_obs, initial_poses)
 
-    def _commit_scratch(self, scratch_path: Path, meta: EpisodeMeta) -> None:
+    def _commit(self, meta: EpisodeMeta, fill: Any) -> None:
+        """Create `traj_<index>` in the main file, let `fill(group)` write its datasets, close the file."""
+        with self._open_main() as dst:
+            group = dst.create_group(f"traj_{meta.index}")
+            fill(group)
+            group.attrs["simreel_episode"] = json.dumps(meta.to_json())
+        self._committed.append(meta)
+        if time.monotonic() - self._sidecar_written >= _SIDECAR_PERIOD_S:
+            self._write_sidecar()
+
+    def _open_main(self) -> Any:
+        """The main file for appending; waits while a reader that locks files (HDF5's default) has it open."""
         import h5py
 
-        with h5py.File(scratch_path, "r") as src, h5py.File(self.path, "a") as dst:
-            src.copy(src["traj"], dst, name=f"traj_{meta.index}")
-        scratch_path.unlink()
-        self._committed.append(meta)
-        self._write_sidecar()
+        deadline = time.monotonic() + _LOCK_WAIT_S
+        while True:
+            try:
+                return h5py.File(self.path, "a")
+            except (BlockingIOError, OSError) as e:
+                if "lock" not in str(e).lower() or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.05)
 
     def _write_sidecar(self) -> None:
         m = self.meta
@@ -218,8 +312,10 @@ class Hdf5Writer(EpisodeWriter):
         tmp = side.with_name(side.name + ".tmp")
         tmp.write_text(json.dumps(doc, indent=2, default=json_default))
         os.replace(tmp, side)
+        self._sidecar_written = time.monotonic()
 
     def close(self) -> None:
+        self._write_sidecar()
         if self._partial.is_dir() and not any(self._partial.iterdir()):
             self._partial.rmdir()
 
@@ -251,14 +347,15 @@ class Hdf5Reader(EpisodeReader):
             if fh.read(8) != HDF5_MAGIC:
                 raise RecordingFileError(self.path, "not an HDF5 file")
         try:
-            self._file = h5py.File(self.path, "r")
+            # No file lock: a reader must never make a running recorder fail to commit.
+            self._file = h5py.File(self.path, "r", locking=False)
         except OSError as e:
             raise RecordingFileError(self.path, f"truncated or corrupt HDF5 file ({e})") from None
         attrs = self._file.attrs
         if "simreel_meta" not in attrs:
             self._file.close()
             raise RecordingFileError(
-                self.path, "an HDF5 file without simreel metadata (not recorded by simreel)"
+                self.path, "an HDF5 file without simreel metadata (not a simreel recording)"
             )
         version = int(attrs.get("simreel_format_version", 0))
         if version > FORMAT_VERSION:

@@ -1,0 +1,168 @@
+"""HDF5 format: round trips, kill -9 safety, and refusing files it cannot read."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from simreel import FORMAT_VERSION
+from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta
+from simreel.errors import RecordingFileError, UsageError
+from simreel.formats import open_reader, open_writer
+from simreel.formats.hdf5 import partial_dir, sidecar_path
+from simreel.state_tree import LeafSpec
+
+HERE = Path(__file__).parent
+
+
+def _meta() -> RecordingMeta:
+    return RecordingMeta(
+        env_id="PickCube-v1",
+        control_mode="pd_joint_delta_pos",
+        control_freq=20.0,
+        sim_freq=100.0,
+        action_space={"shape": [2], "dtype": "float32", "low": [-1, -1], "high": [1, 1]},
+        state_layout={"actors/cube": LeafSpec((13,), "float32"), "goal": LeafSpec((1,), "float64")},
+        info_layout={"is_grasped": LeafSpec((), "bool"), "elapsed_steps": LeafSpec((), "int32")},
+        contact_channels=[ContactChannel("net", ("cube",)), ContactChannel("pair", ("panda/finger", "cube"))],
+    )
+
+
+def _episode(index: int, T: int, rng: np.random.Generator) -> Episode:
+    return Episode(
+        meta=EpisodeMeta(index=index, seed=100 + index, reset_options={"reconfigure": True}, length=T, success=True),
+        actions=rng.standard_normal((T, 2)).astype(np.float32),
+        rewards=rng.standard_normal(T).astype(np.float32),
+        terminated=rng.random(T) > 0.5,
+        truncated=np.zeros(T, bool),
+        success=rng.random(T) > 0.5,
+        fail=np.zeros(T, bool),
+        env_states={
+            "actors/cube": rng.standard_normal((T + 1, 13)).astype(np.float32),
+            "goal": rng.standard_normal((T + 1, 1)),
+        },
+        info={"is_grasped": rng.random(T) > 0.5, "elapsed_steps": np.arange(1, T + 1, dtype=np.int32)},
+        contact_forces=rng.standard_normal((T, 2, 3)).astype(np.float32),
+    )
+
+
+def test_round_trip_is_bit_exact_and_keeps_dtypes(tmp_path):
+    rng = np.random.default_rng(0)
+    episodes = [_episode(i, T, rng) for i, T in enumerate((7, 300, 0))]
+    with open_writer(tmp_path / "r.h5", _meta()) as w:
+        for ep in episodes:
+            w.write_episode(ep)
+    with open_reader(tmp_path / "r.h5") as r:
+        assert r.meta == _meta().__class__.from_json(_meta().to_json())
+        assert [m.index for m in r.episodes] == [0, 1, 2]
+        for want in episodes:
+            got = r.read_episode(want.meta.index)
+            assert got.meta == want.meta
+            for name in ("actions", "rewards", "terminated", "truncated", "success", "fail", "contact_forces"):
+                np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+                assert getattr(got, name).dtype == getattr(want, name).dtype, name
+            for group in ("env_states", "info"):
+                assert getattr(got, group).keys() == getattr(want, group).keys()
+                for k, a in getattr(want, group).items():
+                    np.testing.assert_array_equal(getattr(got, group)[k], a)
+                    assert getattr(got, group)[k].dtype == a.dtype
+    assert not partial_dir(tmp_path / "r.h5").exists()
+
+
+def test_sidecar_is_maniskill_shaped(tmp_path):
+    rng = np.random.default_rng(1)
+    with open_writer(tmp_path / "r.h5", _meta()) as w:
+        w.write_episode(_episode(0, 5, rng))
+    side = json.loads(sidecar_path(tmp_path / "r.h5").read_text())
+    assert side["env_info"]["env_id"] == "PickCube-v1"
+    assert side["env_info"]["env_kwargs"]["control_mode"] == "pd_joint_delta_pos"
+    ep = side["episodes"][0]
+    assert (ep["episode_id"], ep["episode_seed"], ep["elapsed_steps"]) == (0, 100, 5)
+    assert ep["reset_kwargs"] == {"seed": 100, "options": {"reconfigure": True}}
+
+
+def test_existing_file_is_not_overwritten_unless_asked(tmp_path):
+    path = tmp_path / "r.h5"
+    with open_writer(path, _meta()) as w:
+        w.write_episode(_episode(0, 3, np.random.default_rng(2)))
+    before = path.read_bytes()
+    with pytest.raises(UsageError, match="already exists; pass --overwrite"):
+        open_writer(path, _meta())
+    assert path.read_bytes() == before
+    with pytest.raises(UsageError, match="does not exist"):
+        open_writer(tmp_path / "missing" / "r.h5", _meta())
+
+
+@pytest.mark.parametrize(
+    "make_bad,problem",
+    [
+        (lambda p: None, "no such file"),
+        (lambda p: p.write_bytes(b""), "empty file"),
+        (lambda p: p.write_text("hello"), "neither an HDF5 nor an MCAP file"),
+        (lambda p: h5py.File(p, "w").close(), "an HDF5 file without simreel metadata (not a simreel recording)"),
+    ],
+    ids=["missing", "empty", "foreign-bytes", "foreign-hdf5"],
+)
+def test_unreadable_files_raise_one_clear_error(tmp_path, make_bad, problem):
+    path = tmp_path / "bad.h5"
+    make_bad(path)
+    with pytest.raises(RecordingFileError) as err:
+        open_reader(path)
+    assert str(err.value) == f"{path}: {problem}"
+
+
+def test_truncated_and_newer_files_are_refused(tmp_path):
+    path = tmp_path / "r.h5"
+    with open_writer(path, _meta()) as w:
+        w.write_episode(_episode(0, 50, np.random.default_rng(3)))
+    data = path.read_bytes()
+    cut = tmp_path / "cut.h5"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(RecordingFileError, match="truncated or corrupt HDF5 file"):
+        open_reader(cut)
+    with h5py.File(path, "a") as f:
+        f.attrs["simreel_format_version"] = FORMAT_VERSION + 1
+    with pytest.raises(RecordingFileError, match="newer than this simreel reads"):
+        open_reader(path)
+
+
+def test_kill_9_keeps_every_committed_episode(tmp_path):
+    """A real recording process killed mid-episode: every episode it committed is readable."""
+    path = tmp_path / "killed.h5"
+    child = subprocess.Popen([sys.executable, str(HERE / "record_until_killed.py"), str(path)],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    side = sidecar_path(path)
+    deadline = time.monotonic() + 120
+    committed = 0
+    try:
+        while committed < 3:
+            assert child.poll() is None, "recording child died on its own"
+            assert time.monotonic() < deadline, "child committed fewer than 3 episodes in 120 s"
+            time.sleep(0.05)
+            if side.exists():
+                committed = len(json.loads(side.read_text())["episodes"])
+        time.sleep(0.03)  # most likely in the middle of an episode now
+    finally:
+        os.kill(child.pid, signal.SIGKILL)
+        child.wait()
+    with open_reader(path) as r:
+        assert len(r) >= committed
+        assert [m.index for m in r.episodes] == list(range(len(r)))
+        for m in r.episodes:
+            ep = r.read_episode(m.index)
+            ep.check_shapes()
+            assert ep.length == 50 and ep.meta.seed == m.index
+            assert np.isfinite(ep.env_states["actors/cube"]).all()
+        assert len(r.unfinished) <= 1
+    out = subprocess.run([sys.executable, "-m", "simreel", "inspect", str(path)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert f"episodes: {len(r)}," in out.stdout
