@@ -14,11 +14,11 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from simreel.recorders.contacts import ContactSampler, contact_channels
 from simreel.recorders.fast_state import CpuStateReader
 from simreel.recorders.step_buffer import StepBuffer
 
 from simreel.body_poses import pose_body_names, sample_body_poses
+from simreel.contacts import ContactSampler, contact_channels
 from simreel.env_meta import flatten_obs, recording_meta
 from simreel.episode import FLAG_FIELDS, EpisodeMeta, json_default
 from simreel.errors import SimreelError, UsageError
