@@ -9,12 +9,12 @@ so memory does not grow with episode length; a finished episode is committed (du
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from simreel.recorders.fast_state import CpuStateReader
 from simreel.recorders.step_buffer import StepBuffer
 
 from simreel.body_poses import pose_body_names, sample_body_poses
@@ -22,6 +22,7 @@ from simreel.contacts import ContactSampler, contact_channels
 from simreel.env_meta import flatten_obs, recording_meta
 from simreel.episode import FLAG_FIELDS, EpisodeMeta, json_default
 from simreel.errors import SimreelError, UsageError
+from simreel.fast_state import FastStateReader
 from simreel.formats import StepBlock, open_writer
 from simreel.state_tree import LeafSpec, flatten, layout_of, to_numpy
 
@@ -88,7 +89,9 @@ class RecordWrapper(gym.Wrapper):
         self._record_obs = record_obs
         self._sampler = ContactSampler(contact_channels(u, contacts))
         self._sampler.bind(u)
-        self._state_reader = CpuStateReader()
+        self._fast: FastStateReader | None = None
+        self._fast_unchecked = False
+        self._fast_refuted = False
         info_layout = layout_of(_scalar_info(u.get_info(), self._n), batched=True)
         obs_layout: dict[str, LeafSpec] = {}
         if record_obs:
@@ -126,7 +129,9 @@ class RecordWrapper(gym.Wrapper):
         obs, info = self.env.reset(seed=seed, options=options or None)
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
         self._sampler.bind(self._u)
-        self._state_reader.bind(self._u)
+        if not self._fast_refuted:  # a reconfiguring reset builds new bodies: bind a new reader
+            self._fast = FastStateReader.for_env(self._u)
+            self._fast_unchecked = self._fast is not None
         state = flatten(self._u.get_state_dict())
         self._check_layout(state)
         obs_flat = flatten_obs(obs, self._u.obs_mode) if self._record_obs else {}
@@ -225,7 +230,21 @@ class RecordWrapper(gym.Wrapper):
         return sample_body_poses(self._u, names) if names else None
 
     def _state(self) -> dict[str, np.ndarray]:
-        return self._state_reader.read()
+        """The state dict after a step; through the fast CPU reader where it is proven equal.
+
+        The reader is checked bit for bit against `get_state_dict()` at the first step of every
+        episode (after reset most velocities are zero, a weaker check); any difference retires it.
+        """
+        if self._fast is None:
+            return flatten(self._u.get_state_dict())
+        if self._fast_unchecked:
+            self._fast_unchecked = False
+            if not self._fast.matches():
+                self._fast, self._fast_refuted = None, True
+                warnings.warn(f"simreel: the fast state reader disagrees with {self.meta.env_id}'s get_state_dict(); "
+                              "recording through get_state_dict() from now on", RuntimeWarning, stacklevel=3)
+                return flatten(self._u.get_state_dict())
+        return self._fast.read()
 
     def _check_layout(self, state: dict[str, np.ndarray]) -> None:
         layout = layout_of(state, batched=True)

@@ -84,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
     except BaseException:
         env.close()
         raise
+    rec.action_space.seed(args.seed)  # `--policy random` is then reproducible from --seed
     max_steps = args.max_steps or rec.meta.max_episode_steps or _DEFAULT_MAX_STEPS
     try:
         if rec.meta.num_envs == 1:

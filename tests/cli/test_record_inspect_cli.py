@@ -81,3 +81,12 @@ def test_existing_output_is_kept_without_overwrite(tmp_path):
     again = _simreel("record", "PushCube-v1", "-o", str(out), "--max-steps", "5", "-q")
     assert again.returncode == 2 and "already exists; pass --overwrite" in again.stderr
     assert out.read_bytes() == before
+
+
+def test_random_policy_is_reproducible_from_the_seed(tmp_path, capsys):
+    from simreel.formats import open_reader
+
+    for name in ("a.h5", "b.h5"):
+        assert main(["record", "PushCube-v1", "-o", str(tmp_path / name), "--seed", "4", "--max-steps", "6", "-q"]) == 0
+    with open_reader(tmp_path / "a.h5") as a, open_reader(tmp_path / "b.h5") as b:
+        assert (a.read_episode(0).actions == b.read_episode(0).actions).all()

@@ -41,7 +41,7 @@ def test_recording_reads_back_what_the_env_reported(tmp_path, env_id, kwargs):
     rng = np.random.default_rng(0)
     truth = [_run(env, 12, seed, rng) for seed in (5, 6)]
     # Stock tasks on the CPU sim are read by the fast path; this test proves it exact at every step.
-    assert env._state_reader.enabled
+    assert env._fast is not None
     env.close()
 
     with open_reader(path) as r:
@@ -151,17 +151,18 @@ def test_observations_and_poses_when_asked(tmp_path):
     assert "panda/panda_hand" in bodies
 
 
-def test_fast_state_reader_steps_aside_for_custom_state(tmp_path):
-    """A task that customises get_state_dict is read through get_state_dict itself."""
-    import simreel.tasks  # noqa: F401 - registers SimreelLiftCube-v1
-
+def test_declared_custom_state_is_recorded_through_the_fast_reader(tmp_path):
+    """A task with CustomStateMixin state is read fast too, and its custom key is recorded exactly."""
     env = RecordWrapper(make_env("SimreelLiftCube-v1"), tmp_path / "c.h5")
     env.reset(seed=0)
-    env.step(np.zeros(env.action_space.shape, np.float32))
-    assert not env._state_reader.enabled
+    heights = [float(env.unwrapped.goal_height[0])]
+    for _ in range(3):
+        env.step(np.zeros(env.action_space.shape, np.float32))
+        heights.append(float(env.unwrapped.goal_height[0]))
+    assert env._fast is not None
     env.close()
     with open_reader(tmp_path / "c.h5") as r:
-        assert "goal_height" in r.read_episode(0).env_states
+        np.testing.assert_array_equal(r.read_episode(0).env_states["goal_height"], np.float32(heights))
 
 
 def test_state_layout_change_is_refused(tmp_path):

@@ -1,0 +1,138 @@
+"""Replay-with-verification throughput: `simreel replay` against ManiSkill's `replay_trajectory`, same recording.
+
+Both run in this one process, alternately, ``--rounds`` times each (the machine may be shared: the best
+round of each is compared, the median is printed too). ManiSkill's tool steps the recorded actions and
+judges the final ``success`` only; simreel rebuilds the env the same way, reproduces each reset, steps the
+actions and compares every state-dict leaf, reward, flag, info entry and contact force at every step.
+
+    .venv/bin/python benchmarks/bench_replay.py                      # records PickCube-v1, 20 x 50 steps
+    .venv/bin/python benchmarks/bench_replay.py --recording x.h5 --rounds 7
+    .venv/bin/python benchmarks/bench_replay.py --save-traj          # ManiSkill also writes its replayed file
+
+ManiSkill's tool builds its env with ``render_mode="rgb_array"``, which needs a Vulkan device; simreel finds
+the software one (lavapipe, `make setup`) itself. Without any device the benchmark installs simreel's
+no-render layer (`simreel.norender`) for ManiSkill too: it changes how scenes are built, not the per-step work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+
+def _record(path: Path, env_id: str, episodes: int, steps: int) -> None:
+    from simreel.cli.main import main
+
+    code = main(["record", env_id, "-o", str(path), "-n", str(episodes), "--max-steps", str(steps),
+                 "--render-backend", "none", "--seed", "0", "-q", "--overwrite"])
+    if code != 0:
+        raise SystemExit(f"recording failed ({code})")
+
+
+def _quiet() -> contextlib.ExitStack:
+    stack = contextlib.ExitStack()
+    stack.enter_context(contextlib.redirect_stdout(io.StringIO()))
+    stack.enter_context(contextlib.redirect_stderr(io.StringIO()))
+    return stack
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--recording", default=None, help="a simreel .h5 recording (default: record one)")
+    p.add_argument("--env-id", default="PickCube-v1")
+    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--steps", type=int, default=50)
+    p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("--save-traj", action="store_true", help="ManiSkill also writes its replayed trajectory")
+    args = p.parse_args()
+
+    from simreel.render_device import configure_vulkan
+
+    configure_vulkan()  # before sapien loads: lets ManiSkill's tool find lavapipe where there is no GPU
+    warnings.filterwarnings("ignore")
+    tmp = Path(tempfile.mkdtemp(prefix="bench_replay_"))
+    try:
+        if args.recording:
+            src = Path(args.recording)
+            rec = tmp / src.name
+            shutil.copy(src, rec)
+            shutil.copy(src.with_suffix(".json"), rec.with_suffix(".json"))
+        else:
+            rec = tmp / f"{args.env_id}.h5"
+            _record(rec, args.env_id, args.episodes, args.steps)
+
+        import sapien
+        from mani_skill.trajectory import replay_trajectory as ms_replay
+
+        try:
+            sapien.render.get_device_summary()
+        except Exception:  # noqa: BLE001 - no Vulkan device at all
+            from simreel import norender
+
+            norender.install()
+            print("no render device: ManiSkill's tool runs with simreel.norender installed")
+
+        from simreel.replay.verify import verify_recording
+
+        from simreel.formats import open_reader
+
+        with open_reader(rec) as r:
+            steps = sum(m.length for m in r.episodes)
+            n_eps = len(r.episodes)
+            env_id = r.meta.env_id
+        ms_args = ["--traj-path", str(rec), "--allow-failure"] + (["--save-traj"] if args.save_traj else [])
+
+        def timed(fn: Any) -> tuple[float, float]:
+            wall, cpu = time.perf_counter(), time.process_time()
+            fn()
+            return time.perf_counter() - wall, time.process_time() - cpu
+
+        def run_maniskill() -> None:
+            with _quiet():
+                ms_replay.main(ms_replay.parse_args(ms_args))
+
+        report_ok = []
+
+        def run_simreel() -> None:
+            report = verify_recording(rec)
+            report_ok.append(report.ok and all(e.verdict == "exact" for e in report.episodes))
+
+        run_maniskill(), run_simreel()  # warm-up: first env build, file cache
+        wall: dict[str, list[float]] = {"maniskill": [], "simreel": []}
+        cpu: dict[str, list[float]] = {"maniskill": [], "simreel": []}
+        for _ in range(args.rounds):
+            for name, fn in (("maniskill", run_maniskill), ("simreel", run_simreel)):
+                w, c = timed(fn)
+                wall[name].append(w)
+                cpu[name].append(c)
+
+        print(f"recording: {env_id}, {n_eps} episodes, {steps} steps (CPU sim, state obs); {args.rounds} rounds each")
+        for name, label in (("maniskill", "ManiSkill replay_trajectory" + (" --save-traj" if args.save_traj else "")),
+                            ("simreel", "simreel replay (verifies every step)")):
+            best, med = min(wall[name]), statistics.median(wall[name])
+            print(f"  {label:<42} wall best {best:6.3f} s = {steps / best:5.0f} steps/s, median {med:6.3f} s;"
+                  f" CPU best {min(cpu[name]):6.3f} s")
+        ratios = {
+            "wall, best rounds": min(wall["maniskill"]) / min(wall["simreel"]),
+            "wall, medians": statistics.median(wall["maniskill"]) / statistics.median(wall["simreel"]),
+            "CPU time, best rounds": min(cpu["maniskill"]) / min(cpu["simreel"]),
+        }
+        print("throughput ratio simreel / ManiSkill: " + ", ".join(f"{v:.2f} ({k})" for k, v in ratios.items())
+              + "   [target >= 1.0]")
+        print(f"simreel verdicts: {'every episode exact' if all(report_ok) else 'NOT all exact'}")
+        return 0
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,410 @@
+"""The replay engine: rebuild a recording's env once, reproduce each episode's reset, drive it in one mode.
+
+Modes (see `MODES`):
+
+- ``actions``: reproduce the reset (seed, options, scene), then step the recorded actions. With
+  ``resync=K`` the recorded state is restored before every K-th action, so one divergence does not
+  poison the rest of a long episode.
+- ``states``: restore the recorded state at every step and recompute what depends on it (observations,
+  reward, ``evaluate()`` info, flags). Contact-dependent values (``is_grasped``) and contact forces come
+  from one step simulated from the restored previous state, as ManiSkill's own state replay does.
+- ``step``: for each t, restore state t, step action t, compare with recorded state t+1: the one-step
+  error, the purest measure of what the state dict misses.
+
+Reproducing a reset (``EpisodeMeta``): an episode whose reset rebuilt the scene (``reconfigured``) is
+reset with ``reconfigure=True`` and its own seed. Otherwise the scene it ran in was built by the reset
+with seed ``scene_seed`` (None: the scene ``gym.make`` built, i.e. seed 2022 + sub-scene index); if the
+replay env's scene came from another seed it is rebuilt first with ``reset(seed=scene_seed,
+options={"reconfigure": True})``, then the episode is reset with its seed and options, with ManiSkill's
+periodic reconfiguration held off (the recorded reset did not reconfigure).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from simreel.replay.restore import restore_state, state_row
+
+from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta
+from simreel.errors import RenderUnavailableError, SimreelError
+from simreel.fast_state import FastStateReader
+from simreel.state_tree import flatten, layout_of, to_numpy
+
+__all__ = ["MODES", "EpisodeReplayer", "ReplayedEpisode", "ReplayError", "GYM_MAKE_SEED"]
+
+MODES = ("actions", "states", "step")
+GYM_MAKE_SEED = 2022
+"""ManiSkill 3.0.1's `gym.make` builds the scene with `reset(seed=[2022 + i for i in range(num_envs)])`."""
+
+
+class ReplayError(SimreelError):
+    """A recording cannot be replayed here: its state layout does not match the rebuilt env, a bad mode, ..."""
+
+
+@dataclass
+class ReplayedEpisode:
+    """What one replay produced: the replayed arrays (same layout as the recording) and notes on how."""
+
+    episode: Episode
+    notes: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+    compare_contacts: bool = True
+
+
+def _scalar(x: Any) -> Any:
+    """The one value of env 0 in a scalar, (1,) tensor or array (`.item()` is the cheap way for tensors)."""
+    if isinstance(x, (bool, int, float)):
+        return x
+    try:
+        return x.item()
+    except (AttributeError, ValueError, RuntimeError):
+        return to_numpy(x).reshape(-1)[0]
+
+
+def _flag(info: dict[str, Any], key: str) -> bool:
+    return bool(_scalar(info[key])) if key in info else False
+
+
+class EpisodeReplayer:
+    """One env rebuilt from `meta` (num_envs=1), replaying that recording's episodes one at a time.
+
+    Args:
+        meta: the recording's metadata.
+        obs_mode: observation mode of the replay (None: the recorded one when observations are needed,
+            else ``"none"``, which skips computing observations; the physics is the same).
+        need_obs: compute and return observations (for comparing recorded ones or writing ``-o``).
+        pose_bodies: also sample the world pose of these bodies after reset and every step (for ``-o``).
+        render_backend: None: ``"none"`` unless the observation mode needs cameras, then ``"auto"``.
+        sim_backend: None: the recorded one.
+    """
+
+    def __init__(
+        self,
+        meta: RecordingMeta,
+        *,
+        obs_mode: str | None = None,
+        need_obs: bool = False,
+        pose_bodies: list[str] | None = None,
+        render_backend: str | None = None,
+        sim_backend: str | None = None,
+    ) -> None:
+        self.meta = meta
+        self.need_obs = need_obs or obs_mode is not None
+        self.pose_bodies = list(pose_bodies or [])
+        self.obs_mode = obs_mode or (meta.obs_mode if self.need_obs else "none")
+        self._render_backend = render_backend
+        self._sim_backend = sim_backend
+        self.env: Any = None
+        self._build()
+
+    # ------------------------------------------------------------------ env
+    def _build(self) -> None:
+        from simreel.envs import camera_use
+        from simreel.rebuild import env_from_meta
+
+        # render_mode only matters to env.render() (videos), which a replay never calls
+        env_kwargs = {k: v for k, v in self.meta.env_kwargs.items() if k != "render_mode"}
+        render = self._render_backend
+        if render is None:
+            render = "none" if camera_use(self.obs_mode) is None else "auto"
+        overrides: dict[str, Any] = {"num_envs": 1, "obs_mode": self.obs_mode, "render_backend": render,
+                                     "env_kwargs": env_kwargs}
+        if self._sim_backend is not None:
+            overrides["sim_backend"] = self._sim_backend
+        try:
+            self.env = env_from_meta(self.meta, **overrides)
+        except RenderUnavailableError:
+            if self._render_backend is not None or render != "none":
+                raise
+            overrides["render_backend"] = "auto"  # a task that needs a render device even state-only (PushT)
+            self.env = env_from_meta(self.meta, **overrides)
+        self.u = self.env.unwrapped
+        self._scene_seed: int | None = GYM_MAKE_SEED
+        self._layout_checked = False
+        self._fast: FastStateReader | None = None
+        self._fast_scene = -1
+        self._scene_builds = 0
+        self._fast_allowed = True
+        self._contacts = None
+        if self.meta.contact_channels:
+            from simreel.contacts import ContactSampler
+
+            self._contacts = ContactSampler(list(self.meta.contact_channels))
+        from simreel.env_meta import max_episode_steps_of
+
+        self.max_episode_steps = max_episode_steps_of(self.env)
+
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
+            self.env = None
+
+    def __enter__(self) -> EpisodeReplayer:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ reset
+    def reset_for(self, ep: EpisodeMeta) -> list[str]:
+        """Reset the env the way episode `ep` was reset (scene, seed, options); returns notes on what was done."""
+        notes: list[str] = []
+        u = self.u
+        options = {k: v for k, v in (ep.reset_options or {}).items() if k not in ("env_idx", "reconfigure")}
+        if ep.reconfigured:
+            self.env.reset(seed=ep.seed, options={**options, "reconfigure": True})
+            self._scene_seed = ep.seed
+            self._scene_builds += 1
+        else:
+            wanted = ep.scene_seed if ep.scene_seed is not None else GYM_MAKE_SEED + int(ep.env_idx)
+            if wanted != self._scene_seed:
+                self.env.reset(seed=wanted, options={"reconfigure": True})
+                self._scene_seed = wanted
+                self._scene_builds += 1
+                notes.append(f"rebuilt the scene with seed {wanted}")
+            if getattr(u, "reconfiguration_freq", 0) and getattr(u, "_reconfig_counter", 1) == 0:
+                u._reconfig_counter = 1  # the recorded reset did not reconfigure; hold ManiSkill's periodic one off
+            _, info = self.env.reset(seed=ep.seed, options=options or None)
+            if bool(to_numpy(info.get("reconfigure", False)).any()):
+                self._scene_seed = ep.seed
+                self._scene_builds += 1
+                notes.append("the reset reconfigured the scene, the recorded one did not")
+        if ep.seed is None:
+            notes.append("the episode has no seed: its reset cannot be reproduced")
+        if self._fast_allowed:
+            if self._fast is None or self._fast_scene != self._scene_builds:  # a rebuilt scene has new bodies
+                self._fast = FastStateReader.for_env(u)
+                self._fast_scene = self._scene_builds
+            # checked bit for bit against get_state_dict() at every episode start (~0.3 ms)
+            if self._fast is not None and not self._fast.matches():
+                self._fast = None
+                self._fast_allowed = False  # this task's state needs get_state_dict(); stop trying
+        if self.pose_bodies:
+            from simreel.scene_info import named_bodies
+
+            missing = sorted(set(self.pose_bodies) - set(named_bodies(u)))
+            if missing:
+                notes.append(f"body poses not written: the rebuilt scene has no {', '.join(missing[:3])}")
+                self.pose_bodies = []
+        if self._contacts is not None:
+            try:
+                self._contacts.bind(u)
+            except KeyError as e:
+                notes.append(f"contacts not compared: the rebuilt scene has no body {e}")
+                self._contacts = None
+        return notes
+
+    # ------------------------------------------------------------------ replay
+    def replay(self, episode: Episode, *, mode: str = "actions", resync: int | None = None) -> ReplayedEpisode:
+        """Replay `episode` in `mode` and return the replayed arrays (compare them with `simreel.compare`)."""
+        if mode not in MODES:
+            raise ReplayError(f"unknown replay mode {mode!r}; expected one of {', '.join(MODES)}")
+        if resync is not None and (mode != "actions" or resync < 1):
+            raise ReplayError(f"resync={resync} needs mode 'actions' and K >= 1")
+        start = time.perf_counter()
+        try:
+            out = self._replay(episode, mode, resync)
+        except SimreelError:
+            raise
+        except Exception as exc:
+            if self.obs_mode != "none" or self.need_obs:
+                raise
+            # A task whose reward or evaluation reads observations cannot run with obs_mode="none": rebuild
+            # with the recorded observation mode and replay again (slower, same physics).
+            self.close()
+            self.obs_mode = self.meta.obs_mode
+            self._build()
+            out = self._replay(episode, mode, resync)
+            out.notes.insert(0, f"replayed with obs_mode={self.obs_mode!r}: the task failed without observations "
+                                f"({type(exc).__name__}: {exc})")
+        out.compare_contacts = self._contacts is not None
+        out.seconds = time.perf_counter() - start
+        return out
+
+    def _replay(self, episode: Episode, mode: str, resync: int | None) -> ReplayedEpisode:
+        notes = self.reset_for(episode.meta)
+        self._check_layout(episode)
+        run = {"actions": self._run_actions, "states": self._run_states, "step": self._run_step}[mode]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # ManiSkill warns on every out-of-bounds action; the recording had them too
+            out = run(episode, resync) if mode == "actions" else run(episode)
+        out.notes = notes + out.notes
+        return out
+
+    def _check_layout(self, episode: Episode) -> None:
+        if self._layout_checked:
+            return
+        have = layout_of(flatten(self.u.get_state_dict()), batched=True)
+        want = self.meta.state_layout or layout_of({p: a for p, a in episode.env_states.items()}, batched=True)
+        if have != want:
+            diffs = [
+                f"{k}: recorded {_shape(want.get(k))}, replay {_shape(have.get(k))}"
+                for k in sorted(set(want) | set(have))
+                if want.get(k) != have.get(k)
+            ]
+            raise ReplayError(
+                f"the rebuilt {self.meta.env_id} has another state layout than the recording ({'; '.join(diffs[:4])}); "
+                "replay with the task version (and --import) that recorded it"
+            )
+        self._layout_checked = True
+
+    # -- collection helpers
+    def _state(self) -> dict[str, np.ndarray]:
+        if self._fast is not None:
+            return self._fast.read()
+        return flatten(self.u.get_state_dict())
+
+    def _obs(self, obs: Any) -> dict[str, np.ndarray]:
+        from simreel.env_meta import flatten_obs
+
+        return {p: a[0] for p, a in flatten_obs(obs, self.obs_mode).items()}
+
+    def _new(self, episode: Episode) -> _Buffers:
+        return _Buffers(episode, self.meta, n_channels=len(self.meta.contact_channels) if self._contacts else 0,
+                        n_poses=len(self.pose_bodies))
+
+    def _after_step(self, buf: _Buffers, t: int, reward: Any, terminated: Any, truncated: Any, info: Any, obs: Any) -> None:
+        buf.rewards[t] = _scalar(reward)
+        buf.terminated[t] = _scalar(terminated)
+        buf.truncated[t] = _scalar(truncated)
+        buf.success[t] = _flag(info, "success")
+        buf.fail[t] = _flag(info, "fail")
+        for key, dst in buf.info.items():
+            value = info.get(key)
+            if value is not None:
+                dst[t] = _scalar(value)
+        if buf.contact_forces is not None:
+            buf.contact_forces[t] = self._contacts.sample()[0]
+        buf.set_state(t + 1, self._state())
+        if self.need_obs and obs is not None:
+            buf.set_obs(t + 1, self._obs(obs))
+        if buf.body_poses is not None:
+            buf.body_poses[t + 1] = self._poses()
+
+    def _poses(self) -> np.ndarray:
+        from simreel.body_poses import sample_body_poses
+
+        return sample_body_poses(self.u, self.pose_bodies)[0]
+
+    def _initial(self, buf: _Buffers) -> None:
+        buf.set_state(0, self._state())
+        if buf.body_poses is not None:
+            buf.body_poses[0] = self._poses()
+        if self.need_obs:
+            buf.set_obs(0, self._obs(self.u.get_obs()))
+
+    def _actions(self, episode: Episode) -> Any:
+        import torch
+
+        return torch.from_numpy(np.ascontiguousarray(episode.actions)).to(self.u.device)
+
+    def _step(self, action: Any) -> tuple[Any, Any, Any, Any, Any]:
+        """`unwrapped.step` plus the time limit (what ManiSkill's TimeLimitWrapper adds), without the wrapper stack."""
+        obs, reward, terminated, _, info = self.u.step(action)
+        limit = self.max_episode_steps
+        truncated = limit is not None and self.u._elapsed_steps[0].item() >= limit
+        return obs, reward, terminated, truncated, info
+
+    def _run_actions(self, episode: Episode, resync: int | None) -> ReplayedEpisode:
+        actions = self._actions(episode)
+        buf = self._new(episode)
+        self._initial(buf)
+        notes = []
+        for t in range(episode.length):
+            if resync and t and t % resync == 0:
+                restore_state(self.u, state_row(episode.env_states, t), elapsed_steps=t)
+            obs, reward, terminated, truncated, info = self._step(actions[t])
+            self._after_step(buf, t, reward, terminated, truncated, info, obs)
+        if resync:
+            notes.append(f"restored the recorded state every {resync} steps")
+        return ReplayedEpisode(buf.episode(), notes)
+
+    def _run_step(self, episode: Episode) -> ReplayedEpisode:
+        actions = self._actions(episode)
+        buf = self._new(episode)
+        self._initial(buf)
+        for t in range(episode.length):
+            restore_state(self.u, state_row(episode.env_states, t), elapsed_steps=t)
+            obs, reward, terminated, truncated, info = self._step(actions[t])
+            self._after_step(buf, t, reward, terminated, truncated, info, obs)
+        return ReplayedEpisode(buf.episode())
+
+    def _run_states(self, episode: Episode) -> ReplayedEpisode:
+
+        u = self.u
+        actions = self._actions(episode)
+        buf = self._new(episode)
+        restore_state(u, state_row(episode.env_states, 0), elapsed_steps=0)
+        self._initial(buf)
+        for t in range(episode.length):
+            restore_state(u, state_row(episode.env_states, t), elapsed_steps=t)
+            self._step(actions[t])  # for contacts: one step from the recorded state t
+            contacts = self._contacts.sample()[0] if buf.contact_forces is not None else None
+            restore_state(u, state_row(episode.env_states, t + 1), elapsed_steps=t + 1)
+            info = u.get_info()
+            obs = u.get_obs(info, unflattened=True) if self.obs_mode != "none" else {}
+            reward = u.get_reward(obs=obs, action=actions[t][None], info=info)
+            terminated = _flag(info, "success") or _flag(info, "fail")
+            truncated = self.max_episode_steps is not None and t + 1 >= self.max_episode_steps
+            self._after_step(buf, t, reward, terminated, truncated, info, None)
+            if contacts is not None:
+                buf.contact_forces[t] = contacts
+            if self.need_obs:
+                buf.set_obs(t + 1, self._obs(u._flatten_raw_obs(obs) if obs else u.get_obs(info)))
+        return ReplayedEpisode(buf.episode())
+
+
+def _shape(spec: Any) -> str:
+    return "absent" if spec is None else f"{tuple(spec.shape)} {spec.dtype}"
+
+
+class _Buffers:
+    """Preallocated arrays of one replayed episode, laid out like the recorded one."""
+
+    def __init__(self, episode: Episode, meta: RecordingMeta, *, n_channels: int, n_poses: int = 0) -> None:
+        T = episode.length
+        self.meta_ep = dataclasses.replace(episode.meta)
+        self.actions = episode.actions
+        self.rewards = np.zeros(T, np.float32)
+        for name in FLAG_FIELDS:
+            setattr(self, name, np.zeros(T, bool))
+        self.env_states = {p: np.zeros_like(a) for p, a in episode.env_states.items()}
+        self.info = {k: np.zeros_like(a) for k, a in episode.info.items()}
+        self.contact_forces = np.zeros((T, n_channels, 3), np.float32) if n_channels else None
+        self.obs: dict[str, np.ndarray] = {}
+        self.body_poses = np.zeros((T + 1, n_poses, 7), np.float32) if n_poses else None
+        self.T = T
+
+    def set_state(self, row: int, flat: dict[str, np.ndarray]) -> None:
+        for p, dst in self.env_states.items():
+            src = flat.get(p)
+            if src is not None:
+                dst[row] = src[0]
+
+    def set_obs(self, row: int, flat: dict[str, np.ndarray]) -> None:
+        for p, a in flat.items():
+            dst = self.obs.get(p)
+            if dst is None:
+                dst = self.obs[p] = np.zeros((self.T + 1, *a.shape), a.dtype)
+            dst[row] = a
+
+    def episode(self) -> Episode:
+        return Episode(
+            meta=self.meta_ep,
+            actions=self.actions,
+            rewards=self.rewards,
+            terminated=self.terminated,
+            truncated=self.truncated,
+            success=self.success,
+            fail=self.fail,
+            env_states=self.env_states,
+            obs=self.obs,
+            info=self.info,
+            contact_forces=self.contact_forces,
+            body_poses=self.body_poses,
+        )

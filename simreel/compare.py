@@ -1,0 +1,401 @@
+"""Compare a replayed episode with its recording, leaf by leaf, with a tolerance per kind of value.
+
+Pure numpy: the replay room uses it to verify replays, viewers can use it to show where two recordings
+part. Every state leaf is split into named components, each of one kind (group) with its own tolerance::
+
+    env_states/actors/cube[p]                 position (m)                       group "pos"
+    env_states/actors/cube[q]                 orientation, error = rotation angle  group "quat" (rad)
+    env_states/actors/cube[v], [w]            linear / angular velocity          group "vel"
+    env_states/articulations/panda[root_p]    root pose / velocity as above
+    env_states/articulations/panda[qpos]      joint positions                    group "qpos"
+    env_states/articulations/panda[qvel]      joint velocities                   group "qvel"
+    env_states/controller/arm/target_pose[p]  controller targets                 group "controller"
+    env_states/goal_height                    task (custom) state                group "custom"
+    rewards                                                                       group "reward"
+    terminated truncated success fail          compared exactly                  group "flag"
+    info/<key>                                 floats: group "info"; bools and integers exactly ("flag")
+    contacts/<channel>                         force (N)                          group "contact"
+    obs/<key path>                                                                group "obs"
+
+Quaternions are compared as rotations, so q and -q are equal. An error is the largest absolute
+difference over a component's elements (for quaternions: the angle of the relative rotation) at one step.
+
+Steps: state row 0 (after reset) is reported as ``at="reset"``, step 0; state row t+1 and the rewards,
+flags, info and contacts of row t are the outcome of action t, reported as ``at="step"``, step t.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from simreel.episode import FLAG_FIELDS, ContactChannel, Episode
+
+__all__ = [
+    "GROUPS",
+    "MODES",
+    "DEFAULT_TOLERANCES",
+    "Tolerances",
+    "Component",
+    "components_of",
+    "component_error",
+    "Divergence",
+    "EpisodeComparison",
+    "compare_episode",
+    "VERDICTS",
+]
+
+GROUPS = ("pos", "quat", "vel", "qpos", "qvel", "controller", "custom", "reward", "info", "contact", "obs", "flag")
+"""Kinds of compared values, each with its own absolute tolerance ("flag" is always exact)."""
+MODES = ("actions", "states", "step", "resync")
+"""Replay modes that have their own default tolerances (`resync` = `actions` with `--resync K`)."""
+VERDICTS = ("exact", "within_tolerance", "diverged")
+
+# Defaults per mode, from measurements on ManiSkill 3.0.1's CPU sim (12 recordings: PickCube, StackCube,
+# PegInsertionSide, PushCube, RotateValveLevel0, TriFingerRotateCubeLevel0 with random actions; PickCube in
+# pd_ee_target_delta_pos and pd_joint_target_delta_pos; simreel's LiftCube, LiftCubeLeaky, HeteroPick,
+# HeteroDrawer with their scripted policies):
+# - actions: every replay was bit-exact (error 0.0), fresh env or not. The tolerances only leave room for
+#   float noise of another CPU/BLAS; a perturbed action shows orders of magnitude above them.
+# - states: a restored state read back differs by <= 1.5e-8, recomputed rewards by <= 1.2e-7. Contact
+#   forces (and contact-based info such as is_grasped) come from one step simulated from the restored
+#   previous state, so they get step mode's contact tolerance.
+# - step / resync: a restored state lacks PhysX's contact and solver caches, so one step from it differs
+#   from the uninterrupted step: measured max pos 8.6e-4 m, rotation 0.039 rad, body velocity 6.2 (m/s,
+#   rad/s: grasped or spinning objects), qpos 6.6e-4, qvel 1.1, contact force 3.5 N, reward 1.2e-3,
+#   float info 3.3e-4. Defaults are about 5x those; positions and rotations are the meaningful check here.
+DEFAULT_TOLERANCES: dict[str, dict[str, float]] = {
+    "actions": {
+        "pos": 1e-5, "quat": 1e-4, "vel": 1e-3, "qpos": 1e-5, "qvel": 1e-3, "controller": 1e-5, "custom": 1e-6,
+        "reward": 1e-5, "info": 1e-5, "contact": 1e-2, "obs": 1e-5, "flag": 0.0,
+    },
+    "states": {
+        "pos": 1e-6, "quat": 1e-5, "vel": 1e-5, "qpos": 1e-6, "qvel": 1e-5, "controller": 1e-6, "custom": 1e-6,
+        "reward": 1e-5, "info": 1e-5, "contact": 20.0, "obs": 1e-5, "flag": 0.0,
+    },
+    "step": {
+        "pos": 5e-3, "quat": 0.2, "vel": 30.0, "qpos": 5e-3, "qvel": 5.0, "controller": 5e-3, "custom": 1e-6,
+        "reward": 1e-2, "info": 1e-2, "contact": 20.0, "obs": 1e-2, "flag": 0.0,
+    },
+}
+DEFAULT_TOLERANCES["resync"] = dict(DEFAULT_TOLERANCES["step"])
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Absolute tolerance per group (see `GROUPS`). Build with `Tolerances.for_mode(mode, ...)`."""
+
+    values: Mapping[str, float]
+
+    @classmethod
+    def for_mode(
+        cls, mode: str, *, atol: float | None = None, groups: Mapping[str, float] | None = None
+    ) -> Tolerances:
+        """Defaults of `mode`; `atol` replaces every group's tolerance but "flag"; `groups` then overrides single groups."""
+        if mode not in DEFAULT_TOLERANCES:
+            raise ValueError(f"unknown mode {mode!r}; expected one of {', '.join(DEFAULT_TOLERANCES)}")
+        values = dict(DEFAULT_TOLERANCES[mode])
+        if atol is not None:
+            values = {g: (0.0 if g == "flag" else float(atol)) for g in values}
+        for group, tol in (groups or {}).items():
+            if group not in values:
+                raise ValueError(f"unknown tolerance group {group!r}; expected one of {', '.join(GROUPS)}")
+            values[group] = float(tol)
+        return cls(values)
+
+    def __getitem__(self, group: str) -> float:
+        return float(self.values[group])
+
+    def to_json(self) -> dict[str, float]:
+        return {g: float(v) for g, v in self.values.items()}
+
+
+@dataclass(frozen=True)
+class Component:
+    """A named slice of one flat leaf: `key` as reported, `group` for its tolerance, `quat` for rotations."""
+
+    key: str
+    group: str
+    start: int
+    stop: int
+    quat: bool = False
+
+
+def _pose_parts(prefix: str, base: str, group_p: str, group_v: str | None, offset: int = 0) -> list[Component]:
+    parts = [
+        Component(f"{base}[{prefix}p]", group_p, offset, offset + 3),
+        Component(f"{base}[{prefix}q]", "quat", offset + 3, offset + 7, quat=True),
+    ]
+    if group_v is not None:
+        parts += [
+            Component(f"{base}[{prefix}v]", group_v, offset + 7, offset + 10),
+            Component(f"{base}[{prefix}w]", group_v, offset + 10, offset + 13),
+        ]
+    return parts
+
+
+def components_of(path: str, shape: tuple[int, ...], *, prefix: str = "env_states/") -> list[Component]:
+    """How the state leaf `path` (per-env `shape`) splits into compared components.
+
+    ``actors/<name>`` (13,): p q v w; ``articulations/<name>`` (13 + 2·DOF,): root p q v w, qpos, qvel;
+    ``controller/.../*pose*`` (7,): p q; other ``controller/...``: one component; anything else is task state.
+    """
+    base = prefix + path
+    width = int(np.prod(shape)) if shape else 1
+    top = path.split("/", 1)[0]
+    if top == "actors" and width == 13:
+        return _pose_parts("", base, "pos", "vel")
+    if top == "articulations" and width >= 13 and (width - 13) % 2 == 0:
+        dof = (width - 13) // 2
+        parts = _pose_parts("root_", base, "pos", "vel")
+        if dof:
+            parts += [Component(f"{base}[qpos]", "qpos", 13, 13 + dof), Component(f"{base}[qvel]", "qvel", 13 + dof, width)]
+        return parts
+    if top == "controller":
+        if width == 7 and "pose" in path.rsplit("/", 1)[-1]:
+            return [
+                Component(f"{base}[p]", "controller", 0, 3),
+                Component(f"{base}[q]", "quat", 3, 7, quat=True),
+            ]
+        return [Component(base, "controller", 0, width)]
+    return [Component(base, "custom", 0, width)]
+
+
+def _rows(a: np.ndarray) -> np.ndarray:
+    """(N, ...) → (N, K) float64."""
+    a = np.asarray(a)
+    return a.reshape(a.shape[0], int(np.prod(a.shape[1:], dtype=np.int64))).astype(np.float64, copy=False)
+
+
+def _abs_diff(rec: np.ndarray, rep: np.ndarray) -> np.ndarray:
+    d = np.abs(rec - rep)
+    both_nan = np.isnan(rec) & np.isnan(rep)
+    d = np.where(both_nan, 0.0, d)
+    return np.where(np.isnan(d), np.inf, d)
+
+
+def component_error(recorded: np.ndarray, replayed: np.ndarray, comp: Component | None = None) -> np.ndarray:
+    """Per-row error (N,) of two (N, ...) arrays, over `comp`'s slice of the flattened row (all of it if None)."""
+    rec, rep = _rows(recorded), _rows(replayed)
+    if comp is not None:
+        rec, rep = rec[:, comp.start : comp.stop], rep[:, comp.start : comp.stop]
+    if rec.shape[1] == 0:
+        return np.zeros(rec.shape[0])
+    if comp is not None and comp.quat:
+        return _quat_angle(rec, rep)
+    return _abs_diff(rec, rep).max(axis=1)
+
+
+def _quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angle (rad) of the rotation taking wxyz quaternion a to b, per row; q and -q are the same rotation."""
+    na = np.linalg.norm(a, axis=1, keepdims=True)
+    nb = np.linalg.norm(b, axis=1, keepdims=True)
+    same = np.all(a == b, axis=1) | np.all(a == -b, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = a / np.where(na == 0, 1, na)
+        b = b / np.where(nb == 0, 1, nb)
+        # relative rotation r = conj(a) * b; angle = 2 atan2(|r.xyz|, |r.w|) (stable near 0 and pi)
+        aw, ax, ay, az = a.T
+        bw, bx, by, bz = b.T
+        rw = aw * bw + ax * bx + ay * by + az * bz
+        rx = aw * bx - ax * bw - ay * bz + az * by
+        ry = aw * by + ax * bz - ay * bw - az * bx
+        rz = aw * bz - ax * by + ay * bx - az * bw
+        angle = 2.0 * np.arctan2(np.sqrt(rx * rx + ry * ry + rz * rz), np.abs(rw))
+    angle = np.where(same, 0.0, angle)
+    return np.where(np.isnan(angle), np.inf, angle)
+
+
+@dataclass
+class Divergence:
+    """Where a replay first left its tolerance."""
+
+    step: int
+    key: str
+    error: float
+    tolerance: float
+    at: str = "step"
+    """"reset": the state right after reset (step is 0); "step": the outcome of action `step`."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"step": self.step, "at": self.at, "key": self.key, "error": _json_num(self.error),
+                "tolerance": _json_num(self.tolerance)}
+
+    def describe(self) -> str:
+        where = "after reset" if self.at == "reset" else f"step {self.step}"
+        return f"{where}: {self.key} off by {_fmt(self.error)} (tolerance {_fmt(self.tolerance)})"
+
+
+@dataclass
+class EpisodeComparison:
+    """The verdict on one replayed episode, and the numbers behind it."""
+
+    verdict: str
+    first_divergence: Divergence | None
+    max_abs_error: dict[str, float]
+    """Key → largest error over all compared steps (flags: 1.0 where they ever differ)."""
+    tolerance: dict[str, float]
+    """Key → the tolerance it was judged by."""
+    diverged_keys: dict[str, int] = field(default_factory=dict)
+    """Key → first step at which it left its tolerance."""
+    errors: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    """Key → per-row errors (T+1 rows for state/obs keys, T for per-step keys); not serialized."""
+
+    @property
+    def ok(self) -> bool:
+        return self.verdict != "diverged"
+
+    def worst(self, n: int = 5) -> list[tuple[str, float, float]]:
+        """The n keys with the largest error relative to their tolerance: (key, error, tolerance)."""
+
+        def ratio(k: str) -> float:
+            e, t = self.max_abs_error[k], self.tolerance[k]
+            return math.inf if (e > 0 and t == 0) else (e / t if t else 0.0)
+
+        keys = sorted((k for k in self.max_abs_error if self.max_abs_error[k] > 0), key=ratio, reverse=True)
+        return [(k, self.max_abs_error[k], self.tolerance[k]) for k in keys[:n]]
+
+
+_CATEGORY_ORDER = {"env_states": 0, "obs": 1, "contacts": 2, "info": 3, "rewards": 4}
+
+
+def _category(key: str) -> int:
+    return _CATEGORY_ORDER.get(key.split("/", 1)[0].split("[", 1)[0], 5)
+
+
+def compare_episode(
+    recorded: Episode,
+    replayed: Episode,
+    tolerances: Tolerances,
+    *,
+    contact_channels: Iterable[ContactChannel] = (),
+    compare_initial: bool = True,
+    compare_obs: bool = True,
+    compare_contacts: bool = True,
+) -> EpisodeComparison:
+    """Compare every state leaf, reward, flag, info entry, contact channel (and observation) of two episodes.
+
+    Both episodes must have the same length. Keys only one side has are skipped (the caller decides
+    whether a layout difference is an error). The first divergence is the earliest step at which a value
+    leaves its tolerance; at that step state leaves come first, then observations, contacts, info, rewards
+    and flags, and within a category the largest error relative to its tolerance wins.
+    """
+    T = recorded.length
+    if replayed.length != T:
+        raise ValueError(f"episode {recorded.meta.index}: replay has {replayed.length} steps, recording {T}")
+    errors: dict[str, np.ndarray] = {}
+    tol: dict[str, float] = {}
+    offset: dict[str, int] = {}  # 1 for (T+1)-row keys: row r is step r-1 (row 0 = reset)
+    start_row = 0 if compare_initial else 1
+
+    def add(key: str, err: np.ndarray, group: str, row_offset: int) -> None:
+        errors[key] = err
+        tol[key] = tolerances[group]
+        offset[key] = row_offset
+
+    for path, rec in recorded.env_states.items():
+        rep = replayed.env_states.get(path)
+        if rep is None:
+            continue
+        identical = rec.shape == rep.shape and np.array_equal(rec, rep)  # the common case, ~10x cheaper
+        for comp in components_of(path, rec.shape[1:]):
+            err = np.zeros(rec.shape[0]) if identical else component_error(rec, rep, comp)
+            if not compare_initial:
+                err = err.copy()
+                err[0] = 0.0
+            add(comp.key, err, comp.group, 1)
+    if compare_obs:
+        for path, rec in recorded.obs.items():
+            rep = replayed.obs.get(path)
+            if rep is None or rep.shape != rec.shape:
+                continue
+            err = component_error(rec, rep)
+            if not compare_initial:
+                err = err.copy()
+                err[0] = 0.0
+            add(f"obs/{path}", err, "flag" if rec.dtype.kind == "b" else "obs", 1)
+    channels = list(contact_channels)
+    if (
+        compare_contacts
+        and recorded.contact_forces is not None
+        and replayed.contact_forces is not None
+        and recorded.contact_forces.shape == replayed.contact_forces.shape
+    ):
+        diff = _abs_diff(recorded.contact_forces.astype(np.float64), replayed.contact_forces.astype(np.float64))
+        per_channel = diff.max(axis=2) if diff.size else np.zeros((T, 0))
+        for c in range(per_channel.shape[1]):
+            name = channels[c].name if c < len(channels) else str(c)
+            add(f"contacts/{name}", per_channel[:, c], "contact", 0)
+    for key, rec in recorded.info.items():
+        rep = replayed.info.get(key)
+        if rep is None:
+            continue
+        exact = rec.dtype.kind in "biu"
+        err = (np.asarray(rec) != np.asarray(rep)).reshape(T, -1).any(axis=1).astype(np.float64) if exact else (
+            component_error(rec, rep)
+        )
+        add(f"info/{key}", err, "flag" if exact else "info", 0)
+    add("rewards", component_error(recorded.rewards, replayed.rewards), "reward", 0)
+    for name in FLAG_FIELDS:
+        rec, rep = getattr(recorded, name), getattr(replayed, name)
+        add(name, (np.asarray(rec) != np.asarray(rep)).astype(np.float64), "flag", 0)
+
+    max_err = {k: float(e[start_row if offset[k] else 0 :].max()) if e.size else 0.0 for k, e in errors.items()}
+    diverged: dict[str, int] = {}
+    first: Divergence | None = None
+    best: tuple[int, int, float] | None = None  # (row-as-step ordering, category, -ratio)
+    for key, err in errors.items():
+        bad = np.flatnonzero(err > tol[key])
+        if offset[key]:
+            bad = bad[bad >= start_row]
+        if bad.size == 0:
+            continue
+        row = int(bad[0])
+        # order: reset (row 0 of state keys) before step 0, then by step
+        order = row if offset[key] else row + 1
+        step = max(row - offset[key], 0)
+        diverged[key] = step
+        ratio = math.inf if tol[key] == 0 else float(err[row]) / tol[key]
+        rank = (order, _category(key), -ratio)
+        if best is None or rank < best:
+            best = rank
+            first = Divergence(
+                step=step,
+                key=key,
+                error=float(err[row]),
+                tolerance=tol[key],
+                at="reset" if (offset[key] and row == 0) else "step",
+            )
+    if first is not None:
+        verdict = "diverged"
+    elif all(v == 0.0 for v in max_err.values()):
+        verdict = "exact"
+    else:
+        verdict = "within_tolerance"
+    return EpisodeComparison(
+        verdict=verdict,
+        first_divergence=first,
+        max_abs_error=max_err,
+        tolerance=tol,
+        diverged_keys=diverged,
+        errors=errors,
+    )
+
+
+def _json_num(x: float) -> float | str:
+    """JSON has no inf/nan: those become the strings "inf" / "nan"."""
+    if math.isfinite(x):
+        return float(x)
+    return "nan" if math.isnan(x) else "inf"
+
+
+def _fmt(x: float) -> str:
+    if not math.isfinite(x):
+        return str(x)
+    if x == 0:
+        return "0"
+    return f"{x:.3g}"

@@ -1,0 +1,181 @@
+"""simreel.compare: per-leaf errors, quaternion-aware comparison, tolerances and the first divergence (pure numpy)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from simreel.compare import (
+    DEFAULT_TOLERANCES,
+    GROUPS,
+    Tolerances,
+    compare_episode,
+    component_error,
+    components_of,
+)
+from simreel.episode import ContactChannel, Episode, EpisodeMeta
+
+
+def _episode(T: int = 4, seed: int = 0) -> Episode:
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(T + 1, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    cube = np.concatenate([rng.normal(size=(T + 1, 3)), q, rng.normal(size=(T + 1, 6))], axis=1).astype(np.float32)
+    panda = rng.normal(size=(T + 1, 13 + 2 * 2)).astype(np.float32)
+    panda[:, 3:7] = q
+    return Episode(
+        meta=EpisodeMeta(index=0, seed=seed, length=T),
+        actions=np.zeros((T, 2), np.float32),
+        rewards=rng.normal(size=T).astype(np.float32),
+        terminated=np.zeros(T, bool),
+        truncated=np.zeros(T, bool),
+        success=np.zeros(T, bool),
+        fail=np.zeros(T, bool),
+        env_states={"actors/cube": cube, "articulations/panda": panda, "goal_height": rng.normal(size=(T + 1,)).astype(np.float32)},
+        info={"is_grasped": np.zeros(T, bool), "height_error": rng.normal(size=T).astype(np.float32)},
+        contact_forces=rng.normal(size=(T, 2, 3)).astype(np.float32),
+    )
+
+
+def _copy(ep: Episode) -> Episode:
+    return dataclasses.replace(
+        ep,
+        rewards=ep.rewards.copy(),
+        success=ep.success.copy(),
+        env_states={k: v.copy() for k, v in ep.env_states.items()},
+        info={k: v.copy() for k, v in ep.info.items()},
+        contact_forces=ep.contact_forces.copy(),
+    )
+
+
+CHANNELS = [ContactChannel("net", ("cube",)), ContactChannel("pair", ("panda/finger", "cube"))]
+TOL = Tolerances.for_mode("actions")
+
+
+def test_components_name_every_part_of_a_leaf():
+    keys = [(c.key, c.group, c.quat) for c in components_of("actors/cube", (13,))]
+    assert keys == [
+        ("env_states/actors/cube[p]", "pos", False),
+        ("env_states/actors/cube[q]", "quat", True),
+        ("env_states/actors/cube[v]", "vel", False),
+        ("env_states/actors/cube[w]", "vel", False),
+    ]
+    art = [(c.key, c.start, c.stop) for c in components_of("articulations/panda", (31,))]
+    assert art[-2:] == [("env_states/articulations/panda[qpos]", 13, 22), ("env_states/articulations/panda[qvel]", 22, 31)]
+    assert [c.key for c in components_of("controller/arm/target_pose", (7,))] == [
+        "env_states/controller/arm/target_pose[p]", "env_states/controller/arm/target_pose[q]"]
+    assert [c.group for c in components_of("controller/arm/target_qpos", (7,))] == ["controller"]
+    assert [(c.key, c.group) for c in components_of("goal_height", ())] == [("env_states/goal_height", "custom")]
+
+
+def test_quaternions_compare_as_rotations():
+    q = np.array([[0.5, 0.5, -0.5, 0.5]])
+    comp = components_of("actors/x", (13,))[1]
+    a = np.zeros((1, 13))
+    a[:, 3:7] = q
+    b = a.copy()
+    b[:, 3:7] = -q
+    assert component_error(a, b, comp)[0] == 0.0  # q and -q: the same rotation
+    angle = 0.01
+    r = np.array([math.cos(angle / 2), math.sin(angle / 2), 0, 0])  # rotation by 0.01 rad about x
+    w1, x1, y1, z1 = r
+    w2, x2, y2, z2 = q[0]
+    b[:, 3:7] = [[w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                  w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2]]
+    assert component_error(a, b, comp)[0] == pytest.approx(angle, rel=1e-6)
+
+
+def test_identical_episodes_are_exact():
+    ep = _episode()
+    cmp = compare_episode(ep, _copy(ep), TOL, contact_channels=CHANNELS)
+    assert cmp.verdict == "exact" and cmp.first_divergence is None and cmp.ok
+    assert set(cmp.max_abs_error) >= {"env_states/actors/cube[q]", "env_states/goal_height", "rewards", "success",
+                                      "info/is_grasped", "contacts/cube", "contacts/panda/finger:cube"}
+
+
+def test_small_errors_are_within_tolerance():
+    ep = _episode()
+    rep = _copy(ep)
+    rep.env_states["actors/cube"][2, 0] += 1e-7
+    rep.rewards[1] += 1e-7
+    cmp = compare_episode(ep, rep, TOL, contact_channels=CHANNELS)
+    assert cmp.verdict == "within_tolerance"
+    assert cmp.max_abs_error["env_states/actors/cube[p]"] == pytest.approx(1e-7, rel=0.5)  # float32 rounding
+
+
+def test_first_divergence_names_step_key_error_and_tolerance():
+    ep = _episode()
+    rep = _copy(ep)
+    rep.env_states["articulations/panda"][3, 13] += 0.5  # qpos after action 2
+    rep.env_states["actors/cube"][4, 0] += 0.5  # later
+    rep.rewards[2] += 1.0  # same step, but state comes first
+    cmp = compare_episode(ep, rep, TOL, contact_channels=CHANNELS)
+    assert cmp.verdict == "diverged"
+    d = cmp.first_divergence
+    assert (d.step, d.key, d.at) == (2, "env_states/articulations/panda[qpos]", "step")
+    assert d.error == pytest.approx(0.5, rel=1e-5) and d.tolerance == DEFAULT_TOLERANCES["actions"]["qpos"]
+    assert cmp.diverged_keys["env_states/actors/cube[p]"] == 3
+    assert cmp.diverged_keys["rewards"] == 2
+    assert "step 2: env_states/articulations/panda[qpos] off by 0.5" in d.describe()
+    json.dumps(d.to_json())
+
+
+def test_initial_state_mismatch_is_reported_at_reset():
+    ep = _episode()
+    rep = _copy(ep)
+    rep.env_states["goal_height"][0] += 0.1
+    d = compare_episode(ep, rep, TOL).first_divergence
+    assert (d.at, d.step, d.key) == ("reset", 0, "env_states/goal_height")
+    assert compare_episode(ep, rep, TOL, compare_initial=False).verdict == "exact"
+
+
+def test_flags_and_integer_info_are_exact():
+    ep = _episode()
+    rep = _copy(ep)
+    rep.success[1] = True
+    cmp = compare_episode(ep, rep, Tolerances.for_mode("step", atol=1e9))
+    assert cmp.verdict == "diverged"
+    assert (cmp.first_divergence.key, cmp.first_divergence.step, cmp.first_divergence.tolerance) == ("success", 1, 0.0)
+
+
+def test_nan_in_the_replay_diverges_but_nan_on_both_sides_does_not():
+    ep = _episode()
+    rep = _copy(ep)
+    rep.env_states["goal_height"][2] = np.nan
+    cmp = compare_episode(ep, rep, TOL)
+    assert cmp.first_divergence.key == "env_states/goal_height" and math.isinf(cmp.first_divergence.error)
+    assert cmp.first_divergence.to_json()["error"] == "inf"
+    ep.env_states["goal_height"][2] = np.nan
+    assert compare_episode(ep, rep, TOL).verdict == "exact"
+
+
+def test_contact_channels_are_named():
+    ep = _episode()
+    rep = _copy(ep)
+    rep.contact_forces[1, 1, 2] += 5.0
+    d = compare_episode(ep, rep, TOL, contact_channels=CHANNELS).first_divergence
+    assert (d.key, d.step) == ("contacts/panda/finger:cube", 1)
+    assert compare_episode(ep, rep, TOL, contact_channels=CHANNELS, compare_contacts=False).verdict == "exact"
+
+
+def test_tolerances_per_mode_and_overrides():
+    assert set(DEFAULT_TOLERANCES) == {"actions", "states", "step", "resync"}
+    for values in DEFAULT_TOLERANCES.values():
+        assert set(values) == set(GROUPS) and values["flag"] == 0.0
+    assert Tolerances.for_mode("step")["pos"] > Tolerances.for_mode("actions")["pos"]
+    t = Tolerances.for_mode("actions", atol=0.5, groups={"contact": 7})
+    assert t["pos"] == 0.5 and t["contact"] == 7 and t["flag"] == 0.0
+    with pytest.raises(ValueError, match="unknown tolerance group 'nope'"):
+        Tolerances.for_mode("actions", groups={"nope": 1})
+    with pytest.raises(ValueError, match="unknown mode"):
+        Tolerances.for_mode("sideways")
+
+
+def test_length_mismatch_is_an_error():
+    ep = _episode(T=4)
+    with pytest.raises(ValueError, match="replay has 3 steps, recording 4"):
+        compare_episode(ep, _episode(T=3), TOL)
