@@ -1,0 +1,146 @@
+"""`simreel view`: one episode of a recording as a Rerun session — saved .rrd, native viewer or web viewer."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from simreel.errors import UsageError
+
+__all__ = ["add_parser", "run", "default_output", "viewer_available"]
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        "view",
+        help="view an episode in Rerun (3D scene, contacts, plots, replay overlay)",
+        description=(
+            "Turn one episode of a recording (.h5 or .mcap) into a Rerun session: the scene in 3D over the "
+            "`step` and `sim_time` timelines, contact-force arrows, plots of reward/success/qpos/contacts, camera "
+            "images, and with --compare the replay as a translucent ghost with its error per state key."
+        ),
+    )
+    p.add_argument("path", metavar="PATH", help="recording (.h5 or .mcap)")
+    p.add_argument("--episode", type=int, default=None, metavar="I",
+                   help="episode index (default: the first in the file); see `simreel inspect PATH`")
+    p.add_argument("--compare", default=None, metavar="OTHER",
+                   help="a replay of the recording (`simreel replay -o OTHER`): ghost overlay + first divergence")
+    p.add_argument("--mode", choices=("actions", "states", "step"), default="actions",
+                   help="whose default tolerances judge --compare: the `simreel replay --mode` that wrote it "
+                        "(default actions)")
+    p.add_argument("--atol", type=_non_negative_float, default=None, metavar="X",
+                   help="one absolute tolerance for every compared value (flags stay exact)")
+    p.add_argument("--tol", type=_group_tolerance, action="append", default=[], metavar="GROUP=X",
+                   help="tolerance of one group for --compare, repeatable (groups as in `simreel replay --tol`)")
+    sink = p.add_mutually_exclusive_group()
+    sink.add_argument("--save", default=None, metavar="OUT.rrd",
+                      help="write a .rrd file (the default when no viewer can be opened)")
+    sink.add_argument("--spawn", action="store_true", help="open the native Rerun viewer")
+    sink.add_argument("--serve", action="store_true", help="serve the web viewer (for a remote machine); Ctrl-C stops")
+    p.add_argument("--web-port", type=int, default=9090, help="web viewer port for --serve (default 9090)")
+    p.add_argument("--grpc-port", type=int, default=9876, help="gRPC port for --serve/--spawn (default 9876)")
+    p.add_argument("--geometry", default="auto", choices=("auto", "visual", "collision"),
+                   help="visual meshes (needs a render device), collision shapes, or auto (default)")
+    p.add_argument("--block-steps", type=int, default=256, metavar="N",
+                   help="steps logged per batch; bounds memory on long episodes (default 256)")
+    p.set_defaults(run=run)
+
+
+def _non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+def _group_tolerance(text: str) -> tuple[str, float]:
+    """`"pos=1e-4"` → ("pos", 1e-4), for `--tol`."""
+    from simreel.compare import GROUPS
+
+    group, sep, value = text.partition("=")
+    if not sep or group not in GROUPS or group == "flag":
+        names = ", ".join(g for g in GROUPS if g != "flag")
+        raise argparse.ArgumentTypeError(f"expected GROUP=NUMBER with GROUP one of {names}, got {text!r}")
+    return group, _non_negative_float(value)
+
+
+def viewer_available() -> bool:
+    """Whether the native viewer could open a window here: a display and the `rerun` executable."""
+    has_display = sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    exe = shutil.which("rerun") or (Path(sys.executable).parent / "rerun").is_file()
+    return has_display and bool(exe)
+
+
+def default_output(path: str | Path, episode: int) -> Path:
+    """``<recording stem>.episode<I>.rrd`` in the current folder."""
+    return Path.cwd() / f"{Path(path).stem}.episode{episode}.rrd"
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.block_steps < 1:
+        raise UsageError(f"--block-steps must be ≥ 1, got {args.block_steps}")
+    if args.save is not None and not args.save.lower().endswith(".rrd"):
+        raise UsageError(f"--save {args.save}: the output must end in .rrd")
+    from simreel.formats import open_reader
+
+    with open_reader(args.path) as reader:  # fail fast on a bad file or episode, before building the env
+        if args.episode is not None:
+            reader.episode_meta(args.episode)
+        episode = args.episode if args.episode is not None else (reader.episodes[0].index if reader.episodes else 0)
+
+    from simreel.viewers import build_session
+
+    save = args.save
+    mode = "save" if save else "spawn" if args.spawn else "serve" if args.serve else None
+    if mode is None:
+        mode = "spawn" if viewer_available() else "save"
+        if mode == "save":
+            save = str(default_output(args.path, episode))
+    t0 = time.perf_counter()
+    with build_session(
+        args.path,
+        episode=episode,
+        compare=args.compare,
+        geometry=args.geometry,
+        mode=args.mode,
+        atol=args.atol,
+        tolerances=dict(args.tol) or None,
+        block_steps=args.block_steps,
+    ) as session:
+        if args.geometry == "visual" and session.geometry_source != "visual":
+            print("warning: no render device, so no visual meshes: showing collision shapes "
+                  "(see `make setup` for the software Vulkan driver)", file=sys.stderr)
+        if mode == "save":
+            out = session.save(save)
+            size = out.stat().st_size / 1024
+            print(f"wrote {out} ({size:.0f} KiB, {session.episode.length} steps, {session.geometry_source} geometry) "
+                  f"in {time.perf_counter() - t0:.1f} s; open it with: rerun {out}")
+        elif mode == "spawn":
+            if not viewer_available():
+                print("warning: no display found; the viewer may not open (use --save OUT.rrd)", file=sys.stderr)
+            session.spawn(port=args.grpc_port)
+            print(f"sent {session.recording_id} to the Rerun viewer")
+        else:
+            url = session.serve(web_port=args.web_port, grpc_port=args.grpc_port)
+            print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)", flush=True)
+            try:
+                while True:
+                    time.sleep(3600)
+            except KeyboardInterrupt:
+                pass
+        if session.comparison is not None:
+            c = session.comparison
+            if c.note:
+                print(f"note: {c.note}")
+            d = c.divergence
+            print(f"replay diverges at {d.describe()}" if d is not None
+                  else f"replay {c.comparison.verdict.replace('_', ' ')}: no value leaves its tolerance")
+    return 0

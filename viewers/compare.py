@@ -1,0 +1,94 @@
+"""Recorded vs replayed for the viewer: the core's comparison (`simreel.compare`, the same numbers
+`simreel replay` reports) placed on state rows, so the viewer can plot errors and mark the divergence.
+
+The core reports a divergence by step (the outcome of step k is state row k + 1; ``at="reset"`` is row 0);
+`divergence_row` converts. Episodes of different lengths are compared over the shorter one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from simreel.compare import Divergence, EpisodeComparison, Tolerances, compare_episode
+from simreel.episode import ContactChannel, Episode
+
+__all__ = ["ViewComparison", "compare_for_view", "divergence_row", "DEFAULT_MODE"]
+
+DEFAULT_MODE = "actions"
+"""Whose default tolerances apply: `simreel replay --mode` (actions, states or step); actions is its default."""
+
+
+def divergence_row(d: Divergence) -> int:
+    """The state row at which a divergence shows: 0 after reset, k + 1 for the outcome of step k."""
+    return 0 if d.at == "reset" else d.step + 1
+
+
+@dataclass
+class ViewComparison:
+    """A core `EpisodeComparison` and how its per-key errors map onto state rows."""
+
+    comparison: EpisodeComparison
+    steps: int
+    """Steps compared (the shorter episode's length)."""
+    note: str = ""
+    """Why fewer steps were compared than the recording has, if so."""
+
+    @property
+    def divergence(self) -> Divergence | None:
+        return self.comparison.first_divergence
+
+    def error_rows(self) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
+        """`{key: (rows, errors, tolerance)}`: state and observation keys have a row per state (0..T), per-step keys
+        (rewards, flags, info, contacts) one per step, placed at the row that step produced (1..T)."""
+        out = {}
+        for key, err in self.comparison.errors.items():
+            start = 0 if len(err) == self.steps + 1 else 1
+            out[key] = (np.arange(start, start + len(err)), err, self.comparison.tolerance[key])
+        return out
+
+    def plotted_keys(self) -> list[str]:
+        """Keys worth a plot: those that are ever off at all; when none is (an exact replay), the state keys."""
+        m = self.comparison.max_abs_error
+        off = [k for k in self.comparison.errors if m.get(k, 0.0) > 0.0]
+        return off or [k for k in self.comparison.errors if k.startswith("env_states/")]
+
+
+def _truncate(ep: Episode, steps: int) -> Episode:
+    if ep.length == steps:
+        return ep
+    cut = {name: getattr(ep, name)[:steps] for name in ("actions", "rewards", "terminated", "truncated", "success", "fail")}
+    return dataclasses.replace(
+        ep,
+        **cut,
+        env_states={k: v[: steps + 1] for k, v in ep.env_states.items()},
+        obs={k: v[: steps + 1] for k, v in ep.obs.items()},
+        info={k: v[:steps] for k, v in ep.info.items()},
+        contact_forces=None if ep.contact_forces is None else ep.contact_forces[:steps],
+        body_poses=None if ep.body_poses is None else ep.body_poses[: steps + 1],
+        meta=dataclasses.replace(ep.meta, length=steps),
+    )
+
+
+def compare_for_view(
+    recorded: Episode,
+    replayed: Episode,
+    *,
+    contact_channels: list[ContactChannel] | tuple[ContactChannel, ...] = (),
+    mode: str = DEFAULT_MODE,
+    atol: float | None = None,
+    groups: Mapping[str, float] | None = None,
+) -> ViewComparison:
+    """Compare with `simreel.compare.compare_episode` under `Tolerances.for_mode(mode, atol=, groups=)`."""
+    steps = min(recorded.length, replayed.length)
+    note = ""
+    if recorded.length != replayed.length:
+        note = f"the replay has {replayed.length} steps, the recording {recorded.length}: compared the first {steps}"
+    tolerances = Tolerances.for_mode(mode, atol=atol, groups=groups)
+    comparison = compare_episode(
+        _truncate(recorded, steps), _truncate(replayed, steps), tolerances, contact_channels=contact_channels
+    )
+    return ViewComparison(comparison, steps, note)

@@ -1,0 +1,344 @@
+"""What to draw: every body of a rebuilt scene, with its shapes in its own frame. No rerun here.
+
+`scene_bodies` lists the bodies of one sub-scene by simreel's names (``<actor>``,
+``<articulation>/<link>``): first the state-dict registry's (merged views included, so the part of a
+heterogeneous object that sits in this sub-scene is drawn under the merged name), then links of a merged
+articulation that only this sub-scene's part has (a cabinet's ``knob_1``) and actors outside the registry.
+`body_geometry` reads a body's shapes: collision shapes (``sapien.physx.PhysxCollisionShape*``) or visual
+shapes (render components, present only when the env was built with a render device).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "GEOMETRY_SOURCES",
+    "PLANE_HALF_SIZE",
+    "Primitive",
+    "MeshPart",
+    "BodyGeometry",
+    "SceneBody",
+    "scene_bodies",
+    "body_geometry",
+    "scene_geometry",
+    "read_poses",
+]
+
+GEOMETRY_SOURCES = ("auto", "visual", "collision")
+PLANE_HALF_SIZE = 1.5
+"""Half the side of the square drawn for an infinite plane (the ground), metres."""
+
+RGBA = tuple[int, int, int, int]
+
+_ROBOT_GREY: RGBA = (205, 208, 214, 255)
+_STATIC_COLORS: dict[str, RGBA] = {"ground": (150, 150, 150, 255)}
+_KINEMATIC_COLOR: RGBA = (196, 164, 122, 255)
+_PALETTE: tuple[RGBA, ...] = (
+    (228, 26, 28, 255),
+    (55, 126, 184, 255),
+    (77, 175, 74, 255),
+    (255, 127, 0, 255),
+    (152, 78, 163, 255),
+    (166, 86, 40, 255),
+    (247, 129, 191, 255),
+    (0, 170, 170, 255),
+)
+"""Colours for bodies when the env has no render components (collision geometry)."""
+
+
+@dataclass(frozen=True)
+class Primitive:
+    """A box, sphere, capsule or cylinder in the body frame.
+
+    ``size``: box half sizes (x, y, z); sphere (r, r, r); capsule and cylinder (radius, half length, 0) with
+    the axis along local x, as in SAPIEN. ``pose``: ``[x y z qw qx qy qz]`` of the shape in the body frame.
+    """
+
+    kind: str
+    size: tuple[float, float, float]
+    pose: tuple[float, ...]
+    color: RGBA
+
+
+@dataclass
+class MeshPart:
+    """A triangle mesh in the body frame (the shape's local pose and scale already applied)."""
+
+    vertices: np.ndarray
+    """(N, 3) float32"""
+    triangles: np.ndarray
+    """(M, 3) uint32"""
+    normals: np.ndarray | None
+    """(N, 3) float32 or None"""
+    color: RGBA
+
+
+@dataclass
+class BodyGeometry:
+    """Everything drawn for one body, in its own frame."""
+
+    name: str
+    primitives: list[Primitive] = field(default_factory=list)
+    meshes: list[MeshPart] = field(default_factory=list)
+
+    @property
+    def empty(self) -> bool:
+        return not self.primitives and not self.meshes
+
+
+@dataclass
+class SceneBody:
+    """One body of the rebuilt sub-scene: its simreel name and the sapien entity that carries its pose."""
+
+    name: str
+    entity: Any
+    body_type: str
+    """``static``, ``kinematic``, ``dynamic`` (actors) or ``link``."""
+    group: str
+    """``robot`` (a link of the agent), ``articulation`` (another articulation's link) or ``actor``."""
+    in_registry: bool = True
+    """False for bodies not in the state-dict registry (their poses are never recorded)."""
+
+
+def _slot(obj: Any, env_idx: int) -> int | None:
+    """Position of sub-scene `env_idx` among a ManiSkill struct's per-sub-scene objects (None: absent)."""
+    idxs = getattr(obj, "_scene_idxs", None)
+    if idxs is None:
+        return 0 if env_idx == 0 else None
+    where = np.nonzero(np.asarray(idxs.tolist()) == env_idx)[0]
+    return int(where[0]) if len(where) else None
+
+
+def _agent_articulations(unwrapped: Any) -> set[str]:
+    agent = getattr(unwrapped, "agent", None)
+    if agent is None:
+        return set()
+    agents = list(agent.agents) if hasattr(agent, "agents") else [agent]
+    return {a.robot.name for a in agents if getattr(a, "robot", None) is not None}
+
+
+def scene_bodies(unwrapped: Any, *, env_idx: int = 0) -> list[SceneBody]:
+    """Every body of sub-scene `env_idx` of a live ManiSkill env, named as simreel names them."""
+    scene = unwrapped.scene
+    reg = scene.state_dict_registry
+    robots = _agent_articulations(unwrapped)
+    bodies: list[SceneBody] = []
+    seen: set[int] = set()
+
+    def add(name: str, entity: Any, body_type: str, group: str, in_registry: bool) -> None:
+        if entity.global_id in seen:
+            return
+        seen.add(entity.global_id)
+        bodies.append(SceneBody(name, entity, body_type, group, in_registry))
+
+    for name, actor in reg.actors.items():
+        k = _slot(actor, env_idx)
+        if k is not None:
+            add(name, actor._objs[k], str(getattr(actor, "px_body_type", "dynamic")), "actor", True)
+    for art_name, art in reg.articulations.items():
+        k = _slot(art, env_idx)
+        if k is None:
+            continue
+        group = "robot" if art_name in robots else "articulation"
+        for link in art.links:
+            lk = _slot(link, env_idx)
+            if lk is not None:
+                add(f"{art_name}/{link.name}", link._objs[lk].entity, "link", group, True)
+        # links that only this sub-scene's part of a merged articulation has
+        for physx_link in art._objs[k].links:
+            add(f"{art_name}/{physx_link.entity.name}", physx_link.entity, "link", group, False)
+    for name, actor in scene.actors.items():
+        k = _slot(actor, env_idx)
+        if k is not None:
+            add(name, actor._objs[k], str(getattr(actor, "px_body_type", "dynamic")), "actor", False)
+    return bodies
+
+
+def read_poses(bodies: list[SceneBody]) -> np.ndarray:
+    """(B, 7) float32 world poses ``[x y z qw qx qy qz]`` of `bodies` now."""
+    out = np.empty((len(bodies), 7), np.float32)
+    for j, body in enumerate(bodies):
+        pose = body.entity.pose
+        out[j, :3] = pose.p
+        out[j, 3:] = pose.q
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- shapes
+def _pose7(pose: Any) -> tuple[float, ...]:
+    return tuple(float(x) for x in (*pose.p, *pose.q))
+
+
+def _transform(vertices: np.ndarray, pose: Any, scale: Any = None) -> np.ndarray:
+    v = np.asarray(vertices, np.float64)
+    if scale is not None:
+        v = v * np.asarray(scale, np.float64)
+    return (v @ np.asarray(pose.to_transformation_matrix())[:3, :3].T + np.asarray(pose.p)).astype(np.float32)
+
+
+def _rotate(normals: np.ndarray, pose: Any) -> np.ndarray:
+    return (np.asarray(normals, np.float64) @ np.asarray(pose.to_transformation_matrix())[:3, :3].T).astype(np.float32)
+
+
+def _mesh_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    import trimesh
+
+    mesh = trimesh.Trimesh(vertices=vertices, faces=triangles, process=False)
+    return np.asarray(mesh.vertex_normals, np.float32)
+
+
+def _plane_square(pose: Any, color: RGBA) -> MeshPart:
+    """A finite square of an infinite plane: PhysX planes are x = 0 in their local frame (normal +x)."""
+    h = PLANE_HALF_SIZE
+    local = np.array([[0, -h, -h], [0, h, -h], [0, h, h], [0, -h, h]], np.float32)
+    tris = np.array([[0, 1, 2], [0, 2, 3]], np.uint32)
+    normals = _rotate(np.tile([1.0, 0.0, 0.0], (4, 1)), pose)
+    return MeshPart(_transform(local, pose), tris, normals, color)
+
+
+def _collision_geometry(entity: Any, color: RGBA) -> tuple[list[Primitive], list[MeshPart]]:
+    import sapien.physx as physx
+
+    prims: list[Primitive] = []
+    meshes: list[MeshPart] = []
+    for comp in entity.components:
+        if not isinstance(comp, physx.PhysxRigidBaseComponent):
+            continue
+        for shape in comp.collision_shapes:
+            pose = shape.local_pose
+            if isinstance(shape, physx.PhysxCollisionShapeBox):
+                prims.append(Primitive("box", tuple(float(x) for x in shape.half_size), _pose7(pose), color))
+            elif isinstance(shape, physx.PhysxCollisionShapeSphere):
+                r = float(shape.radius)
+                prims.append(Primitive("sphere", (r, r, r), _pose7(pose), color))
+            elif isinstance(shape, physx.PhysxCollisionShapeCapsule):
+                prims.append(Primitive("capsule", (float(shape.radius), float(shape.half_length), 0.0), _pose7(pose), color))
+            elif isinstance(shape, physx.PhysxCollisionShapeCylinder):
+                prims.append(Primitive("cylinder", (float(shape.radius), float(shape.half_length), 0.0), _pose7(pose), color))
+            elif isinstance(shape, (physx.PhysxCollisionShapeConvexMesh, physx.PhysxCollisionShapeTriangleMesh)):
+                vertices = _transform(shape.vertices, pose, shape.scale)
+                tris = np.asarray(shape.triangles, np.uint32)
+                meshes.append(MeshPart(vertices, tris, _mesh_normals(vertices, tris), color))
+            elif isinstance(shape, physx.PhysxCollisionShapePlane):
+                meshes.append(_plane_square(pose, color))
+    return prims, meshes
+
+
+def _texture_mean(texture: Any) -> np.ndarray:
+    """Mean RGB (0-1) of a texture, used to tint a mesh that Rerun receives without its texture."""
+    try:
+        pixels = np.asarray(texture.download())
+    except Exception:  # a texture that cannot be read back: no tint
+        return np.ones(3)
+    if pixels.ndim != 3 or pixels.shape[-1] < 3:
+        return np.ones(3)
+    rgb = pixels[::8, ::8, :3].reshape(-1, 3).astype(np.float64).mean(axis=0)
+    return rgb / 255.0 if pixels.dtype == np.uint8 else np.clip(rgb, 0.0, 1.0)
+
+
+def _rgba(material: Any, fallback: RGBA) -> RGBA:
+    """A render material's base colour (times the mean of its base colour texture) as RGBA bytes."""
+    if material is None:
+        return fallback
+    c = np.clip(np.asarray(material.base_color, np.float64), 0.0, 1.0)[:4]
+    texture = getattr(material, "base_color_texture", None)
+    if texture is not None:
+        c = np.concatenate([c[:3] * _texture_mean(texture), c[3:]])
+    return tuple(int(round(x * 255)) for x in c)  # type: ignore[return-value]
+
+
+def _visual_geometry(entity: Any, fallback: RGBA) -> tuple[list[Primitive], list[MeshPart]]:
+    import sapien.render as render
+
+    prims: list[Primitive] = []
+    meshes: list[MeshPart] = []
+    for comp in entity.components:
+        if not isinstance(comp, render.RenderBodyComponent):
+            continue
+        for shape in comp.render_shapes:
+            pose = shape.local_pose
+            try:
+                color = _rgba(shape.material, fallback)
+            except RuntimeError:  # a mesh whose parts have different materials: each part says its own
+                color = fallback
+            if isinstance(shape, render.RenderShapeBox):
+                prims.append(Primitive("box", tuple(float(x) for x in shape.half_size), _pose7(pose), color))
+            elif isinstance(shape, render.RenderShapeSphere):
+                r = float(shape.radius)
+                prims.append(Primitive("sphere", (r, r, r), _pose7(pose), color))
+            elif isinstance(shape, render.RenderShapeCapsule):
+                prims.append(Primitive("capsule", (float(shape.radius), float(shape.half_length), 0.0), _pose7(pose), color))
+            elif isinstance(shape, render.RenderShapeCylinder):
+                prims.append(Primitive("cylinder", (float(shape.radius), float(shape.half_length), 0.0), _pose7(pose), color))
+            else:  # triangle meshes (and planes): every part with its own material
+                scale = getattr(shape, "scale", None)
+                for part in shape.parts:
+                    vertices = _transform(part.vertices, pose, scale)
+                    tris = np.asarray(part.triangles, np.uint32)
+                    if len(vertices) == 0 or len(tris) == 0:
+                        continue
+                    normals = np.asarray(part.vertex_normal, np.float32) if hasattr(part, "vertex_normal") else None
+                    if normals is None or normals.shape != vertices.shape:
+                        normals = _mesh_normals(vertices, tris)
+                    else:
+                        normals = _rotate(normals, pose)
+                    meshes.append(MeshPart(vertices, tris, normals, _rgba(part.material, color)))
+    return prims, meshes
+
+
+def _has_plane(entity: Any) -> bool:
+    import sapien.physx as physx
+
+    return any(
+        isinstance(shape, physx.PhysxCollisionShapePlane)
+        for comp in entity.components
+        if isinstance(comp, physx.PhysxRigidBaseComponent)
+        for shape in comp.collision_shapes
+    )
+
+
+def _default_color(body: SceneBody, index: int) -> RGBA:
+    if body.group == "robot":
+        return _ROBOT_GREY
+    if body.body_type == "static":
+        return _STATIC_COLORS.get(body.name, (170, 170, 170, 255))
+    if body.body_type == "kinematic":
+        return _KINEMATIC_COLOR
+    return _PALETTE[index % len(_PALETTE)]
+
+
+def body_geometry(body: SceneBody, *, source: str, color: RGBA) -> BodyGeometry:
+    """The shapes of one body: ``source="visual"`` (render shapes) or ``"collision"`` (physx shapes).
+
+    Planes are always drawn from their collision shape, as a finite square (the visual ground is a huge mesh).
+    """
+    if source not in ("visual", "collision"):
+        raise ValueError(f"geometry source must be 'visual' or 'collision', got {source!r}")
+    if source == "visual" and not _has_plane(body.entity):
+        prims, meshes = _visual_geometry(body.entity, color)
+    else:
+        prims, meshes = _collision_geometry(body.entity, color)
+    return BodyGeometry(body.name, prims, meshes)
+
+
+def scene_geometry(unwrapped: Any, bodies: list[SceneBody], *, source: str = "auto") -> tuple[str, list[BodyGeometry]]:
+    """(source used, geometry of every body). ``auto``: visual shapes when the scene can render, else collision."""
+    if source not in GEOMETRY_SOURCES:
+        raise ValueError(f"geometry source must be one of {GEOMETRY_SOURCES}, got {source!r}")
+    can_render = bool(unwrapped.scene.can_render()) if hasattr(unwrapped.scene, "can_render") else False
+    if source == "auto":
+        source = "visual" if can_render else "collision"
+    elif source == "visual" and not can_render:
+        source = "collision"
+    out = []
+    palette_index = 0
+    for body in bodies:
+        color = _default_color(body, palette_index)
+        if body.group != "robot" and body.body_type == "dynamic":
+            palette_index += 1
+        out.append(body_geometry(body, source=source, color=color))
+    return source, out

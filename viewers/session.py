@@ -1,0 +1,486 @@
+"""A Rerun session of one recorded episode: `build_session` prepares it, `ViewSession` logs it to a sink.
+
+Preparing reads the episode (and the replayed one for ``compare``), rebuilds the recorded env on the CPU
+with one sub-scene and resets it to the episode's scene, and reads the scene's geometry. Logging then
+sends the geometry once (static) and everything per step in blocks of `block_steps` rows through
+`send_columns`, so memory for derived data (poses, arrows, images) stays bounded by one block whatever
+the episode's length. One episode is one Rerun recording (recording id ``<file name>#episode-<index>``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from simreel.viewers.compare import DEFAULT_MODE, ViewComparison, compare_for_view, divergence_row
+from simreel.viewers.paths import step_of_row
+from simreel.viewers.scene_geometry import BodyGeometry, SceneBody, scene_bodies, scene_geometry
+
+from simreel.episode import Episode, RecordingMeta
+from simreel.errors import RecordingFileError, SimreelError, UsageError
+from simreel.formats import EpisodeReader, open_reader
+from simreel.state_tree import flatten, layout_of
+
+if TYPE_CHECKING:
+    import rerun as rr
+    import rerun.blueprint as rrb
+    from simreel.viewers.blueprint import Layout
+
+__all__ = ["APPLICATION_ID", "ViewError", "ViewSession", "build_session", "rebuild_env", "viewer_executable"]
+
+APPLICATION_ID = "simreel"
+_DEFAULT_BLOCK_STEPS = 256
+
+
+class ViewError(SimreelError):
+    """A recording cannot be shown: its env does not rebuild to the recorded layout, or --compare does not fit."""
+
+
+@dataclass
+class _Run:
+    """One episode to draw: the recorded one or the replayed one."""
+
+    label: str
+    meta: RecordingMeta
+    episode: Episode
+    file_name: str
+
+
+def _open(source: str | Path | EpisodeReader) -> tuple[EpisodeReader, bool]:
+    if isinstance(source, EpisodeReader):
+        return source, False
+    return open_reader(source), True
+
+
+def _read(source: str | Path | EpisodeReader, index: int | None, *, role: str) -> _Run:
+    reader, owned = _open(source)
+    try:
+        if not reader.episodes:
+            raise RecordingFileError(reader.path, "holds no committed episode to view")
+        if index is None:
+            index = reader.episodes[0].index
+        reader.episode_meta(index)  # a clear error naming the episodes there are
+        episode = reader.read_episode(index)
+        name = Path(reader.path).name
+        label = f"{name} episode {index}" + (f" ({role})" if role else "")
+        return _Run(label, reader.meta, episode, name)
+    finally:
+        if owned:
+            reader.close()
+
+
+def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto") -> Any:
+    """The recorded env rebuilt for viewing: CPU sim, one sub-scene, state observations, no render mode.
+
+    A render device is used when there is one (for visual meshes and colours) unless `geometry` is
+    ``"collision"``, which builds the env without rendering (faster).
+    """
+    from simreel.rebuild import env_from_meta
+
+    env_kwargs = {k: v for k, v in meta.env_kwargs.items() if k not in ("render_mode", "num_envs")}
+    return env_from_meta(
+        meta,
+        num_envs=1,
+        sim_backend="physx_cpu",
+        obs_mode="state",
+        render_backend="none" if geometry == "collision" else "auto",
+        env_kwargs=env_kwargs,
+    )
+
+
+def viewer_executable() -> str | None:
+    """The ``rerun`` viewer: on PATH, else beside the running Python (a venv's bin/), else None."""
+    import shutil
+    import sys
+
+    found = shutil.which("rerun")
+    if found:
+        return found
+    beside = Path(sys.executable).parent / "rerun"
+    return str(beside) if beside.is_file() else None
+
+
+def _reset_to_scene(env: Any, run: _Run) -> None:
+    """Reset so the scene holds the episode's objects (heterogeneous tasks draw them at reconfiguration)."""
+    m = run.episode.meta
+    options = {k: v for k, v in (m.reset_options or {}).items() if k != "env_idx"}
+    if m.scene_seed is not None:
+        env.reset(seed=m.scene_seed, options={**options, "reconfigure": True})
+    else:
+        env.reset(seed=m.seed, options=options or None)
+
+
+def _check_layout(u: Any, meta: RecordingMeta, path_label: str) -> None:
+    have = layout_of(flatten(u.get_state_dict()), batched=True)
+    if have == meta.state_layout:
+        return
+    keys = sorted(set(have) | set(meta.state_layout))
+    diffs = [f"{k}: recorded {meta.state_layout.get(k)} vs rebuilt {have.get(k)}"
+             for k in keys if have.get(k) != meta.state_layout.get(k)]
+    raise ViewError(
+        f"{path_label}: the rebuilt {meta.env_id} has a different state layout ({'; '.join(diffs[:3])}); "
+        "rebuild it with the recorded versions and --import modules (see `simreel inspect`)"
+    )
+
+
+def _joint_names(u: Any) -> dict[str, list[str]]:
+    out = {}
+    for name, art in u.scene.state_dict_registry.articulations.items():
+        try:
+            names = [j.name for j in art.active_joints]
+        except Exception:  # merged views of different parts have no common joints
+            names = []
+        part = art._objs[0]
+        if len(names) != len(part.active_joints):
+            names = [j.child_link.entity.name for j in part.active_joints]
+        out[name] = names
+    return out
+
+
+def _eye(u: Any) -> tuple[tuple[float, float, float], tuple[float, float, float]] | None:
+    """Eye position and look target of the task's human render camera (SAPIEN cameras look along +x)."""
+    try:
+        cfg = u._default_human_render_camera_configs
+        cfg = cfg[0] if isinstance(cfg, (list, tuple)) else cfg
+        raw = np.asarray(getattr(cfg.pose, "raw_pose", None).reshape(-1, 7)[0], np.float64)
+    except Exception:
+        return None
+    p, (w, x, y, z) = raw[:3], raw[3:]
+    forward = np.array([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)])
+    target = p + forward * max(float(np.linalg.norm(p)), 0.5)
+    return tuple(float(v) for v in p), tuple(float(v) for v in target)  # type: ignore[return-value]
+
+
+@dataclass
+class ViewSession:
+    """A prepared session: log it with `save`, `spawn`, `serve` or `log_to`. Close it to free the env."""
+
+    recording: _Run
+    replayed: _Run | None
+    env: Any
+    bodies: list[SceneBody]
+    geometry: list[BodyGeometry]
+    geometry_source: str
+    comparison: ViewComparison | None = None
+    block_steps: int = _DEFAULT_BLOCK_STEPS
+    joint_names: dict[str, list[str]] = field(default_factory=dict)
+    eye: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+    owns_env: bool = False
+    pose_source: str = ""
+    """``recorded`` (body poses read from the file) or ``restored`` (states restored into the env), after logging."""
+    timings: dict[str, float] = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ identity and layout
+    @property
+    def meta(self) -> RecordingMeta:
+        return self.recording.meta
+
+    @property
+    def episode(self) -> Episode:
+        return self.recording.episode
+
+    @property
+    def recording_id(self) -> str:
+        return f"{self.recording.file_name}#episode-{self.episode.meta.index}"
+
+    @property
+    def divergence(self) -> Any:
+        """The replay's first divergence (`simreel.compare.Divergence`), or None."""
+        return None if self.comparison is None else self.comparison.divergence
+
+    @property
+    def period(self) -> float | None:
+        return self.meta.control_period
+
+    def layout(self) -> Layout:
+        from simreel.viewers.blueprint import Layout
+        from simreel.viewers.log_cameras import camera_streams
+        from simreel.viewers.log_contacts import active_channels
+
+        groups = ["reward", "success", "qpos"]
+        if any(k not in ("success", "elapsed_steps") for k in self.episode.info):
+            groups.append("info")
+        forces = self.episode.contact_forces
+        if forces is not None and active_channels(forces).any():
+            groups.append("contacts")
+        focus = None
+        if self.divergence is not None:
+            s = step_of_row(divergence_row(self.divergence))
+            focus = (max(-1, s - 10), min(self.episode.length - 1, s + 10))
+        eye, target = self.eye if self.eye is not None else (None, None)
+        return Layout(
+            compare=self.replayed is not None,
+            cameras=tuple(camera_streams(self.episode.obs)),
+            plot_groups=tuple(groups),
+            eye=eye,
+            look_target=target,
+            focus=focus,
+            title=f"{self.meta.env_id} · episode {self.episode.meta.index}",
+        )
+
+    def blueprint(self) -> rrb.Blueprint:
+        from simreel.viewers.blueprint import session_blueprint
+
+        return session_blueprint(self.layout())
+
+    # ------------------------------------------------------------------ sinks
+    def new_stream(self) -> rr.RecordingStream:
+        import rerun as rr
+
+        return rr.RecordingStream(APPLICATION_ID, recording_id=self.recording_id)
+
+    def save(self, path: str | Path) -> Path:
+        """Write the session to an .rrd file (with its blueprint) and return the path."""
+        path = Path(path)
+        if path.suffix.lower() != ".rrd":
+            raise UsageError(f"--save {path}: the output must end in .rrd")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        rec = self.new_stream()
+        rec.save(path, default_blueprint=self.blueprint())
+        self.log_to(rec)
+        rec.flush()
+        rec.disconnect()
+        return path
+
+    def spawn(self, *, port: int = 9876) -> None:
+        """Open the native Rerun viewer (a separate process) and stream the session to it.
+
+        The viewer is the ``rerun`` executable on PATH, else the one beside this Python (a venv's bin/).
+        """
+        import rerun as rr
+
+        rec = self.new_stream()
+        try:
+            rr.spawn(port=port, default_blueprint=self.blueprint(), recording=rec, executable_path=viewer_executable())
+        except RuntimeError as e:
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise ViewError(f"could not start the Rerun viewer ({first}); use --save OUT.rrd and open it elsewhere") from e
+        self.log_to(rec)
+        rec.flush()
+
+    def serve(self, *, web_port: int = 9090, grpc_port: int = 9876, open_browser: bool = False) -> str:
+        """Serve the session over gRPC and the web viewer; returns the URL to open. Keeps serving until exit."""
+        import rerun as rr
+
+        rec = self.new_stream()
+        grpc_url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=self.blueprint())
+        rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=grpc_url)
+        self.log_to(rec)
+        rec.flush()
+        return f"http://localhost:{web_port}/?url={grpc_url}"
+
+    # ------------------------------------------------------------------ logging
+    def log_to(self, rec: rr.RecordingStream) -> None:
+        """Log the whole session into `rec` (whatever its sink)."""
+        import rerun as rr
+        from simreel.viewers.log_cameras import camera_streams, log_camera_block, log_camera_formats
+        from simreel.viewers.log_contacts import active_channels, log_contact_block, log_contact_styles
+        from simreel.viewers.log_plots import (
+            episode_events,
+            log_contact_magnitudes,
+            log_errors,
+            log_events,
+            log_qpos,
+            log_step_plots,
+            time_indexes,
+        )
+        from simreel.viewers.log_scene import log_geometry, log_pose_block, log_static_poses
+        from simreel.viewers.paths import REPLAYED, WORLD
+        from simreel.viewers.poses import PoseSource
+
+        t0 = time.perf_counter()
+        ep, meta, period = self.episode, self.meta, self.period
+        rec.send_recording_name(self.recording.label)
+        rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        markers = [b.name for b in self.bodies if b.group == "actor"]
+        log_geometry(rec, WORLD, self.geometry, markers=markers)
+        if self.replayed is not None:
+            log_geometry(rec, REPLAYED, self.geometry, ghost=True)
+
+        u = self.env.unwrapped
+        names = [b.name for b in self.bodies]
+        moving = np.array([b.body_type != "static" for b in self.bodies])
+        moving_names = [n for n, m in zip(names, moving, strict=True) if m]
+        static_names = [n for n, m in zip(names, moving, strict=True) if not m]
+        index = {n: j for j, n in enumerate(names)}
+
+        channels = list(meta.contact_channels)
+        forces = ep.contact_forces
+        active = active_channels(forces) if forces is not None else np.zeros(len(channels), bool)
+        channel_body = np.array([index.get(ch.bodies[0], -1) for ch in channels], np.intp)
+        log_contact_styles(rec, channels, active)
+        streams = camera_streams(ep.obs)
+        log_camera_formats(rec, ep.obs, streams)
+
+        runs = [(WORLD, self.recording)] + ([(REPLAYED, self.replayed)] if self.replayed is not None else [])
+        sources = []
+        for root, run in runs:
+            src = PoseSource(u, self.bodies, run.episode.env_states, recorded=run.episode.body_poses,
+                             recorded_names=run.meta.pose_bodies)
+            sources.append(src)
+            total = run.episode.length + 1
+            for start in range(0, total, self.block_steps):
+                stop = min(total, start + self.block_steps)
+                poses = src.rows(start, stop)
+                if start == 0 and static_names:
+                    log_static_poses(rec, root, static_names, poses[0, ~moving])
+                indexes = time_indexes(np.arange(start, stop), period)
+                log_pose_block(rec, root, moving_names, poses[:, moving], indexes)
+                if root != WORLD:
+                    continue
+                if streams:
+                    log_camera_block(rec, ep.obs, streams, start, stop, indexes)
+                if forces is not None and active.any():
+                    first = max(start, 1)
+                    if first < stop:
+                        block = poses[first - start :]
+                        origins = np.full((len(block), len(channels), 3), np.nan, np.float32)
+                        known = channel_body >= 0
+                        origins[:, known] = block[:, channel_body[known], :3]
+                        log_contact_block(rec, channels, forces[first - 1 : stop - 1], origins,
+                                          time_indexes(np.arange(first, stop), period), active)
+        self.pose_source = "recorded" if sources[0].from_recording else "restored"
+
+        log_step_plots(rec, ep, period)
+        log_qpos(rec, ep.env_states, self.joint_names, period)
+        if forces is not None:
+            log_contact_magnitudes(rec, channels, forces, active, period)
+        if self.comparison is not None:
+            log_errors(rec, self.comparison, period)
+        label = self.replayed.label if self.replayed is not None else None
+        log_events(rec, episode_events(ep, channels=channels, comparison=self.comparison, compare_label=label), period)
+        self.timings["log_s"] = time.perf_counter() - t0
+
+    # ------------------------------------------------------------------ lifetime
+    def close(self) -> None:
+        if self.owns_env and self.env is not None:
+            self.env.close()
+            self.env = None
+
+    def __enter__(self) -> ViewSession:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def build_session(
+    source: str | Path | EpisodeReader,
+    *,
+    episode: int | None = None,
+    compare: str | Path | EpisodeReader | None = None,
+    env: Any = None,
+    geometry: str = "auto",
+    mode: str = DEFAULT_MODE,
+    atol: float | None = None,
+    tolerances: dict[str, float] | None = None,
+    block_steps: int = _DEFAULT_BLOCK_STEPS,
+) -> ViewSession:
+    """Prepare a Rerun session of one episode of the recording `source` (.h5 or .mcap path, or a reader).
+
+    Args:
+        episode: the episode's index (default: the first episode in the file).
+        compare: a replay of the same episode (a file written by ``simreel replay -o``, or any recording of
+            the same env): drawn as a translucent ghost, with the per-key state error and its first
+            divergence. The episode with the same index is used, or the file's only episode.
+        env: an already built env of the recording's task with ``num_envs=1`` on the CPU sim (e.g. from
+            `rebuild_env`); by default one is built from the recording's metadata and closed with the session.
+        geometry: ``"auto"`` (visual shapes when a render device exists, else collision shapes),
+            ``"visual"`` or ``"collision"``.
+        mode, atol, tolerances: the comparison's tolerances, as for ``simreel replay --mode/--atol/--tol``: the
+            defaults of `mode` (``actions``, ``states`` or ``step``), `atol` for every group, then per-group
+            overrides such as ``{"pos": 1e-4}`` (see `simreel.compare.Tolerances.for_mode`).
+        block_steps: steps per `send_columns` block (bounds the memory of derived data).
+
+    Raises:
+        RecordingFileError: a file is missing, unreadable or has no such episode.
+        ViewError: the rebuilt env does not match the recording, or `compare` is of another env.
+        EnvBuildError / RenderUnavailableError: the env cannot be rebuilt.
+    """
+    from simreel.viewers.scene_geometry import GEOMETRY_SOURCES
+
+    if geometry not in GEOMETRY_SOURCES:
+        raise UsageError(f"--geometry {geometry!r}: expected one of {', '.join(GEOMETRY_SOURCES)}")
+    if block_steps < 1:
+        raise UsageError(f"block_steps must be ≥ 1, got {block_steps}")
+    try:
+        from simreel.compare import Tolerances
+
+        Tolerances.for_mode(mode, atol=atol, groups=tolerances)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    rec_run = _read(source, episode, role="")
+    rep_run = None
+    if compare is not None:
+        rep_run = _read_compare(compare, rec_run)
+    timings["read_s"] = time.perf_counter() - t0
+
+    owns = env is None
+    t1 = time.perf_counter()
+    if env is None:
+        env = rebuild_env(rec_run.meta, geometry=geometry)
+    timings["env_s"] = time.perf_counter() - t1
+    try:
+        u = env.unwrapped
+        if int(u.num_envs) != 1 or u.scene.gpu_sim_enabled:
+            raise UsageError("build_session(env=...) needs an env with num_envs=1 on the CPU sim (see rebuild_env)")
+        t2 = time.perf_counter()
+        _reset_to_scene(env, rec_run)
+        _check_layout(u, rec_run.meta, rec_run.label)
+        bodies = scene_bodies(u)
+        used, geo = scene_geometry(u, bodies, source=geometry)
+        timings["scene_s"] = time.perf_counter() - t2
+        comparison = None
+        if rep_run is not None:
+            comparison = compare_for_view(rec_run.episode, rep_run.episode, contact_channels=rec_run.meta.contact_channels,
+                                          mode=mode, atol=atol, groups=tolerances)
+        return ViewSession(
+            recording=rec_run,
+            replayed=rep_run,
+            env=env,
+            bodies=bodies,
+            geometry=geo,
+            geometry_source=used,
+            comparison=comparison,
+            block_steps=block_steps,
+            joint_names=_joint_names(u),
+            eye=_eye(u),
+            owns_env=owns,
+            timings=timings,
+        )
+    except BaseException:
+        if owns:
+            env.close()
+        raise
+
+
+def _read_compare(compare: str | Path | EpisodeReader, rec_run: _Run) -> _Run:
+    reader, owned = _open(compare)
+    try:
+        index = rec_run.episode.meta.index
+        have = [m.index for m in reader.episodes]
+        if index not in have:
+            if len(have) != 1:
+                raise ViewError(
+                    f"--compare {reader.path}: no episode {index} to compare with episode {index} of the recording "
+                    f"(it has {', '.join(map(str, have)) or 'none'}); replay that episode with `simreel replay -o`"
+                )
+            index = have[0]
+        run = _read(reader, index, role="replayed")
+    finally:
+        if owned:
+            reader.close()
+    if run.meta.env_id != rec_run.meta.env_id:
+        raise ViewError(
+            f"--compare {run.label}: it is a recording of {run.meta.env_id}, not of {rec_run.meta.env_id}; "
+            "compare a replay of the same recording"
+        )
+    common = set(run.episode.env_states) & set(rec_run.episode.env_states)
+    if not common:
+        raise ViewError(f"--compare {run.label}: no state key in common with {rec_run.label}")
+    return run
