@@ -83,6 +83,7 @@ class RecordWrapper(gym.Wrapper):
         super().__init__(env)
         if block_steps < 1:
             raise UsageError(f"block_steps must be ≥ 1, got {block_steps}")
+        _refuse_reshaping_wrappers(env, record_obs)
         u = env.unwrapped
         self._u = u
         self._n = int(u.num_envs)
@@ -136,11 +137,10 @@ class RecordWrapper(gym.Wrapper):
         self._check_layout(state)
         obs_flat = flatten_obs(obs, self._u.obs_mode) if self._record_obs else {}
         poses = self._poses()
-        seeds = to_numpy(self._u._episode_seed).reshape(-1)
+        seeds = self._episode_seeds(seed, idxs)
         stored_options = {k: v for k, v in options.items() if k != "env_idx"}
         stored_options = json.loads(json.dumps(stored_options, default=json_default))
-        for i in idxs:
-            seed_i = int(seeds[i]) if len(seeds) > i else None
+        for i, seed_i in zip(idxs, seeds, strict=True):
             if reconfigured:
                 self._scene_seed[i] = seed_i
             meta = EpisodeMeta(
@@ -225,6 +225,23 @@ class RecordWrapper(gym.Wrapper):
     def path(self) -> Path:
         return self._writer.path
 
+    def _episode_seeds(self, seed: Any, idxs: list[int]) -> list[int | None]:
+        """The episode seed of each reset env, or None where the reset was not reproducible from a seed.
+
+        ManiSkill 3.0.1 leaves `_episode_seed` stale after `reset(seed=None)` (the episode is drawn from
+        the global RNG instead) and, for a partial reset with a seed list, replaces the whole array by
+        that list, one seed per reset env in order.
+        """
+        u = self._u
+        if seed is None and not getattr(u, "_enhanced_determinism", False):
+            return [None] * len(idxs)
+        drawn = to_numpy(u._episode_seed).reshape(-1)
+        if len(drawn) == self._n:
+            return [int(drawn[i]) for i in idxs]
+        if len(drawn) == len(idxs):
+            return [int(x) for x in drawn]
+        return [None] * len(idxs)
+
     def _poses(self) -> np.ndarray | None:
         names = self.meta.pose_bodies
         return sample_body_poses(self._u, names) if names else None
@@ -276,6 +293,19 @@ class RecordWrapper(gym.Wrapper):
             return
         sink.commit(meta)
         self.episodes_committed.append(meta)
+
+
+def _refuse_reshaping_wrappers(env: gym.Env, record_obs: bool) -> None:
+    """Actions (and observations, when recorded) must be the task's own: replay feeds them to the task."""
+    e = env
+    while isinstance(e, gym.Wrapper):
+        if isinstance(e, gym.ActionWrapper) or (record_obs and isinstance(e, gym.ObservationWrapper)):
+            raise UsageError(
+                f"RecordWrapper wraps {type(e).__name__}, which changes the task's "
+                f"{'actions' if isinstance(e, gym.ActionWrapper) else 'observations'}; a replay could not "
+                "reproduce them. Put RecordWrapper directly around the ManiSkill env, below such wrappers"
+            )
+        e = e.env
 
 
 def _block(rows: dict[str, np.ndarray]) -> StepBlock:

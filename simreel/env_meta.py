@@ -10,7 +10,7 @@ from simreel.episode import ContactChannel, RecordingMeta
 from simreel.scene_info import describe_scene
 from simreel.state_tree import LeafSpec, flatten, layout_of
 
-__all__ = ["recording_meta", "max_episode_steps_of", "MAKE_KWARGS_IN_META", "flatten_obs"]
+__all__ = ["recording_meta", "max_episode_steps_of", "MAKE_KWARGS_IN_META", "flatten_obs", "sim_config_json"]
 
 MAKE_KWARGS_IN_META = ("obs_mode", "control_mode", "reward_mode", "sim_backend", "render_backend", "num_envs",
                        "sim_config", "max_episode_steps")
@@ -36,7 +36,7 @@ def flatten_obs(obs: Any, obs_mode: str) -> dict[str, Any]:
     return flatten({obs_mode: obs})
 
 
-def _sim_config_json(cfg: Any) -> dict[str, Any]:
+def sim_config_json(cfg: Any) -> dict[str, Any]:
     if dataclasses.is_dataclass(cfg):
         return dataclasses.asdict(cfg)
     return dict(cfg or {})
@@ -58,6 +58,13 @@ def recording_meta(
     spec = getattr(u, "spec", None) or getattr(env, "spec", None)
     make_kwargs = dict(getattr(spec, "kwargs", {}) or {})
     space = u.single_action_space
+    if space.shape is None:
+        from simreel.errors import UsageError
+
+        raise UsageError(
+            f"{spec.id if spec is not None else type(u).__name__} has a {type(space).__name__} action space "
+            "(a multi-agent task); simreel records single-agent tasks with Box action spaces for now"
+        )
     state = flatten(u.get_state_dict())
     return RecordingMeta(
         env_id=spec.id if spec is not None else type(u).__name__,
@@ -71,7 +78,7 @@ def recording_meta(
         max_episode_steps=max_episode_steps_of(env),
         control_freq=float(u.control_freq),
         sim_freq=float(u.sim_freq),
-        sim_config=_sim_config_json(u.sim_config),
+        sim_config=sim_config_json(u.sim_config),
         action_space={
             "shape": list(space.shape),
             "dtype": str(space.dtype),

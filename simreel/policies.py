@@ -6,7 +6,6 @@ the action of shape (num_envs, action_dim) or (action_dim,).
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from typing import Any
 
@@ -17,7 +16,7 @@ from simreel.errors import UsageError
 __all__ = ["Policy", "load_policy", "POLICY_HELP"]
 
 Policy = Callable[[Any, Any], Any]
-POLICY_HELP = "random | zero | scripted (the task's shipped policy) | MODULE:CALLABLE"
+POLICY_HELP = "random | zero | scripted (the task's shipped policy) | MODULE:CALLABLE | FILE.py:CALLABLE"
 
 
 def _random(env: Any, obs: Any) -> Any:
@@ -41,14 +40,18 @@ def load_policy(spec: str, env_id: str) -> Policy:
             have = ", ".join(sorted(DEFAULT_POLICIES))
             raise UsageError(f"no scripted policy ships for {env_id}; tasks with one: {have}")
         return DEFAULT_POLICIES[env_id]
-    module_name, sep, attr = spec.partition(":")
-    if not sep or not module_name or not attr:
+    module_spec, sep, attr = spec.rpartition(":")
+    if not sep or not module_spec or not attr:
         raise UsageError(f"bad --policy {spec!r}: expected {POLICY_HELP}")
+    from simreel.envs import import_user_code
+    from simreel.errors import EnvBuildError
+
     try:
-        module = importlib.import_module(module_name)
-    except ImportError as e:
-        raise UsageError(f"--policy {spec}: cannot import {module_name} ({e})") from None
+        module = import_user_code(module_spec)
+    except EnvBuildError as e:
+        why = str(e).split(": ", 1)[-1]  # import_user_code's message names the --import option
+        raise UsageError(f"--policy {spec}: cannot import {module_spec}: {why}") from None
     policy = getattr(module, attr, None)
     if not callable(policy):
-        raise UsageError(f"--policy {spec}: {module_name} has no callable {attr!r}")
+        raise UsageError(f"--policy {spec}: {module_spec} has no callable {attr!r}")
     return policy

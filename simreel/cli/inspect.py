@@ -29,12 +29,16 @@ def summarize(reader: Any) -> dict[str, Any]:
     }
 
 
+def _hz(freq: float | None) -> str:
+    return "?" if freq is None else f"{freq:g}"  # files written through the API may lack frequencies
+
+
 def _print_text(reader: Any) -> None:
     m = reader.meta
     eps = reader.episodes
     print(f"{reader.path}  (simreel format {m.format_version})")
     print(f"  env        {m.env_id}  obs={m.obs_mode} control={m.control_mode} reward={m.reward_mode}")
-    print(f"  sim        {m.sim_backend}, num_envs={m.num_envs}, {m.sim_freq:g} Hz sim / {m.control_freq:g} Hz control,"
+    print(f"  sim        {m.sim_backend}, num_envs={m.num_envs}, {_hz(m.sim_freq)} Hz sim / {_hz(m.control_freq)} Hz control,"
           f" render={m.render_backend}, max_episode_steps={m.max_episode_steps}")
     if m.env_kwargs:
         print(f"  env kwargs {json.dumps(m.env_kwargs)}")

@@ -1,6 +1,7 @@
 """The `simreel` command: one subcommand module per verb, imported only as far as argparse needs.
 
-Errors a user can cause print one line on stderr and exit 2 (`--debug` shows the traceback).
+Exit status: 0 success, 1 a verdict that failed (replay diverged, audit findings), 2 bad input (one line on
+stderr), 3 an internal error (one line; `--debug` shows the traceback), 130 interrupted.
 """
 
 from __future__ import annotations
@@ -62,6 +63,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write(f"simreel {args.command}: interrupted\n")
         return 130
+    except Exception as e:  # a bug, not bad input: still one line, and not 1 (which replay uses for "diverged")
+        if args.debug:
+            raise
+        sys.stderr.write(f"simreel {args.command}: internal error: {type(e).__name__}: {e} "
+                         "(rerun with --debug for the traceback, and please report it)\n")
+        return 3
 
 
 if __name__ == "__main__":

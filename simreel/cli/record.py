@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import shlex
 import sys
+from pathlib import Path
 from typing import Any
 
 from simreel.cli.common import add_env_options, apply_imports
@@ -52,7 +53,12 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--num-envs must be ≥ 1, got {args.num_envs}")
     from simreel.formats import format_of
 
-    format_of(args.output)  # reject a bad suffix before paying for the env
+    format_of(args.output)  # reject what cannot be written before paying for the env
+    out = Path(args.output)
+    if not out.parent.is_dir():
+        raise UsageError(f"cannot write {out}: folder {out.parent} does not exist")
+    if out.exists() and not args.overwrite:
+        raise UsageError(f"{out} already exists; pass --overwrite to replace it")
     apply_imports(args.imports)
     from simreel.envs import make_env
     from simreel.policies import load_policy

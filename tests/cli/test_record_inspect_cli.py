@@ -59,14 +59,17 @@ def test_record_then_inspect(tmp_path, capsys):
         (["record", "PickCube-v1", "-o", "{tmp}/x.h5", "-n", "two"], "argument -n/--episodes: invalid int value"),
         (["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--env-kwargs", "[1]"], "expected a JSON object"),
         (["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--import", "{tmp}/missing.py"], "missing.py"),
+        (["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/broken.py:f"], "broken.py"),
+        (["record", "TwoRobotPickCube-v1", "-o", "{tmp}/x.h5"], "Dict action space (a multi-agent task)"),
         (["inspect", "{tmp}/missing.h5"], "missing.h5: no such file"),
         (["inspect", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
     ],
     ids=["unknown-env", "unknown-body", "bad-pair", "no-dir", "bad-suffix", "bad-policy", "zero-episodes",
-         "non-int", "bad-json", "bad-import", "missing-file", "junk-file"],
+         "non-int", "bad-json", "bad-import", "broken-policy-file", "multi-agent", "missing-file", "junk-file"],
 )
 def test_bad_input_is_one_line_and_exit_2(tmp_path, args, message):
     (tmp_path / "junk.h5").write_text("not a recording")
+    (tmp_path / "broken.py").write_text("raise RuntimeError('oops')\n")
     out = _simreel(*[a.format(tmp=tmp_path) for a in args])
     assert out.returncode == 2, out.stderr
     lines = out.stderr.strip().splitlines()
@@ -90,3 +93,38 @@ def test_random_policy_is_reproducible_from_the_seed(tmp_path, capsys):
         assert main(["record", "PushCube-v1", "-o", str(tmp_path / name), "--seed", "4", "--max-steps", "6", "-q"]) == 0
     with open_reader(tmp_path / "a.h5") as a, open_reader(tmp_path / "b.h5") as b:
         assert (a.read_episode(0).actions == b.read_episode(0).actions).all()
+
+
+def test_policy_from_a_file(tmp_path, capsys):
+    (tmp_path / "my_policy.py").write_text(
+        "import numpy as np\n\ndef still(env, obs):\n    return np.zeros(env.action_space.shape, np.float32)\n"
+    )
+    out = tmp_path / "p.h5"
+    assert main(["record", "PushCube-v1", "-o", str(out), "--policy", f"{tmp_path}/my_policy.py:still",
+                 "--max-steps", "3", "-q"]) == 0
+    from simreel.formats import open_reader
+
+    with open_reader(out) as r:
+        assert not r.read_episode(0).actions.any()
+
+
+def test_an_internal_error_is_one_line_and_exit_3(monkeypatch, capsys):
+    import simreel.cli.inspect as inspect_cmd
+
+    def broken(args):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(inspect_cmd, "run", broken)
+    assert main(["inspect", "whatever.h5"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["simreel inspect: internal error: RuntimeError: boom (rerun with --debug for the traceback, "
+                   "and please report it)"]
+
+
+def test_inspect_file_without_frequencies(tmp_path, capsys):
+    from simreel.episode import RecordingMeta
+    from simreel.formats import open_writer
+
+    open_writer(tmp_path / "api.h5", RecordingMeta(env_id="PickCube-v1")).close()
+    assert main(["inspect", str(tmp_path / "api.h5")]) == 0
+    assert "? Hz sim / ? Hz control" in capsys.readouterr().out

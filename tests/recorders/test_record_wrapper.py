@@ -172,3 +172,24 @@ def test_state_layout_change_is_refused(tmp_path):
     with pytest.raises(StateLayoutChanged, match="actors/cube"):
         env.reset(seed=0)
     env.close()
+
+
+def test_unseeded_reset_records_no_seed_and_seeded_one_its_seed(tmp_path):
+    """ManiSkill keeps a stale _episode_seed after reset(seed=None): the file must not claim it."""
+    env = RecordWrapper(make_env("PushCube-v1"), tmp_path / "s.h5")
+    for seed in (5, None):
+        env.reset(seed=seed)
+        env.step(np.zeros(env.action_space.shape, np.float32))
+    env.close()
+    with open_reader(tmp_path / "s.h5") as r:
+        assert [m.seed for m in r.episodes] == [5, None]
+
+
+def test_wrappers_that_change_actions_must_sit_above_the_recorder(tmp_path):
+    import gymnasium as gym
+
+    from simreel.errors import UsageError
+
+    with pytest.raises(UsageError, match="RecordWrapper wraps ClipAction, which changes the task's actions"):
+        RecordWrapper(gym.wrappers.ClipAction(make_env("PushCube-v1")), tmp_path / "w.h5")
+    assert not (tmp_path / "w.h5").exists()

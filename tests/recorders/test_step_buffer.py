@@ -1,0 +1,24 @@
+"""StepBuffer: per-env rows of a batched block, the bookkeeping partial resets rely on."""
+
+from __future__ import annotations
+
+import numpy as np
+from simreel.recorders.step_buffer import StepBuffer
+
+
+def test_envs_take_their_own_rows_across_partial_resets():
+    buf = StepBuffer(capacity=4, num_envs=3)
+    for t in range(3):
+        buf.push({"x": np.array([10 * t + 0, 10 * t + 1, 10 * t + 2]), "y": np.full((3, 2), t)})
+    # env 1's episode ends after step 2 (a partial reset): it takes its rows, the others keep theirs
+    np.testing.assert_array_equal(buf.take(1)["x"], [1, 11, 21])
+    assert buf.pending(1) == 0 and buf.pending(0) == 3
+    buf.push({"x": np.array([30, 31, 32]), "y": np.full((3, 2), 3)})
+    assert buf.full
+    np.testing.assert_array_equal(buf.take(0)["x"], [0, 10, 20, 30])
+    np.testing.assert_array_equal(buf.take(1)["x"], [31])  # the new episode's first row only
+    np.testing.assert_array_equal(buf.take(2)["y"][:, 0], [0, 1, 2, 3])
+    buf.rewind()
+    assert buf.rows == 0 and all(buf.pending(i) == 0 for i in range(3))
+    buf.push({"x": np.array([40, 41, 42]), "y": np.full((3, 2), 4)})
+    np.testing.assert_array_equal(buf.take(2)["x"], [42])
