@@ -21,10 +21,15 @@ $(STAMP): pyproject.toml tools/install_torch.sh tools/fetch_lavapipe.sh
 	 else tools/fetch_lavapipe.sh $(MESA) || echo "warning: no software Vulkan fetched; simreel will run state-only"; fi
 	@touch $(STAMP)
 
+# Record a few PickCube-v1 episodes, show what the file holds, replay and verify every step (writing
+# the replay and a JSON report), and build a Rerun session of episode 0 beside its replay.
 demo: setup
 	@mkdir -p $(DEMO)
 	$(BIN)/simreel record PickCube-v1 -o $(DEMO)/pickcube.h5 -n 3 --seed 0 --overwrite
 	$(BIN)/simreel inspect $(DEMO)/pickcube.h5
+	$(BIN)/simreel replay $(DEMO)/pickcube.h5 -o $(DEMO)/pickcube.replayed.h5 --overwrite --report $(DEMO)/report.json
+	$(BIN)/simreel view $(DEMO)/pickcube.h5 --episode 0 --compare $(DEMO)/pickcube.replayed.h5 --save $(DEMO)/pickcube.rrd
+	@echo "demo outputs in $(DEMO)/: open the session with '$(BIN)/rerun $(DEMO)/pickcube.rrd'"
 
 lint: setup
 	$(BIN)/ruff check simreel recorders replay viewers tests benchmarks
@@ -40,6 +45,10 @@ test-gpu: setup
 
 bench: setup
 	$(BIN)/python benchmarks/record_overhead.py
+	$(BIN)/python benchmarks/record_overhead.py --format mcap
+	$(BIN)/python benchmarks/bench_formats.py
+	$(BIN)/python benchmarks/bench_replay.py
+	$(BIN)/python benchmarks/bench_view.py
 
 clean:
 	rm -rf $(DEMO) .pytest_cache .ruff_cache
