@@ -15,7 +15,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from simreel.recorders.step_buffer import StepBuffer
 
 from simreel.body_poses import pose_body_names, sample_body_poses
 from simreel.contacts import ContactSampler, contact_channels
@@ -23,8 +22,9 @@ from simreel.env_meta import flatten_obs, recording_meta
 from simreel.episode import FLAG_FIELDS, EpisodeMeta, json_default
 from simreel.errors import SimreelError, UsageError
 from simreel.fast_state import FastStateReader
-from simreel.formats import StepBlock, open_writer
-from simreel.state_tree import LeafSpec, flatten, layout_of, to_numpy
+from simreel.formats import StepBlock, open_writer, records_poses_by_default
+from simreel.recorders.step_buffer import StepBuffer
+from simreel.state_tree import LeafSpec, flatten, layout_differences, layout_of, to_numpy
 
 __all__ = ["RecordWrapper", "StateLayoutChanged"]
 
@@ -59,7 +59,8 @@ class RecordWrapper(gym.Wrapper):
             "none", or explicit pairs "panda/panda_leftfinger:cube,...".
         record_obs: also record observations (T+1 rows per episode).
         poses: also record world poses of every body (needed by MCAP's transform channel; costs about
-            as much per step as the state dict). None: on for .mcap, off for .h5.
+            as much per step as the state dict). None: the format's default (on for .mcap, off for .h5).
+        writer_options: keyword options for the format's writer (e.g. HDF5 `compression`).
         overwrite: replace an existing file instead of refusing.
         block_steps: steps buffered in memory before they are streamed to the file.
         imports: `--import` specs that registered the task, stored so replay can import them again.
@@ -98,7 +99,7 @@ class RecordWrapper(gym.Wrapper):
         if record_obs:
             obs_layout = layout_of(flatten_obs(u.get_obs(), u.obs_mode), batched=True)
         if poses is None:
-            poses = str(path).lower().endswith(".mcap")
+            poses = records_poses_by_default(path)
         self.meta = recording_meta(
             env,
             contact_channels=self._sampler.channels,
@@ -267,8 +268,7 @@ class RecordWrapper(gym.Wrapper):
         layout = layout_of(state, batched=True)
         if layout == self.meta.state_layout:
             return
-        old, new = self.meta.state_layout, layout
-        diffs = [f"{k}: {old.get(k)} → {new.get(k)}" for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+        diffs = layout_differences(self.meta.state_layout, layout, old_label="first episode", new_label="now")
         raise StateLayoutChanged(
             f"the state dict of {self.meta.env_id} changed after a reset ({'; '.join(diffs[:5])}); one recording "
             "needs one layout — register merged views for per-episode objects (see simreel.heterogeneous)"

@@ -1,4 +1,5 @@
-"""simreel.replay: the replay-and-verify room — replay a recording in one of four modes, verify every step,
+"""simreel.replay: the replay-and-verify room — replay a recording in one of three modes (`MODES`: actions,
+states, step; actions can also restore the recorded state every K steps, ``resync``), verify every step,
 and audit a task for state that its state dict does not capture.
 
 - `verify_recording(path, mode=..., resync=..., ...)` → `ReplayReport` (what `simreel replay` runs)

@@ -25,11 +25,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from simreel.replay.restore import restore_state
 
 from simreel.compare import Tolerances, component_error, components_of
-from simreel.errors import RenderUnavailableError, UsageError
-from simreel.state_tree import flatten, layout_of, to_numpy
+from simreel.errors import UsageError
+from simreel.rebuild import build_with_render_fallback
+from simreel.replay.restore import restore_state
+from simreel.state_tree import describe_leaf, flatten, layout_of, to_numpy
 
 __all__ = ["AuditFinding", "AuditReport", "audit_task", "FOLLOW_STEPS"]
 
@@ -179,8 +180,8 @@ class _Auditor:
                        tol: Tolerances, step: int | None, why: str) -> None:
         for key in sorted(set(want) | set(have)):
             if key not in have or key not in want:
-                side = "after the restore" if key not in have else "only after the restore"
-                self.report.add(AuditFinding(kind, f"env_states/{key}", f"state key {key!r} present {side}: {why}",
+                side = "missing after the restore" if key not in have else "present only after the restore"
+                self.report.add(AuditFinding(kind, f"env_states/{key}", f"state key {key!r} {side}: {why}",
                                              step=step))
                 continue
             a, b = want[key], have[key]
@@ -353,9 +354,9 @@ class _Auditor:
                 if base.get(key) != layout.get(key):
                     self.report.add(AuditFinding(
                         "layout_seed", f"env_states/{key}",
-                        f"the state-dict layout depends on the seed: {key} is {_spec(base.get(key))} with seed "
-                        f"{self.seed} and {_spec(layout.get(key))} with seed {s}; register merged views with fixed "
-                        "state sizes (simreel.heterogeneous)"))
+                        f"the state-dict layout depends on the seed: {key} is {describe_leaf(base.get(key))} with "
+                        f"seed {self.seed} and {describe_leaf(layout.get(key))} with seed {s}; register merged views "
+                        "with fixed state sizes (simreel.heterogeneous)"))
         self.report.checks.append(f"state-dict layout is the same for seeds {', '.join(map(str, seeds))}")
         self._check_num_envs(base)
 
@@ -379,8 +380,9 @@ class _Auditor:
             if base.get(key) != layout.get(key):
                 self.report.add(AuditFinding(
                     "layout_num_envs", f"env_states/{key}",
-                    f"the state-dict layout depends on num_envs: {key} is {_spec(base.get(key))} with num_envs=1 and "
-                    f"{_spec(layout.get(key))} with num_envs=2; register merged views (simreel.heterogeneous)"))
+                    f"the state-dict layout depends on num_envs: {key} is {describe_leaf(base.get(key))} with "
+                    f"num_envs=1 and {describe_leaf(layout.get(key))} with num_envs=2; register merged views "
+                    "(simreel.heterogeneous)"))
         self.report.checks.append("state-dict layout is the same for num_envs=1 (CPU) and num_envs=2 (GPU)")
 
 
@@ -399,10 +401,6 @@ def _nested_torch(flat: Mapping[str, np.ndarray], device: Any) -> dict[str, Any]
     from simreel.state_tree import unflatten
 
     return unflatten({k: torch.as_tensor(np.array(v), device=device) for k, v in flat.items()})
-
-
-def _spec(spec: Any) -> str:
-    return "absent" if spec is None else f"{tuple(spec.shape)} {spec.dtype}"
 
 
 def audit_task(
@@ -426,22 +424,15 @@ def audit_task(
 
     for spec in imports:
         import_user_code(spec)
-    if env_id.startswith("Simreel"):
-        import_user_code("simreel.tasks")
     render = "none" if camera_use(obs_mode, (env_kwargs or {}).get("render_mode")) is None else "auto"
 
     def make(**over: Any) -> Any:
         nonlocal render
         kwargs = dict(num_envs=1, obs_mode=obs_mode, control_mode=control_mode, reward_mode=reward_mode,
-                      sim_backend="physx_cpu", render_backend=render, env_kwargs=env_kwargs)
+                      sim_backend="physx_cpu", env_kwargs=env_kwargs)
         kwargs.update(over)
-        try:
-            return make_env(env_id, **kwargs)
-        except RenderUnavailableError:
-            if render != "none":
-                raise
-            render = kwargs["render_backend"] = "auto"  # a task that needs a render device even state-only
-            return make_env(env_id, **kwargs)
+        env, render = build_with_render_fallback(lambda r: make_env(env_id, render_backend=r, **kwargs), render)
+        return env
 
     report = AuditReport(env_id=env_id, seed=seed, steps=steps)
     with warnings.catch_warnings():

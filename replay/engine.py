@@ -11,12 +11,8 @@ Modes (see `MODES`):
 - ``step``: for each t, restore state t, step action t, compare with recorded state t+1: the one-step
   error, the purest measure of what the state dict misses.
 
-Reproducing a reset (``EpisodeMeta``): an episode whose reset rebuilt the scene (``reconfigured``) is
-reset with ``reconfigure=True`` and its own seed. Otherwise the scene it ran in was built by the reset
-with seed ``scene_seed`` (None: the scene ``gym.make`` built, i.e. seed 2022 + sub-scene index); if the
-replay env's scene came from another seed it is rebuilt first with ``reset(seed=scene_seed,
-options={"reconfigure": True})``, then the episode is reset with its seed and options, with ManiSkill's
-periodic reconfiguration held off (the recorded reset did not reconfigure).
+Reproducing a reset (``EpisodeMeta``: scene, seed, options) is the core's `simreel.rebuild.reset_to_episode`,
+which the viewer and ``simreel convert --poses`` use too.
 """
 
 from __future__ import annotations
@@ -28,18 +24,25 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from simreel.replay.restore import restore_state, state_row
 
 from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta
-from simreel.errors import RenderUnavailableError, SimreelError
+from simreel.errors import EnvBuildError, SimreelError
 from simreel.fast_state import FastStateReader
-from simreel.state_tree import flatten, layout_of, to_numpy
+from simreel.rebuild import (
+    GYM_MAKE_SEED,
+    EpisodeReset,
+    build_with_render_fallback,
+    env_from_meta,
+    reset_to_episode,
+)
+from simreel.replay.restore import restore_state, state_row
+from simreel.state_tree import flatten, layout_differences, layout_of, to_numpy
 
 __all__ = ["MODES", "EpisodeReplayer", "ReplayedEpisode", "ReplayError", "GYM_MAKE_SEED"]
 
 MODES = ("actions", "states", "step")
-GYM_MAKE_SEED = 2022
-"""ManiSkill 3.0.1's `gym.make` builds the scene with `reset(seed=[2022 + i for i in range(num_envs)])`."""
+"""Replay modes; ``resync`` is an option of ``actions`` (with its own default tolerances, see
+`simreel.compare.TOLERANCE_MODES`)."""
 
 
 class ReplayError(SimreelError):
@@ -52,8 +55,11 @@ class ReplayedEpisode:
 
     episode: Episode
     notes: list[str] = field(default_factory=list)
+    """How it was replayed, and (also in `limits`) what it could not check or reproduce."""
     seconds: float = 0.0
     compare_contacts: bool = True
+    limits: list[str] = field(default_factory=list)
+    """What was not checked or not reproduced ("contacts not compared: ...", "... has no seed ...")."""
 
 
 def _scalar(x: Any) -> Any:
@@ -68,6 +74,18 @@ def _scalar(x: Any) -> Any:
 
 def _flag(info: dict[str, Any], key: str) -> bool:
     return bool(_scalar(info[key])) if key in info else False
+
+
+_GPU_SIM_BACKENDS = ("physx_cuda", "gpu", "cuda")
+
+
+def _has_cuda() -> bool:
+    try:
+        import torch
+
+        return bool(torch.cuda.is_available())
+    except Exception:  # noqa: BLE001 - a broken torch install means no CUDA, not a crash
+        return False
 
 
 class EpisodeReplayer:
@@ -105,24 +123,30 @@ class EpisodeReplayer:
     # ------------------------------------------------------------------ env
     def _build(self) -> None:
         from simreel.envs import camera_use
-        from simreel.rebuild import env_from_meta
 
         # render_mode only matters to env.render() (videos), which a replay never calls
         env_kwargs = {k: v for k, v in self.meta.env_kwargs.items() if k != "render_mode"}
-        render = self._render_backend
-        if render is None:
-            render = "none" if camera_use(self.obs_mode) is None else "auto"
-        overrides: dict[str, Any] = {"num_envs": 1, "obs_mode": self.obs_mode, "render_backend": render,
-                                     "env_kwargs": env_kwargs}
+        overrides: dict[str, Any] = {"num_envs": 1, "obs_mode": self.obs_mode, "env_kwargs": env_kwargs}
         if self._sim_backend is not None:
             overrides["sim_backend"] = self._sim_backend
+
+        def build(render: str) -> Any:
+            return env_from_meta(self.meta, render_backend=render, **overrides)
+
         try:
-            self.env = env_from_meta(self.meta, **overrides)
-        except RenderUnavailableError:
-            if self._render_backend is not None or render != "none":
-                raise
-            overrides["render_backend"] = "auto"  # a task that needs a render device even state-only (PushT)
-            self.env = env_from_meta(self.meta, **overrides)
+            if self._render_backend is not None:
+                self.env = build(self._render_backend)
+            else:
+                default = "none" if camera_use(self.obs_mode) is None else "auto"
+                self.env, _ = build_with_render_fallback(build, default)
+        except EnvBuildError as exc:
+            if self._sim_backend is None and self.meta.sim_backend in _GPU_SIM_BACKENDS and not _has_cuda():
+                raise ReplayError(
+                    f"{self.meta.env_id} was recorded on the GPU sim ({self.meta.sim_backend}) and this machine has "
+                    "no CUDA device; replay it on the CPU sim with --sim-backend physx_cpu (sim_backend='physx_cpu'). "
+                    "The CPU and GPU sims are different engines, so expect within_tolerance or diverged, not exact"
+                ) from exc
+            raise
         self.u = self.env.unwrapped
         self._scene_seed: int | None = GYM_MAKE_SEED
         self._layout_checked = False
@@ -151,31 +175,13 @@ class EpisodeReplayer:
         self.close()
 
     # ------------------------------------------------------------------ reset
-    def reset_for(self, ep: EpisodeMeta) -> list[str]:
-        """Reset the env the way episode `ep` was reset (scene, seed, options); returns notes on what was done."""
-        notes: list[str] = []
+    def reset_for(self, ep: EpisodeMeta) -> EpisodeReset:
+        """Reset the env the way episode `ep` was reset (scene, seed, options: `simreel.rebuild.reset_to_episode`);
+        returns what was done, with this replayer's own limits added (body poses, contacts)."""
         u = self.u
-        options = {k: v for k, v in (ep.reset_options or {}).items() if k not in ("env_idx", "reconfigure")}
-        if ep.reconfigured:
-            self.env.reset(seed=ep.seed, options={**options, "reconfigure": True})
-            self._scene_seed = ep.seed
-            self._scene_builds += 1
-        else:
-            wanted = ep.scene_seed if ep.scene_seed is not None else GYM_MAKE_SEED + int(ep.env_idx)
-            if wanted != self._scene_seed:
-                self.env.reset(seed=wanted, options={"reconfigure": True})
-                self._scene_seed = wanted
-                self._scene_builds += 1
-                notes.append(f"rebuilt the scene with seed {wanted}")
-            if getattr(u, "reconfiguration_freq", 0) and getattr(u, "_reconfig_counter", 1) == 0:
-                u._reconfig_counter = 1  # the recorded reset did not reconfigure; hold ManiSkill's periodic one off
-            _, info = self.env.reset(seed=ep.seed, options=options or None)
-            if bool(to_numpy(info.get("reconfigure", False)).any()):
-                self._scene_seed = ep.seed
-                self._scene_builds += 1
-                notes.append("the reset reconfigured the scene, the recorded one did not")
-        if ep.seed is None:
-            notes.append("the episode has no seed: its reset cannot be reproduced")
+        done = reset_to_episode(self.env, ep, scene_seed=self._scene_seed)
+        self._scene_seed = done.scene_seed
+        self._scene_builds += done.scene_builds
         if self._fast_allowed:
             if self._fast is None or self._fast_scene != self._scene_builds:  # a rebuilt scene has new bodies
                 self._fast = FastStateReader.for_env(u)
@@ -189,15 +195,15 @@ class EpisodeReplayer:
 
             missing = sorted(set(self.pose_bodies) - set(named_bodies(u)))
             if missing:
-                notes.append(f"body poses not written: the rebuilt scene has no {', '.join(missing[:3])}")
+                done.limits.append(f"body poses not written: the rebuilt scene has no {', '.join(missing[:3])}")
                 self.pose_bodies = []
         if self._contacts is not None:
             try:
                 self._contacts.bind(u)
             except KeyError as e:
-                notes.append(f"contacts not compared: the rebuilt scene has no body {e}")
+                done.limits.append(f"contacts not compared: the rebuilt scene has no body {e}")
                 self._contacts = None
-        return notes
+        return done
 
     # ------------------------------------------------------------------ replay
     def replay(self, episode: Episode, *, mode: str = "actions", resync: int | None = None) -> ReplayedEpisode:
@@ -227,13 +233,14 @@ class EpisodeReplayer:
         return out
 
     def _replay(self, episode: Episode, mode: str, resync: int | None) -> ReplayedEpisode:
-        notes = self.reset_for(episode.meta)
+        done = self.reset_for(episode.meta)
         self._check_layout(episode)
         run = {"actions": self._run_actions, "states": self._run_states, "step": self._run_step}[mode]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # ManiSkill warns on every out-of-bounds action; the recording had them too
             out = run(episode, resync) if mode == "actions" else run(episode)
-        out.notes = notes + out.notes
+        out.notes = done.notes + done.limits + out.limits + out.notes
+        out.limits = done.limits + out.limits
         return out
 
     def _check_layout(self, episode: Episode) -> None:
@@ -242,11 +249,7 @@ class EpisodeReplayer:
         have = layout_of(flatten(self.u.get_state_dict()), batched=True)
         want = self.meta.state_layout or layout_of({p: a for p, a in episode.env_states.items()}, batched=True)
         if have != want:
-            diffs = [
-                f"{k}: recorded {_shape(want.get(k))}, replay {_shape(have.get(k))}"
-                for k in sorted(set(want) | set(have))
-                if want.get(k) != have.get(k)
-            ]
+            diffs = layout_differences(want, have, old_label="recorded", new_label="replay")
             raise ReplayError(
                 f"the rebuilt {self.meta.env_id} has another state layout than the recording ({'; '.join(diffs[:4])}); "
                 "replay with the task version (and --import) that recorded it"
@@ -313,6 +316,12 @@ class EpisodeReplayer:
     def _run_actions(self, episode: Episode, resync: int | None) -> ReplayedEpisode:
         actions = self._actions(episode)
         buf = self._new(episode)
+        limits = []
+        if episode.meta.seed is None:
+            # An unseeded reset cannot be reproduced (ManiSkill drew it from the global RNG): start the
+            # actions from the recorded initial state instead, and say that the reset went unchecked.
+            restore_state(self.u, state_row(episode.env_states, 0), elapsed_steps=0)
+            limits.append("actions replayed from the recorded initial state")
         self._initial(buf)
         notes = []
         for t in range(episode.length):
@@ -322,7 +331,7 @@ class EpisodeReplayer:
             self._after_step(buf, t, reward, terminated, truncated, info, obs)
         if resync:
             notes.append(f"restored the recorded state every {resync} steps")
-        return ReplayedEpisode(buf.episode(), notes)
+        return ReplayedEpisode(buf.episode(), notes, limits=limits)
 
     def _run_step(self, episode: Episode) -> ReplayedEpisode:
         actions = self._actions(episode)
@@ -357,10 +366,6 @@ class EpisodeReplayer:
             if self.need_obs:
                 buf.set_obs(t + 1, self._obs(u._flatten_raw_obs(obs) if obs else u.get_obs(info)))
         return ReplayedEpisode(buf.episode())
-
-
-def _shape(spec: Any) -> str:
-    return "absent" if spec is None else f"{tuple(spec.shape)} {spec.dtype}"
 
 
 class _Buffers:

@@ -6,12 +6,12 @@ Differences are warnings, not errors: a replay on another version may still veri
 
 from __future__ import annotations
 
-import dataclasses
 import platform
 import sys
 from collections.abc import Mapping
 from typing import Any
 
+from simreel.env_meta import sim_config_json
 from simreel.episode import RecordingMeta
 
 __all__ = ["fingerprint_differences"]
@@ -28,15 +28,6 @@ def _flat(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             out[f"{prefix}{k}"] = list(v) if isinstance(v, tuple) else v
     return out
-
-
-def _sim_config_of(unwrapped: Any) -> dict[str, Any]:
-    cfg = getattr(unwrapped, "sim_config", None)
-    if cfg is None:
-        return {}
-    if dataclasses.is_dataclass(cfg):
-        return dataclasses.asdict(cfg)
-    return dict(cfg)
 
 
 def _loaded_version(key: str) -> str | None:
@@ -75,7 +66,7 @@ def fingerprint_differences(
     backend = getattr(getattr(unwrapped, "backend", None), "sim_backend", None)
     if backend is not None and meta.sim_backend and backend != meta.sim_backend:
         diffs.append(f"sim backend: recorded {meta.sim_backend}, replaying {backend}")
-    rec_cfg, now_cfg = _flat(meta.sim_config), _flat(_sim_config_of(unwrapped))
+    rec_cfg, now_cfg = _flat(meta.sim_config), _flat(sim_config_json(getattr(unwrapped, "sim_config", None)))
     for key in sorted(set(rec_cfg) | set(now_cfg)):
         if key in rec_cfg and key in now_cfg and rec_cfg[key] != now_cfg[key]:
             diffs.append(f"sim_config.{key}: recorded {rec_cfg[key]}, replaying {now_cfg[key]}")

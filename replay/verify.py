@@ -1,8 +1,8 @@
 """Replay a recording and verify every episode: the reports, and the loop behind `simreel replay`.
 
-`verify_recording(path, mode=..., ...)` replays the chosen episodes (in this process or in N worker
-processes, each with its own env), compares each with its recording (`simreel.compare`) and returns a
-`ReplayReport`: one `EpisodeReport` per episode with its verdict (``exact``, ``within_tolerance`` or
+`verify_recording(path, mode=..., ...)` replays the chosen episodes (in this process, or with ``workers=N``
+in this one and N - 1 worker processes, each with its own env), compares each with its recording
+(`simreel.compare`) and returns a `ReplayReport`: one `EpisodeReport` per episode with its verdict (``exact``, ``within_tolerance`` or
 ``diverged``), the first divergence (step, key path, error, tolerance) and the largest error per key.
 With ``output`` it also writes the replayed episodes as a simreel recording.
 """
@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import math
+from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
@@ -19,12 +20,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from simreel.replay.engine import MODES, EpisodeReplayer
 
-from simreel.compare import Divergence, Tolerances, compare_episode
+from simreel.compare import Divergence, Tolerances, compare_episode, format_number, json_number, worst_keys
 from simreel.episode import Episode, RecordingMeta
-from simreel.errors import UsageError
+from simreel.errors import SimreelError, UsageError
 from simreel.formats import format_of, open_reader
+from simreel.replay.engine import MODES, EpisodeReplayer
 from simreel.state_tree import layout_of
 
 __all__ = ["EpisodeReport", "ReplayReport", "verify_recording"]
@@ -43,7 +44,10 @@ class EpisodeReport:
     tolerance: dict[str, float] = field(default_factory=dict)
     diverged_keys: dict[str, int] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    """How the replay was done, and what it could not check or reproduce (those also in `limits`)."""
     seconds: float = 0.0
+    limits: list[str] = field(default_factory=list)
+    """Notes on what was not checked or not reproduced ("contacts not compared: ..."): shown whatever the verdict."""
 
     @property
     def ok(self) -> bool:
@@ -51,13 +55,7 @@ class EpisodeReport:
 
     def worst(self, n: int = 3) -> list[tuple[str, float, float]]:
         """Up to n keys that left their tolerance (or came closest), largest error/tolerance first."""
-
-        def ratio(k: str) -> float:
-            e, t = self.max_abs_error[k], self.tolerance.get(k, 0.0)
-            return math.inf if (e > 0 and t == 0) else (e / t if t else 0.0)
-
-        keys = sorted((k for k, e in self.max_abs_error.items() if e > 0), key=ratio, reverse=True)
-        return [(k, self.max_abs_error[k], self.tolerance.get(k, 0.0)) for k in keys[:n]]
+        return worst_keys(self.max_abs_error, self.tolerance, n)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -66,9 +64,10 @@ class EpisodeReport:
             "length": self.length,
             "verdict": self.verdict,
             "first_divergence": None if self.first_divergence is None else self.first_divergence.to_json(),
-            "max_abs_error": {k: _num(v) for k, v in self.max_abs_error.items()},
+            "max_abs_error": {k: json_number(v) for k, v in self.max_abs_error.items()},
             "diverged_keys": dict(self.diverged_keys),
             "notes": list(self.notes),
+            "limits": list(self.limits),
             "seconds": round(self.seconds, 4),
         }
 
@@ -113,12 +112,12 @@ class ReplayReport:
             first = e.first_divergence.describe() if e.first_divergence else ""
             lines.append(f"  {e.index:>7} {e.length:>6}  {e.verdict:<17} {first}".rstrip())
             if not e.ok:
-                also = [f"{k} {_fmt(v)} (tol {_fmt(t)})" for k, v, t in e.worst(4)
+                also = [f"{k} {format_number(v)} (tol {format_number(t)})" for k, v, t in e.worst(4)
                         if e.first_divergence is None or k != e.first_divergence.key]
                 if also:
                     n = len(e.diverged_keys)
                     lines.append(f"  {'':>7} {'':>6}  {'':<17} {n} keys left their tolerance; worst: " + ", ".join(also[:3]))
-            for note in e.notes if e.verdict != "exact" else ():
+            for note in e.notes if e.verdict != "exact" else e.limits:  # what was not checked: always
                 lines.append(f"  {'':>7} {'':>6}  {'':<17} note: {note}")
         if self.mode == "step" or self.resync:
             lines.append(self._per_key_table(top))
@@ -144,20 +143,12 @@ class ReplayReport:
         title = "one-step" if self.mode == "step" else f"resync-{self.resync}"
         lines = [f"largest {title} errors per key (all episodes):"]
         for k in keys[:top]:
-            lines.append(f"  {k:<55} {_fmt(worst[k]):>10}  (tolerance {_fmt(tol[k])})")
+            lines.append(f"  {k:<55} {format_number(worst[k]):>10}  (tolerance {format_number(tol[k])})")
         if len(keys) > top:
             lines.append(f"  ... {len(keys) - top} more keys differ; see --report")
         if not keys:
             lines.append("  none: every key was reproduced exactly")
         return "\n".join(lines)
-
-
-def _num(x: float) -> float | str:
-    return float(x) if math.isfinite(x) else ("nan" if math.isnan(x) else "inf")
-
-
-def _fmt(x: float) -> str:
-    return "0" if x == 0 else (f"{x:.3g}" if math.isfinite(x) else str(x))
 
 
 # ---------------------------------------------------------------------------------------------- the loop
@@ -194,6 +185,7 @@ def _compare(job: _Job, recorded: Episode, replayed: Any, meta: RecordingMeta) -
         tolerance=cmp.tolerance,
         diverged_keys=cmp.diverged_keys,
         notes=replayed.notes,
+        limits=replayed.limits,
         seconds=replayed.seconds,
     )
 
@@ -206,12 +198,16 @@ class _Session:
 
         self.job = job
         self.reader = open_reader(job.path)
-        meta = self.reader.meta
-        if job.imports:
-            meta = dataclasses.replace(meta, imports=list(dict.fromkeys([*meta.imports, *job.imports])))
-        self.meta = meta
-        self.replayer = EpisodeReplayer(meta, obs_mode=job.obs_mode, need_obs=job.need_obs,
-                                        pose_bodies=job.pose_bodies, sim_backend=job.sim_backend)
+        try:
+            meta = self.reader.meta
+            if job.imports:
+                meta = dataclasses.replace(meta, imports=list(dict.fromkeys([*meta.imports, *job.imports])))
+            self.meta = meta
+            self.replayer = EpisodeReplayer(meta, obs_mode=job.obs_mode, need_obs=job.need_obs,
+                                            pose_bodies=job.pose_bodies, sim_backend=job.sim_backend)
+        except BaseException:
+            self.reader.close()
+            raise
         self.warnings = fingerprint_differences(meta, self.replayer.u)
 
     def run(self, index: int) -> tuple[EpisodeReport, Episode | None]:
@@ -237,18 +233,28 @@ class _Session:
         self.reader.close()
 
 
-_WORKER: _Session | None = None
+_WORKER: _Session | SimreelError | None = None
+"""A worker process's session, or the user error that building it raised (re-raised in the parent)."""
 
 
 def _worker_init(job: _Job) -> None:
     global _WORKER
-    _WORKER = _Session(job)
+    try:
+        _WORKER = _Session(job)
+    except SimreelError as e:  # an initializer that raises breaks the whole pool (BrokenProcessPool)
+        _WORKER = e
 
 
-def _worker_run(index: int) -> tuple[EpisodeReport, Episode | None, list[str]]:
-    assert _WORKER is not None
-    report, episode = _WORKER.run(index)
-    return report, episode, _WORKER.warnings
+def _worker_run(index: int) -> tuple[EpisodeReport, Episode | None] | SimreelError:
+    """One episode's report and replayed episode, or the user error that stopped it (raised by the parent)."""
+    if isinstance(_WORKER, SimreelError):
+        return _WORKER
+    if _WORKER is None:
+        raise RuntimeError("_worker_run called in a process that _worker_init did not set up")
+    try:
+        return _WORKER.run(index)
+    except SimreelError as e:
+        return e
 
 
 def verify_recording(
@@ -279,7 +285,8 @@ def verify_recording(
         output: write the replayed episodes here (.h5 or .mcap), with observations when the recording has
             them or `obs_mode` is given.
         obs_mode: observation mode of the replay, e.g. "rgb" to re-render observations into `output`.
-        workers: processes replaying episodes in parallel, each with its own env.
+        workers: processes replaying episodes in parallel, each with its own env (this one and workers - 1
+            more).
         imports: `--import` specs to import before rebuilding the env (besides those the recording names).
         sim_backend: replay on this backend instead of the recorded one (e.g. "physx_cpu" for a GPU
             recording: a different engine, so expect `within_tolerance` or `diverged` in actions mode).
@@ -371,38 +378,56 @@ def _run_here(job: _Job, indices: list[int], report: ReplayReport, sink: Any, pr
     report.warnings = list(session.warnings)
     try:
         for index in indices:
-            ep_report, episode = session.run(index)
-            report.episodes.append(ep_report)
-            if sink is not None:
-                sink.put(episode)
-            if progress is not None:
-                progress(ep_report)
+            _collect(session.run(index), report, sink, progress)
     finally:
         session.close()
 
 
+def _collect(result: tuple[EpisodeReport, Episode | None] | SimreelError, report: ReplayReport, sink: Any,
+             progress: Any) -> None:
+    if isinstance(result, SimreelError):
+        raise result
+    ep_report, episode = result
+    report.episodes.append(ep_report)
+    if sink is not None:
+        sink.put(episode)
+    if progress is not None:
+        progress(ep_report)
+
+
 def _run_workers(job: _Job, indices: list[int], workers: int, report: ReplayReport, sink: Any, progress: Any) -> None:
+    """This process and `workers - 1` worker processes replay the episodes, each with its own env.
+
+    This process builds its session first, so a user error (an --import that fails, an env that does not
+    build, another state layout) is raised here as a `SimreelError` before any worker starts; a worker
+    returns the errors it meets instead of raising them, and they are raised here too.
+    """
     import multiprocessing
 
-    ctx = multiprocessing.get_context("spawn")  # sapien/torch state must not be forked
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init, initargs=(job,)) as pool:
-        pending = {pool.submit(_worker_run, i) for i in indices}
+    session = _Session(job)
+    try:
+        report.warnings = list(session.warnings)
+        queue = deque(indices)
+        ahead = 2 * (workers - 1)  # episodes handed to the workers at a time; the rest stay for this process
+        ctx = multiprocessing.get_context("spawn")  # sapien/torch state must not be forked
+        pool = ProcessPoolExecutor(max_workers=workers - 1, mp_context=ctx, initializer=_worker_init, initargs=(job,))
+        pending: set[Any] = set()
         try:
-            while pending:
-                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            while queue or pending:
+                while queue and len(pending) < ahead:
+                    pending.add(pool.submit(_worker_run, queue.popleft()))
+                if queue:
+                    _collect(session.run(queue.popleft()), report, sink, progress)
+                    done = {fut for fut in pending if fut.done()}
+                else:
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                pending -= done
                 for fut in done:
-                    ep_report, episode, warnings = fut.result()
-                    if not report.warnings:
-                        report.warnings = list(warnings)
-                    report.episodes.append(ep_report)
-                    if sink is not None:
-                        sink.put(episode)
-                    if progress is not None:
-                        progress(ep_report)
-        except BaseException:
-            for fut in pending:
-                fut.cancel()
-            raise
+                    _collect(fut.result(), report, sink, progress)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)  # on an error: the queued episodes are dropped
+    finally:
+        session.close()
 
 
 class _OrderedWriter:

@@ -37,7 +37,7 @@ from simreel.episode import FLAG_FIELDS, ContactChannel, Episode
 
 __all__ = [
     "GROUPS",
-    "MODES",
+    "TOLERANCE_MODES",
     "DEFAULT_TOLERANCES",
     "Tolerances",
     "Component",
@@ -47,12 +47,16 @@ __all__ = [
     "EpisodeComparison",
     "compare_episode",
     "VERDICTS",
+    "worst_keys",
+    "json_number",
+    "format_number",
 ]
 
 GROUPS = ("pos", "quat", "vel", "qpos", "qvel", "controller", "custom", "reward", "info", "contact", "obs", "flag")
 """Kinds of compared values, each with its own absolute tolerance ("flag" is always exact)."""
-MODES = ("actions", "states", "step", "resync")
-"""Replay modes that have their own default tolerances (`resync` = `actions` with `--resync K`)."""
+TOLERANCE_MODES = ("actions", "states", "step", "resync")
+"""Modes that have their own default tolerances: the replay modes (`simreel.replay.MODES`) and ``resync``
+(``actions`` with ``--resync K``, judged like ``step``)."""
 VERDICTS = ("exact", "within_tolerance", "diverged")
 
 # Defaults per mode, from measurements on ManiSkill 3.0.1's CPU sim (12 recordings: PickCube, StackCube,
@@ -222,12 +226,12 @@ class Divergence:
     """"reset": the state right after reset (step is 0); "step": the outcome of action `step`."""
 
     def to_json(self) -> dict[str, Any]:
-        return {"step": self.step, "at": self.at, "key": self.key, "error": _json_num(self.error),
-                "tolerance": _json_num(self.tolerance)}
+        return {"step": self.step, "at": self.at, "key": self.key, "error": json_number(self.error),
+                "tolerance": json_number(self.tolerance)}
 
     def describe(self) -> str:
         where = "after reset" if self.at == "reset" else f"step {self.step}"
-        return f"{where}: {self.key} off by {_fmt(self.error)} (tolerance {_fmt(self.tolerance)})"
+        return f"{where}: {self.key} off by {format_number(self.error)} (tolerance {format_number(self.tolerance)})"
 
 
 @dataclass
@@ -251,13 +255,20 @@ class EpisodeComparison:
 
     def worst(self, n: int = 5) -> list[tuple[str, float, float]]:
         """The n keys with the largest error relative to their tolerance: (key, error, tolerance)."""
+        return worst_keys(self.max_abs_error, self.tolerance, n)
 
-        def ratio(k: str) -> float:
-            e, t = self.max_abs_error[k], self.tolerance[k]
-            return math.inf if (e > 0 and t == 0) else (e / t if t else 0.0)
 
-        keys = sorted((k for k in self.max_abs_error if self.max_abs_error[k] > 0), key=ratio, reverse=True)
-        return [(k, self.max_abs_error[k], self.tolerance[k]) for k in keys[:n]]
+def worst_keys(max_abs_error: Mapping[str, float], tolerance: Mapping[str, float],
+               n: int) -> list[tuple[str, float, float]]:
+    """Up to n keys with a non-zero error, largest error/tolerance first (an error where the tolerance is 0 ranks
+    first): (key, error, tolerance). A key without a tolerance counts as tolerance 0."""
+
+    def ratio(k: str) -> float:
+        e, t = max_abs_error[k], tolerance.get(k, 0.0)
+        return math.inf if (e > 0 and t == 0) else (e / t if t else 0.0)
+
+    keys = sorted((k for k, e in max_abs_error.items() if e > 0), key=ratio, reverse=True)
+    return [(k, max_abs_error[k], tolerance.get(k, 0.0)) for k in keys[:n]]
 
 
 _CATEGORY_ORDER = {"env_states": 0, "obs": 1, "contacts": 2, "info": 3, "rewards": 4}
@@ -386,14 +397,15 @@ def compare_episode(
     )
 
 
-def _json_num(x: float) -> float | str:
+def json_number(x: float) -> float | str:
     """JSON has no inf/nan: those become the strings "inf" / "nan"."""
     if math.isfinite(x):
         return float(x)
     return "nan" if math.isnan(x) else "inf"
 
 
-def _fmt(x: float) -> str:
+def format_number(x: float) -> str:
+    """An error or tolerance for a report line: ``0``, ``0.00123``, ``inf``."""
     if not math.isfinite(x):
         return str(x)
     if x == 0:

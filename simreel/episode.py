@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from simreel import FORMAT_VERSION
+from simreel.errors import EpisodeShapeError
 from simreel.state_tree import LeafSpec, unflatten
 
 __all__ = [
@@ -189,23 +190,23 @@ class Episode:
         return unflatten({p: a[t][None] for p, a in self.env_states.items()})
 
     def check_shapes(self) -> None:
-        """Raise ValueError naming the first field whose row count does not fit T or T+1."""
+        """Raise `EpisodeShapeError` naming the first field whose row count does not fit T or T+1."""
         T = self.length
         for name in STEP_FIELDS:
             n = getattr(self, name).shape[0]
             if n != T:
-                raise ValueError(f"episode {self.meta.index}: {name} has {n} rows, expected {T}")
+                raise EpisodeShapeError(f"episode {self.meta.index}: {name} has {n} rows, expected {T}")
         for group, rows in (("env_states", T + 1), ("obs", T + 1), ("info", T)):
             for path, a in getattr(self, group).items():
                 if a.shape[0] != rows:
-                    raise ValueError(
+                    raise EpisodeShapeError(
                         f"episode {self.meta.index}: {group}/{path} has {a.shape[0]} rows, expected {rows}"
                     )
         if self.body_poses is not None and self.body_poses.shape[0] != T + 1:
-            raise ValueError(
+            raise EpisodeShapeError(
                 f"episode {self.meta.index}: body_poses has {self.body_poses.shape[0]} rows, expected {T + 1}"
             )
         if self.contact_forces is not None and self.contact_forces.shape[0] != T:
-            raise ValueError(
+            raise EpisodeShapeError(
                 f"episode {self.meta.index}: contact_forces has {self.contact_forces.shape[0]} rows, expected {T}"
             )

@@ -13,6 +13,8 @@ __all__ = [
     "RenderUnavailableError",
     "EnvBuildError",
     "ContactSpecError",
+    "EpisodeShapeError",
+    "EpisodeLayoutError",
 ]
 
 
@@ -32,6 +34,11 @@ class RecordingFileError(SimreelError):
         self.problem = problem
         super().__init__(f"{self.path}: {problem}")
 
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:
+        # the default rebuilds from `args` (the joined message), which this __init__ does not take; replay
+        # workers send these errors back to the parent process pickled
+        return type(self), (self.path, self.problem)
+
 
 class RenderUnavailableError(SimreelError):
     """Something needs rendering (camera observations, video) but no render device exists."""
@@ -43,3 +50,13 @@ class EnvBuildError(SimreelError):
 
 class ContactSpecError(SimreelError):
     """A contact pair names a body the scene does not have."""
+
+
+class EpisodeShapeError(SimreelError):
+    """An episode's arrays do not agree on its length (T rows per step, T+1 per state); names the field."""
+
+
+class EpisodeLayoutError(EpisodeShapeError, ValueError):
+    """An episode's arrays do not match the recording's layout: a field it lists is missing, or a row has
+    another shape. Also a `ValueError`, which writers raised for this before."""
+

@@ -1,20 +1,43 @@
-"""Rebuild the env a recording was made in, from its `RecordingMeta` alone.
+"""Rebuild the env a recording was made in, from its `RecordingMeta` alone, and reset it to an episode's scene.
 
 Every room that needs the recorded scene again (replay, convert, view) calls `env_from_meta`; it is the
-one place that maps metadata fields back to `simreel.envs.make_env` arguments. mani_skill is imported only
-when the function runs.
+one place that maps metadata fields back to `simreel.envs.make_env` arguments. `reset_to_episode` is the
+one place that reproduces an episode's reset (its scene, seed and options) from its `EpisodeMeta`.
+mani_skill is imported only when a function runs.
+
+Reproducing a reset: an episode whose reset rebuilt the scene (``reconfigured``) is reset with
+``reconfigure=True`` and its own seed. Otherwise the scene it ran in was built by the reset with seed
+``scene_seed`` (None: the scene ``gym.make`` built, i.e. seed `GYM_MAKE_SEED` + sub-scene index); if the
+env's scene came from another seed it is rebuilt first with ``reset(seed=scene_seed,
+options={"reconfigure": True})``, then the episode is reset with its seed and options, with ManiSkill's
+periodic reconfiguration held off (the recorded reset did not reconfigure).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, TypeVar
 
-from simreel.episode import RecordingMeta
+from simreel.episode import EpisodeMeta, RecordingMeta
+from simreel.errors import RenderUnavailableError
 
 if TYPE_CHECKING:
     import gymnasium as gym
 
-__all__ = ["env_from_meta", "make_kwargs_from_meta"]
+__all__ = [
+    "GYM_MAKE_SEED",
+    "EpisodeReset",
+    "build_with_render_fallback",
+    "env_from_meta",
+    "make_kwargs_from_meta",
+    "reset_to_episode",
+]
+
+GYM_MAKE_SEED = 2022
+"""ManiSkill 3.0.1's `gym.make` builds the scene with `reset(seed=[2022 + i for i in range(num_envs)])`."""
+
+_T = TypeVar("_T")
 
 _MAKE_ENV_ARGS = (
     "num_envs",
@@ -65,3 +88,70 @@ def env_from_meta(meta: RecordingMeta, **overrides: Any) -> gym.Env:
         import_user_code(spec)
     kwargs = make_kwargs_from_meta(meta, **overrides)
     return make_env(meta.env_id, **kwargs)
+
+
+def build_with_render_fallback(build: Callable[[str], _T], render_backend: str) -> tuple[_T, str]:
+    """`build(render_backend)`, and once more with ``"auto"`` when that was ``"none"`` and the task turned out to
+    need a render device even without cameras (PushT-v1 reads render shapes while building its scene).
+
+    Returns what `build` returned and the render backend it was built with. Pass the backend a user asked for
+    explicitly to `build` directly instead: this helper only corrects a default.
+    """
+    try:
+        return build(render_backend), render_backend
+    except RenderUnavailableError:
+        if render_backend != "none":
+            raise
+        return build("auto"), "auto"
+
+
+@dataclass
+class EpisodeReset:
+    """What `reset_to_episode` did."""
+
+    scene_seed: int | None
+    """Seed of the scene the env holds now (None: unknown, e.g. a reconfiguring reset without a seed)."""
+    scene_builds: int = 0
+    """How many times the scene was rebuilt (0, 1 or 2): a rebuilt scene has new bodies."""
+    notes: list[str] = field(default_factory=list)
+    """What was done, for reports: ``"rebuilt the scene with seed 4"``."""
+    limits: list[str] = field(default_factory=list)
+    """What could not be reproduced: ``"the episode has no seed: its reset cannot be reproduced"``."""
+
+
+def reset_to_episode(env: Any, episode: EpisodeMeta, *, scene_seed: int | None = GYM_MAKE_SEED) -> EpisodeReset:
+    """Reset `env` (one sub-scene) the way `episode` was reset: its scene, then its seed and options.
+
+    Args:
+        env: a (wrapped) ManiSkill env with ``num_envs=1``, e.g. from `env_from_meta`.
+        episode: the episode's metadata (seed, reset options, sub-scene index, scene seed).
+        scene_seed: seed of the scene `env` holds now: `GYM_MAKE_SEED` for an env fresh from ``gym.make``,
+            the returned `EpisodeReset.scene_seed` of the previous call, or None when unknown (the scene is
+            then rebuilt).
+    """
+    from simreel.state_tree import to_numpy
+
+    u = env.unwrapped
+    out = EpisodeReset(scene_seed=scene_seed)
+    options = {k: v for k, v in (episode.reset_options or {}).items() if k not in ("env_idx", "reconfigure")}
+    if episode.reconfigured:
+        env.reset(seed=episode.seed, options={**options, "reconfigure": True})
+        out.scene_seed = episode.seed
+        out.scene_builds += 1
+    else:
+        wanted = episode.scene_seed if episode.scene_seed is not None else GYM_MAKE_SEED + int(episode.env_idx)
+        if wanted != out.scene_seed:
+            env.reset(seed=wanted, options={"reconfigure": True})
+            out.scene_seed = wanted
+            out.scene_builds += 1
+            out.notes.append(f"rebuilt the scene with seed {wanted}")
+        if getattr(u, "reconfiguration_freq", 0) and getattr(u, "_reconfig_counter", 1) == 0:
+            u._reconfig_counter = 1  # the recorded reset did not reconfigure; hold ManiSkill's periodic one off
+        _, info = env.reset(seed=episode.seed, options=options or None)
+        if bool(to_numpy(info.get("reconfigure", False)).any()):
+            out.scene_seed = episode.seed
+            out.scene_builds += 1
+            out.limits.append("the reset reconfigured the scene, the recorded one did not")
+    if episode.seed is None:
+        out.limits.append("the episode has no seed: its reset cannot be reproduced")
+    return out

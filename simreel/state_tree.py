@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["LeafSpec", "flatten", "unflatten", "to_numpy", "layout_of", "SEP"]
+__all__ = ["LeafSpec", "flatten", "unflatten", "to_numpy", "layout_of", "layout_differences", "describe_leaf", "SEP"]
 
 SEP = "/"
 
@@ -75,3 +75,19 @@ def layout_of(flat: Mapping[str, np.ndarray], *, batched: bool) -> dict[str, Lea
     return {
         path: LeafSpec(tuple(a.shape[1:] if batched else a.shape), a.dtype.name) for path, a in flat.items()
     }
+
+
+def describe_leaf(spec: LeafSpec | None) -> str:
+    """``"(13,) float32"``, or ``"absent"`` for a leaf one layout does not have."""
+    return "absent" if spec is None else f"{tuple(spec.shape)} {spec.dtype}"
+
+
+def layout_differences(
+    old: Mapping[str, LeafSpec], new: Mapping[str, LeafSpec], *, old_label: str = "recorded", new_label: str = "now"
+) -> list[str]:
+    """One line per leaf whose spec differs, in key order: ``"actors/cube: recorded (13,) float32, now absent"``."""
+    return [
+        f"{k}: {old_label} {describe_leaf(old.get(k))}, {new_label} {describe_leaf(new.get(k))}"
+        for k in sorted(set(old) | set(new))
+        if old.get(k) != new.get(k)
+    ]

@@ -6,6 +6,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import rerun.blueprint as rrb
+
 from simreel.viewers.paths import CAMERAS, CONTACTS, EVENTS, PLOTS, REPLAYED, STEP, WORLD
 
 __all__ = ["Layout", "session_blueprint"]

@@ -6,6 +6,7 @@ from collections.abc import Mapping
 
 import numpy as np
 import rerun as rr
+
 from simreel.viewers.paths import CAMERAS
 
 __all__ = ["camera_streams", "log_camera_formats", "log_camera_block"]

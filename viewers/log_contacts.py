@@ -11,9 +11,9 @@ from collections.abc import Sequence
 
 import numpy as np
 import rerun as rr
-from simreel.viewers.paths import contact_path
 
 from simreel.episode import ContactChannel
+from simreel.viewers.paths import contact_path
 
 __all__ = ["FORCE_THRESHOLD_N", "ARROW_SCALE_M", "arrow_vectors", "active_channels", "log_contact_block", "log_contact_styles"]
 

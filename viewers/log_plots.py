@@ -12,11 +12,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import rerun as rr
+
+from simreel.episode import ContactChannel, Episode
 from simreel.viewers.compare import ViewComparison, divergence_row
 from simreel.viewers.log_contacts import FORCE_THRESHOLD_N
 from simreel.viewers.paths import EVENTS, SIM_TIME, STEP, plot_path
-
-from simreel.episode import ContactChannel, Episode
 
 __all__ = ["time_indexes", "log_series", "log_step_plots", "log_qpos", "log_contact_magnitudes", "log_errors",
            "Event", "episode_events", "log_events"]

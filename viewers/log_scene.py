@@ -6,6 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import rerun as rr
+
 from simreel.viewers.paths import body_path
 from simreel.viewers.poses import wxyz_to_xyzw
 from simreel.viewers.scene_geometry import BodyGeometry, MeshPart, Primitive

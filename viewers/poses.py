@@ -8,9 +8,9 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-from simreel.viewers.scene_geometry import SceneBody, read_poses
 
-from simreel.state_tree import unflatten
+from simreel.body_poses import body_poses_from_states
+from simreel.viewers.scene_geometry import SceneBody
 
 __all__ = ["PoseSource", "wxyz_to_xyzw"]
 
@@ -54,18 +54,6 @@ class PoseSource:
         """(stop - start, B, 7) float32 poses of rows [start, stop)."""
         if self._columns is not None:
             return np.asarray(self._recorded[start:stop][:, self._columns], np.float32)
-        return restore_poses(self._u, self._bodies, self._states, start, stop)
-
-
-def restore_poses(
-    unwrapped: Any, bodies: list[SceneBody], states: Mapping[str, np.ndarray], start: int, stop: int
-) -> np.ndarray:
-    """(stop - start, B, 7) poses after restoring rows [start, stop) of flat `states` into env 0."""
-    import torch
-
-    block = {p: np.ascontiguousarray(a[start:stop]) for p, a in states.items()}
-    out = np.empty((stop - start, len(bodies), 7), np.float32)
-    for k in range(stop - start):
-        unwrapped.set_state_dict(unflatten({p: torch.from_numpy(a[k : k + 1]) for p, a in block.items()}))
-        out[k] = read_poses(bodies)
-    return out
+        # every drawn body by its entity: the registry does not name them all (links only one part has)
+        return body_poses_from_states(self._u, [b.name for b in self._bodies], self._states, range(start, stop),
+                                      entities=[b.entity for b in self._bodies])

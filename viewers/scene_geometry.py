@@ -25,7 +25,6 @@ __all__ = [
     "scene_bodies",
     "body_geometry",
     "scene_geometry",
-    "read_poses",
 ]
 
 GEOMETRY_SOURCES = ("auto", "visual", "collision")
@@ -156,16 +155,6 @@ def scene_bodies(unwrapped: Any, *, env_idx: int = 0) -> list[SceneBody]:
         if k is not None:
             add(name, actor._objs[k], str(getattr(actor, "px_body_type", "dynamic")), "actor", False)
     return bodies
-
-
-def read_poses(bodies: list[SceneBody]) -> np.ndarray:
-    """(B, 7) float32 world poses ``[x y z qw qx qy qz]`` of `bodies` now."""
-    out = np.empty((len(bodies), 7), np.float32)
-    for j, body in enumerate(bodies):
-        pose = body.entity.pose
-        out[j, :3] = pose.p
-        out[j, 3:] = pose.q
-    return out
 
 
 # ----------------------------------------------------------------------------------------------- shapes

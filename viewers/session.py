@@ -15,18 +15,20 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from simreel.viewers.compare import DEFAULT_MODE, ViewComparison, compare_for_view, divergence_row
-from simreel.viewers.paths import step_of_row
-from simreel.viewers.scene_geometry import BodyGeometry, SceneBody, scene_bodies, scene_geometry
 
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import RecordingFileError, SimreelError, UsageError
 from simreel.formats import EpisodeReader, open_reader
-from simreel.state_tree import flatten, layout_of
+from simreel.rebuild import GYM_MAKE_SEED, reset_to_episode
+from simreel.state_tree import flatten, layout_differences, layout_of
+from simreel.viewers.compare import DEFAULT_MODE, ViewComparison, compare_for_view, divergence_row
+from simreel.viewers.paths import step_of_row
+from simreel.viewers.scene_geometry import BodyGeometry, SceneBody, scene_bodies, scene_geometry
 
 if TYPE_CHECKING:
     import rerun as rr
     import rerun.blueprint as rrb
+
     from simreel.viewers.blueprint import Layout
 
 __all__ = ["APPLICATION_ID", "ViewError", "ViewSession", "build_session", "rebuild_env", "viewer_executable"]
@@ -103,23 +105,11 @@ def viewer_executable() -> str | None:
     return str(beside) if beside.is_file() else None
 
 
-def _reset_to_scene(env: Any, run: _Run) -> None:
-    """Reset so the scene holds the episode's objects (heterogeneous tasks draw them at reconfiguration)."""
-    m = run.episode.meta
-    options = {k: v for k, v in (m.reset_options or {}).items() if k != "env_idx"}
-    if m.scene_seed is not None:
-        env.reset(seed=m.scene_seed, options={**options, "reconfigure": True})
-    else:
-        env.reset(seed=m.seed, options=options or None)
-
-
 def _check_layout(u: Any, meta: RecordingMeta, path_label: str) -> None:
     have = layout_of(flatten(u.get_state_dict()), batched=True)
     if have == meta.state_layout:
         return
-    keys = sorted(set(have) | set(meta.state_layout))
-    diffs = [f"{k}: recorded {meta.state_layout.get(k)} vs rebuilt {have.get(k)}"
-             for k in keys if have.get(k) != meta.state_layout.get(k)]
+    diffs = layout_differences(meta.state_layout, have, old_label="recorded", new_label="rebuilt")
     raise ViewError(
         f"{path_label}: the rebuilt {meta.env_id} has a different state layout ({'; '.join(diffs[:3])}); "
         "rebuild it with the recorded versions and --import modules (see `simreel inspect`)"
@@ -276,6 +266,7 @@ class ViewSession:
     def log_to(self, rec: rr.RecordingStream) -> None:
         """Log the whole session into `rec` (whatever its sink)."""
         import rerun as rr
+
         from simreel.viewers.log_cameras import camera_streams, log_camera_block, log_camera_formats
         from simreel.viewers.log_contacts import active_channels, log_contact_block, log_contact_styles
         from simreel.viewers.log_plots import (
@@ -430,7 +421,8 @@ def build_session(
         if int(u.num_envs) != 1 or u.scene.gpu_sim_enabled:
             raise UsageError("build_session(env=...) needs an env with num_envs=1 on the CPU sim (see rebuild_env)")
         t2 = time.perf_counter()
-        _reset_to_scene(env, rec_run)
+        # the episode's scene (heterogeneous tasks draw their objects when they build it); a caller's env: unknown
+        reset_to_episode(env, rec_run.episode.meta, scene_seed=GYM_MAKE_SEED if owns else None)
         _check_layout(u, rec_run.meta, rec_run.label)
         bodies = scene_bodies(u)
         used, geo = scene_geometry(u, bodies, source=geometry)

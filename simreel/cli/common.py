@@ -8,7 +8,8 @@ from typing import Any
 
 from simreel.errors import UsageError
 
-__all__ = ["add_env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges"]
+__all__ = ["add_env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
+           "add_tolerance_options", "parse_tolerance", "parse_group_tolerance"]
 
 
 def add_import_option(p: argparse.ArgumentParser) -> None:
@@ -69,3 +70,47 @@ def parse_index_ranges(text: str) -> list[int]:
         except ValueError:
             raise UsageError(f"bad episode list {text!r}: expected e.g. 0,3-7") from None
     return out
+
+
+def parse_tolerance(text: str) -> float:
+    """`--atol X`: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+def _tolerance_groups() -> list[str]:
+    from simreel.compare import GROUPS
+
+    return [g for g in GROUPS if g != "flag"]  # flags are always compared exactly
+
+
+def parse_group_tolerance(text: str) -> tuple[str, float]:
+    """`--tol GROUP=X`: `"contact=5"` → ("contact", 5.0), GROUP one of `simreel.compare.GROUPS` but "flag"."""
+    groups = _tolerance_groups()
+    group, sep, value = text.partition("=")
+    if not sep or group not in groups:
+        raise argparse.ArgumentTypeError(f"expected GROUP=NUMBER with GROUP one of {', '.join(groups)}, got {text!r}")
+    try:
+        number = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number") from None
+    if not 0 <= number < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}: a tolerance must be a finite number >= 0")
+    return group, number
+
+
+def add_tolerance_options(p: argparse.ArgumentParser, *, mode_help: str) -> None:
+    """`--mode` (a replay mode: whose default tolerances apply), `--atol X` and `--tol GROUP=X` (repeatable)."""
+    from simreel.compare import TOLERANCE_MODES
+
+    modes = [m for m in TOLERANCE_MODES if m != "resync"]  # resync is `--mode actions --resync K`
+    p.add_argument("--mode", choices=modes, default="actions", help=mode_help)
+    p.add_argument("--atol", type=parse_tolerance, default=None, metavar="X",
+                   help="one absolute tolerance for every compared value (flags stay exact)")
+    p.add_argument("--tol", type=parse_group_tolerance, action="append", default=[], metavar="GROUP=X",
+                   help=f"tolerance of one group, repeatable; groups: {', '.join(_tolerance_groups())}")

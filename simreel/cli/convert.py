@@ -30,20 +30,6 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(run=run)
 
 
-def _remove_output(path: Path) -> None:
-    """Remove a half-written OUT (and the HDF5 sidecar), so a failed convert leaves no valid-looking file."""
-    import shutil
-
-    from simreel.formats import format_of
-
-    path.unlink(missing_ok=True)
-    if format_of(path) == "hdf5":
-        from simreel.formats.hdf5 import partial_dir, sidecar_path
-
-        sidecar_path(path).unlink(missing_ok=True)
-        shutil.rmtree(partial_dir(path), ignore_errors=True)
-
-
 class _LinkPoses:
     """Adds `body_poses` of every registry body to episodes, computed in an env rebuilt from the metadata."""
 
@@ -61,11 +47,10 @@ class _LinkPoses:
 
     def add(self, episode: Any) -> Any:
         from simreel.body_poses import body_poses_from_states
+        from simreel.rebuild import reset_to_episode
 
-        m = episode.meta
-        if m.scene_seed is not None and m.scene_seed != self._scene_seed:  # per-episode objects: rebuild them
-            self._u.reset(seed=m.scene_seed, options={"reconfigure": True})
-            self._scene_seed = m.scene_seed
+        m = episode.meta  # its scene (per-episode objects of heterogeneous tasks); rebuilt only when it changes
+        self._scene_seed = reset_to_episode(self._env, m, scene_seed=self._scene_seed).scene_seed
         episode.body_poses = body_poses_from_states(self._u, self.meta.pose_bodies, episode.env_states)
         return episode
 
@@ -81,12 +66,13 @@ def convert(src: str | Path, dst: str | Path, *, overwrite: bool = False, quiet:
     """
     from tqdm import tqdm
 
-    from simreel.formats import format_of, open_reader, open_writer
+    from simreel.formats import check_writable, format_of, open_reader, open_writer, remove_recording
 
     src_p, dst_p = Path(src), Path(dst)
     format_of(dst_p)  # a bad suffix fails before anything is read
     if src_p.exists() and dst_p.exists() and src_p.resolve() == dst_p.resolve():
         raise UsageError(f"{dst}: IN and OUT are the same file; write to another file")
+    check_writable(dst_p, overwrite=overwrite)  # before the reader and the env (--poses) cost anything
     steps = 0
     with open_reader(src_p) as reader:
         for note in getattr(reader, "unfinished", []):
@@ -104,7 +90,7 @@ def convert(src: str | Path, dst: str | Path, *, overwrite: bool = False, quiet:
                         writer.write_episode(link_poses.add(episode) if link_poses else episode)
                         steps += episode.length
             except BaseException:
-                _remove_output(dst_p)
+                remove_recording(dst_p)  # the writer created it: a failed convert leaves no valid-looking file
                 raise
         finally:
             if link_poses:
@@ -113,11 +99,13 @@ def convert(src: str | Path, dst: str | Path, *, overwrite: bool = False, quiet:
 
 
 def run(args: argparse.Namespace) -> int:
+    from simreel.formats import format_of
+
     episodes, steps, meta = convert(args.input, args.output, overwrite=args.overwrite, quiet=args.quiet,
                                     poses=args.poses)
     size = Path(args.output).stat().st_size
     print(f"converted {episodes} episode(s), {steps} steps, {args.input} → {args.output} ({size / 1024:.0f} KiB)")
-    if Path(args.output).suffix.lower() == ".mcap" and not meta.pose_bodies:
+    if format_of(args.output) == "mcap" and not meta.pose_bodies:
         print("note: IN has no body poses, so the MCAP transform channel (/tf) shows the actors and articulation "
               "roots of the state dict only; convert with --poses (or record with --poses) for every link")
     return 0

@@ -28,7 +28,7 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("path", metavar="PATH", help="the interrupted .mcap recording")
     p.add_argument("-o", "--output", metavar="OUT", default=None,
-                   help="write the recovered recording here (.mcap) instead of replacing PATH")
+                   help="write the recovered recording here instead of replacing PATH (.mcap; .h5 writes HDF5)")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     p.set_defaults(run=run)
 
@@ -38,13 +38,15 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
 
     Returns a report: `complete` (nothing to do), `episodes`, `steps`, `unfinished`, `lost_bytes`, `output`.
     """
-    from simreel.formats import format_of
-    from simreel.formats.mcap import McapReader, McapWriter
+    from simreel.formats import check_writable, format_of, open_writer, remove_recording
+    from simreel.formats.mcap import McapReader
 
     src = Path(path)
     if format_of(src) != "mcap":
         raise UsageError(f"{src}: only MCAP recordings need recovery; an HDF5 recording keeps its committed "
                          "episodes readable (inspect lists the unfinished ones)")
+    if output is not None and Path(output).resolve() != src.resolve():
+        check_writable(output, overwrite=overwrite)  # refuse OUT before reading PATH front to back
     with McapReader(src, recover=True) as reader:
         report: dict[str, Any] = {
             "complete": not reader.recovered and not reader.unfinished,
@@ -61,12 +63,15 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
             format_of(dst)
             if dst.resolve() == src.resolve():
                 dst, output = src.with_name(src.stem + ".recovering.mcap"), None
+        # Built outside the try: a writer that refuses OUT (it exists, another recording writes it) has
+        # created nothing, and what is there is not this call's to delete.
+        writer = open_writer(dst, reader.meta, overwrite=overwrite or output is None)
         try:
-            with McapWriter(dst, reader.meta, overwrite=overwrite or output is None) as writer:
+            with writer:
                 for m in reader.episodes:
                     writer.write_episode(reader.read_episode(m.index))
         except BaseException:
-            dst.unlink(missing_ok=True)
+            remove_recording(dst)
             raise
     if output is None:
         os.replace(dst, src)

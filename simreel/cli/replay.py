@@ -9,38 +9,15 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import add_import_option, parse_index_ranges
+from simreel.cli.common import (
+    add_import_option,
+    add_tolerance_options,
+    parse_group_tolerance,
+    parse_index_ranges,
+)
 from simreel.errors import UsageError
 
 __all__ = ["add_parser", "run", "parse_group_tolerance"]
-
-_MODES = ("actions", "states", "step")
-_GROUPS = ("pos", "quat", "vel", "qpos", "qvel", "controller", "custom", "reward", "info", "contact", "obs")
-
-
-def parse_group_tolerance(text: str) -> tuple[str, float]:
-    """`"contact=5"` → ("contact", 5.0), for `--tol`."""
-    group, sep, value = text.partition("=")
-    if not sep or group not in _GROUPS:
-        raise argparse.ArgumentTypeError(f"expected GROUP=NUMBER with GROUP one of {', '.join(_GROUPS)}, got {text!r}")
-    try:
-        number = float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number") from None
-    if not number >= 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: a tolerance must be >= 0")
-    return group, number
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not value >= 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
-
 
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
@@ -53,24 +30,23 @@ def add_parser(sub: Any) -> None:
         ),
     )
     p.add_argument("path", metavar="PATH", help="a simreel recording (.h5 or .mcap)")
-    p.add_argument("--mode", choices=_MODES, default="actions",
-                   help="actions: step the recorded actions from the reproduced reset (default); "
-                        "states: restore every recorded state and recompute reward/info/obs; "
-                        "step: restore state t, step action t, compare with state t+1 (one-step error)")
+    add_tolerance_options(
+        p,
+        mode_help="actions: step the recorded actions from the reproduced reset (default); "
+                  "states: restore every recorded state and recompute reward/info/obs; "
+                  "step: restore state t, step action t, compare with state t+1 (one-step error)",
+    )
     p.add_argument("--resync", type=int, default=None, metavar="K",
                    help="with --mode actions: restore the recorded state every K steps")
     p.add_argument("--episodes", default=None, metavar="LIST", help="episodes to replay, e.g. 0,3-7 (default: all)")
-    p.add_argument("--atol", type=_non_negative_float, default=None, metavar="X",
-                   help="one absolute tolerance for every compared value (flags stay exact)")
-    p.add_argument("--tol", type=parse_group_tolerance, action="append", default=[], metavar="GROUP=X",
-                   help=f"tolerance of one group, repeatable; groups: {', '.join(_GROUPS)}")
     p.add_argument("--report", default=None, metavar="REPORT.json", help="write the JSON report here")
     p.add_argument("-o", "--output", default=None, metavar="REPLAYED", help="write the replayed episodes (.h5/.mcap)")
     p.add_argument("--overwrite", action="store_true", help="replace the -o file if it exists")
     p.add_argument("--obs-mode", default=None,
                    help="observation mode of the replay (e.g. rgb with --mode states -o OUT to re-render)")
     p.add_argument("--sim-backend", default=None,
-                   help="replay on another sim backend than the recorded one (physx_cpu, physx_cuda)")
+                   help="replay on another sim backend than the recorded one (physx_cpu, physx_cuda); a GPU "
+                        "recording on a machine without CUDA: physx_cpu (another engine, so the verdict is not exact)")
     p.add_argument("--workers", type=int, default=1, metavar="N", help="parallel processes (default 1)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     add_import_option(p)

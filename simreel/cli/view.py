@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from simreel.cli.common import add_tolerance_options
 from simreel.errors import UsageError
 
 __all__ = ["add_parser", "run", "default_output", "viewer_available"]
@@ -30,16 +31,11 @@ def add_parser(sub: Any) -> None:
                    help="episode index (default: the first in the file); see `simreel inspect PATH`")
     p.add_argument("--compare", default=None, metavar="OTHER",
                    help="a replay of the recording (`simreel replay -o OTHER`): ghost overlay + first divergence")
-    p.add_argument("--mode", choices=("actions", "states", "step"), default="actions",
-                   help="whose default tolerances judge --compare: the `simreel replay --mode` that wrote it "
-                        "(default actions)")
-    p.add_argument("--atol", type=_non_negative_float, default=None, metavar="X",
-                   help="one absolute tolerance for every compared value (flags stay exact)")
-    p.add_argument("--tol", type=_group_tolerance, action="append", default=[], metavar="GROUP=X",
-                   help="tolerance of one group for --compare, repeatable (groups as in `simreel replay --tol`)")
+    add_tolerance_options(p, mode_help="whose default tolerances judge --compare: the `simreel replay --mode` that "
+                                       "wrote it (default actions)")
     sink = p.add_mutually_exclusive_group()
     sink.add_argument("--save", default=None, metavar="OUT.rrd",
-                      help="write a .rrd file (the default when no viewer can be opened)")
+                      help="write a .rrd file (the default when no viewer can be opened: <recording>.episode<I>.rrd)")
     sink.add_argument("--spawn", action="store_true", help="open the native Rerun viewer")
     sink.add_argument("--serve", action="store_true", help="serve the web viewer (for a remote machine); Ctrl-C stops")
     p.add_argument("--web-port", type=int, default=9090, help="web viewer port for --serve (default 9090)")
@@ -48,28 +44,8 @@ def add_parser(sub: Any) -> None:
                    help="visual meshes (needs a render device), collision shapes, or auto (default)")
     p.add_argument("--block-steps", type=int, default=256, metavar="N",
                    help="steps logged per batch; bounds memory on long episodes (default 256)")
+    p.add_argument("--overwrite", action="store_true", help="replace the .rrd file if it exists")
     p.set_defaults(run=run)
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
-
-
-def _group_tolerance(text: str) -> tuple[str, float]:
-    """`"pos=1e-4"` → ("pos", 1e-4), for `--tol`."""
-    from simreel.compare import GROUPS
-
-    group, sep, value = text.partition("=")
-    if not sep or group not in GROUPS or group == "flag":
-        names = ", ".join(g for g in GROUPS if g != "flag")
-        raise argparse.ArgumentTypeError(f"expected GROUP=NUMBER with GROUP one of {names}, got {text!r}")
-    return group, _non_negative_float(value)
 
 
 def viewer_available() -> bool:
@@ -82,6 +58,19 @@ def viewer_available() -> bool:
 def default_output(path: str | Path, episode: int) -> Path:
     """``<recording stem>.episode<I>.rrd`` in the current folder."""
     return Path.cwd() / f"{Path(path).stem}.episode{episode}.rrd"
+
+
+def _check_output(path: Path, *, overwrite: bool) -> None:
+    """Refuse an .rrd that exists (unless `overwrite`) or a folder that cannot be made, before any work."""
+    if path.is_dir():
+        raise UsageError(f"--save {path}: that is a folder; name the .rrd file to write")
+    if path.exists() and not overwrite:
+        raise UsageError(f"{path} already exists; pass --overwrite to replace it, or --save another .rrd")
+    folder = path.resolve().parent
+    existing = next(p for p in (folder, *folder.parents) if p.exists())  # save() creates the folders below it
+    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+        what = "is not a folder" if not existing.is_dir() else "is not writable"
+        raise UsageError(f"--save {path}: cannot write into {folder}: {existing} {what}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -104,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
         mode = "spawn" if viewer_available() else "save"
         if mode == "save":
             save = str(default_output(args.path, episode))
+    if mode == "save":
+        _check_output(Path(save), overwrite=args.overwrite)  # before the env is built
     t0 = time.perf_counter()
     with build_session(
         args.path,

@@ -1,7 +1,9 @@
 """Recording formats behind one interface: pick a writer by file suffix, a reader by file content.
 
 `open_writer("x.h5", meta)` / `open_writer("x.mcap", meta)` and `open_reader(path)` are the only entry
-points the rooms use; no code outside `simreel.formats` knows how a format lays out its bytes.
+points the rooms use; no code outside `simreel.formats` knows how a format lays out its bytes or which
+files it writes beside the recording (`check_writable`, `remove_recording`, `records_poses_by_default`
+answer for it).
 """
 
 from __future__ import annotations
@@ -13,7 +15,18 @@ from simreel.episode import RecordingMeta
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats.base import EpisodeReader, EpisodeSink, EpisodeWriter, StepBlock
 
-__all__ = ["open_writer", "open_reader", "format_of", "EpisodeReader", "EpisodeWriter", "EpisodeSink", "StepBlock"]
+__all__ = [
+    "open_writer",
+    "open_reader",
+    "format_of",
+    "check_writable",
+    "remove_recording",
+    "records_poses_by_default",
+    "EpisodeReader",
+    "EpisodeWriter",
+    "EpisodeSink",
+    "StepBlock",
+]
 
 HDF5_SUFFIXES = (".h5", ".hdf5")
 MCAP_SUFFIXES = (".mcap",)
@@ -30,15 +43,39 @@ def format_of(path: str | Path) -> str:
     raise UsageError(f"{path}: unknown recording suffix {suffix!r}; use .h5 (HDF5) or .mcap (MCAP)")
 
 
-def open_writer(path: str | Path, meta: RecordingMeta, **options: Any) -> EpisodeWriter:
-    """A writer for `path`, chosen by its suffix (.h5/.hdf5 or .mcap)."""
+def _writer_class(path: str | Path) -> type[EpisodeWriter]:
+    """The writer of the format `path`'s suffix names."""
     if format_of(path) == "hdf5":
         from simreel.formats.hdf5 import Hdf5Writer
 
-        return Hdf5Writer(path, meta, **options)
+        return Hdf5Writer
     from simreel.formats.mcap import McapWriter
 
-    return McapWriter(path, meta, **options)
+    return McapWriter
+
+
+def open_writer(path: str | Path, meta: RecordingMeta, **options: Any) -> EpisodeWriter:
+    """A writer for `path`, chosen by its suffix (.h5/.hdf5 or .mcap)."""
+    return _writer_class(path)(path, meta, **options)
+
+
+def check_writable(path: str | Path, *, overwrite: bool = False) -> None:
+    """Raise the `UsageError` that `open_writer(path, ..., overwrite=overwrite)` would raise for the target
+    itself (unknown suffix, missing folder, an existing file or side file without `overwrite`, an MCAP file
+    another recording is writing), without creating anything: a command checks its output before slow work."""
+    _writer_class(path).check_target(Path(path), overwrite=overwrite)
+
+
+def remove_recording(path: str | Path) -> None:
+    """Delete the recording `path` and the files its format keeps beside it (HDF5: the JSON sidecar and the
+    `.partial/` scratch folder), e.g. a half-written output; missing ones are skipped."""
+    _writer_class(path).remove(Path(path))
+
+
+def records_poses_by_default(path: str | Path) -> bool:
+    """Whether a recording to `path` should hold body poses unless told otherwise: True for MCAP (its `/tf`
+    channel shows every link only with them), False for HDF5. Raises `UsageError` for an unknown suffix."""
+    return _writer_class(path).records_poses_by_default
 
 
 def open_reader(path: str | Path) -> EpisodeReader:

@@ -8,17 +8,37 @@ per episode, so a large file never has to fit in memory.
 
 from __future__ import annotations
 
+import shutil
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
+from typing import ClassVar
 
 import numpy as np
 
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta
+from simreel.errors import RecordingFileError, UsageError
 
-__all__ = ["StepBlock", "EpisodeSink", "EpisodeWriter", "EpisodeReader"]
+__all__ = ["StepBlock", "EpisodeSink", "EpisodeWriter", "EpisodeReader", "reset_row"]
+
+
+def reset_row(
+    initial_state: dict[str, np.ndarray],
+    initial_obs: dict[str, np.ndarray] | None = None,
+    initial_poses: np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
+    """Row 0 (the episode after reset) of the T+1-row fields, as `begin_episode` receives it.
+
+    Keys `env_states/<key path>`, `obs/<key path>` and `body_poses` (stored as float32, like every
+    pose row); every array gets a leading axis of 1 row.
+    """
+    row = {f"env_states/{p}": np.asarray(a)[None] for p, a in initial_state.items()}
+    row.update({f"obs/{p}": np.asarray(a)[None] for p, a in (initial_obs or {}).items()})
+    if initial_poses is not None:
+        row["body_poses"] = np.asarray(initial_poses, dtype=np.float32)[None]
+    return row
 
 
 @dataclass
@@ -79,9 +99,44 @@ class EpisodeSink(ABC):
 class EpisodeWriter(ABC):
     """Writes one recording file. A context manager; `close` commits nothing that was not committed."""
 
+    records_poses_by_default: ClassVar[bool] = False
+    """Whether a recorder writing this format records body poses unless told otherwise."""
+
     def __init__(self, path: str | Path, meta: RecordingMeta) -> None:
         self.path = Path(path)
         self.meta = meta
+
+    @classmethod
+    def side_paths(cls, path: Path) -> list[Path]:
+        """Files and folders this format writes beside the recording `path` (none unless a format has some)."""
+        return []
+
+    @classmethod
+    def check_target(cls, path: Path, *, overwrite: bool) -> None:
+        """Raise `UsageError` if a new recording cannot go to `path`: its folder is missing, or (without
+        `overwrite`) it or one of its side paths already exists. Cheap: touches nothing."""
+        if not path.parent.is_dir():
+            raise UsageError(f"cannot write {path}: folder {path.parent} does not exist")
+        if overwrite:
+            return
+        if path.exists():
+            raise UsageError(f"{path} already exists; pass --overwrite to replace it")
+        for side in cls.side_paths(path):
+            if side.exists():
+                raise UsageError(
+                    f"{side} already exists and a recording to {path.name} would replace it; "
+                    "pass --overwrite to replace it"
+                )
+
+    @classmethod
+    def remove(cls, path: Path) -> None:
+        """Delete the recording `path` and its side paths; those that do not exist are skipped."""
+        path.unlink(missing_ok=True)
+        for side in cls.side_paths(path):
+            if side.is_dir() and not side.is_symlink():
+                shutil.rmtree(side, ignore_errors=True)
+            else:
+                side.unlink(missing_ok=True)
 
     @abstractmethod
     def begin_episode(
@@ -143,8 +198,6 @@ class EpisodeReader(ABC):
         for m in self.episodes:
             if m.index == index:
                 return m
-        from simreel.errors import RecordingFileError
-
         have = ", ".join(str(m.index) for m in self.episodes) or "none"
         raise RecordingFileError(self.path, f"no episode {index} (episodes: {have})")
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import time
 from pathlib import Path
 from typing import Any
@@ -34,7 +33,7 @@ import numpy as np
 from simreel import FORMAT_VERSION
 from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta, json_default
 from simreel.errors import RecordingFileError, UsageError
-from simreel.formats.base import EpisodeReader, EpisodeSink, EpisodeWriter, StepBlock
+from simreel.formats.base import EpisodeReader, EpisodeSink, EpisodeWriter, StepBlock, reset_row
 
 __all__ = ["Hdf5Writer", "Hdf5Reader", "HDF5_MAGIC", "sidecar_path", "partial_dir"]
 
@@ -151,11 +150,7 @@ class _Hdf5Sink(EpisodeSink):
         self._file: Any = None
         self._pending: dict[str, list[np.ndarray]] = {}
         self._pending_bytes = 0
-        first = {f"env_states/{p}": np.asarray(a)[None] for p, a in initial_state.items()}
-        first.update({f"obs/{p}": np.asarray(a)[None] for p, a in (initial_obs or {}).items()})
-        if initial_poses is not None:
-            first["body_poses"] = np.asarray(initial_poses, dtype=np.float32)[None]
-        self._hold(first)
+        self._hold(reset_row(initial_state, initial_obs, initial_poses))
 
     def _hold(self, fields: dict[str, np.ndarray]) -> None:
         for name, rows in fields.items():
@@ -213,7 +208,11 @@ class _Hdf5Sink(EpisodeSink):
 
 
 class Hdf5Writer(EpisodeWriter):
-    """Streams episodes into an HDF5 recording; see the module docstring for the layout."""
+    """Streams episodes into an HDF5 recording; see the module docstring for the layout.
+
+    Without `overwrite` it refuses a path whose file, JSON sidecar or `.partial/` folder exists (a user's
+    own `NAME.json` is never replaced silently); with it, all three are replaced.
+    """
 
     def __init__(
         self,
@@ -230,21 +229,30 @@ class Hdf5Writer(EpisodeWriter):
         self._partial = partial_dir(self.path)
         self._committed: list[EpisodeMeta] = []
         self._sidecar_written = 0.0
-        if not self.path.parent.is_dir():
-            raise UsageError(f"cannot write {self.path}: folder {self.path.parent} does not exist")
-        if self.path.exists() and not overwrite:
-            raise UsageError(f"{self.path} already exists; pass --overwrite to replace it")
-        for stale in (self.path, sidecar_path(self.path)):
-            stale.unlink(missing_ok=True)
-        shutil.rmtree(self._partial, ignore_errors=True)
+        self.check_target(self.path, overwrite=overwrite)
+        self.remove(self.path)  # with overwrite: the old recording; without, check_target saw none of it
         try:
-            with h5py.File(self.path, "w") as f:
+            f = h5py.File(self.path, "x")  # "x": never replaces a file created since the check
+        except FileExistsError:
+            raise UsageError(f"{self.path} already exists; pass --overwrite to replace it") from None
+        except OSError as e:
+            raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
+        try:
+            with f:
                 f.attrs["simreel_format_version"] = FORMAT_VERSION
                 f.attrs["simreel_meta"] = json.dumps(meta.to_json())
             self._partial.mkdir()
+            self._write_sidecar()
         except OSError as e:
+            self.remove(self.path)  # all of it was created above
             raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
-        self._write_sidecar()
+        except BaseException:
+            self.remove(self.path)
+            raise
+
+    @classmethod
+    def side_paths(cls, path: Path) -> list[Path]:
+        return [sidecar_path(path), partial_dir(path)]
 
     def begin_episode(
         self,
@@ -320,6 +328,24 @@ class Hdf5Writer(EpisodeWriter):
             self._partial.rmdir()
 
 
+def _open_problem(e: OSError) -> str:
+    """What h5py's failure to open a file with a valid signature means, for a `RecordingFileError`."""
+    text = str(e)
+    if "locking flag" in text:
+        # HDF5 opens a file once per process: an h5py.File of it still open elsewhere in this process, made
+        # with file locking on (h5py's default), cannot share its handle with this lock-free reader.
+        return (
+            "already open in this process through h5py with file locking on (h5py: file locking flag values "
+            "don't match); close that h5py.File, or open it with locking=False, then read it again"
+        )
+    if "already open" in text:
+        return (
+            f"marked as open by another HDF5 writer (h5py: {text}); read it once that writer has closed it, "
+            "or, if it died, clear the mark with `h5clear -s FILE`"
+        )
+    return f"truncated or corrupt HDF5 file ({text})"
+
+
 def _read_group(group: Any) -> dict[str, np.ndarray]:
     """Every dataset below `group`, keyed by its path relative to the group."""
     import h5py
@@ -350,7 +376,7 @@ class Hdf5Reader(EpisodeReader):
             # No file lock: a reader must never make a running recorder fail to commit.
             self._file = h5py.File(self.path, "r", locking=False)
         except OSError as e:
-            raise RecordingFileError(self.path, f"truncated or corrupt HDF5 file ({e})") from None
+            raise RecordingFileError(self.path, _open_problem(e)) from None
         attrs = self._file.attrs
         if "simreel_meta" not in attrs:
             self._file.close()

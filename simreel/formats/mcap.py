@@ -50,8 +50,8 @@ import numpy as np
 
 from simreel import FORMAT_VERSION, __version__
 from simreel.episode import FLAG_FIELDS, EpisodeMeta, RecordingMeta
-from simreel.errors import UsageError
-from simreel.formats.base import EpisodeSink, EpisodeWriter, StepBlock
+from simreel.errors import EpisodeLayoutError, UsageError
+from simreel.formats.base import EpisodeSink, EpisodeWriter, StepBlock, reset_row
 from simreel.formats.mcap_blocks import (
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
@@ -160,7 +160,13 @@ class McapWriter(EpisodeWriter):
         chunk_size: bytes of messages gathered before a chunk is compressed and written; `commit`
             also closes the current chunk so the episode is on disk.
         fsync: also `os.fsync` at each commit (survives power loss, not only a killed process).
+
+    If the constructor fails once it has created (or, with `overwrite`, emptied) the file, it closes and
+    removes it; a file it refuses (exists, being written) is left untouched.
     """
+
+    records_poses_by_default = True
+    """`/tf` shows every link only when the recording has body poses; without them, only root poses."""
 
     def __init__(
         self,
@@ -179,27 +185,8 @@ class McapWriter(EpisodeWriter):
             raise UsageError(f"unknown MCAP compression {compression!r}; use one of {', '.join(COMPRESSIONS)}")
         if not hasattr(Writer, "flush"):
             raise UsageError("writing MCAP needs mcap>=1.6 (Writer.flush); upgrade it: pip install -U mcap")
-        if not self.path.parent.is_dir():
-            raise UsageError(f"cannot write {self.path}: folder {self.path.parent} does not exist")
-        if self.path.exists() and not overwrite:
-            raise UsageError(f"{self.path} already exists; pass --overwrite to replace it")
-        if being_written(self.path):
-            raise UsageError(f"{self.path} is being written by another recording; choose another file")
-        try:
-            self._fh: IO[bytes] = open(self.path, "wb")
-        except OSError as e:
-            raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
-        lock_file(self._fh, exclusive=True)  # released by close() or the death of the process
         self.compression = compression
         self._fsync = fsync
-        self._mcap = Writer(
-            self._fh,
-            chunk_size=chunk_size,
-            compression={"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[
-                compression
-            ],
-        )
-        self._mcap.start(profile="", library=f"simreel {__version__}")
         self._step_ns = step_ns_of(meta)
         self._reset_fields = reset_fields(meta)
         self._step_fields = step_fields(meta)
@@ -209,9 +196,57 @@ class McapWriter(EpisodeWriter):
         self._begun: set[int] = set()
         self.committed: list[EpisodeMeta] = []
         self._closed = False
-        self._channels = self._register_channels()
-        self._mcap.add_metadata(META_RECORDING, self._recording_record())
-        self._fh.flush()
+        self.check_target(self.path, overwrite=overwrite)
+        self._fh: IO[bytes] = self._create(overwrite=overwrite)
+        try:
+            self._mcap = Writer(
+                self._fh,
+                chunk_size=chunk_size,
+                compression={"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[
+                    compression
+                ],
+            )
+            self._mcap.start(profile="", library=f"simreel {__version__}")
+            self._channels = self._register_channels()
+            self._mcap.add_metadata(META_RECORDING, self._recording_record())
+            self._fh.flush()
+        except BaseException as e:
+            self.path.unlink(missing_ok=True)  # while the lock is still held: the file is this writer's
+            self._fh.close()
+            if isinstance(e, OSError):
+                raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
+            raise
+
+    @classmethod
+    def check_target(cls, path: Path, *, overwrite: bool) -> None:
+        super().check_target(path, overwrite=overwrite)
+        if being_written(path):
+            raise UsageError(f"{path} is being written by another recording; choose another file")
+
+    def _create(self, *, overwrite: bool) -> IO[bytes]:
+        """The file opened for writing under the writer's lock (released by close() or the death of the
+        process). An existing file is emptied only once the lock is held, so a recording that another
+        process is writing is never truncated; without `overwrite` an existing file is refused."""
+        flags = os.O_WRONLY | os.O_CREAT | getattr(os, "O_BINARY", 0)
+        try:
+            try:
+                fd = os.open(self.path, flags | os.O_EXCL, 0o666)
+            except FileExistsError:
+                if not overwrite:
+                    raise UsageError(f"{self.path} already exists; pass --overwrite to replace it") from None
+                fd = os.open(self.path, flags, 0o666)
+        except OSError as e:
+            raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
+        fh = os.fdopen(fd, "wb")
+        if not lock_file(fh, exclusive=True):
+            fh.close()
+            raise UsageError(f"{self.path} is being written by another recording; choose another file")
+        try:
+            fh.truncate(0)
+        except OSError as e:
+            fh.close()
+            raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
+        return fh
 
     # ---------------------------------------------------------------- file header
     def _register_channels(self) -> dict[str, int]:
@@ -275,11 +310,7 @@ class McapWriter(EpisodeWriter):
             raise UsageError(f"{self.path} is closed")
         if meta.index in self._begun:
             raise UsageError(f"{self.path}: episode {meta.index} was already written; episode indices must be unique")
-        reset: dict[str, np.ndarray] = {f"env_states/{p}": np.asarray(a)[None] for p, a in initial_state.items()}
-        reset.update({f"obs/{p}": np.asarray(a)[None] for p, a in (initial_obs or {}).items()})
-        if initial_poses is not None:
-            reset["body_poses"] = np.asarray(initial_poses)[None]
-        return _McapSink(self, meta, reset)
+        return _McapSink(self, meta, reset_row(initial_state, initial_obs, initial_poses))
 
     def _time(self, sink: _McapSink, row: int) -> int:
         return sink._start + row * self._step_ns
@@ -314,7 +345,7 @@ class McapWriter(EpisodeWriter):
         if self._pose_sources is None:
             poses = source["body_poses"] if isinstance(source, dict) else source.body_poses
             if poses is None:
-                raise ValueError(f"episode {sink._index}: no body_poses, but the recording lists pose bodies")
+                raise EpisodeLayoutError(f"episode {sink._index}: no body_poses, but the recording lists pose bodies")
             poses = np.asarray(poses)
         else:
             states = source if isinstance(source, dict) else {f"env_states/{p}": a for p, a in source.env_states.items()}

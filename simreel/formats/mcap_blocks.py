@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from simreel.episode import FLAG_FIELDS, RecordingMeta
+from simreel.errors import EpisodeLayoutError
 
 __all__ = [
     "Field",
@@ -113,16 +114,16 @@ def _lookup(source: Any, name: str) -> Any:
 
 
 def pack_block(fields: list[Field], source: Any, *, episode: int, first_row: int, rows: int) -> bytes:
-    """Header + every field's `rows` rows, cast to the field's dtype; a clear ValueError when one is
-    missing or has the wrong row shape."""
+    """Header + every field's `rows` rows, cast to the field's dtype; `EpisodeLayoutError` (naming the
+    episode, the field and the shapes) when one is missing or has the wrong row shape."""
     parts = [HEADER.pack(episode, first_row, rows)]
     for f in fields:
         a = _lookup(source, f.name)
         if a is None:
-            raise ValueError(f"episode {episode}: no {f.name} to write (the recording's layout lists it)")
+            raise EpisodeLayoutError(f"episode {episode}: no {f.name} to write (the recording's layout lists it)")
         a = np.asarray(a)
         if a.shape != (rows, *f.shape):
-            raise ValueError(
+            raise EpisodeLayoutError(
                 f"episode {episode}: {f.name} has shape {a.shape}, expected {(rows, *f.shape)} from the layout"
             )
         parts.append(np.ascontiguousarray(a, dtype=f.dtype).tobytes())

@@ -3,9 +3,9 @@
 import sys
 
 import numpy as np
-from simreel.recorders import RecordWrapper
 
 from simreel.envs import make_env
+from simreel.recorders import RecordWrapper
 
 env = RecordWrapper(make_env("PickCube-v1"), sys.argv[1], contacts="auto")
 rng = np.random.default_rng(0)

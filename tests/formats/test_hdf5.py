@@ -103,6 +103,74 @@ def test_existing_file_is_not_overwritten_unless_asked(tmp_path):
 
 
 @pytest.mark.parametrize(
+    ("make_side", "existing"),
+    [
+        (lambda p: sidecar_path(p).write_text('{"mine": 1}'), "r.json"),
+        (lambda p: partial_dir(p).mkdir(), "r.h5.partial"),
+    ],
+    ids=["sidecar", "partial-folder"],
+)
+def test_existing_side_files_are_not_replaced_unless_asked(tmp_path, make_side, existing):
+    """Regression: creating r.h5 deleted a user's r.json (and r.h5.partial/) although r.h5 did not exist."""
+    path = tmp_path / "r.h5"
+    make_side(path)
+    with pytest.raises(UsageError) as err:
+        open_writer(path, _meta())
+    assert str(err.value) == (
+        f"{tmp_path / existing} already exists and a recording to r.h5 would replace it; pass --overwrite to replace it"
+    )
+    assert not path.exists() and (tmp_path / existing).exists()
+    if existing.endswith(".json"):
+        assert sidecar_path(path).read_text() == '{"mine": 1}'
+    with open_writer(path, _meta(), overwrite=True) as w:
+        w.write_episode(_episode(0, 3, np.random.default_rng(4)))
+    assert json.loads(sidecar_path(path).read_text())["env_info"]["env_id"] == "PickCube-v1"
+    assert not partial_dir(path).exists()
+    with open_reader(path) as r:
+        assert len(r) == 1
+
+
+def test_a_failing_writer_constructor_removes_what_it_created(tmp_path, monkeypatch):
+    from simreel.formats.hdf5 import Hdf5Writer
+
+    def boom(self):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(Hdf5Writer, "_write_sidecar", boom)
+    with pytest.raises(RuntimeError, match="boom"):
+        open_writer(tmp_path / "r.h5", _meta())
+    assert sorted(tmp_path.iterdir()) == []
+
+
+def test_remove_recording_removes_the_file_and_its_side_files(tmp_path):
+    from simreel.formats import remove_recording
+
+    path = tmp_path / "r.h5"
+    w = open_writer(path, _meta())
+    w.begin_episode(EpisodeMeta(index=0, seed=0), {"actors/cube": np.zeros(13, np.float32), "goal": np.zeros(1)})
+    (partial_dir(path) / "traj_0.h5").write_bytes(b"scratch")
+    (tmp_path / "other.json").write_text("{}")
+    remove_recording(path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other.json"]
+    remove_recording(path)  # nothing left to remove: no error
+
+
+def test_a_file_open_through_h5py_with_locking_is_reported_as_such(tmp_path):
+    """Regression: an h5py.File of the recording open in the same process (h5py's default locking) was
+    reported as a "truncated or corrupt HDF5 file"."""
+    path = tmp_path / "r.h5"
+    with open_writer(path, _meta()) as w:
+        w.write_episode(_episode(0, 3, np.random.default_rng(5)))
+    with h5py.File(path, "r"), pytest.raises(RecordingFileError) as err:
+        open_reader(path)
+    assert str(err.value).startswith(f"{path}: already open in this process through h5py with file locking on")
+    assert "close that h5py.File, or open it with locking=False" in str(err.value)
+    assert "corrupt" not in str(err.value)
+    with h5py.File(path, "r", locking=False), open_reader(path) as r:  # the fix the message names works
+        assert len(r) == 1
+
+
+@pytest.mark.parametrize(
     "make_bad,problem",
     [
         (lambda p: None, "no such file"),

@@ -14,7 +14,7 @@ import pytest
 
 from simreel.cli.convert import convert
 from simreel.cli.recover import recover
-from simreel.errors import RecordingFileError, UsageError
+from simreel.errors import EpisodeLayoutError, RecordingFileError, SimreelError, UsageError
 from simreel.formats import StepBlock, open_reader
 from simreel.formats.mcap import TOPICS, McapReader, McapWriter
 
@@ -47,9 +47,8 @@ def simreel_cli(*args: str) -> subprocess.CompletedProcess:
 
 # ----------------------------------------------------------------------------------- real recordings
 def _record(path: Path, episodes: int = 2, steps: int = 15) -> Path:
-    from simreel.recorders import RecordWrapper
-
     from simreel.envs import make_env
+    from simreel.recorders import RecordWrapper
 
     rec = RecordWrapper(make_env("PickCube-v1"), path, poses=True, block_steps=8)
     rng = np.random.default_rng(0)
@@ -266,6 +265,58 @@ def test_writer_refuses_bad_blocks_duplicate_indices_and_existing_files(tmp_path
         McapWriter(tmp_path / "t.mcap", meta, compression="gzip")
 
 
+def test_layout_mismatches_are_simreel_errors(tmp_path):
+    """Regression: `pack_block` raised a bare ValueError, which the CLI showed as a traceback."""
+    meta = synthetic_meta()
+    with McapWriter(tmp_path / "s.mcap", meta) as w:
+        bad = synthetic_episode(meta, 0, 4)
+        bad.contact_forces = bad.contact_forces[:, :1]
+        with pytest.raises(EpisodeLayoutError) as err:
+            w.write_episode(bad)
+        assert isinstance(err.value, SimreelError)
+        assert str(err.value) == "episode 0: contact_forces has shape (4, 1, 3), expected (4, 2, 3) from the layout"
+        no_poses = synthetic_episode(meta, 1, 4)
+        no_poses.body_poses = None
+        with pytest.raises(EpisodeLayoutError, match="episode 1: no body_poses to write"):
+            w.write_episode(no_poses)
+
+
+def test_a_failing_writer_constructor_closes_and_removes_its_file(tmp_path, monkeypatch):
+    """Regression: a failure after `open` leaked the handle and left a truncated file."""
+    handles = []
+
+    def boom(self):
+        handles.append(self._fh)
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(McapWriter, "_register_channels", boom)
+    path = tmp_path / "s.mcap"
+    with pytest.raises(RuntimeError, match="boom"):
+        McapWriter(path, synthetic_meta())
+    assert handles[0].closed and not path.exists()
+    path.write_bytes(b"old")
+    with pytest.raises(RuntimeError, match="boom"):
+        McapWriter(path, synthetic_meta(), overwrite=True)
+    assert handles[1].closed and not path.exists()  # emptied, so removed rather than left truncated
+
+
+def test_overwrite_never_truncates_a_file_another_writer_holds(tmp_path, monkeypatch):
+    """Even when the `being_written` probe misses it (a race), the lock is taken before the file is emptied."""
+    import simreel.formats.mcap as mcap_module
+
+    meta = synthetic_meta()
+    path = tmp_path / "live.mcap"
+    with McapWriter(path, meta) as w:
+        w.write_episode(synthetic_episode(meta, 0, 3))
+        size = path.stat().st_size
+        monkeypatch.setattr(mcap_module, "being_written", lambda p: False)
+        with pytest.raises(UsageError, match="is being written by another recording"):
+            McapWriter(path, meta, overwrite=True)
+        assert path.stat().st_size == size
+    with open_reader(path) as r:
+        assert len(r) == 1
+
+
 def test_parallel_envs_get_their_own_frames_and_time_lanes(tmp_path):
     meta = synthetic_meta()
     meta.num_envs = 2
@@ -373,6 +424,39 @@ def test_recover_of_a_cut_file_keeps_the_committed_episodes(tmp_path):
         assert 1 <= len(r.episodes) < 3
         for m in r.episodes:
             assert_same_episode(r.read_episode(m.index), synthetic_episode(meta, m.index, 30))
+
+
+def test_recover_o_keeps_an_output_it_refuses(tmp_path, capsys):
+    """Regression: `recover PATH -o OUT` deleted an existing OUT after refusing to overwrite it."""
+    from simreel.cli.main import main
+
+    bad = _truncated(tmp_path)
+    cut = bad.read_bytes()
+    keep = tmp_path / "keep.mcap"
+    keep.write_text("x\n")
+    assert main(["recover", str(bad), "-o", str(keep)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"simreel recover: error: {keep} already exists; pass --overwrite to replace it\n"
+    assert keep.read_text() == "x\n" and bad.read_bytes() == cut
+    meta = synthetic_meta()
+    live = tmp_path / "live.mcap"
+    with McapWriter(live, meta) as w:  # OUT being written by another recording: refused, left alone
+        w.write_episode(synthetic_episode(meta, 0, 3))
+        with pytest.raises(UsageError, match="is being written by another recording"):
+            recover(bad, live, overwrite=True)
+    with open_reader(live) as r:
+        assert len(r) == 1
+    assert recover(bad, keep, overwrite=True)["output"] == str(keep)
+    with open_reader(keep) as r:
+        assert 1 <= len(r) < 3
+
+
+def test_recover_o_with_an_h5_suffix_writes_hdf5(tmp_path):
+    report = recover(_truncated(tmp_path), tmp_path / "out.h5")
+    with open(tmp_path / "out.h5", "rb") as fh:
+        assert fh.read(4) == b"\x89HDF"
+    with open_reader(tmp_path / "out.h5") as r:
+        assert len(r) == report["episodes"] >= 1
 
 
 # ----------------------------------------------------------------------------------- kill -9

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from simreel.recorders import RecordWrapper, StateLayoutChanged
 
 from simreel.envs import make_env
 from simreel.formats import open_reader
+from simreel.recorders import RecordWrapper, StateLayoutChanged
 from simreel.state_tree import flatten, to_numpy
 
 TASKS = [

@@ -66,3 +66,47 @@ def test_a_recording_of_another_layout_is_refused(tmp_path, capsys, rec):
     assert code == 2
     assert "the rebuilt PushCube-v1 has another state layout than the recording" in err
     assert "actors/goal_site: recorded (13,) float32, replay absent" in err
+
+
+def _relabelled(src, dst, **changes):
+    """A copy of `src` whose recording metadata has `changes` (another task version, another machine)."""
+    with open_reader(src) as r, open_writer(dst, dataclasses.replace(r.meta, **changes)) as w:
+        for m in r.episodes:
+            w.write_episode(r.read_episode(m.index))
+    return dst
+
+
+def test_a_user_error_with_workers_is_one_line_not_a_traceback(tmp_path, capsys, rec):
+    """The parent builds its session before the pool: an --import the recording names that fails is exit 2."""
+    bad = _relabelled(rec, tmp_path / "imports.h5", imports=["no_such_module_xyz"])
+    code, err = _run(capsys, ["replay", str(bad), "--workers", "2", "-q"])
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert "no module named 'no_such_module_xyz'" in err
+
+
+def test_a_gpu_recording_on_a_machine_without_cuda_says_replay_on_the_cpu(tmp_path, capsys, rec):
+    torch = pytest.importorskip("torch")
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA device: the GPU sim builds")
+    gpu = _relabelled(rec, tmp_path / "gpu.h5", sim_backend="physx_cuda")
+    code, err = _run(capsys, ["replay", str(gpu), "-q"])
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert "recorded on the GPU sim (physx_cuda) and this machine has no CUDA device" in err
+    assert "--sim-backend physx_cpu" in err and "different engines" in err
+    code, err = _run(capsys, ["replay", str(gpu), "-q", "--sim-backend", "physx_cpu"])
+    assert code == 0 and "sim backend: recorded physx_cuda, replaying physx_cpu" in err
+
+
+def test_an_episode_of_inconsistent_length_is_a_simreel_error(tmp_path, rec):
+    from simreel.errors import EpisodeShapeError, SimreelError
+
+    with open_reader(rec) as r:
+        meta, ep = r.meta, r.read_episode(0)
+    short = dataclasses.replace(ep, rewards=ep.rewards[:-1])
+    with pytest.raises(EpisodeShapeError, match=r"episode 0: rewards has 19 rows, expected 20") as info:
+        short.check_shapes()
+    assert isinstance(info.value, SimreelError)  # the CLI prints it as one line, exit 2
+    with open_writer(tmp_path / "out.h5", meta) as w, pytest.raises(EpisodeShapeError):
+        w.write_episode(short)

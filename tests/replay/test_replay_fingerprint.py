@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from simreel.replay.fingerprint import fingerprint_differences
-
 from simreel.episode import RecordingMeta
+from simreel.replay.fingerprint import fingerprint_differences
 
 
 def test_each_difference_is_named():

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from simreel.replay.engine import EpisodeReplayer
-from simreel.replay.verify import verify_recording
 
 from simreel.cli.main import main
 from simreel.compare import Tolerances, compare_episode
 from simreel.formats import open_reader, open_writer
+from simreel.replay.engine import EpisodeReplayer
+from simreel.replay.verify import verify_recording
 
 SIMREEL_TASKS = ("SimreelLiftCube-v1", "SimreelLiftCubeLeaky-v1", "SimreelHeteroPick-v1", "SimreelHeteroDrawer-v1")
 BUILTINS = ("PickCube-v1", "StackCube-v1", "PegInsertionSide-v1", "RotateValveLevel0-v1", "PushCube-v1")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from simreel.replay.engine import EpisodeReplayer
-from simreel.replay.restore import restore_state, state_row
 
 from simreel.formats import open_reader
+from simreel.replay.engine import EpisodeReplayer
+from simreel.replay.restore import restore_state, state_row
 from simreel.state_tree import flatten, unflatten
 
 

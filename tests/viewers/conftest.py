@@ -77,9 +77,9 @@ def record_pickcube(path: Path, *, poses: bool) -> None:
     contact force is zero for a few steps, then non-zero once it lands."""
     import sapien
     import torch
-    from simreel.recorders import RecordWrapper
 
     from simreel.envs import make_env
+    from simreel.recorders import RecordWrapper
 
     env = make_env("PickCube-v1", render_backend="none", max_episode_steps=STEPS)
     rec = RecordWrapper(env, path, poses=poses, overwrite=True)
@@ -146,9 +146,8 @@ def pickcube_h5(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def view_env(pickcube_h5):
     """One PickCube env rebuilt for viewing (collision geometry, no rendering), shared by the tests."""
-    from simreel.viewers import rebuild_env
-
     from simreel.formats import open_reader
+    from simreel.viewers import rebuild_env
 
     with open_reader(pickcube_h5) as r:
         env = rebuild_env(r.meta, geometry="collision")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from simreel.viewers.compare import compare_for_view, divergence_row
 
 from simreel.compare import Divergence
 from simreel.episode import Episode, EpisodeMeta
+from simreel.viewers.compare import compare_for_view, divergence_row
 
 
 def _episode(steps: int) -> Episode:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from simreel.viewers import build_session
 
 _KIND_TO_SHAPE = {"box": "box", "cylinder": "cylinder", "capsule": "capsule"}
@@ -12,10 +13,10 @@ _KIND_TO_SHAPE = {"box": "box", "cylinder": "cylinder", "capsule": "capsule"}
 def _record(path, env_id, seeds, steps=4, **make_kwargs):
     """Record one short episode per seed with random actions; return what each episode's scene held, live."""
     import torch
-    from simreel.recorders import RecordWrapper
 
     import simreel.tasks  # noqa: F401  (registers the example tasks)
     from simreel.envs import make_env
+    from simreel.recorders import RecordWrapper
 
     env = make_env(env_id, render_backend="none", **make_kwargs)
     rec = RecordWrapper(env, path, poses=False, imports=["simreel.tasks"])
@@ -75,3 +76,26 @@ def test_builtin_merged_views(tmp_path, env_id):
         geo = {g.name: g for g in session.geometry}
         assert not geo["peg"].empty and not geo["box_with_hole"].empty
         assert {"peg", "box_with_hole"} <= {b.name for b in session.bodies if b.in_registry}
+
+
+def test_an_episode_of_another_sub_scene_is_drawn_in_its_own_scene(tmp_path):
+    """An episode whose reset did not rebuild the scene ran in the scene gym.make built: for sub-scene k of a
+    batched recording, with seed 2022 + k (HeteroPick: a cylinder in sub-scene 0, a hull in 1). The viewer
+    rebuilds that scene, as replay does."""
+    import dataclasses
+
+    from simreel.formats import open_reader, open_writer
+
+    path = tmp_path / "pick.h5"
+    _record(path, "SimreelHeteroPick-v1", seeds=[0], steps=2)
+    with open_reader(path) as r:
+        meta, ep = r.meta, r.read_episode(0)
+    for env_idx, kind in ((0, "cylinder"), (1, "hull")):
+        in_make_scene = dataclasses.replace(ep.meta, env_idx=env_idx, reconfigured=False, scene_seed=None)
+        file = tmp_path / f"sub_scene_{env_idx}.h5"
+        with open_writer(file, meta) as w:
+            w.write_episode(dataclasses.replace(ep, meta=in_make_scene))
+        with build_session(file, geometry="collision") as session:
+            geo = {g.name: g for g in session.geometry}["object"]
+            drawn = "hull" if geo.meshes and not geo.primitives else geo.primitives[0].kind
+            assert drawn == kind, env_idx

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
+from simreel.formats import open_reader
 from simreel.viewers import build_session
 from simreel.viewers.log_contacts import FORCE_THRESHOLD_N
 from simreel.viewers.poses import wxyz_to_xyzw
-
-from simreel.formats import open_reader
 
 STEPS = 30  # the length of the `pickcube_h5` recording (conftest.STEPS)
 DIVERGE_AT = 12
@@ -153,3 +153,22 @@ def test_restored_poses_match_states(pickcube_h5, view_env, variant, rrd_reader,
     np.testing.assert_array_equal(image, ep.obs["sensor_data/base_camera/rgb"][4].reshape(-1))
     assert "/cameras/base_camera/depth" in rrd.data
     assert rrd.blueprint_views.count("2D") == 2  # a 2D view per camera stream under the 3D view
+
+
+def test_restored_poses_come_from_the_core(pickcube_h5, view_env):
+    """The viewer reads its bodies by entity (some have no registry name); registry bodies read the same by name."""
+    from simreel.body_poses import body_poses_from_states
+    from simreel.viewers.poses import PoseSource
+    from simreel.viewers.scene_geometry import scene_bodies
+
+    with open_reader(pickcube_h5) as r:
+        meta, ep = r.meta, r.read_episode(0)
+    u = view_env.unwrapped
+    bodies = [b for b in scene_bodies(u) if b.in_registry]
+    names = [b.name for b in bodies]
+    rows = PoseSource(u, bodies, ep.env_states).rows(3, 9)  # no recorded poses given: restored
+    np.testing.assert_array_equal(rows, body_poses_from_states(u, names, ep.env_states, range(3, 9)))
+    recorded = ep.body_poses[3:9, [meta.pose_bodies.index(n) for n in names]]
+    np.testing.assert_allclose(rows[..., :3], recorded[..., :3], atol=1e-6)
+    with pytest.raises(ValueError, match="one entity per name"):
+        body_poses_from_states(u, names, ep.env_states, [0], entities=[b.entity for b in bodies[:1]])

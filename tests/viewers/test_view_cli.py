@@ -77,3 +77,91 @@ def test_view_mcap_recording(pickcube_h5, tmp_path, rrd_reader):
     rrd = rrd_reader(out)
     assert rrd.recording_ids == ["pickcube.mcap#episode-0"]
     assert rrd.steps("/world/cube", "Transform3D:translation") == list(range(-1, 30))
+
+
+def _no_env(*args, **kwargs):
+    raise AssertionError("the env was built before the output was checked")
+
+
+def test_view_refuses_to_overwrite_an_rrd(pickcube_h5, tmp_path, monkeypatch, capsys):
+    import simreel.viewers.session as session
+
+    out = tmp_path / "kept.rrd"
+    out.write_bytes(b"an earlier session")
+    with monkeypatch.context() as m:
+        m.setattr(session, "rebuild_env", _no_env)  # refused before any work
+        assert main(["view", str(pickcube_h5), "--save", str(out), "--geometry", "collision"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{out} already exists; pass --overwrite to replace it" in err
+    assert out.read_bytes() == b"an earlier session"
+    assert main(["view", str(pickcube_h5), "--save", str(out), "--geometry", "collision", "--overwrite"]) == 0
+    assert out.stat().st_size > 1000
+
+
+def test_view_refuses_to_overwrite_its_default_output(pickcube_h5, tmp_path, monkeypatch, capsys):
+    import simreel.viewers.session as session
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "pickcube.episode0.rrd").write_bytes(b"x")
+    monkeypatch.setattr(session, "rebuild_env", _no_env)
+    assert main(["view", str(pickcube_h5), "--geometry", "collision"]) == 2
+    assert "pickcube.episode0.rrd already exists; pass --overwrite" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("save", "message"),
+    [
+        ("{tmp}", "that is a folder"),
+        ("{rec}/out.rrd", "is not a folder"),  # a folder that cannot be made: the recording is a file
+    ],
+)
+def test_view_checks_the_output_folder_before_building_the_env(pickcube_h5, tmp_path, monkeypatch, capsys, save,
+                                                               message):
+    import simreel.viewers.session as session
+
+    monkeypatch.setattr(session, "rebuild_env", _no_env)
+    save = save.format(tmp=tmp_path / "dir.rrd", rec=pickcube_h5)
+    (tmp_path / "dir.rrd").mkdir()
+    assert main(["view", str(pickcube_h5), "--save", save, "--geometry", "collision"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err
+
+
+def test_view_tolerances_parse_like_replay(pickcube_h5, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["view", str(pickcube_h5), "--tol", "flag=1"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "expected GROUP=NUMBER with GROUP one of pos, quat" in err
+
+
+def test_a_recording_of_another_layout_names_each_leaf(pickcube_h5, tmp_path, capsys):
+    import dataclasses
+
+    from simreel.formats import open_reader, open_writer
+
+    with open_reader(pickcube_h5) as r:
+        meta, ep = dataclasses.replace(r.meta, env_id="PushCube-v1", pose_bodies=[]), r.read_episode(0)
+    other = tmp_path / "mislabelled.h5"
+    with open_writer(other, meta) as w:
+        w.write_episode(dataclasses.replace(ep, body_poses=None))
+    assert main(["view", str(other), "--geometry", "collision", "--save", str(tmp_path / "o.rrd")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "the rebuilt PushCube-v1 has a different state layout" in err
+    assert "actors/goal_site: recorded (13,) float32, rebuilt absent" in err
+
+
+def test_a_gpu_recording_is_viewed_on_the_cpu_sim(pickcube_h5, tmp_path):
+    """The viewer always rebuilds on physx_cpu: a recording made on the GPU sim needs no CUDA device to view."""
+    import dataclasses
+
+    from simreel.formats import open_reader, open_writer
+
+    with open_reader(pickcube_h5) as r:
+        meta, ep = dataclasses.replace(r.meta, sim_backend="physx_cuda"), r.read_episode(0)
+    gpu = tmp_path / "gpu.h5"
+    with open_writer(gpu, meta) as w:
+        w.write_episode(ep)
+    assert main(["view", str(gpu), "--geometry", "collision", "--save", str(tmp_path / "gpu.rrd")]) == 0
