@@ -36,10 +36,10 @@ CONFIGS: list[tuple[str, str, dict[str, Any]]] = [
 def record_in_memory(env_id: str, episodes: int, steps: int, folder: Path) -> tuple[Any, list[Any]]:
     """Record through RecordWrapper (HDF5, poses on) and read everything back into memory."""
     import numpy as np
-    from simreel.recorders import RecordWrapper
 
     from simreel.envs import make_env
     from simreel.formats import open_reader
+    from simreel.recorders import RecordWrapper
 
     path = folder / "source.h5"
     rec = RecordWrapper(make_env(env_id), path, poses=True)
@@ -81,9 +81,9 @@ def measure(meta: Any, episodes: list[Any], suffix: str, options: dict[str, Any]
 def record_cost(env_id: str, episodes: int, steps: int, folder: Path) -> list[tuple[str, float]]:
     """µs/step of a whole recording loop (env step included): no recorder, then RecordWrapper per format."""
     import numpy as np
-    from simreel.recorders import RecordWrapper
 
     from simreel.envs import make_env
+    from simreel.recorders import RecordWrapper
 
     out = []
     for name, suffix, poses in (("env only (no recorder)", None, None), ("record .h5", ".h5", False),

@@ -81,9 +81,8 @@ def main() -> int:
             norender.install()
             print("no render device: ManiSkill's tool runs with simreel.norender installed")
 
-        from simreel.replay.verify import verify_recording
-
         from simreel.formats import open_reader
+        from simreel.replay.verify import verify_recording
 
         with open_reader(rec) as r:
             steps = sum(m.length for m in r.episodes)

@@ -25,9 +25,9 @@ from pathlib import Path
 def record(env_id: str, steps: int, path: Path, *, poses: bool) -> None:
     import numpy as np
     import torch
-    from simreel.recorders import RecordWrapper
 
     from simreel.envs import make_env
+    from simreel.recorders import RecordWrapper
 
     env = make_env(env_id, render_backend="none", max_episode_steps=steps)
     rec = RecordWrapper(env, path, poses=poses, overwrite=True)
@@ -49,9 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     import rerun  # noqa: F401  (its import, ~0.5 s, is not part of building a session)
-    from simreel.viewers import build_session, rebuild_env
 
     from simreel.formats import open_reader
+    from simreel.viewers import build_session, rebuild_env
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)

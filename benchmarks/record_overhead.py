@@ -18,9 +18,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from simreel.recorders import RecordWrapper
 
 from simreel.envs import make_env
+from simreel.recorders import RecordWrapper
 
 
 def _episode(env, seed, actions) -> tuple[float, float, float]:
