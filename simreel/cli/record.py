@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import shlex
 import sys
 from pathlib import Path
 from typing import Any
@@ -85,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
             poses=args.poses,
             overwrite=args.overwrite,
             imports=args.imports,
-            command=shlex.join(["simreel", *sys.argv[1:]]),
+            command=args.command_line,
         )
     except BaseException:
         env.close()

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 from pathlib import Path
 from typing import Any
@@ -89,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
             imports=args.imports,
             sim_backend=args.sim_backend,
             progress=progress,
-            command=shlex.join(["simreel", *sys.argv[1:]]),
+            command=args.command_line,
         )
     for line in report.warnings:
         sys.stderr.write(f"simreel replay: warning: {line}\n")

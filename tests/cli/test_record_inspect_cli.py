@@ -40,7 +40,7 @@ def test_record_then_inspect(tmp_path, capsys):
     assert [e["seed"] for e in summary["episodes"]] == [7, 8]
     assert summary["total_steps"] == 20
     assert summary["meta"]["state_layout"]["actors/cube"] == {"shape": [13], "dtype": "float32"}
-    assert summary["meta"]["command"].startswith("simreel ")
+    assert summary["meta"]["command"].startswith(f"simreel record PickCube-v1 -o {out} -n 2")
     assert main(["inspect", str(out)]) == 0
     text = capsys.readouterr().out
     assert "env_states/actors/cube" in text and "PickCube-v1" in text
