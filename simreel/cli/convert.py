@@ -83,7 +83,7 @@ def convert(src: str | Path, dst: str | Path, *, overwrite: bool = False, quiet:
             writer = open_writer(dst_p, meta, overwrite=overwrite)
             try:
                 with writer:
-                    bar = tqdm(reader.episodes, unit="ep", desc=f"convert {src_p.name}", disable=quiet,
+                    bar = tqdm(reader.episodes, unit="ep", desc=f"convert {src_p.name}", disable=True if quiet else None,
                                file=sys.stderr)
                     for m in bar:
                         episode = reader.read_episode(m.index)

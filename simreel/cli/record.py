@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
 def _progress(args: argparse.Namespace) -> Any:
     from tqdm import tqdm
 
-    return tqdm(total=args.episodes, unit="ep", desc=f"record {args.env_id}", disable=args.quiet, file=sys.stderr)
+    return tqdm(total=args.episodes, unit="ep", desc=f"record {args.env_id}", disable=True if args.quiet else None, file=sys.stderr)
 
 
 def _record_single(rec: Any, policy: Any, args: argparse.Namespace, max_steps: int) -> None:

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
 
     from simreel.replay.verify import verify_recording
 
-    with tqdm(total=total, unit="ep", desc=f"replay {env_id}", disable=args.quiet, file=sys.stderr) as bar:
+    with tqdm(total=total, unit="ep", desc=f"replay {env_id}", disable=True if args.quiet else None, file=sys.stderr) as bar:
 
         def progress(ep: Any) -> None:
             bar.set_postfix_str(f"{ep.index}: {ep.verdict}")
