@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -13,20 +11,9 @@ import torch
 
 from simreel.errors import SimreelError
 from simreel.heterogeneous import HeterogeneousBuildError, merge_articulations
+from simreel.render_device import configure_vulkan
 
-
-def _use_lavapipe() -> None:
-    """Point Vulkan at the project's software renderer (before sapien creates a device)."""
-    if os.environ.get("VK_ICD_FILENAMES"):
-        return
-    root = Path(__file__).resolve().parents[1]
-    for icd in (Path(sys.prefix) / "share/simreel/mesa/lvp_icd.json", root / ".cache/mesa/lvp_icd.json"):
-        if icd.exists():
-            os.environ["VK_ICD_FILENAMES"] = str(icd)
-            return
-
-
-_use_lavapipe()
+configure_vulkan()  # the project lavapipe, before sapien creates a device (as make_env does)
 
 
 def test_helpers_import_without_torch_or_mani_skill():

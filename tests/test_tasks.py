@@ -2,26 +2,12 @@
 
 from __future__ import annotations
 
-import os
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 
+from simreel.render_device import configure_vulkan  # noqa: E402
 
-def _use_lavapipe() -> None:
-    """Point Vulkan at the project's software renderer (before sapien creates a device)."""
-    if os.environ.get("VK_ICD_FILENAMES"):
-        return
-    root = Path(__file__).resolve().parents[1]
-    for icd in (Path(sys.prefix) / "share/simreel/mesa/lvp_icd.json", root / ".cache/mesa/lvp_icd.json"):
-        if icd.exists():
-            os.environ["VK_ICD_FILENAMES"] = str(icd)
-            return
-
-
-_use_lavapipe()
+configure_vulkan()  # the project lavapipe, before sapien creates a device (as make_env does)
 
 import gymnasium as gym  # noqa: E402
 

@@ -69,3 +69,25 @@ class TabletopPandaEnv(CustomStateMixin, BaseEnv):
 
     def _tcp_to(self, target: torch.Tensor) -> torch.Tensor:
         return torch.linalg.norm(target - self.agent.tcp.pose.p, dim=1)
+
+
+class HeterogeneousTabletopEnv(TabletopPandaEnv):
+    """A tabletop task whose sub-scenes hold different objects.
+
+    With one env (the CPU sim) the scene is rebuilt at every reset by default, so the object varies
+    across episodes; with many envs (the GPU sim) it varies across sub-scenes. Merged objects with many
+    shapes need more GPU contact buffers than ManiSkill's defaults.
+    """
+
+    def __init__(self, *args, num_envs=1, reconfiguration_freq=None, **kwargs):
+        if reconfiguration_freq is None:
+            reconfiguration_freq = 1 if num_envs == 1 else 0
+        super().__init__(*args, num_envs=num_envs, reconfiguration_freq=reconfiguration_freq, **kwargs)
+
+    @property
+    def _default_sim_config(self):
+        from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
+
+        return SimConfig(
+            gpu_memory_config=GPUMemoryConfig(max_rigid_contact_count=2**20, max_rigid_patch_count=2**19)
+        )

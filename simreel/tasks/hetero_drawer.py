@@ -8,17 +8,16 @@ import sapien
 import sapien.physx as physx
 import torch
 from mani_skill.utils.registration import register_env
-from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from simreel.heterogeneous import build_heterogeneous_articulation
-from simreel.tasks._tabletop import TabletopPandaEnv
+from simreel.tasks._tabletop import HeterogeneousTabletopEnv
 from simreel.tasks.cabinets import MAX_DOF, add_cabinet_links, sample_cabinet
 
 __all__ = ["HeteroDrawerEnv"]
 
 
 @register_env("SimreelHeteroDrawer-v1", max_episode_steps=80)
-class HeteroDrawerEnv(TabletopPandaEnv):
+class HeteroDrawerEnv(HeterogeneousTabletopEnv):
     """**Task:** grasp the handle of the target drawer and pull the drawer ``open_distance`` (10 cm) out.
 
     **Cabinets:** each sub-scene gets its own procedurally built cabinet with 1-3 joints: prismatic
@@ -39,17 +38,6 @@ class HeteroDrawerEnv(TabletopPandaEnv):
         "panda/panda_rightfinger:cabinet/handle",
     )
     open_distance = 0.1
-
-    def __init__(self, *args, num_envs=1, reconfiguration_freq=None, **kwargs):
-        if reconfiguration_freq is None:
-            reconfiguration_freq = 1 if num_envs == 1 else 0
-        super().__init__(*args, num_envs=num_envs, reconfiguration_freq=reconfiguration_freq, **kwargs)
-
-    @property
-    def _default_sim_config(self):
-        return SimConfig(
-            gpu_memory_config=GPUMemoryConfig(max_rigid_contact_count=2**20, max_rigid_patch_count=2**19)
-        )
 
     def _load_scene(self, options: dict):
         self._load_table()

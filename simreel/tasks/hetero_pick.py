@@ -9,17 +9,16 @@ import sapien.physx as physx
 import torch
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs.pose import Pose
-from mani_skill.utils.structs.types import GPUMemoryConfig, SimConfig
 
 from simreel.heterogeneous import build_heterogeneous_actor
-from simreel.tasks._tabletop import TabletopPandaEnv
+from simreel.tasks._tabletop import HeterogeneousTabletopEnv
 from simreel.tasks.shapes import add_object_shapes, sample_object
 
 __all__ = ["HeteroPickEnv"]
 
 
 @register_env("SimreelHeteroPick-v1", max_episode_steps=60)
-class HeteroPickEnv(TabletopPandaEnv):
+class HeteroPickEnv(HeterogeneousTabletopEnv):
     """**Task:** grasp the object and lift it ``lift_height`` (8 cm) above its resting height.
 
     **Objects:** each sub-scene gets its own procedurally generated object (`simreel.tasks.shapes`): a
@@ -42,17 +41,6 @@ class HeteroPickEnv(TabletopPandaEnv):
         "object:table-workspace",
     )
     lift_height = 0.08
-
-    def __init__(self, *args, num_envs=1, reconfiguration_freq=None, **kwargs):
-        if reconfiguration_freq is None:
-            reconfiguration_freq = 1 if num_envs == 1 else 0
-        super().__init__(*args, num_envs=num_envs, reconfiguration_freq=reconfiguration_freq, **kwargs)
-
-    @property
-    def _default_sim_config(self):
-        return SimConfig(
-            gpu_memory_config=GPUMemoryConfig(max_rigid_contact_count=2**20, max_rigid_patch_count=2**19)
-        )
 
     def _load_scene(self, options: dict):
         self._load_table()
