@@ -50,10 +50,20 @@ def test_convert_without_poses_notes_what_tf_shows(tmp_path, capsys):
     assert "shows the actors and articulation roots of the state dict only" in capsys.readouterr().out
 
 
-def test_progress_bar_counts_episodes(tmp_path, capsys):
+def test_progress_bar_counts_episodes_on_a_terminal_only(tmp_path, capsys, monkeypatch):
     src, _ = _source(tmp_path, ".h5")
+    assert main(["convert", str(src), str(tmp_path / "piped.mcap")]) == 0
+    assert capsys.readouterr().err == ""  # not a terminal (a log, CI): no bar
+    import io
+    import sys
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    monkeypatch.setattr(sys, "stderr", Terminal())
     assert main(["convert", str(src), str(tmp_path / "out.mcap")]) == 0
-    assert "3/3" in capsys.readouterr().err
+    assert "3/3" in sys.stderr.getvalue()
 
 
 @pytest.mark.parametrize(
