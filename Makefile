@@ -28,7 +28,7 @@ demo: setup
 	$(BIN)/simreel record PickCube-v1 -o $(DEMO)/pickcube.h5 -n 3 --seed 0 --overwrite
 	$(BIN)/simreel inspect $(DEMO)/pickcube.h5
 	$(BIN)/simreel replay $(DEMO)/pickcube.h5 -o $(DEMO)/pickcube.replayed.h5 --overwrite --report $(DEMO)/report.json
-	$(BIN)/simreel view $(DEMO)/pickcube.h5 --episode 0 --compare $(DEMO)/pickcube.replayed.h5 --save $(DEMO)/pickcube.rrd
+	$(BIN)/simreel view $(DEMO)/pickcube.h5 --episode 0 --compare $(DEMO)/pickcube.replayed.h5 --save $(DEMO)/pickcube.rrd --overwrite
 	@echo "demo outputs in $(DEMO)/: open the session with '$(BIN)/rerun $(DEMO)/pickcube.rrd'"
 
 lint: setup
