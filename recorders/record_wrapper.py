@@ -114,6 +114,13 @@ class RecordWrapper(gym.Wrapper):
         self._buffer = StepBuffer(block_steps, self._n)
         self._sinks: list[Any] = [None] * self._n
         self._episodes: list[EpisodeMeta | None] = [None] * self._n
+        self._open = 0
+        # Per-env running counts, vectorised so a step costs the same Python work for any num_envs;
+        # folded into each episode's EpisodeMeta when it ends.
+        self._lengths = np.zeros(self._n, np.int64)
+        self._success = np.zeros(self._n, bool)
+        self._ever_success = np.zeros(self._n, bool)
+        self._has_success = "success" in self.meta.info_layout
         self._next_index = 0
         self._scene_seed: list[int | None] = [None] * self._n
         self.episodes_committed: list[EpisodeMeta] = []
@@ -154,6 +161,9 @@ class RecordWrapper(gym.Wrapper):
             )
             self._next_index += 1
             self._episodes[i] = meta
+            self._open += 1
+            self._lengths[i] = 0
+            self._success[i] = self._ever_success[i] = False
             self._sinks[i] = self._writer.begin_episode(
                 meta,
                 {p: a[i] for p, a in state.items()},
@@ -164,7 +174,7 @@ class RecordWrapper(gym.Wrapper):
         return obs, info
 
     def step(self, action: Any) -> Any:
-        if any(s is None for s in self._sinks):
+        if self._open < self._n:
             raise UsageError("RecordWrapper.step() before reset(): reset the env first so the episode has a start")
         obs, reward, terminated, truncated, info = self.env.step(action)
         n = self._n
@@ -190,11 +200,9 @@ class RecordWrapper(gym.Wrapper):
         if poses is not None:
             fields["body_poses"] = poses
         self._buffer.push(fields)
-        for i, meta in enumerate(self._episodes):
-            meta.length += 1
-            if "success" in scalars:
-                meta.success = bool(scalars["success"][i])
-                meta.ever_success = bool(meta.ever_success) or meta.success
+        self._lengths += 1
+        self._success[:] = fields["success"]
+        self._ever_success |= fields["success"]
         if self._buffer.full:
             for i in range(n):
                 self._flush(i)
@@ -208,6 +216,7 @@ class RecordWrapper(gym.Wrapper):
                 sink.discard()
                 self._sinks[i] = None
                 self._episodes[i] = None
+                self._open -= 1
         self._buffer.rewind()
 
     def close(self) -> None:
@@ -288,6 +297,10 @@ class RecordWrapper(gym.Wrapper):
         self._flush(i)
         self._sinks[i] = None
         self._episodes[i] = None
+        self._open -= 1
+        meta.length = int(self._lengths[i])
+        if self._has_success:
+            meta.success, meta.ever_success = bool(self._success[i]), bool(self._ever_success[i])
         if meta.length == 0:
             sink.discard()
             return
