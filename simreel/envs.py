@@ -8,11 +8,14 @@ is imported inside the functions here, never at module level.
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import importlib
 import importlib.util
 import os
 import sys
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
@@ -55,15 +58,20 @@ SIMREEL_TASK_PREFIX = "Simreel"
 """Env ids of simreel's own example tasks; `make_env` registers them on first use, no --import needed."""
 
 
+@contextlib.contextmanager
+def _quiet_sapien_import() -> Iterator[None]:
+    """Importing sapien warns that it falls back to its bundled libvulkan when the system has none;
+    that is expected and fine, so simreel's imports of sapien (direct or through user code) hide it."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*libvulkan.*", category=UserWarning)
+        yield
+
+
 def _import_mani_skill() -> tuple[Any, dict[str, Any]]:
     """Import gymnasium and register ManiSkill's tasks; return (gymnasium, ManiSkill's env registry)."""
-    import warnings
-
     import gymnasium
 
-    with warnings.catch_warnings():
-        # sapien falls back to its bundled libvulkan when the system has none; that is expected and fine.
-        warnings.filterwarnings("ignore", message=".*libvulkan.*", category=UserWarning)
+    with _quiet_sapien_import():
         import mani_skill.envs  # noqa: F401  (registers the built-in tasks)
     from mani_skill.utils.registration import REGISTERED_ENVS
 
@@ -233,6 +241,11 @@ def import_user_code(spec: str) -> ModuleType:
     because user code usually imports mani_skill. Any failure becomes one-line `EnvBuildError`.
     """
     configure_vulkan()
+    with _quiet_sapien_import():
+        return _import_user_code(spec)
+
+
+def _import_user_code(spec: str) -> ModuleType:
     looks_like_path = spec.endswith(".py") or os.sep in spec or (os.altsep is not None and os.altsep in spec)
     try:
         if looks_like_path:

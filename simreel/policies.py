@@ -34,8 +34,9 @@ def load_policy(spec: str, env_id: str) -> Policy:
     if spec == "zero":
         return _zero
     if spec == "scripted":
-        from simreel.tasks.policies import DEFAULT_POLICIES
+        from simreel.envs import import_user_code
 
+        DEFAULT_POLICIES = import_user_code("simreel.tasks.policies").DEFAULT_POLICIES  # noqa: N806
         if env_id not in DEFAULT_POLICIES:
             have = ", ".join(sorted(DEFAULT_POLICIES))
             raise UsageError(f"no scripted policy ships for {env_id}; tasks with one: {have}")
