@@ -37,9 +37,9 @@ def record_in_memory(env_id: str, episodes: int, steps: int, folder: Path) -> tu
     """Record through RecordWrapper (HDF5, poses on) and read everything back into memory."""
     import numpy as np
 
-    from simreel.envs import make_env
     from simreel.formats import open_reader
     from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
 
     path = folder / "source.h5"
     rec = RecordWrapper(make_env(env_id), path, poses=True)
@@ -55,11 +55,12 @@ def record_in_memory(env_id: str, episodes: int, steps: int, folder: Path) -> tu
         return reader.meta, [reader.read_episode(m.index) for m in reader.episodes]
 
 
-def measure(meta: Any, episodes: list[Any], suffix: str, options: dict[str, Any], folder: Path,
+def measure(meta: Any, episodes: list[Any], variant: tuple[str, dict[str, Any]], folder: Path,
             repeat: int) -> tuple[float, float, int]:
     """(best write seconds, best read seconds, file bytes)."""
     from simreel.formats import open_reader, open_writer
 
+    suffix, options = variant
     best_write = best_read = float("inf")
     size = 0
     for r in range(repeat):
@@ -82,8 +83,8 @@ def record_cost(env_id: str, episodes: int, steps: int, folder: Path) -> list[tu
     """µs/step of a whole recording loop (env step included): no recorder, then RecordWrapper per format."""
     import numpy as np
 
-    from simreel.envs import make_env
     from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
 
     out = []
     for name, suffix, poses in (("env only (no recorder)", None, None), ("record .h5", ".h5", False),
@@ -119,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
               f"best of {args.repeat}")
         print(f"{'writer':<34} {'bytes/step':>10} {'write µs/step':>14} {'read µs/step':>13}")
         for name, suffix, options in CONFIGS:
-            write_s, read_s, size = measure(meta, episodes, suffix, options, folder, args.repeat)
+            write_s, read_s, size = measure(meta, episodes, (suffix, options), folder, args.repeat)
             print(f"{name:<34} {size / steps:>10.0f} {write_s / steps * 1e6:>14.1f} {read_s / steps * 1e6:>13.1f}")
         if args.record:
             print(f"\n{'recording loop':<34} {'µs/step':>10}")

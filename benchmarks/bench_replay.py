@@ -11,7 +11,7 @@ actions and compares every state-dict leaf, reward, flag, info entry and contact
 
 ManiSkill's tool builds its env with ``render_mode="rgb_array"``, which needs a Vulkan device; simreel finds
 the software one (lavapipe, `make setup`) itself. Without any device the benchmark installs simreel's
-no-render layer (`simreel.norender`) for ManiSkill too: it changes how scenes are built, not the per-step work.
+no-render layer (`simreel.sim.norender`) for ManiSkill too: it changes how scenes are built, not the per-step work.
 """
 
 from __future__ import annotations
@@ -45,6 +45,66 @@ def _quiet() -> contextlib.ExitStack:
     return stack
 
 
+def _prepare(args: argparse.Namespace, tmp: Path) -> Path:
+    """The recording to replay, copied (or recorded) into `tmp`."""
+    if not args.recording:
+        rec = tmp / f"{args.env_id}.h5"
+        _record(rec, args.env_id, args.episodes, args.steps)
+        return rec
+    src = Path(args.recording)
+    rec = tmp / src.name
+    shutil.copy(src, rec)
+    shutil.copy(src.with_suffix(".json"), rec.with_suffix(".json"))
+    return rec
+
+
+def _ensure_render_or_norender() -> None:
+    import sapien
+
+    try:
+        sapien.render.get_device_summary()
+    except Exception:  # noqa: BLE001 - no Vulkan device at all
+        from simreel.sim import norender
+
+        norender.install()
+        print("no render device: ManiSkill's tool runs with simreel.norender installed")
+
+
+def _timed(fn: Any) -> tuple[float, float]:
+    wall, cpu = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def _rounds(runners: dict[str, Any], rounds: int) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Each runner once to warm up (first env build, file cache), then `rounds` times, alternately."""
+    for fn in runners.values():
+        fn()
+    wall: dict[str, list[float]] = {name: [] for name in runners}
+    cpu: dict[str, list[float]] = {name: [] for name in runners}
+    for _ in range(rounds):
+        for name, fn in runners.items():
+            w, c = _timed(fn)
+            wall[name].append(w)
+            cpu[name].append(c)
+    return wall, cpu
+
+
+def _print_results(wall: dict[str, list[float]], cpu: dict[str, list[float]], steps: int, save_traj: bool) -> None:
+    for name, label in (("maniskill", "ManiSkill replay_trajectory" + (" --save-traj" if save_traj else "")),
+                        ("simreel", "simreel replay (verifies every step)")):
+        best, med = min(wall[name]), statistics.median(wall[name])
+        print(f"  {label:<42} wall best {best:6.3f} s = {steps / best:5.0f} steps/s, median {med:6.3f} s;"
+              f" CPU best {min(cpu[name]):6.3f} s")
+    ratios = {
+        "wall, best rounds": min(wall["maniskill"]) / min(wall["simreel"]),
+        "wall, medians": statistics.median(wall["maniskill"]) / statistics.median(wall["simreel"]),
+        "CPU time, best rounds": min(cpu["maniskill"]) / min(cpu["simreel"]),
+    }
+    print("throughput ratio simreel / ManiSkill: " + ", ".join(f"{v:.2f} ({k})" for k, v in ratios.items())
+          + "   [target >= 1.0]")
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--recording", default=None, help="a simreel .h5 recording (default: record one)")
@@ -55,79 +115,36 @@ def main() -> int:
     p.add_argument("--save-traj", action="store_true", help="ManiSkill also writes its replayed trajectory")
     args = p.parse_args()
 
-    from simreel.render_device import configure_vulkan
+    from simreel.sim.render_device import configure_vulkan
 
     configure_vulkan()  # before sapien loads: lets ManiSkill's tool find lavapipe where there is no GPU
     warnings.filterwarnings("ignore")
     tmp = Path(tempfile.mkdtemp(prefix="bench_replay_"))
     try:
-        if args.recording:
-            src = Path(args.recording)
-            rec = tmp / src.name
-            shutil.copy(src, rec)
-            shutil.copy(src.with_suffix(".json"), rec.with_suffix(".json"))
-        else:
-            rec = tmp / f"{args.env_id}.h5"
-            _record(rec, args.env_id, args.episodes, args.steps)
-
-        import sapien
+        rec = _prepare(args, tmp)
+        _ensure_render_or_norender()
         from mani_skill.trajectory import replay_trajectory as ms_replay
-
-        try:
-            sapien.render.get_device_summary()
-        except Exception:  # noqa: BLE001 - no Vulkan device at all
-            from simreel import norender
-
-            norender.install()
-            print("no render device: ManiSkill's tool runs with simreel.norender installed")
 
         from simreel.formats import open_reader
         from simreel.replay.verify import verify_recording
 
         with open_reader(rec) as r:
-            steps = sum(m.length for m in r.episodes)
-            n_eps = len(r.episodes)
-            env_id = r.meta.env_id
+            steps, n_eps, env_id = sum(m.length for m in r.episodes), len(r.episodes), r.meta.env_id
         ms_args = ["--traj-path", str(rec), "--allow-failure"] + (["--save-traj"] if args.save_traj else [])
-
-        def timed(fn: Any) -> tuple[float, float]:
-            wall, cpu = time.perf_counter(), time.process_time()
-            fn()
-            return time.perf_counter() - wall, time.process_time() - cpu
+        exact = []
 
         def run_maniskill() -> None:
             with _quiet():
                 ms_replay.main(ms_replay.parse_args(ms_args))
 
-        report_ok = []
-
         def run_simreel() -> None:
             report = verify_recording(rec)
-            report_ok.append(report.ok and all(e.verdict == "exact" for e in report.episodes))
+            exact.append(report.ok and all(e.verdict == "exact" for e in report.episodes))
 
-        run_maniskill(), run_simreel()  # warm-up: first env build, file cache
-        wall: dict[str, list[float]] = {"maniskill": [], "simreel": []}
-        cpu: dict[str, list[float]] = {"maniskill": [], "simreel": []}
-        for _ in range(args.rounds):
-            for name, fn in (("maniskill", run_maniskill), ("simreel", run_simreel)):
-                w, c = timed(fn)
-                wall[name].append(w)
-                cpu[name].append(c)
-
+        wall, cpu = _rounds({"maniskill": run_maniskill, "simreel": run_simreel}, args.rounds)
         print(f"recording: {env_id}, {n_eps} episodes, {steps} steps (CPU sim, state obs); {args.rounds} rounds each")
-        for name, label in (("maniskill", "ManiSkill replay_trajectory" + (" --save-traj" if args.save_traj else "")),
-                            ("simreel", "simreel replay (verifies every step)")):
-            best, med = min(wall[name]), statistics.median(wall[name])
-            print(f"  {label:<42} wall best {best:6.3f} s = {steps / best:5.0f} steps/s, median {med:6.3f} s;"
-                  f" CPU best {min(cpu[name]):6.3f} s")
-        ratios = {
-            "wall, best rounds": min(wall["maniskill"]) / min(wall["simreel"]),
-            "wall, medians": statistics.median(wall["maniskill"]) / statistics.median(wall["simreel"]),
-            "CPU time, best rounds": min(cpu["maniskill"]) / min(cpu["simreel"]),
-        }
-        print("throughput ratio simreel / ManiSkill: " + ", ".join(f"{v:.2f} ({k})" for k, v in ratios.items())
-              + "   [target >= 1.0]")
-        print(f"simreel verdicts: {'every episode exact' if all(report_ok) else 'NOT all exact'}")
+        _print_results(wall, cpu, steps, args.save_traj)
+        print(f"simreel verdicts: {'every episode exact' if all(exact) else 'NOT all exact'}")
         return 0
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

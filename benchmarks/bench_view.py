@@ -26,8 +26,8 @@ def record(env_id: str, steps: int, path: Path, *, poses: bool) -> None:
     import numpy as np
     import torch
 
-    from simreel.envs import make_env
     from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
 
     env = make_env(env_id, render_backend="none", max_episode_steps=steps)
     rec = RecordWrapper(env, path, poses=poses, overwrite=True)

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simreel.envs import make_env
 from simreel.recorders import RecordWrapper
+from simreel.sim.make import make_env
 
 
 def _episode(env, seed, actions) -> tuple[float, float, float]:

@@ -1,5 +1,13 @@
-"""simreel.recorders: the recording room — `RecordWrapper` and what it samples each step."""
+"""simreel.recorders: the recording room — `RecordWrapper` (with its `RecordOptions`) and its step buffering.
 
-from simreel.recorders.record_wrapper import RecordWrapper, StateLayoutChanged
+Importing it prepares a machine for the user's own ``gym.make`` (`simreel.sim.make.prepare_plain_gym_make`):
+the software Vulkan driver where `make setup` fetched one, and on a machine with no render device at all
+the no-render layer, so ``gym.make(..., obs_mode="state", render_backend="none")`` builds.
+"""
 
-__all__ = ["RecordWrapper", "StateLayoutChanged"]
+from simreel.recorders.record_wrapper import RecordOptions, RecordWrapper
+from simreel.sim.make import prepare_plain_gym_make
+
+__all__ = ["RecordWrapper", "RecordOptions"]
+
+prepare_plain_gym_make()

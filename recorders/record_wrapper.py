@@ -8,31 +8,62 @@ so memory does not grow with episode length; a finished episode is committed (du
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from simreel.body_poses import pose_body_names, sample_body_poses
-from simreel.contacts import ContactSampler, contact_channels
-from simreel.env_meta import flatten_obs, recording_meta
-from simreel.episode import FLAG_FIELDS, EpisodeMeta, json_default
-from simreel.errors import SimreelError, UsageError
-from simreel.fast_state import FastStateReader
-from simreel.formats import StepBlock, open_writer, records_poses_by_default
+from simreel.episode import EpisodeMeta, StepBlock, json_default
+from simreel.errors import UsageError
+from simreel.formats import open_writer, records_poses_by_default
 from simreel.recorders.step_buffer import StepBuffer
-from simreel.state_tree import LeafSpec, flatten, layout_differences, layout_of, to_numpy
+from simreel.sim.contacts import ContactSampler, contact_channels
+from simreel.sim.describe import flatten_obs, recording_meta
+from simreel.sim.poses import pose_body_names, sample_body_poses
+from simreel.sim.state import FastStateReader, check_same_layout, read_state
+from simreel.state_tree import layout_of, to_numpy
 
-__all__ = ["RecordWrapper", "StateLayoutChanged"]
+__all__ = ["RecordWrapper", "RecordOptions"]
 
 _SKIPPED_INFO = ("reconfigure",)
 
 
-class StateLayoutChanged(SimreelError):
-    """The task's state dict changed keys or shapes between episodes, so one file cannot hold both."""
+@dataclass(frozen=True)
+class RecordOptions:
+    """What `RecordWrapper` records and how.
+
+    Attributes:
+        contacts: "auto" (net force on every moving body + the task's or the robot fingers' pairs), "none",
+            or explicit pairs "panda/panda_leftfinger:cube,...".
+        record_obs: also record observations (T+1 rows per episode).
+        poses: also record world poses of every body (needed by MCAP's transform channel; costs about as much
+            per step as the state dict). None: the format's default (on for .mcap, off for .h5).
+        overwrite: replace an existing file instead of refusing.
+        block_steps: steps buffered in memory before they are streamed to the file.
+        imports: `--import` specs that registered the task, stored so replay can import them again.
+        command: the command line, stored for provenance.
+        writer_options: keyword options for the format's writer (e.g. HDF5 `compression`).
+    """
+
+    contacts: str | None = "auto"
+    record_obs: bool = False
+    poses: bool | None = None
+    overwrite: bool = False
+    block_steps: int = 256
+    imports: tuple[str, ...] = ()
+    command: str = ""
+    writer_options: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.block_steps < 1:
+            raise UsageError(f"block_steps must be ≥ 1, got {self.block_steps}")
+        object.__setattr__(self, "imports", tuple(self.imports))
 
 
 def _scalar_info(info: dict[str, Any], n: int) -> dict[str, np.ndarray]:
@@ -49,69 +80,35 @@ def _scalar_info(info: dict[str, Any], n: int) -> dict[str, np.ndarray]:
     return out
 
 
-class RecordWrapper(gym.Wrapper):
+class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Records every episode of `env` to `path` (.h5 or .mcap).
 
     Args:
         env: a `gym.make`'d ManiSkill 3 env (any num_envs, CPU or GPU sim), possibly wrapped.
         path: output file; the suffix picks the format.
-        contacts: "auto" (net force on every moving body + the task's or the robot fingers' pairs),
-            "none", or explicit pairs "panda/panda_leftfinger:cube,...".
-        record_obs: also record observations (T+1 rows per episode).
-        poses: also record world poses of every body (needed by MCAP's transform channel; costs about
-            as much per step as the state dict). None: the format's default (on for .mcap, off for .h5).
-        writer_options: keyword options for the format's writer (e.g. HDF5 `compression`).
-        overwrite: replace an existing file instead of refusing.
-        block_steps: steps buffered in memory before they are streamed to the file.
-        imports: `--import` specs that registered the task, stored so replay can import them again.
-        command: the command line, stored for provenance.
+        options: a `RecordOptions`; keyword arguments override its fields, e.g.
+            ``RecordWrapper(env, "pick.h5", contacts="none", record_obs=True)``.
+
+    Like gymnasium's own wrappers it remembers its constructor arguments, so ``env.spec`` lists it.
     """
 
-    def __init__(
-        self,
-        env: gym.Env,
-        path: str | Path,
-        *,
-        contacts: str | None = "auto",
-        record_obs: bool = False,
-        poses: bool | None = None,
-        overwrite: bool = False,
-        block_steps: int = 256,
-        imports: list[str] | tuple[str, ...] = (),
-        command: str = "",
-        writer_options: dict[str, Any] | None = None,
-    ) -> None:
-        super().__init__(env)
-        if block_steps < 1:
-            raise UsageError(f"block_steps must be ≥ 1, got {block_steps}")
-        _refuse_reshaping_wrappers(env, record_obs)
+    def __init__(self, env: gym.Env, path: str | Path, options: RecordOptions | None = None, **overrides: Any) -> None:
+        opts = dataclasses.replace(options or RecordOptions(), **overrides)
+        gym.utils.RecordConstructorArgs.__init__(self, path=str(path), **_constructor_options(opts))
+        gym.Wrapper.__init__(self, env)
+        _refuse_reshaping_wrappers(env, opts.record_obs)
+        self.options = opts
         u = env.unwrapped
         self._u = u
         self._n = int(u.num_envs)
-        self._record_obs = record_obs
-        self._sampler = ContactSampler(contact_channels(u, contacts))
+        self._sampler = ContactSampler(contact_channels(u, opts.contacts))
         self._sampler.bind(u)
         self._fast: FastStateReader | None = None
         self._fast_unchecked = False
         self._fast_refuted = False
-        info_layout = layout_of(_scalar_info(u.get_info(), self._n), batched=True)
-        obs_layout: dict[str, LeafSpec] = {}
-        if record_obs:
-            obs_layout = layout_of(flatten_obs(u.get_obs(), u.obs_mode), batched=True)
-        if poses is None:
-            poses = records_poses_by_default(path)
-        self.meta = recording_meta(
-            env,
-            contact_channels=self._sampler.channels,
-            info_layout=info_layout,
-            obs_layout=obs_layout,
-            imports=list(imports),
-            command=command,
-        )
-        if poses:
-            self.meta.pose_bodies = pose_body_names(u)
-        self._writer = open_writer(path, self.meta, overwrite=overwrite, **(writer_options or {}))
-        self._buffer = StepBuffer(block_steps, self._n)
+        self.meta = self._describe(env, path)
+        self._writer = open_writer(path, self.meta, overwrite=opts.overwrite, **opts.writer_options)
+        self._buffer = StepBuffer(opts.block_steps, self._n)
         self._sinks: list[Any] = [None] * self._n
         self._episodes: list[EpisodeMeta | None] = [None] * self._n
         self._open = 0
@@ -125,6 +122,20 @@ class RecordWrapper(gym.Wrapper):
         self._scene_seed: list[int | None] = [None] * self._n
         self.episodes_committed: list[EpisodeMeta] = []
         self._closed = False
+
+    def _describe(self, env: gym.Env, path: str | Path) -> Any:
+        u, opts = self._u, self.options
+        obs_layout = layout_of(flatten_obs(u.get_obs(), u.obs_mode), batched=True) if opts.record_obs else {}
+        poses = records_poses_by_default(path) if opts.poses is None else opts.poses
+        return recording_meta(
+            env,
+            contact_channels=self._sampler.channels,
+            info_layout=layout_of(_scalar_info(u.get_info(), self._n), batched=True),
+            obs_layout=obs_layout,
+            pose_bodies=pose_body_names(u) if poses else [],
+            imports=list(opts.imports),
+            command=opts.command,
+        )
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None) -> Any:
@@ -141,73 +152,70 @@ class RecordWrapper(gym.Wrapper):
         if not self._fast_refuted:  # a reconfiguring reset builds new bodies: bind a new reader
             self._fast = FastStateReader.for_env(self._u)
             self._fast_unchecked = self._fast is not None
-        state = flatten(self._u.get_state_dict())
-        self._check_layout(state)
-        obs_flat = flatten_obs(obs, self._u.obs_mode) if self._record_obs else {}
-        poses = self._poses()
-        seeds = self._episode_seeds(seed, idxs)
-        stored_options = {k: v for k, v in options.items() if k != "env_idx"}
-        stored_options = json.loads(json.dumps(stored_options, default=json_default))
-        for i, seed_i in zip(idxs, seeds, strict=True):
+        state = read_state(self._u)
+        check_same_layout(self.meta.env_id, self.meta.state_layout, layout_of(state, batched=True))
+        reset_rows = self._per_state_rows(state, obs)
+        stored_options = json.loads(json.dumps({k: v for k, v in options.items() if k != "env_idx"},
+                                               default=json_default))
+        for i, seed_i in zip(idxs, self._episode_seeds(seed, idxs), strict=True):
             if reconfigured:
                 self._scene_seed[i] = seed_i
-            meta = EpisodeMeta(
-                index=self._next_index,
-                seed=seed_i,
-                reset_options=stored_options,
-                env_idx=i,
-                reconfigured=reconfigured,
-                scene_seed=self._scene_seed[i],
-            )
-            self._next_index += 1
-            self._episodes[i] = meta
-            self._open += 1
-            self._lengths[i] = 0
-            self._success[i] = self._ever_success[i] = False
-            self._sinks[i] = self._writer.begin_episode(
-                meta,
-                {p: a[i] for p, a in state.items()},
-                {p: a[i] for p, a in obs_flat.items()} or None,
-                None if poses is None else poses[i],
-            )
-            self._buffer.start[i] = self._buffer.rows
+            meta = EpisodeMeta(index=self._next_index, seed=seed_i, reset_options=stored_options, env_idx=i,
+                               reconfigured=reconfigured, scene_seed=self._scene_seed[i])
+            self._start(i, meta, StepBlock({k: a[i : i + 1] for k, a in reset_rows.items()}, 1))
         return obs, info
+
+    def _start(self, i: int, meta: EpisodeMeta, reset: StepBlock) -> None:
+        self._next_index += 1
+        self._episodes[i] = meta
+        self._open += 1
+        self._lengths[i] = 0
+        self._success[i] = self._ever_success[i] = False
+        self._sinks[i] = self._writer.begin_episode(meta, reset)
+        self._buffer.start[i] = self._buffer.rows
 
     def step(self, action: Any) -> Any:
         if self._open < self._n:
             raise UsageError("RecordWrapper.step() before reset(): reset the env first so the episode has a start")
         obs, reward, terminated, truncated, info = self.env.step(action)
+        fields = self._step_rows(action, reward, terminated, truncated, info)
+        fields.update(self._per_state_rows(self._state(), obs))
+        if self._sampler.channels:
+            fields["contact_forces"] = self._sampler.sample()
+        self._buffer.push(fields)
+        self._lengths += 1
+        self._success[:] = fields["success"]
+        self._ever_success |= fields["success"]
+        if self._buffer.full:
+            for i in range(self._n):
+                self._flush(i)
+            self._buffer.rewind()
+        return obs, reward, terminated, truncated, info
+
+    def _step_rows(self, action: Any, reward: Any, terminated: Any, truncated: Any, info: Any) -> dict[str, np.ndarray]:
+        """This step's per-step fields for every env: action, reward, flags and scalar info."""
         n = self._n
+        scalars = _scalar_info(info, n)
         fields: dict[str, np.ndarray] = {
             "actions": to_numpy(action).astype(np.float32, copy=False).reshape(n, -1),
             "rewards": to_numpy(reward).astype(np.float32, copy=False).reshape(n),
             "terminated": to_numpy(terminated).reshape(n),
             "truncated": to_numpy(truncated).reshape(n),
         }
-        scalars = _scalar_info(info, n)
         for flag in ("success", "fail"):
             fields[flag] = scalars[flag] if flag in scalars else np.zeros(n, bool)
-        for key in self.meta.info_layout:
-            fields[f"info/{key}"] = scalars[key] if key in scalars else np.zeros(n, self.meta.info_layout[key].dtype)
-        for p, a in self._state().items():
-            fields[f"env_states/{p}"] = a
-        if self._record_obs:
-            for p, a in flatten_obs(obs, self._u.obs_mode).items():
-                fields[f"obs/{p}"] = a
-        if self._sampler.channels:
-            fields["contact_forces"] = self._sampler.sample()
-        poses = self._poses()
-        if poses is not None:
-            fields["body_poses"] = poses
-        self._buffer.push(fields)
-        self._lengths += 1
-        self._success[:] = fields["success"]
-        self._ever_success |= fields["success"]
-        if self._buffer.full:
-            for i in range(n):
-                self._flush(i)
-            self._buffer.rewind()
-        return obs, reward, terminated, truncated, info
+        for key, spec in self.meta.info_layout.items():
+            fields[f"info/{key}"] = scalars[key] if key in scalars else np.zeros(n, spec.dtype)
+        return fields
+
+    def _per_state_rows(self, state: dict[str, np.ndarray], obs: Any) -> dict[str, np.ndarray]:
+        """The per-state fields now, for every env: state, observations (when recorded) and body poses."""
+        fields = {f"env_states/{p}": a for p, a in state.items()}
+        if self.options.record_obs:
+            fields.update({f"obs/{p}": a for p, a in flatten_obs(obs, self._u.obs_mode).items()})
+        if self.meta.pose_bodies:
+            fields["body_poses"] = sample_body_poses(self._u, self.meta.pose_bodies)
+        return fields
 
     def discard_running(self) -> None:
         """Drop the episodes still running (their steps so far are not written); committed ones stay."""
@@ -252,10 +260,6 @@ class RecordWrapper(gym.Wrapper):
             return [int(x) for x in drawn]
         return [None] * len(idxs)
 
-    def _poses(self) -> np.ndarray | None:
-        names = self.meta.pose_bodies
-        return sample_body_poses(self._u, names) if names else None
-
     def _state(self) -> dict[str, np.ndarray]:
         """The state dict after a step; through the fast CPU reader where it is proven equal.
 
@@ -263,32 +267,21 @@ class RecordWrapper(gym.Wrapper):
         episode (after reset most velocities are zero, a weaker check); any difference retires it.
         """
         if self._fast is None:
-            return flatten(self._u.get_state_dict())
+            return read_state(self._u)
         if self._fast_unchecked:
             self._fast_unchecked = False
             if not self._fast.matches():
                 self._fast, self._fast_refuted = None, True
                 warnings.warn(f"simreel: the fast state reader disagrees with {self.meta.env_id}'s get_state_dict(); "
                               "recording through get_state_dict() from now on", RuntimeWarning, stacklevel=3)
-                return flatten(self._u.get_state_dict())
+                return read_state(self._u)
         return self._fast.read()
-
-    def _check_layout(self, state: dict[str, np.ndarray]) -> None:
-        layout = layout_of(state, batched=True)
-        if layout == self.meta.state_layout:
-            return
-        diffs = layout_differences(self.meta.state_layout, layout, old_label="first episode", new_label="now")
-        raise StateLayoutChanged(
-            f"the state dict of {self.meta.env_id} changed after a reset ({'; '.join(diffs[:5])}); one recording "
-            "needs one layout — register merged views for per-episode objects (see simreel.heterogeneous)"
-        )
 
     def _flush(self, i: int) -> None:
         sink = self._sinks[i]
         if sink is None or not self._buffer.pending(i):
             return
-        rows = self._buffer.take(i)
-        sink.append(_block(rows))
+        sink.append(self._buffer.take(i))
 
     def _finish(self, i: int) -> None:
         sink, meta = self._sinks[i], self._episodes[i]
@@ -308,6 +301,17 @@ class RecordWrapper(gym.Wrapper):
         self.episodes_committed.append(meta)
 
 
+def _constructor_options(opts: RecordOptions) -> dict[str, Any]:
+    """The options that differ from the defaults, as plain values for ``env.spec`` (gymnasium's WrapperSpec)."""
+    default = RecordOptions()
+    out = {}
+    for f in dataclasses.fields(opts):
+        value = getattr(opts, f.name)
+        if value != getattr(default, f.name):
+            out[f.name] = list(value) if isinstance(value, tuple) else dict(value) if isinstance(value, Mapping) else value
+    return out
+
+
 def _refuse_reshaping_wrappers(env: gym.Env, record_obs: bool) -> None:
     """Actions (and observations, when recorded) must be the task's own: replay feeds them to the task."""
     e = env
@@ -319,21 +323,3 @@ def _refuse_reshaping_wrappers(env: gym.Env, record_obs: bool) -> None:
                 "reproduce them. Put RecordWrapper directly around the ManiSkill env, below such wrappers"
             )
         e = e.env
-
-
-def _block(rows: dict[str, np.ndarray]) -> StepBlock:
-    groups: dict[str, dict[str, np.ndarray]] = {"env_states": {}, "obs": {}, "info": {}}
-    for name, a in rows.items():
-        head, _, rest = name.partition("/")
-        if rest:
-            groups[head][rest] = a
-    return StepBlock(
-        actions=rows["actions"],
-        rewards=rows["rewards"],
-        **{f: rows[f] for f in FLAG_FIELDS},
-        env_states=groups["env_states"],
-        obs=groups["obs"],
-        info=groups["info"],
-        contact_forces=rows.get("contact_forces"),
-        body_poses=rows.get("body_poses"),
-    )

@@ -1,12 +1,15 @@
 """A fixed-size block of batched steps, so recording writes in blocks and memory stays bounded.
 
 Each step is pushed once for all parallel envs (one array copy per field, whatever `num_envs` is).
-Env i's rows since its episode started (or since the last flush) are `take(i)`: a slice, no copy.
+Env i's rows since its episode started (or since the last flush) are `take(i)`: a `StepBlock` of slices,
+no copy.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from simreel.episode import StepBlock
 
 __all__ = ["StepBuffer"]
 
@@ -36,11 +39,11 @@ class StepBuffer:
             buf[r] = value
         self.rows = r + 1
 
-    def take(self, env: int) -> dict[str, np.ndarray]:
+    def take(self, env: int) -> StepBlock:
         """Env `env`'s rows not yet taken, as views valid until the next `push` into those rows."""
         s, e = int(self.start[env]), self.rows
         self.start[env] = e
-        return {name: buf[s:e, env] for name, buf in self._arrays.items()}
+        return StepBlock({name: buf[s:e, env] for name, buf in self._arrays.items()}, e - s)
 
     def pending(self, env: int) -> int:
         return self.rows - int(self.start[env])

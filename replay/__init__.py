@@ -2,30 +2,33 @@
 states, step; actions can also restore the recorded state every K steps, ``resync``), verify every step,
 and audit a task for state that its state dict does not capture.
 
-- `verify_recording(path, mode=..., resync=..., ...)` → `ReplayReport` (what `simreel replay` runs)
+- `verify_recording(path, mode=..., resync=..., ...)` → `ReplayReport` (what `simreel replay` runs);
+  `ReplayOptions` holds its options, `ReplayRun` is the same in two steps
 - `EpisodeReplayer(meta)`: one rebuilt env that reproduces each episode's reset and replays it
-- `restore_state(unwrapped, flat_state)`: restore all of a recorded state (task, custom keys, controller)
 - `audit_task(env_id, ...)` → `AuditReport` (what `simreel audit` runs)
 
-The per-leaf comparison itself (tolerances, quaternion-aware errors, first divergence) is in the core,
-`simreel.compare`, so the viewers can use it too. Importing this package imports neither mani_skill nor torch.
+Restoring a recorded state (`simreel.sim.state.restore_state`) and the per-leaf comparison (`simreel.compare`:
+tolerances, quaternion-aware errors, first divergence) are in the core, so the viewers use them too.
+Importing this package imports neither mani_skill nor torch.
 """
 
-from simreel.replay.audit import AuditFinding, AuditReport, audit_task
-from simreel.replay.engine import MODES, EpisodeReplayer, ReplayedEpisode, ReplayError
-from simreel.replay.restore import restore_state
-from simreel.replay.verify import EpisodeReport, ReplayReport, verify_recording
+from simreel.replay.audit import AuditFinding, AuditOptions, AuditReport, audit_task
+from simreel.replay.engine import MODES, EpisodeReplayer, ReplayedEpisode, ReplayerOptions
+from simreel.replay.report import EpisodeReport, ReplayReport
+from simreel.replay.verify import ReplayOptions, ReplayRun, verify_recording
 
 __all__ = [
     "MODES",
     "AuditFinding",
+    "AuditOptions",
     "AuditReport",
     "EpisodeReplayer",
     "EpisodeReport",
-    "ReplayError",
+    "ReplayOptions",
     "ReplayReport",
+    "ReplayRun",
     "ReplayedEpisode",
+    "ReplayerOptions",
     "audit_task",
-    "restore_state",
     "verify_recording",
 ]

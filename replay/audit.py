@@ -6,7 +6,7 @@
 2. Instance A runs ``steps`` random actions from ``reset(seed)``. Instance B gets the same scene (a
    reconfiguring reset with the same seed) but another episode (``reset(seed + 1)``) and a few other
    actions, so everything the state dict does not carry differs between them. A's state dict is then
-   restored into B (`simreel.replay.restore.restore_state`: task state, controller targets, step count).
+   restored into B (`simreel.sim.state.restore_state`: task state, controller targets, step count).
 3. Everything the task computes from state must now agree: the state dict itself, ``evaluate()`` info,
    observations and the reward. Then both step the same actions and are compared again.
 4. The state-dict layout must not depend on the seed (several reconfiguring resets) nor, where a CUDA
@@ -14,151 +14,66 @@
 
 Each disagreement is an `AuditFinding` naming the key and the likely cause, e.g.
 ``evaluate()['success'] differs after restore: ... task state not in the state dict — declare it``.
+The comparisons themselves are `simreel.replay.audit_checks`.
 """
 
 from __future__ import annotations
 
-import math
+import dataclasses
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from simreel.compare import Tolerances, component_error, components_of
+from simreel.compare import Tolerances
 from simreel.errors import UsageError
-from simreel.rebuild import build_with_render_fallback
-from simreel.replay.restore import restore_state
-from simreel.state_tree import describe_leaf, flatten, layout_of, to_numpy
+from simreel.replay.audit_checks import (
+    DECLARE,
+    AuditFinding,
+    AuditReport,
+    Check,
+    Computed,
+    compare_computed,
+    compare_states,
+    computed_now,
+    differing_attributes,
+    max_error,
+)
+from simreel.sim.rebuild import build_with_render_fallback
+from simreel.sim.state import read_state, restore_state
+from simreel.state_tree import describe_leaf, layout_of, to_numpy
 
-__all__ = ["AuditFinding", "AuditReport", "audit_task", "FOLLOW_STEPS"]
+__all__ = ["AuditFinding", "AuditReport", "AuditOptions", "audit_task", "FOLLOW_STEPS"]
 
 FOLLOW_STEPS = 5
 """Steps both instances take after the restore, compared step by step."""
 
-_DECLARE = (
-    "task state not in the state dict — declare it (simreel.custom_state.CustomStateMixin with "
-    "custom_state = (...), or override get_state_dict/set_state_dict)"
-)
-_ENV_INTERNALS = frozenset({
-    "_elapsed_steps", "_episode_seed", "_main_seed", "_last_obs", "_init_raw_obs", "_init_raw_state",
-    "_reconfig_counter", "_batched_episode_rng", "_batched_main_rng", "_episode_rng", "_main_rng",
-})
-"""BaseEnv bookkeeping that differs between two instances by design (seeds, caches)."""
 
+@dataclass(frozen=True)
+class AuditOptions:
+    """How `audit_task` builds and drives the task.
 
-@dataclass
-class AuditFinding:
-    """One fidelity problem: `kind` (what was checked), `key` (what differs), `detail` (why, and the fix)."""
+    Attributes:
+        imports: `--import` specs that register the task.
+        steps: random steps before the restore.
+        seed: seed of the first instance; the second uses seed + 1.
+        control_mode, obs_mode, reward_mode, env_kwargs: as for `simreel.sim.make.EnvConfig`; the observations of
+            `obs_mode` are compared.
+    """
 
-    kind: str
-    key: str
-    detail: str
-    step: int | None = None
-    error: float | None = None
-    tolerance: float | None = None
-
-    def to_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"kind": self.kind, "key": self.key, "detail": self.detail}
-        if self.step is not None:
-            out["step"] = self.step
-        if self.error is not None:
-            out["error"] = self.error if math.isfinite(self.error) else "inf"
-        if self.tolerance is not None:
-            out["tolerance"] = self.tolerance
-        return out
-
-
-@dataclass
-class AuditReport:
-    env_id: str
-    seed: int
-    steps: int
+    imports: tuple[str, ...] = ()
+    steps: int = 20
+    seed: int = 0
     control_mode: str | None = None
-    findings: list[AuditFinding] = field(default_factory=list)
-    checks: list[str] = field(default_factory=list)
-    """What was checked, one line each (also when it passed)."""
-    notes: list[str] = field(default_factory=list)
-    """Facts worth knowing that are not findings (skipped checks, ManiSkill quirks simreel works around)."""
-
-    @property
-    def ok(self) -> bool:
-        return not self.findings
-
-    def add(self, finding: AuditFinding) -> None:
-        """Keep the first finding per key and check (a key that differs after the restore is not reported
-        again for the steps after it: same cause)."""
-        check = finding.kind.split("_", 1)[-1]
-        for f in self.findings:
-            if f.key == finding.key and (f.kind == finding.kind or f.kind.split("_", 1)[-1] == check):
-                return
-        self.findings.append(finding)
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "ok": self.ok,
-            "env_id": self.env_id,
-            "seed": self.seed,
-            "steps": self.steps,
-            "control_mode": self.control_mode,
-            "findings": [f.to_json() for f in self.findings],
-            "checks": list(self.checks),
-            "notes": list(self.notes),
-        }
-
-    def summary(self) -> str:
-        lines = [f"audit of {self.env_id} (control mode {self.control_mode}, seed {self.seed}, {self.steps} steps)"]
-        for check in self.checks:
-            lines.append(f"  checked: {check}")
-        for note in self.notes:
-            lines.append(f"  note: {note}")
-        if self.ok:
-            lines.append("no findings: restoring the state dict restores everything the task computes")
-        else:
-            lines.append(f"{len(self.findings)} finding(s):")
-            for f in self.findings:
-                where = "" if f.step is None else f" [step {f.step}]"
-                lines.append(f"  {f.kind:<18} {f.key}{where}")
-                lines.append(f"  {'':<18} {f.detail}")
-        return "\n".join(lines)
-
-
-# ------------------------------------------------------------------------------------------ helpers
-def _max_error(a: Any, b: Any) -> float:
-    a, b = to_numpy(a), to_numpy(b)
-    if a.shape != b.shape:
-        return math.inf
-    if a.dtype.kind in "biu" or b.dtype.kind in "biu":
-        return float(np.any(a != b))
-    if a.size == 0:
-        return 0.0
-    return float(component_error(a.reshape(1, -1), b.reshape(1, -1))[0])
-
-
-def _differing_attributes(ua: Any, ub: Any, state_keys: Iterable[str]) -> list[str]:
-    """Tensor, array and Pose attributes of the task that hold different values in the two instances."""
-    import torch
-
-    skip = set(_ENV_INTERNALS) | {k.split("/", 1)[0] for k in state_keys}
-    out = []
-    for name, va in vars(ua).items():
-        if name in skip or name not in vars(ub):
-            continue
-        vb = vars(ub)[name]
-        if isinstance(getattr(va, "raw_pose", None), torch.Tensor):  # a ManiSkill Pose, e.g. a cached goal pose
-            va, vb = va.raw_pose, getattr(vb, "raw_pose", None)
-        if isinstance(va, torch.Tensor) and isinstance(vb, torch.Tensor):
-            if va.shape == vb.shape and not torch.equal(va.detach().cpu(), vb.detach().cpu()):
-                out.append(name)
-        elif isinstance(va, np.ndarray) and isinstance(vb, np.ndarray) and va.dtype != object:
-            if va.shape == vb.shape and not np.array_equal(va, vb):
-                out.append(name)
-    return sorted(out)
+    obs_mode: str = "state"
+    reward_mode: str | None = None
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
 
 def _state(u: Any) -> dict[str, np.ndarray]:
-    return {k: np.array(v) for k, v in flatten(u.get_state_dict()).items()}
+    return {k: np.array(v) for k, v in read_state(u).items()}
 
 
 def _hold_reconfigure(u: Any) -> None:
@@ -174,157 +89,114 @@ class _Auditor:
         self.steps = steps
         self.tol_restore = Tolerances.for_mode("states")
         self.tol_step = Tolerances.for_mode("step")
-
-    # -- comparisons
-    def _compare_state(self, kind: str, want: Mapping[str, np.ndarray], have: Mapping[str, np.ndarray],
-                       tol: Tolerances, step: int | None, why: str) -> None:
-        for key in sorted(set(want) | set(have)):
-            if key not in have or key not in want:
-                side = "missing after the restore" if key not in have else "present only after the restore"
-                self.report.add(AuditFinding(kind, f"env_states/{key}", f"state key {key!r} {side}: {why}",
-                                             step=step))
-                continue
-            a, b = want[key], have[key]
-            if a.shape != b.shape:
-                self.report.add(AuditFinding(kind, f"env_states/{key}",
-                                             f"shape {a.shape} became {b.shape}: {why}", step=step))
-                continue
-            for comp in components_of(key, a.shape[1:]):
-                err = float(component_error(a, b, comp)[0])
-                if err > tol[comp.group]:
-                    self.report.add(AuditFinding(kind, comp.key, f"{comp.key} off by {err:.3g}: {why}", step=step,
-                                                 error=err, tolerance=tol[comp.group]))
-
-    def _compare_computed(self, phase: str, ua: Any, ub: Any, action: Any, tol: Tolerances, step: int | None,
-                          results: tuple[Any, Any] | None = None) -> None:
-        """Compare evaluate() info, observations and reward of the two instances in their current states."""
-        if results is None:
-            info_a, info_b = ua.get_info(), ub.get_info()
-            obs_a = ua.get_obs(info_a, unflattened=True)
-            obs_b = ub.get_obs(info_b, unflattened=True)
-            rew_a = ua.get_reward(obs=obs_a, action=action, info=info_a)
-            rew_b = ub.get_reward(obs=obs_b, action=action, info=info_b)
-        else:
-            (obs_a, rew_a, info_a), (obs_b, rew_b, info_b) = results
-        hint = self._hint(ua, ub)
-        cause = f"{_DECLARE}{hint}" if phase == "restore" else (
-            f"the two instances evolve differently from the same state: {_DECLARE}{hint}"
-        )
-        where = "after restore" if phase == "restore" else "after stepping both"
-        for key in sorted(set(info_a) | set(info_b)):
-            if key == "reconfigure":
-                continue
-            if key not in info_a or key not in info_b:
-                self.report.add(AuditFinding(f"{phase}_evaluate", f"info/{key}",
-                                             f"evaluate()[{key!r}] exists in one instance only {where}", step=step))
-                continue
-            err = _max_error(info_a[key], info_b[key])
-            exact = to_numpy(info_a[key]).dtype.kind in "biu"
-            limit = 0.0 if exact else tol["info"]
-            if err > limit:
-                self.report.add(AuditFinding(f"{phase}_evaluate", f"info/{key}",
-                                             f"evaluate()[{key!r}] differs {where}: {cause}",
-                                             step=step, error=err, tolerance=limit))
-        flat_a = flatten(obs_a) if isinstance(obs_a, Mapping) else {"obs": to_numpy(obs_a)}
-        flat_b = flatten(obs_b) if isinstance(obs_b, Mapping) else {"obs": to_numpy(obs_b)}
-        for key in sorted(set(flat_a) & set(flat_b)):
-            err = _max_error(flat_a[key], flat_b[key])
-            if err > tol["obs"]:
-                self.report.add(AuditFinding(f"{phase}_obs", f"obs/{key}", f"observation {key!r} differs {where}: {cause}",
-                                             step=step, error=err, tolerance=tol["obs"]))
-        err = _max_error(rew_a, rew_b)
-        if err > tol["reward"]:
-            self.report.add(AuditFinding(f"{phase}_reward", "reward", f"the reward differs {where}: {cause}",
-                                         step=step, error=err, tolerance=tol["reward"]))
+        self.state_keys: list[str] = []
 
     def _hint(self, ua: Any, ub: Any) -> str:
-        names = _differing_attributes(ua, ub, self.state_keys)
-        if not names:
-            return ""
-        shown = ", ".join(names[:5])
-        return f"; task attributes that still differ after the restore: {shown}"
+        names = differing_attributes(ua, ub, self.state_keys)
+        return f"; task attributes that still differ after the restore: {', '.join(names[:5])}" if names else ""
+
+    def _computed_check(self, phase: str, ua: Any, ub: Any, step: int | None) -> Check:
+        cause = f"{DECLARE}{self._hint(ua, ub)}"
+        if phase == "restore":
+            return Check(phase, self.tol_restore, step, f"after restore: {cause}")
+        return Check(phase, self.tol_step, step,
+                     f"after stepping both: the two instances evolve differently from the same state: {cause}")
 
     # -- the checks
     def run(self) -> None:
-
-        report = self.report
         env_a = self.make()
         env_b = None
         try:
-            ua = env_a.unwrapped
-            report.control_mode = ua.control_mode
-            raw = ua.get_state_dict()
-            if not isinstance(raw, Mapping):
-                report.add(AuditFinding("not_a_dict", "get_state_dict()",
-                                        f"get_state_dict() returned {type(raw).__name__}, expected a dict of per-env "
-                                        "arrays; return the dict ManiSkill builds, updated with the task's keys"))
+            if not self._check_dict(env_a.unwrapped):
                 return
-            report.checks.append("get_state_dict() returns a dict")
-
-            space = env_a.action_space
-            space.seed(self.seed)
-            actions = [space.sample() for _ in range(self.steps + FOLLOW_STEPS)]
-            other = [space.sample() for _ in range(3)]
-
-            env_a.reset(seed=self.seed, options={"reconfigure": True})
-            for a in actions[: self.steps]:
-                env_a.step(a)
-            saved = _state(ua)
-            self.state_keys = list(saved)
-            elapsed = int(to_numpy(ua._elapsed_steps).reshape(-1)[0])
-
-            # 1. get -> set -> get on the same instance
-            restore_state(ua, saved, elapsed_steps=elapsed)
-            self._compare_state("roundtrip", saved, _state(ua), self.tol_restore, None,
-                                "set_state_dict() then get_state_dict() does not give back the state")
-            report.checks.append("get -> set -> get round-trips")
-
-            # 2. restore into a second instance in another episode of the same scene
+            actions, other = self._actions(env_a)
+            saved, elapsed = self._drive(env_a, actions[: self.steps])
+            self._roundtrip(env_a.unwrapped, saved, elapsed)
             env_b = self.make()
-            ub = env_b.unwrapped
-            env_b.reset(seed=self.seed, options={"reconfigure": True})
-            _hold_reconfigure(ub)
-            env_b.reset(seed=self.seed + 1)
-            for a in other:
-                env_b.step(a)
-            if "controller" in ua.get_state_dict():
-                self._check_controller(ua, ub, saved)
-            restore_state(ub, saved, elapsed_steps=elapsed)
-            self._compare_state("restore_state", saved, _state(ub), self.tol_restore, None,
-                                "restoring the state dict into another instance does not reproduce it; "
-                                "set_state_dict() must restore every key get_state_dict() returns")
-            last = _batched(actions[self.steps - 1], ua.device)
-            self._compare_computed("restore", ua, ub, last, self.tol_restore, None)
-            report.checks.append("evaluate(), observations and reward agree after restoring into a second instance "
-                                 f"reset with seed {self.seed + 1}")
-
-            # 3. step both with the same actions
-            for k, a in enumerate(actions[self.steps:]):
-                _, rew_a, _, _, info_a = env_a.step(a)
-                _, rew_b, _, _, info_b = env_b.step(a)
-                step = self.steps + k
-                self._compare_state("step_state", _state(ua), _state(ub), self.tol_step, step,
-                                    "one instance evolves differently after the restore: the state dict misses "
-                                    "state that the physics or the task uses")
-                results = ((ua.get_obs(info_a, unflattened=True), rew_a, info_a),
-                           (ub.get_obs(info_b, unflattened=True), rew_b, info_b))
-                self._compare_computed("step", ua, ub, None, self.tol_step, step, results=results)
-            report.checks.append(f"state, evaluate(), observations and reward agree over {FOLLOW_STEPS} steps after "
-                                 "the restore")
-
-            # 4. layout independent of the seed (and of num_envs on a GPU)
+            self._restore_into_second(env_a.unwrapped, env_b, other, (saved, elapsed), actions[self.steps - 1])
+            self._follow(env_a, env_b, actions[self.steps:])
             self._check_layouts(env_a)
         finally:
             if env_b is not None:
                 env_b.close()
             env_a.close()
 
-    def _check_controller(self, ua: Any, ub: Any, saved: Mapping[str, np.ndarray]) -> None:
+    def _check_dict(self, ua: Any) -> bool:
+        self.report.control_mode = ua.control_mode
+        raw = ua.get_state_dict()
+        if not isinstance(raw, Mapping):
+            self.report.add(AuditFinding("not_a_dict", "get_state_dict()",
+                                         f"get_state_dict() returned {type(raw).__name__}, expected a dict of per-env "
+                                         "arrays; return the dict ManiSkill builds, updated with the task's keys"))
+            return False
+        self.report.checks.append("get_state_dict() returns a dict")
+        return True
+
+    def _actions(self, env: Any) -> tuple[list[Any], list[Any]]:
+        """The actions of instance A (before the restore, then followed by both) and the other ones of B."""
+        space = env.action_space
+        space.seed(self.seed)
+        return [space.sample() for _ in range(self.steps + FOLLOW_STEPS)], [space.sample() for _ in range(3)]
+
+    def _drive(self, env: Any, actions: list[Any]) -> tuple[dict[str, np.ndarray], int]:
+        env.reset(seed=self.seed, options={"reconfigure": True})
+        for a in actions:
+            env.step(a)
+        saved = _state(env.unwrapped)
+        self.state_keys = list(saved)
+        return saved, int(to_numpy(env.unwrapped._elapsed_steps).reshape(-1)[0])
+
+    def _roundtrip(self, ua: Any, saved: dict[str, np.ndarray], elapsed: int) -> None:
+        """1. get -> set -> get on the same instance."""
+        restore_state(ua, saved, elapsed_steps=elapsed)
+        why = "set_state_dict() then get_state_dict() does not give back the state"
+        compare_states(self.report, Check("roundtrip", self.tol_restore, why=why), saved, _state(ua))
+        self.report.checks.append("get -> set -> get round-trips")
+
+    def _restore_into_second(self, ua: Any, env_b: Any, other: list[Any], saved_at: tuple[dict[str, np.ndarray], int],
+                             last_action: Any) -> None:
+        """2. restore into a second instance in another episode of the same scene; compare what it computes."""
+        saved, elapsed = saved_at
+        ub = env_b.unwrapped
+        env_b.reset(seed=self.seed, options={"reconfigure": True})
+        _hold_reconfigure(ub)
+        env_b.reset(seed=self.seed + 1)
+        for a in other:
+            env_b.step(a)
+        if any(k.startswith("controller/") for k in saved):
+            self._check_controller(ub, saved)
+        restore_state(ub, saved, elapsed_steps=elapsed)
+        why = ("restoring the state dict into another instance does not reproduce it; set_state_dict() must restore "
+               "every key get_state_dict() returns")
+        compare_states(self.report, Check("restore_state", self.tol_restore, why=why), saved, _state(ub))
+        action = _batched(last_action, ua.device)
+        compare_computed(self.report, self._computed_check("restore", ua, ub, None), computed_now(ua, action),
+                         computed_now(ub, action))
+        self.report.checks.append("evaluate(), observations and reward agree after restoring into a second instance "
+                                  f"reset with seed {self.seed + 1}")
+
+    def _follow(self, env_a: Any, env_b: Any, actions: list[Any]) -> None:
+        """3. step both with the same actions, comparing after each step."""
+        ua, ub = env_a.unwrapped, env_b.unwrapped
+        why = ("one instance evolves differently after the restore: the state dict misses state that the physics or "
+               "the task uses")
+        for k, a in enumerate(actions):
+            _, rew_a, _, _, info_a = env_a.step(a)
+            _, rew_b, _, _, info_b = env_b.step(a)
+            step = self.steps + k
+            compare_states(self.report, Check("step_state", self.tol_step, step, why), _state(ua), _state(ub))
+            compare_computed(self.report, self._computed_check("step", ua, ub, step),
+                             Computed(ua.get_obs(info_a, unflattened=True), rew_a, info_a),
+                             Computed(ub.get_obs(info_b, unflattened=True), rew_b, info_b))
+        self.report.checks.append(f"state, evaluate(), observations and reward agree over {FOLLOW_STEPS} steps after "
+                                  "the restore")
+
+    def _check_controller(self, ub: Any, saved: Mapping[str, np.ndarray]) -> None:
         ctrl = {k: v for k, v in saved.items() if k.startswith("controller/")}
         # ManiSkill's own set_state_dict leaves the controller alone; say so once (simreel restores it).
         ub.set_state_dict(_nested_torch(saved, ub.device))
         after_plain = {k: v for k, v in _state(ub).items() if k.startswith("controller/")}
-        if any(_max_error(ctrl[k], after_plain.get(k, np.full_like(ctrl[k], np.nan))) > 0 for k in ctrl):
+        if any(max_error(ctrl[k], after_plain.get(k, np.full_like(ctrl[k], np.nan))) > 0 for k in ctrl):
             self.report.notes.append(
                 "ManiSkill's set_state_dict() ignores the controller state (" + ", ".join(sorted(ctrl)) +
                 "); simreel's restore sets it too"
@@ -332,7 +204,7 @@ class _Auditor:
         restore_state(ub, saved)
         after = {k: v for k, v in _state(ub).items() if k.startswith("controller/")}
         for key, value in ctrl.items():
-            err = _max_error(value, after.get(key, np.full_like(value, np.nan)))
+            err = max_error(value, after.get(key, np.full_like(value, np.nan)))
             if err > 0:
                 self.report.add(AuditFinding("controller", f"env_states/{key}",
                                              f"controller state {key!r} does not survive a restore (off by {err:.3g}); "
@@ -341,15 +213,14 @@ class _Auditor:
         self.report.checks.append("controller state survives a restore (" + ", ".join(sorted(ctrl)) + ")")
 
     def _check_layouts(self, env: Any) -> None:
-        u = env.unwrapped
-        base = None
+        """4. the layout does not depend on the seed (nor, on a GPU, on num_envs)."""
         seeds = [self.seed, self.seed + 1, self.seed + 2]
+        layouts = []
         for s in seeds:
             env.reset(seed=s, options={"reconfigure": True})
-            layout = layout_of(flatten(u.get_state_dict()), batched=True)
-            if base is None:
-                base = layout
-                continue
+            layouts.append(layout_of(read_state(env.unwrapped), batched=True))
+        base = layouts[0]
+        for s, layout in zip(seeds[1:], layouts[1:], strict=True):
             for key in sorted(set(base) | set(layout)):
                 if base.get(key) != layout.get(key):
                     self.report.add(AuditFinding(
@@ -373,7 +244,7 @@ class _Auditor:
         env = self.make(num_envs=2, sim_backend="physx_cuda")
         try:
             env.reset(seed=self.seed)
-            layout = layout_of(flatten(env.unwrapped.get_state_dict()), batched=True)
+            layout = layout_of(read_state(env.unwrapped), batched=True)
         finally:
             env.close()
         for key in sorted(set(base) | set(layout)):
@@ -403,39 +274,31 @@ def _nested_torch(flat: Mapping[str, np.ndarray], device: Any) -> dict[str, Any]
     return unflatten({k: torch.as_tensor(np.array(v), device=device) for k, v in flat.items()})
 
 
-def audit_task(
-    env_id: str,
-    *,
-    imports: Iterable[str] = (),
-    steps: int = 20,
-    seed: int = 0,
-    control_mode: str | None = None,
-    obs_mode: str = "state",
-    reward_mode: str | None = None,
-    env_kwargs: dict[str, Any] | None = None,
-) -> AuditReport:
+def audit_task(env_id: str, options: AuditOptions | None = None, **overrides: Any) -> AuditReport:
     """Audit task `env_id` for state-dict fidelity (see the module docstring); never raises for a finding.
 
-    Raises `UsageError` for bad arguments and `EnvBuildError` when the env cannot be built.
+    `overrides` are `AuditOptions` fields (``audit_task("PickCube-v1", steps=10)``). Raises `UsageError` for bad
+    arguments and `EnvBuildError` when the env cannot be built.
     """
-    if steps < 1:
-        raise UsageError(f"--steps must be >= 1, got {steps}")
-    from simreel.envs import camera_use, import_user_code, make_env
+    opts = dataclasses.replace(options or AuditOptions(), **overrides)
+    if opts.steps < 1:
+        raise UsageError(f"--steps must be >= 1, got {opts.steps}")
+    from simreel.sim.make import EnvConfig, camera_use, make_env
+    from simreel.sim.user_code import import_user_code
 
-    for spec in imports:
+    for spec in opts.imports:
         import_user_code(spec)
-    render = "none" if camera_use(obs_mode, (env_kwargs or {}).get("render_mode")) is None else "auto"
+    config = EnvConfig(num_envs=1, obs_mode=opts.obs_mode, control_mode=opts.control_mode,
+                       reward_mode=opts.reward_mode, sim_backend="physx_cpu", env_kwargs=dict(opts.env_kwargs))
+    render = "none" if camera_use(opts.obs_mode, config.env_kwargs.get("render_mode")) is None else "auto"
 
     def make(**over: Any) -> Any:
         nonlocal render
-        kwargs = dict(num_envs=1, obs_mode=obs_mode, control_mode=control_mode, reward_mode=reward_mode,
-                      sim_backend="physx_cpu", env_kwargs=env_kwargs)
-        kwargs.update(over)
-        env, render = build_with_render_fallback(lambda r: make_env(env_id, render_backend=r, **kwargs), render)
+        env, render = build_with_render_fallback(lambda r: make_env(env_id, config, render_backend=r, **over), render)
         return env
 
-    report = AuditReport(env_id=env_id, seed=seed, steps=steps)
+    report = AuditReport(env_id=env_id, seed=opts.seed, steps=opts.steps)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        _Auditor(report, make, seed=seed, steps=steps).run()
+        _Auditor(report, make, seed=opts.seed, steps=opts.steps).run()
     return report

@@ -11,8 +11,8 @@ Modes (see `MODES`):
 - ``step``: for each t, restore state t, step action t, compare with recorded state t+1: the one-step
   error, the purest measure of what the state dict misses.
 
-Reproducing a reset (``EpisodeMeta``: scene, seed, options) is the core's `simreel.rebuild.reset_to_episode`,
-which the viewer and ``simreel convert --poses`` use too.
+Reproducing a reset (``EpisodeMeta``: scene, seed, options) is the core's `simreel.sim.rebuild.reset_to_episode`,
+and restoring a state is `simreel.sim.state.restore_state`; the viewer and ``simreel convert --poses`` use both.
 """
 
 from __future__ import annotations
@@ -26,27 +26,42 @@ from typing import Any
 import numpy as np
 
 from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta
-from simreel.errors import EnvBuildError, SimreelError
-from simreel.fast_state import FastStateReader
-from simreel.rebuild import (
+from simreel.errors import EnvBuildError, ReplayError, SimreelError
+from simreel.sim.rebuild import (
     GYM_MAKE_SEED,
     EpisodeReset,
     build_with_render_fallback,
     env_from_meta,
     reset_to_episode,
 )
-from simreel.replay.restore import restore_state, state_row
-from simreel.state_tree import flatten, layout_differences, layout_of, to_numpy
+from simreel.sim.state import FastStateReader, check_rebuilt_layout, read_state, restore_state, state_row
+from simreel.state_tree import to_numpy
 
-__all__ = ["MODES", "EpisodeReplayer", "ReplayedEpisode", "ReplayError", "GYM_MAKE_SEED"]
+__all__ = ["MODES", "EpisodeReplayer", "ReplayerOptions", "ReplayedEpisode", "ReplayError", "GYM_MAKE_SEED"]
 
 MODES = ("actions", "states", "step")
 """Replay modes; ``resync`` is an option of ``actions`` (with its own default tolerances, see
 `simreel.compare.TOLERANCE_MODES`)."""
 
 
-class ReplayError(SimreelError):
-    """A recording cannot be replayed here: its state layout does not match the rebuilt env, a bad mode, ..."""
+@dataclass(frozen=True)
+class ReplayerOptions:
+    """How an `EpisodeReplayer` builds and drives its env.
+
+    Attributes:
+        obs_mode: observation mode of the replay (None: the recorded one when observations are needed, else
+            ``"none"``, which skips computing observations; the physics is the same).
+        need_obs: compute and return observations (for comparing recorded ones or writing ``-o``).
+        pose_bodies: also sample the world pose of these bodies after reset and every step (for ``-o``).
+        render_backend: None: ``"none"`` unless the observation mode needs cameras, then ``"auto"``.
+        sim_backend: None: the recorded one.
+    """
+
+    obs_mode: str | None = None
+    need_obs: bool = False
+    pose_bodies: tuple[str, ...] = ()
+    render_backend: str | None = None
+    sim_backend: str | None = None
 
 
 @dataclass
@@ -93,36 +108,42 @@ class EpisodeReplayer:
 
     Args:
         meta: the recording's metadata.
-        obs_mode: observation mode of the replay (None: the recorded one when observations are needed,
-            else ``"none"``, which skips computing observations; the physics is the same).
-        need_obs: compute and return observations (for comparing recorded ones or writing ``-o``).
-        pose_bodies: also sample the world pose of these bodies after reset and every step (for ``-o``).
-        render_backend: None: ``"none"`` unless the observation mode needs cameras, then ``"auto"``.
-        sim_backend: None: the recorded one.
+        options: a `ReplayerOptions`; keyword arguments override its fields (``EpisodeReplayer(meta,
+            need_obs=True)``).
     """
 
-    def __init__(
-        self,
-        meta: RecordingMeta,
-        *,
-        obs_mode: str | None = None,
-        need_obs: bool = False,
-        pose_bodies: list[str] | None = None,
-        render_backend: str | None = None,
-        sim_backend: str | None = None,
-    ) -> None:
+    def __init__(self, meta: RecordingMeta, options: ReplayerOptions | None = None, **overrides: Any) -> None:
+        opts = dataclasses.replace(options or ReplayerOptions(), **overrides)
         self.meta = meta
-        self.need_obs = need_obs or obs_mode is not None
-        self.pose_bodies = list(pose_bodies or [])
-        self.obs_mode = obs_mode or (meta.obs_mode if self.need_obs else "none")
-        self._render_backend = render_backend
-        self._sim_backend = sim_backend
+        self.need_obs = opts.need_obs or opts.obs_mode is not None
+        self.pose_bodies = list(opts.pose_bodies)
+        self.obs_mode = opts.obs_mode or (meta.obs_mode if self.need_obs else "none")
+        self._render_backend = opts.render_backend
+        self._sim_backend = opts.sim_backend
         self.env: Any = None
         self._build()
 
     # ------------------------------------------------------------------ env
     def _build(self) -> None:
-        from simreel.envs import camera_use
+        self.env = self._make_env()
+        self.u = self.env.unwrapped
+        self._scene_seed: int | None = GYM_MAKE_SEED
+        self._layout_checked = False
+        self._fast: FastStateReader | None = None
+        self._fast_scene = -1
+        self._scene_builds = 0
+        self._fast_allowed = True
+        self._contacts = None
+        if self.meta.contact_channels:
+            from simreel.sim.contacts import ContactSampler
+
+            self._contacts = ContactSampler(list(self.meta.contact_channels))
+        from simreel.sim.describe import max_episode_steps_of
+
+        self.max_episode_steps = max_episode_steps_of(self.env)
+
+    def _make_env(self) -> Any:
+        from simreel.sim.make import camera_use
 
         # render_mode only matters to env.render() (videos), which a replay never calls
         env_kwargs = {k: v for k, v in self.meta.env_kwargs.items() if k != "render_mode"}
@@ -135,10 +156,9 @@ class EpisodeReplayer:
 
         try:
             if self._render_backend is not None:
-                self.env = build(self._render_backend)
-            else:
-                default = "none" if camera_use(self.obs_mode) is None else "auto"
-                self.env, _ = build_with_render_fallback(build, default)
+                return build(self._render_backend)
+            default = "none" if camera_use(self.obs_mode) is None else "auto"
+            return build_with_render_fallback(build, default)[0]
         except EnvBuildError as exc:
             if self._sim_backend is None and self.meta.sim_backend in _GPU_SIM_BACKENDS and not _has_cuda():
                 raise ReplayError(
@@ -147,21 +167,6 @@ class EpisodeReplayer:
                     "The CPU and GPU sims are different engines, so expect within_tolerance or diverged, not exact"
                 ) from exc
             raise
-        self.u = self.env.unwrapped
-        self._scene_seed: int | None = GYM_MAKE_SEED
-        self._layout_checked = False
-        self._fast: FastStateReader | None = None
-        self._fast_scene = -1
-        self._scene_builds = 0
-        self._fast_allowed = True
-        self._contacts = None
-        if self.meta.contact_channels:
-            from simreel.contacts import ContactSampler
-
-            self._contacts = ContactSampler(list(self.meta.contact_channels))
-        from simreel.env_meta import max_episode_steps_of
-
-        self.max_episode_steps = max_episode_steps_of(self.env)
 
     def close(self) -> None:
         if self.env is not None:
@@ -176,7 +181,7 @@ class EpisodeReplayer:
 
     # ------------------------------------------------------------------ reset
     def reset_for(self, ep: EpisodeMeta) -> EpisodeReset:
-        """Reset the env the way episode `ep` was reset (scene, seed, options: `simreel.rebuild.reset_to_episode`);
+        """Reset the env the way episode `ep` was reset (scene, seed, options: `simreel.sim.rebuild.reset_to_episode`);
         returns what was done, with this replayer's own limits added (body poses, contacts)."""
         u = self.u
         done = reset_to_episode(self.env, ep, scene_seed=self._scene_seed)
@@ -191,7 +196,7 @@ class EpisodeReplayer:
                 self._fast = None
                 self._fast_allowed = False  # this task's state needs get_state_dict(); stop trying
         if self.pose_bodies:
-            from simreel.scene_info import named_bodies
+            from simreel.sim.describe import named_bodies
 
             missing = sorted(set(self.pose_bodies) - set(named_bodies(u)))
             if missing:
@@ -234,7 +239,7 @@ class EpisodeReplayer:
 
     def _replay(self, episode: Episode, mode: str, resync: int | None) -> ReplayedEpisode:
         done = self.reset_for(episode.meta)
-        self._check_layout(episode)
+        self._check_layout()
         run = {"actions": self._run_actions, "states": self._run_states, "step": self._run_step}[mode]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # ManiSkill warns on every out-of-bounds action; the recording had them too
@@ -243,27 +248,19 @@ class EpisodeReplayer:
         out.limits = done.limits + out.limits
         return out
 
-    def _check_layout(self, episode: Episode) -> None:
-        if self._layout_checked:
-            return
-        have = layout_of(flatten(self.u.get_state_dict()), batched=True)
-        want = self.meta.state_layout or layout_of({p: a for p, a in episode.env_states.items()}, batched=True)
-        if have != want:
-            diffs = layout_differences(want, have, old_label="recorded", new_label="replay")
-            raise ReplayError(
-                f"the rebuilt {self.meta.env_id} has another state layout than the recording ({'; '.join(diffs[:4])}); "
-                "replay with the task version (and --import) that recorded it"
-            )
-        self._layout_checked = True
+    def _check_layout(self) -> None:
+        if not self._layout_checked:
+            check_rebuilt_layout(self.u, self.meta.env_id, self.meta.state_layout)
+            self._layout_checked = True
 
     # -- collection helpers
     def _state(self) -> dict[str, np.ndarray]:
         if self._fast is not None:
             return self._fast.read()
-        return flatten(self.u.get_state_dict())
+        return read_state(self.u)
 
     def _obs(self, obs: Any) -> dict[str, np.ndarray]:
-        from simreel.env_meta import flatten_obs
+        from simreel.sim.describe import flatten_obs
 
         return {p: a[0] for p, a in flatten_obs(obs, self.obs_mode).items()}
 
@@ -271,7 +268,9 @@ class EpisodeReplayer:
         return _Buffers(episode, self.meta, n_channels=len(self.meta.contact_channels) if self._contacts else 0,
                         n_poses=len(self.pose_bodies))
 
-    def _after_step(self, buf: _Buffers, t: int, reward: Any, terminated: Any, truncated: Any, info: Any, obs: Any) -> None:
+    def _after_step(self, buf: _Buffers, t: int, outcome: tuple[Any, Any, Any, Any, Any]) -> None:
+        """Store step t's outcome ``(obs, reward, terminated, truncated, info)`` and the state after it."""
+        obs, reward, terminated, truncated, info = outcome
         buf.rewards[t] = _scalar(reward)
         buf.terminated[t] = _scalar(terminated)
         buf.truncated[t] = _scalar(truncated)
@@ -290,7 +289,7 @@ class EpisodeReplayer:
             buf.body_poses[t + 1] = self._poses()
 
     def _poses(self) -> np.ndarray:
-        from simreel.body_poses import sample_body_poses
+        from simreel.sim.poses import sample_body_poses
 
         return sample_body_poses(self.u, self.pose_bodies)[0]
 
@@ -327,8 +326,7 @@ class EpisodeReplayer:
         for t in range(episode.length):
             if resync and t and t % resync == 0:
                 restore_state(self.u, state_row(episode.env_states, t), elapsed_steps=t)
-            obs, reward, terminated, truncated, info = self._step(actions[t])
-            self._after_step(buf, t, reward, terminated, truncated, info, obs)
+            self._after_step(buf, t, self._step(actions[t]))
         if resync:
             notes.append(f"restored the recorded state every {resync} steps")
         return ReplayedEpisode(buf.episode(), notes, limits=limits)
@@ -339,8 +337,7 @@ class EpisodeReplayer:
         self._initial(buf)
         for t in range(episode.length):
             restore_state(self.u, state_row(episode.env_states, t), elapsed_steps=t)
-            obs, reward, terminated, truncated, info = self._step(actions[t])
-            self._after_step(buf, t, reward, terminated, truncated, info, obs)
+            self._after_step(buf, t, self._step(actions[t]))
         return ReplayedEpisode(buf.episode())
 
     def _run_states(self, episode: Episode) -> ReplayedEpisode:
@@ -360,7 +357,7 @@ class EpisodeReplayer:
             reward = u.get_reward(obs=obs, action=actions[t][None], info=info)
             terminated = _flag(info, "success") or _flag(info, "fail")
             truncated = self.max_episode_steps is not None and t + 1 >= self.max_episode_steps
-            self._after_step(buf, t, reward, terminated, truncated, info, None)
+            self._after_step(buf, t, (None, reward, terminated, truncated, info))
             if contacts is not None:
                 buf.contact_forces[t] = contacts
             if self.need_obs:

@@ -11,8 +11,8 @@ import sys
 from collections.abc import Mapping
 from typing import Any
 
-from simreel.env_meta import sim_config_json
 from simreel.episode import RecordingMeta
+from simreel.sim.describe import sim_config_json
 
 __all__ = ["fingerprint_differences"]
 
@@ -44,29 +44,38 @@ def fingerprint_differences(
 ) -> list[str]:
     """Lines naming each difference between the recording and the replaying env (empty: same fingerprint).
 
-    `versions` defaults to this process's (`simreel.envs.env_versions`); a loaded module's ``__version__``
+    `versions` defaults to this process's (`simreel.sim.make.env_versions`); a loaded module's ``__version__``
     is tried first, package metadata (slower, ~35 ms) only when that differs from the recorded version.
     """
-    diffs: list[str] = []
-    full: Mapping[str, Any] | None = versions
-    keys = set(meta.versions) | set(versions or {})
-    for key in sorted(keys):
-        if key in _IGNORED_VERSIONS:
-            continue
-        rec = meta.versions.get(key)
-        now = _loaded_version(key) if versions is None else versions.get(key)
-        if now != rec and full is None:
-            from simreel.envs import env_versions
-
-            full = env_versions()
-        if now != rec and full is not None:
-            now = full.get(key)
-        if rec != now:
-            diffs.append(f"{key}: recorded {rec}, replaying {now}")
+    diffs = _version_differences(meta.versions, versions)
     backend = getattr(getattr(unwrapped, "backend", None), "sim_backend", None)
     if backend is not None and meta.sim_backend and backend != meta.sim_backend:
         diffs.append(f"sim backend: recorded {meta.sim_backend}, replaying {backend}")
-    rec_cfg, now_cfg = _flat(meta.sim_config), _flat(sim_config_json(getattr(unwrapped, "sim_config", None)))
+    return diffs + _sim_config_differences(meta.sim_config, sim_config_json(getattr(unwrapped, "sim_config", None)))
+
+
+def _version_differences(recorded: Mapping[str, Any], versions: Mapping[str, Any] | None) -> list[str]:
+    full: Mapping[str, Any] | None = versions
+    diffs = []
+    for key in sorted(set(recorded) | set(versions or {})):
+        if key in _IGNORED_VERSIONS:
+            continue
+        rec = recorded.get(key)
+        now = _loaded_version(key) if versions is None else versions.get(key)
+        if now != rec:
+            if full is None:
+                from simreel.sim.make import env_versions
+
+                full = env_versions()
+            now = full.get(key)
+        if rec != now:
+            diffs.append(f"{key}: recorded {rec}, replaying {now}")
+    return diffs
+
+
+def _sim_config_differences(recorded: Mapping[str, Any], now: Mapping[str, Any]) -> list[str]:
+    rec_cfg, now_cfg = _flat(recorded), _flat(now)
+    diffs = []
     for key in sorted(set(rec_cfg) | set(now_cfg)):
         if key in rec_cfg and key in now_cfg and rec_cfg[key] != now_cfg[key]:
             diffs.append(f"sim_config.{key}: recorded {rec_cfg[key]}, replaying {now_cfg[key]}")

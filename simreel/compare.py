@@ -45,6 +45,7 @@ __all__ = [
     "component_error",
     "Divergence",
     "EpisodeComparison",
+    "CompareScope",
     "compare_episode",
     "VERDICTS",
     "worst_keys",
@@ -278,123 +279,148 @@ def _category(key: str) -> int:
     return _CATEGORY_ORDER.get(key.split("/", 1)[0].split("[", 1)[0], 5)
 
 
+@dataclass(frozen=True)
+class CompareScope:
+    """What `compare_episode` compares besides states, rewards, flags and info (always compared)."""
+
+    initial: bool = True
+    """The state (and observations) right after reset, row 0."""
+    obs: bool = True
+    """Observations (when both episodes have them with the same shapes)."""
+    contacts: bool = True
+    """Contact forces (when both episodes have them with the same shape)."""
+
+
+@dataclass
+class _Errors:
+    """Per-row errors of every compared key, with its tolerance and whether its rows are states (T+1)."""
+
+    tolerances: Tolerances
+    scope: CompareScope
+    errors: dict[str, np.ndarray] = field(default_factory=dict)
+    tol: dict[str, float] = field(default_factory=dict)
+    per_state: dict[str, bool] = field(default_factory=dict)
+
+    def add(self, key: str, err: np.ndarray, group: str, *, per_state: bool) -> None:
+        if per_state and not self.scope.initial:
+            err = err.copy()
+            err[0] = 0.0
+        self.errors[key] = err
+        self.tol[key] = self.tolerances[group]
+        self.per_state[key] = per_state
+
+    def states(self, recorded: Mapping[str, np.ndarray], replayed: Mapping[str, np.ndarray]) -> None:
+        for path, rec in recorded.items():
+            rep = replayed.get(path)
+            if rep is None:
+                continue
+            identical = rec.shape == rep.shape and np.array_equal(rec, rep)  # the common case, ~10x cheaper
+            for comp in components_of(path, rec.shape[1:]):
+                err = np.zeros(rec.shape[0]) if identical else component_error(rec, rep, comp)
+                self.add(comp.key, err, comp.group, per_state=True)
+
+    def observations(self, recorded: Mapping[str, np.ndarray], replayed: Mapping[str, np.ndarray]) -> None:
+        for path, rec in recorded.items():
+            rep = replayed.get(path)
+            if rep is None or rep.shape != rec.shape:
+                continue
+            self.add(f"obs/{path}", component_error(rec, rep), "flag" if rec.dtype.kind == "b" else "obs",
+                     per_state=True)
+
+    def contacts(self, recorded: np.ndarray, replayed: np.ndarray, channels: list[ContactChannel]) -> None:
+        diff = _abs_diff(recorded.astype(np.float64), replayed.astype(np.float64))
+        per_channel = diff.max(axis=2) if diff.size else np.zeros((recorded.shape[0], 0))
+        for c in range(per_channel.shape[1]):
+            name = channels[c].name if c < len(channels) else str(c)
+            self.add(f"contacts/{name}", per_channel[:, c], "contact", per_state=False)
+
+    def info(self, recorded: Mapping[str, np.ndarray], replayed: Mapping[str, np.ndarray], steps: int) -> None:
+        for key, rec in recorded.items():
+            rep = replayed.get(key)
+            if rep is None:
+                continue
+            if rec.dtype.kind in "biu":  # booleans and integers: exactly
+                err = (np.asarray(rec) != np.asarray(rep)).reshape(steps, -1).any(axis=1).astype(np.float64)
+                self.add(f"info/{key}", err, "flag", per_state=False)
+            else:
+                self.add(f"info/{key}", component_error(rec, rep), "info", per_state=False)
+
+    def step_fields(self, recorded: Episode, replayed: Episode) -> None:
+        self.add("rewards", component_error(recorded.rewards, replayed.rewards), "reward", per_state=False)
+        for name in FLAG_FIELDS:
+            rec, rep = getattr(recorded, name), getattr(replayed, name)
+            self.add(name, (np.asarray(rec) != np.asarray(rep)).astype(np.float64), "flag", per_state=False)
+
+    def first_bad_row(self, key: str) -> int | None:
+        bad = np.flatnonzero(self.errors[key] > self.tol[key])
+        if self.per_state[key] and not self.scope.initial:
+            bad = bad[bad >= 1]
+        return int(bad[0]) if bad.size else None
+
+    def max_errors(self) -> dict[str, float]:
+        start = 0 if self.scope.initial else 1
+        return {k: float(e[start if self.per_state[k] else 0 :].max()) if e.size else 0.0
+                for k, e in self.errors.items()}
+
+    def first_divergence(self) -> tuple[Divergence | None, dict[str, int]]:
+        """The earliest value out of tolerance (see `compare_episode`), and each diverged key's first step."""
+        diverged: dict[str, int] = {}
+        first: Divergence | None = None
+        best: tuple[int, int, float] | None = None  # (row-as-step ordering, category, -ratio)
+        for key, err in self.errors.items():
+            row = self.first_bad_row(key)
+            if row is None:
+                continue
+            offset = 1 if self.per_state[key] else 0
+            step = max(row - offset, 0)
+            diverged[key] = step
+            ratio = math.inf if self.tol[key] == 0 else float(err[row]) / self.tol[key]
+            rank = (row if offset else row + 1, _category(key), -ratio)  # reset (state row 0) before step 0
+            if best is None or rank < best:
+                best = rank
+                at = "reset" if (offset and row == 0) else "step"
+                first = Divergence(step=step, key=key, error=float(err[row]), tolerance=self.tol[key], at=at)
+        return first, diverged
+
+
 def compare_episode(
     recorded: Episode,
     replayed: Episode,
     tolerances: Tolerances,
     *,
-    contact_channels: Iterable[ContactChannel] = (),
-    compare_initial: bool = True,
-    compare_obs: bool = True,
-    compare_contacts: bool = True,
+    channels: Iterable[ContactChannel] = (),
+    scope: CompareScope = CompareScope(),
 ) -> EpisodeComparison:
     """Compare every state leaf, reward, flag, info entry, contact channel (and observation) of two episodes.
 
     Both episodes must have the same length. Keys only one side has are skipped (the caller decides
-    whether a layout difference is an error). The first divergence is the earliest step at which a value
-    leaves its tolerance; at that step state leaves come first, then observations, contacts, info, rewards
-    and flags, and within a category the largest error relative to its tolerance wins.
+    whether a layout difference is an error); `channels` name the contact channels in keys; `scope` says
+    what else to compare. The first divergence is the earliest step at which a value leaves its
+    tolerance; at that step state leaves come first, then observations, contacts, info, rewards and
+    flags, and within a category the largest error relative to its tolerance wins.
     """
     T = recorded.length
     if replayed.length != T:
         raise ValueError(f"episode {recorded.meta.index}: replay has {replayed.length} steps, recording {T}")
-    errors: dict[str, np.ndarray] = {}
-    tol: dict[str, float] = {}
-    offset: dict[str, int] = {}  # 1 for (T+1)-row keys: row r is step r-1 (row 0 = reset)
-    start_row = 0 if compare_initial else 1
-
-    def add(key: str, err: np.ndarray, group: str, row_offset: int) -> None:
-        errors[key] = err
-        tol[key] = tolerances[group]
-        offset[key] = row_offset
-
-    for path, rec in recorded.env_states.items():
-        rep = replayed.env_states.get(path)
-        if rep is None:
-            continue
-        identical = rec.shape == rep.shape and np.array_equal(rec, rep)  # the common case, ~10x cheaper
-        for comp in components_of(path, rec.shape[1:]):
-            err = np.zeros(rec.shape[0]) if identical else component_error(rec, rep, comp)
-            if not compare_initial:
-                err = err.copy()
-                err[0] = 0.0
-            add(comp.key, err, comp.group, 1)
-    if compare_obs:
-        for path, rec in recorded.obs.items():
-            rep = replayed.obs.get(path)
-            if rep is None or rep.shape != rec.shape:
-                continue
-            err = component_error(rec, rep)
-            if not compare_initial:
-                err = err.copy()
-                err[0] = 0.0
-            add(f"obs/{path}", err, "flag" if rec.dtype.kind == "b" else "obs", 1)
-    channels = list(contact_channels)
-    if (
-        compare_contacts
-        and recorded.contact_forces is not None
-        and replayed.contact_forces is not None
-        and recorded.contact_forces.shape == replayed.contact_forces.shape
-    ):
-        diff = _abs_diff(recorded.contact_forces.astype(np.float64), replayed.contact_forces.astype(np.float64))
-        per_channel = diff.max(axis=2) if diff.size else np.zeros((T, 0))
-        for c in range(per_channel.shape[1]):
-            name = channels[c].name if c < len(channels) else str(c)
-            add(f"contacts/{name}", per_channel[:, c], "contact", 0)
-    for key, rec in recorded.info.items():
-        rep = replayed.info.get(key)
-        if rep is None:
-            continue
-        exact = rec.dtype.kind in "biu"
-        err = (np.asarray(rec) != np.asarray(rep)).reshape(T, -1).any(axis=1).astype(np.float64) if exact else (
-            component_error(rec, rep)
-        )
-        add(f"info/{key}", err, "flag" if exact else "info", 0)
-    add("rewards", component_error(recorded.rewards, replayed.rewards), "reward", 0)
-    for name in FLAG_FIELDS:
-        rec, rep = getattr(recorded, name), getattr(replayed, name)
-        add(name, (np.asarray(rec) != np.asarray(rep)).astype(np.float64), "flag", 0)
-
-    max_err = {k: float(e[start_row if offset[k] else 0 :].max()) if e.size else 0.0 for k, e in errors.items()}
-    diverged: dict[str, int] = {}
-    first: Divergence | None = None
-    best: tuple[int, int, float] | None = None  # (row-as-step ordering, category, -ratio)
-    for key, err in errors.items():
-        bad = np.flatnonzero(err > tol[key])
-        if offset[key]:
-            bad = bad[bad >= start_row]
-        if bad.size == 0:
-            continue
-        row = int(bad[0])
-        # order: reset (row 0 of state keys) before step 0, then by step
-        order = row if offset[key] else row + 1
-        step = max(row - offset[key], 0)
-        diverged[key] = step
-        ratio = math.inf if tol[key] == 0 else float(err[row]) / tol[key]
-        rank = (order, _category(key), -ratio)
-        if best is None or rank < best:
-            best = rank
-            first = Divergence(
-                step=step,
-                key=key,
-                error=float(err[row]),
-                tolerance=tol[key],
-                at="reset" if (offset[key] and row == 0) else "step",
-            )
+    errs = _Errors(tolerances, scope)
+    errs.states(recorded.env_states, replayed.env_states)
+    if scope.obs:
+        errs.observations(recorded.obs, replayed.obs)
+    rec_f, rep_f = recorded.contact_forces, replayed.contact_forces
+    if scope.contacts and rec_f is not None and rep_f is not None and rec_f.shape == rep_f.shape:
+        errs.contacts(rec_f, rep_f, list(channels))
+    errs.info(recorded.info, replayed.info, T)
+    errs.step_fields(recorded, replayed)
+    max_err = errs.max_errors()
+    first, diverged = errs.first_divergence()
     if first is not None:
         verdict = "diverged"
     elif all(v == 0.0 for v in max_err.values()):
         verdict = "exact"
     else:
         verdict = "within_tolerance"
-    return EpisodeComparison(
-        verdict=verdict,
-        first_divergence=first,
-        max_abs_error=max_err,
-        tolerance=tol,
-        diverged_keys=diverged,
-        errors=errors,
-    )
+    return EpisodeComparison(verdict=verdict, first_divergence=first, max_abs_error=max_err, tolerance=errs.tol,
+                             diverged_keys=diverged, errors=errs.errors)
 
 
 def json_number(x: float) -> float | str:

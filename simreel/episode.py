@@ -9,22 +9,28 @@ sequence of episodes. An `Episode` holds per-step arrays; T is the number of ste
 - `info`: key → (T, ...) scalar info entries after each step (success, is_grasped, ...)
 - `contact_forces`: (T, C, 3) float32 newtons, channel c described by `RecordingMeta.contact_channels[c]`
 - `body_poses`: (T+1, B, 7) float32 `[x y z qw qx qy qz]` of body `RecordingMeta.pose_bodies[b]`, when
-  recorded (optional: articulation link poses are not in the state dict; see `simreel.body_poses`)
+  recorded (optional: articulation link poses are not in the state dict; see `simreel.sim.poses`)
 
 Key paths are relative (`actors/cube`, not `env_states/actors/cube`); see `simreel.state_tree`.
+
+On disk and in flight every array is a *field* with a flat name (`actions`, `env_states/actors/cube`,
+`info/is_grasped`, `contact_forces`, ...). `episode_fields(meta)` is the one table of a recording's fields
+(name, dtype, row shape, T or T+1 rows) that the recorder, every writer and every reader go by, and a
+`StepBlock` carries consecutive rows of those fields from the recorder to a writer.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.errors import EpisodeShapeError
+from simreel.errors import EpisodeLayoutError
 from simreel.state_tree import LeafSpec, unflatten
 
 __all__ = [
@@ -32,6 +38,9 @@ __all__ = [
     "RecordingMeta",
     "EpisodeMeta",
     "Episode",
+    "FieldSpec",
+    "StepBlock",
+    "episode_fields",
     "STEP_FIELDS",
     "FLAG_FIELDS",
     "json_default",
@@ -102,7 +111,7 @@ class RecordingMeta:
     obs_layout: dict[str, LeafSpec] = field(default_factory=dict)
     info_layout: dict[str, LeafSpec] = field(default_factory=dict)
     scene: dict[str, Any] = field(default_factory=dict)
-    """State-dict registry names, merged views and their sub-scene indices (`simreel.scene_info`)."""
+    """State-dict registry names, merged views and their sub-scene indices (`simreel.sim.describe`)."""
     contact_channels: list[ContactChannel] = field(default_factory=list)
     pose_bodies: list[str] = field(default_factory=list)
     """Names of the bodies whose world poses `Episode.body_poses` holds (empty: none recorded)."""
@@ -164,6 +173,103 @@ class EpisodeMeta:
         return cls(**{k: v for k, v in d.items() if k in known})
 
 
+@dataclass(frozen=True)
+class FieldSpec:
+    """One array of every episode of a recording: its flat name, dtype, row shape and row count."""
+
+    name: str
+    """`actions`, `rewards`, a flag, `info/<key>`, `contact_forces`, `env_states/<key path>`, `obs/<key path>`
+    or `body_poses`."""
+    dtype: str
+    """numpy dtype name (`float32`, `bool`, ...), as stored."""
+    shape: tuple[int, ...]
+    """Shape of one row."""
+    per_state: bool = False
+    """True: T+1 rows (row 0 after reset, row t+1 after step t); False: T rows, one per step."""
+
+    @property
+    def rows(self) -> str:
+        """``"T+1"`` or ``"T"``, for messages and docs."""
+        return "T+1" if self.per_state else "T"
+
+    def row_count(self, steps: int) -> int:
+        """How many rows this field has in an episode of `steps` steps."""
+        return steps + 1 if self.per_state else steps
+
+
+def episode_fields(meta: RecordingMeta) -> list[FieldSpec]:
+    """The field table of every episode of a recording with metadata `meta`, in storage order: the per-step
+    fields (actions, rewards, flags, info, contact forces), then the per-state ones (state, obs, poses)."""
+    fields = [
+        FieldSpec("actions", "float32", tuple(int(x) for x in meta.action_space.get("shape", [0]))),
+        FieldSpec("rewards", "float32", ()),
+        *(FieldSpec(name, "bool", ()) for name in FLAG_FIELDS),
+        *(FieldSpec(f"info/{k}", s.dtype, tuple(s.shape)) for k, s in meta.info_layout.items()),
+    ]
+    if meta.contact_channels:
+        fields.append(FieldSpec("contact_forces", "float32", (len(meta.contact_channels), 3)))
+    fields += [FieldSpec(f"env_states/{p}", s.dtype, tuple(s.shape), True) for p, s in meta.state_layout.items()]
+    fields += [FieldSpec(f"obs/{p}", s.dtype, tuple(s.shape), True) for p, s in meta.obs_layout.items()]
+    if meta.pose_bodies:
+        fields.append(FieldSpec("body_poses", "float32", (len(meta.pose_bodies), 7), True))
+    return fields
+
+
+@dataclass(frozen=True)
+class StepBlock:
+    """Consecutive rows of one episode: flat field name → array of `rows` rows (see `episode_fields`).
+
+    The recorder fills blocks of steps (each per-state field holding the states *after* those steps) and
+    the reset row (per-state fields only, one row); writers consume them. `conform` checks a block
+    against the field table.
+    """
+
+    arrays: Mapping[str, np.ndarray]
+    rows: int
+
+    @classmethod
+    def of(cls, arrays: Mapping[str, Any]) -> StepBlock:
+        """A block of `arrays` (all with the same number of rows)."""
+        arrays = {name: np.asarray(a) for name, a in arrays.items()}
+        counts = {a.shape[0] if a.ndim else -1 for a in arrays.values()}
+        if len(counts) > 1:
+            raise EpisodeLayoutError(f"a step block mixes row counts {sorted(counts)}")
+        return cls(arrays, counts.pop() if counts else 0)
+
+    def __len__(self) -> int:
+        return self.rows
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.arrays[name]
+
+    def get(self, name: str) -> np.ndarray | None:
+        return self.arrays.get(name)
+
+    def conform(self, fields: Iterable[FieldSpec], *, episode: int) -> dict[str, np.ndarray]:
+        """The block's arrays for exactly `fields`, each cast to its dtype (no copy when it has it already).
+
+        Raises `EpisodeLayoutError` naming the episode and the field when one is missing, has another row
+        shape, or when the block holds a field the table does not list (it would be dropped silently).
+        """
+        out: dict[str, np.ndarray] = {}
+        for f in fields:
+            a = self.arrays.get(f.name)
+            if a is None:
+                raise EpisodeLayoutError(f"episode {episode}: no {f.name} to write (the recording's layout lists it)")
+            if a.shape != (self.rows, *f.shape):
+                raise EpisodeLayoutError(
+                    f"episode {episode}: {f.name} has shape {a.shape}, expected {(self.rows, *f.shape)} from the layout"
+                )
+            out[f.name] = a.astype(f.dtype, copy=False)
+        extra = sorted(set(self.arrays) - set(out))
+        if extra:
+            raise EpisodeLayoutError(
+                f"episode {episode}: {', '.join(extra[:3])} not in the recording's layout; describe every field in "
+                "the RecordingMeta (state_layout, obs_layout, info_layout, contact_channels, pose_bodies)"
+            )
+        return out
+
+
 @dataclass
 class Episode:
     """The arrays of one episode (see the module docstring for shapes)."""
@@ -189,24 +295,55 @@ class Episode:
         """The nested state dict at row t (0 = after reset), each leaf with a leading batch dim of 1."""
         return unflatten({p: a[t][None] for p, a in self.env_states.items()})
 
+    def fields(self) -> dict[str, np.ndarray]:
+        """Every array under its flat field name (see `episode_fields`)."""
+        out = {name: getattr(self, name) for name in STEP_FIELDS}
+        for group in _GROUPS:
+            out.update({f"{group}/{p}": a for p, a in getattr(self, group).items()})
+        for name in _OPTIONAL:
+            if getattr(self, name) is not None:
+                out[name] = getattr(self, name)
+        return out
+
+    @classmethod
+    def from_fields(cls, meta: EpisodeMeta, arrays: Mapping[str, np.ndarray]) -> Episode:
+        """The episode whose flat fields are `arrays` (the inverse of `fields`)."""
+
+        def group(name: str) -> dict[str, np.ndarray]:
+            prefix = name + "/"
+            return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
+
+        missing = [name for name in STEP_FIELDS if name not in arrays]
+        if missing:
+            raise EpisodeLayoutError(f"episode {meta.index}: no {', '.join(missing)}")
+        return cls(
+            meta=meta,
+            **{name: arrays[name] for name in STEP_FIELDS},
+            **{g: group(g) for g in _GROUPS},
+            **{name: arrays.get(name) for name in _OPTIONAL},
+        )
+
+    def reset_block(self) -> StepBlock:
+        """Row 0 of the per-state fields: the episode right after its reset."""
+        return StepBlock.of({k: a[:1] for k, a in self.fields().items() if self._per_state(k)})
+
+    def steps_block(self) -> StepBlock:
+        """Every step: the per-step fields, and rows 1..T of the per-state ones."""
+        return StepBlock.of({k: (a[1:] if self._per_state(k) else a) for k, a in self.fields().items()})
+
+    @staticmethod
+    def _per_state(name: str) -> bool:
+        return name == "body_poses" or name.split("/", 1)[0] in ("env_states", "obs")
+
     def check_shapes(self) -> None:
-        """Raise `EpisodeShapeError` naming the first field whose row count does not fit T or T+1."""
+        """Raise `EpisodeLayoutError` naming the first field whose row count does not fit T or T+1."""
         T = self.length
-        for name in STEP_FIELDS:
-            n = getattr(self, name).shape[0]
-            if n != T:
-                raise EpisodeShapeError(f"episode {self.meta.index}: {name} has {n} rows, expected {T}")
-        for group, rows in (("env_states", T + 1), ("obs", T + 1), ("info", T)):
-            for path, a in getattr(self, group).items():
-                if a.shape[0] != rows:
-                    raise EpisodeShapeError(
-                        f"episode {self.meta.index}: {group}/{path} has {a.shape[0]} rows, expected {rows}"
-                    )
-        if self.body_poses is not None and self.body_poses.shape[0] != T + 1:
-            raise EpisodeShapeError(
-                f"episode {self.meta.index}: body_poses has {self.body_poses.shape[0]} rows, expected {T + 1}"
-            )
-        if self.contact_forces is not None and self.contact_forces.shape[0] != T:
-            raise EpisodeShapeError(
-                f"episode {self.meta.index}: contact_forces has {self.contact_forces.shape[0]} rows, expected {T}"
-            )
+        for name, a in self.fields().items():
+            rows = T + 1 if self._per_state(name) else T
+            if a.shape[0] != rows:
+                raise EpisodeLayoutError(f"episode {self.meta.index}: {name} has {a.shape[0]} rows, expected {rows}")
+
+
+_GROUPS = ("env_states", "obs", "info")
+"""Dict-valued fields of `Episode`, stored as `<group>/<key path>`."""
+_OPTIONAL = ("contact_forces", "body_poses")

@@ -1,4 +1,4 @@
-"""The one exception hierarchy of simreel.
+"""The one exception hierarchy of simreel: every error it raises on purpose is defined here.
 
 Every error a user can cause (bad file, bad option, unknown env) is a `SimreelError`; the CLI turns it
 into one line on stderr and exit status 2. Messages name what was found, what was expected and the fix.
@@ -13,8 +13,12 @@ __all__ = [
     "RenderUnavailableError",
     "EnvBuildError",
     "ContactSpecError",
-    "EpisodeShapeError",
     "EpisodeLayoutError",
+    "StateLayoutError",
+    "CustomStateError",
+    "HeterogeneousBuildError",
+    "ReplayError",
+    "ViewError",
 ]
 
 
@@ -52,11 +56,29 @@ class ContactSpecError(SimreelError):
     """A contact pair names a body the scene does not have."""
 
 
-class EpisodeShapeError(SimreelError):
-    """An episode's arrays do not agree on its length (T rows per step, T+1 per state); names the field."""
+class EpisodeLayoutError(SimreelError, ValueError):
+    """An episode's arrays do not fit its recording's field table (`simreel.episode.episode_fields`): a field
+    is missing, has another row shape, or a row count that does not fit T (per step) or T+1 (per state).
+    Also a `ValueError`, which writers raised for this before."""
 
 
-class EpisodeLayoutError(EpisodeShapeError, ValueError):
-    """An episode's arrays do not match the recording's layout: a field it lists is missing, or a row has
-    another shape. Also a `ValueError`, which writers raised for this before."""
+class StateLayoutError(SimreelError):
+    """A live env's state dict does not have the layout (key paths, shapes, dtypes) a recording needs: the
+    task changed its layout between episodes, or a rebuilt env differs from the recorded one."""
 
+
+class CustomStateError(SimreelError):
+    """A declared custom state attribute is missing, has the wrong shape, or a state dict lacks it."""
+
+
+class HeterogeneousBuildError(SimreelError):
+    """Parts that cannot be merged into one record-safe heterogeneous view (DOF over the declared bound, a
+    missing link); see `simreel.heterogeneous`."""
+
+
+class ReplayError(SimreelError):
+    """A recording cannot be replayed here: a bad mode, or a GPU recording on a machine without CUDA."""
+
+
+class ViewError(SimreelError):
+    """A recording cannot be shown: --compare does not fit it, or the Rerun viewer cannot start."""

@@ -14,7 +14,7 @@ from simreel.custom_state import (
     set_custom_state,
 )
 from simreel.errors import SimreelError
-from simreel.render_device import configure_vulkan
+from simreel.sim.render_device import configure_vulkan
 
 configure_vulkan()  # the project lavapipe, before sapien creates a device (as make_env does)
 

@@ -1,4 +1,4 @@
-"""simreel.envs: building real ManiSkill envs with lavapipe and with no render device at all.
+"""simreel.sim.make: building real ManiSkill envs with lavapipe and with no render device at all.
 
 Vulkan must be configured before sapien loads, so each render mode runs in its own subprocess; the
 no-device subprocess builds every env once and the tests below read its JSON answer.
@@ -15,16 +15,18 @@ from pathlib import Path
 
 import pytest
 
-from simreel.envs import camera_use, env_versions, import_user_code
 from simreel.errors import EnvBuildError
+from simreel.sim.make import camera_use, env_versions
+from simreel.sim.user_code import import_user_code
 
 STATE_ONLY_TASKS = ["PickCube-v1", "StackCube-v1", "PegInsertionSide-v1", "RotateValveLevel0-v1"]
 
 NO_DEVICE_SCRIPT = textwrap.dedent(
     """
     import json, sys, warnings
-    from simreel import norender, render_device
-    from simreel.envs import import_user_code, make_env
+    from simreel.sim import norender, render_device
+    from simreel.sim.make import make_env
+    from simreel.sim.user_code import import_user_code
     from simreel.errors import SimreelError
 
     def error(env_id, **kwargs):
@@ -70,8 +72,8 @@ NO_DEVICE_SCRIPT = textwrap.dedent(
 LAVAPIPE_SCRIPT = textwrap.dedent(
     """
     import json
-    from simreel import norender, render_device
-    from simreel.envs import make_env
+    from simreel.sim import norender, render_device
+    from simreel.sim.make import make_env
     env = make_env("PickCube-v1", obs_mode="rgb")
     obs, _ = env.reset(seed=0)
     rgb = obs["sensor_data"]["base_camera"]["rgb"]
@@ -222,7 +224,7 @@ def test_lavapipe_renders_camera_observations(children):
 
 def test_importing_simreel_envs_loads_no_simulator():
     script = (
-        "import json, sys, simreel.envs, simreel.render_device, simreel.norender; "
+        "import json, sys, simreel.sim.make, simreel.sim.render_device, simreel.sim.norender; "
         "print(json.dumps([m for m in ('mani_skill', 'sapien', 'torch', 'gymnasium') if m in sys.modules]))"
     )
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=True)

@@ -11,7 +11,7 @@ import torch
 
 from simreel.errors import SimreelError
 from simreel.heterogeneous import HeterogeneousBuildError, merge_articulations
-from simreel.render_device import configure_vulkan
+from simreel.sim.render_device import configure_vulkan
 
 configure_vulkan()  # the project lavapipe, before sapien creates a device (as make_env does)
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from simreel.envs import make_env
 from simreel.formats import open_reader
-from simreel.rebuild import env_from_meta
 from simreel.recorders import RecordWrapper
+from simreel.sim.make import make_env
+from simreel.sim.rebuild import env_from_meta
 
 
 def test_env_from_meta_rebuilds_sim_config_and_control_mode(tmp_path):

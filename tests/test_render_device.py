@@ -1,4 +1,4 @@
-"""simreel.render_device: Vulkan set-up and the render-device probe, with lavapipe, with no device, with a crash."""
+"""simreel.sim.render_device: Vulkan set-up and the render-device probe, with lavapipe, with no device, with a crash."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from simreel.render_device import RenderDevice, choose_backend, configure_vulkan, parse_device_summary
+from simreel.sim.render_device import RenderDevice, choose_backend, configure_vulkan, parse_device_summary
 
 LAVAPIPE_SUMMARY = (
     "GPU: llvmpipe (LLVM 15.0.6, 256 bits)\n  Supported: 1\n  Present:   0\n  cudaId:    -1\n"
@@ -28,7 +28,7 @@ HAS_NVIDIA = os.path.exists("/dev/nvidia0") or os.path.exists("/proc/driver/nvid
 PROBE_SCRIPT = textwrap.dedent(
     """
     import dataclasses, json, warnings
-    from simreel import render_device
+    from simreel.sim import render_device
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         probe = render_device.probe_render_device()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from simreel.render_device import configure_vulkan  # noqa: E402
+from simreel.sim.render_device import configure_vulkan  # noqa: E402
 
 configure_vulkan()  # the project lavapipe, before sapien creates a device (as make_env does)
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["build_session", "rebuild_env", "ViewSession", "ViewError"]
+__all__ = ["build_session", "rebuild_env", "ViewOptions", "ViewSession", "ViewError"]
 
 
 def __getattr__(name: str) -> Any:

@@ -8,7 +8,7 @@ The core reports a divergence by step (the outcome of step k is state row k + 1;
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,18 +77,15 @@ def compare_for_view(
     recorded: Episode,
     replayed: Episode,
     *,
-    contact_channels: list[ContactChannel] | tuple[ContactChannel, ...] = (),
-    mode: str = DEFAULT_MODE,
-    atol: float | None = None,
-    groups: Mapping[str, float] | None = None,
+    channels: Sequence[ContactChannel] = (),
+    tolerances: Tolerances | None = None,
 ) -> ViewComparison:
-    """Compare with `simreel.compare.compare_episode` under `Tolerances.for_mode(mode, atol=, groups=)`."""
+    """Compare with `simreel.compare.compare_episode` (default tolerances: those of `DEFAULT_MODE`) over the
+    steps both episodes have."""
     steps = min(recorded.length, replayed.length)
     note = ""
     if recorded.length != replayed.length:
         note = f"the replay has {replayed.length} steps, the recording {recorded.length}: compared the first {steps}"
-    tolerances = Tolerances.for_mode(mode, atol=atol, groups=groups)
-    comparison = compare_episode(
-        _truncate(recorded, steps), _truncate(replayed, steps), tolerances, contact_channels=contact_channels
-    )
+    tolerances = tolerances or Tolerances.for_mode(DEFAULT_MODE)
+    comparison = compare_episode(_truncate(recorded, steps), _truncate(replayed, steps), tolerances, channels=channels)
     return ViewComparison(comparison, steps, note)

@@ -43,16 +43,14 @@ def _dtype(a: np.ndarray) -> str:
     return {"uint8": "U8", "int16": "I16", "uint16": "U16", "float32": "F32", "int32": "I32"}.get(a.dtype.name, "F32")
 
 
-def log_camera_block(
-    rec: rr.RecordingStream, obs: Mapping[str, np.ndarray], streams: Mapping[str, str], start: int, stop: int,
-    indexes: list[rr.TimeColumn],
-) -> None:
-    """Rows [start, stop) of every stream, one `send_columns` each."""
+def log_camera_block(rec: rr.RecordingStream, obs: Mapping[str, np.ndarray], streams: Mapping[str, str], rows: slice,
+                     indexes: list[rr.TimeColumn]) -> None:
+    """State rows `rows` of every stream, one `send_columns` each."""
     for path, key in streams.items():
         a = obs[key]
         if a.dtype.name not in ("uint8", "int16", "uint16", "float32", "int32"):
             a = a.astype(np.float32)
-        block = np.ascontiguousarray(a[start:stop])
+        block = np.ascontiguousarray(a[rows])
         buffers = block.reshape(len(block), -1).view(np.uint8)
         cls = rr.Image if path.endswith("/rgb") else rr.DepthImage
         rec.send_columns(path, indexes=indexes, columns=cls.columns(buffer=buffers))

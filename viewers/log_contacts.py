@@ -15,7 +15,8 @@ import rerun as rr
 from simreel.episode import ContactChannel
 from simreel.viewers.paths import contact_path
 
-__all__ = ["FORCE_THRESHOLD_N", "ARROW_SCALE_M", "arrow_vectors", "active_channels", "log_contact_block", "log_contact_styles"]
+__all__ = ["FORCE_THRESHOLD_N", "ARROW_SCALE_M", "ActiveChannels", "arrow_vectors", "active_channels", "log_contact_block",
+           "log_contact_styles"]
 
 FORCE_THRESHOLD_N = 1e-6
 """Forces at or below this magnitude count as no contact: no arrow is drawn."""
@@ -39,22 +40,18 @@ def active_channels(forces: np.ndarray) -> np.ndarray:
     return (np.linalg.norm(forces, axis=-1) > FORCE_THRESHOLD_N).any(axis=0)
 
 
-def log_contact_block(
-    rec: rr.RecordingStream,
-    channels: Sequence[ContactChannel],
-    forces: np.ndarray,
-    origins: np.ndarray,
-    indexes: list[rr.TimeColumn],
-    active: np.ndarray,
-) -> None:
-    """Arrows of the active channels for R steps: `forces` (R, C, 3) N, `origins` (R, C, 3) m (NaN: unknown body).
+ActiveChannels = Sequence[tuple[int, ContactChannel]]
+"""The channels that ever carry a force, each with its column c in the (T, C, 3) force array."""
+
+
+def log_contact_block(rec: rr.RecordingStream, channels: ActiveChannels, forces: np.ndarray, origins: np.ndarray,
+                      indexes: list[rr.TimeColumn]) -> None:
+    """Arrows of `channels` for R steps: `forces` (R, C, 3) N, `origins` (R, C, 3) m (NaN: unknown body).
 
     Each step's row holds one arrow when the force is non-zero, none otherwise (which clears the arrow).
     """
     mags = np.linalg.norm(forces, axis=-1)
-    for c, channel in enumerate(channels):
-        if not active[c]:
-            continue
+    for c, channel in channels:
         on = (mags[:, c] > FORCE_THRESHOLD_N) & np.isfinite(origins[:, c]).all(axis=1)
         f = forces[on, c]
         labels = [f"{m:.2f} N" for m in mags[on, c]]
@@ -64,10 +61,9 @@ def log_contact_block(
         rec.send_columns(contact_path(channel.kind, channel.bodies), indexes=indexes, columns=columns)
 
 
-def log_contact_styles(rec: rr.RecordingStream, channels: Sequence[ContactChannel], active: np.ndarray) -> None:
+def log_contact_styles(rec: rr.RecordingStream, channels: ActiveChannels) -> None:
     """Colour and radius of each active channel's arrows, static (they apply to every step's arrow)."""
-    for c, channel in enumerate(channels):
-        if active[c]:
-            rec.log(contact_path(channel.kind, channel.bodies),
-                    rr.Arrows3D.from_fields(colors=[_COLORS.get(channel.kind, (255, 255, 255, 255))], radii=[_RADIUS]),
-                    static=True)
+    for _, channel in channels:
+        rec.log(contact_path(channel.kind, channel.bodies),
+                rr.Arrows3D.from_fields(colors=[_COLORS.get(channel.kind, (255, 255, 255, 255))], radii=[_RADIUS]),
+                static=True)

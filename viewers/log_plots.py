@@ -15,10 +15,10 @@ import rerun as rr
 
 from simreel.episode import ContactChannel, Episode
 from simreel.viewers.compare import ViewComparison, divergence_row
-from simreel.viewers.log_contacts import FORCE_THRESHOLD_N
+from simreel.viewers.log_contacts import FORCE_THRESHOLD_N, ActiveChannels
 from simreel.viewers.paths import EVENTS, SIM_TIME, STEP, plot_path
 
-__all__ = ["time_indexes", "log_series", "log_step_plots", "log_qpos", "log_contact_magnitudes", "log_errors",
+__all__ = ["time_indexes", "SeriesStyle", "log_series", "log_step_plots", "log_qpos", "log_contact_magnitudes", "log_errors",
            "Event", "episode_events", "log_events"]
 
 _TOLERANCE_COLOR = (200, 40, 40, 255)
@@ -43,17 +43,24 @@ def time_indexes(rows: np.ndarray, period: float | None) -> list[rr.TimeColumn]:
     return cols
 
 
-def log_series(
-    rec: rr.RecordingStream, path: str, values: np.ndarray, rows: np.ndarray, period: float | None,
-    *, names: Sequence[str] | None = None, colors: Sequence[tuple[int, int, int, int]] | None = None,
-) -> None:
-    """`values` (R,) or (R, K) at state rows `rows` (R,), with series names/colours logged once, static."""
+@dataclass(frozen=True)
+class SeriesStyle:
+    """Names and colours of a plot's series, logged once (static)."""
+
+    names: Sequence[str] | None = None
+    colors: Sequence[tuple[int, int, int, int]] | None = None
+    widths: Sequence[float] | None = None
+
+
+def log_series(rec: rr.RecordingStream, path: str, values: np.ndarray, indexes: list[rr.TimeColumn],
+               style: SeriesStyle | None = None) -> None:
+    """`values` (R,) or (R, K) at the R time points of `indexes`, with their `style` logged once, static."""
     values = np.asarray(values, np.float64)
     if values.ndim == 1:
         values = values[:, None]
-    if names is not None or colors is not None:
-        rec.log(path, rr.SeriesLines(names=names, colors=colors), static=True)
-    rec.send_columns(path, indexes=time_indexes(rows, period), columns=rr.Scalars.columns(scalars=values))
+    if style is not None:
+        rec.log(path, rr.SeriesLines(names=style.names, colors=style.colors, widths=style.widths), static=True)
+    rec.send_columns(path, indexes=indexes, columns=rr.Scalars.columns(scalars=values))
 
 
 def log_step_plots(rec: rr.RecordingStream, episode: Episode, period: float | None) -> None:
@@ -61,13 +68,13 @@ def log_step_plots(rec: rr.RecordingStream, episode: Episode, period: float | No
     T = episode.length
     if T == 0:
         return
-    rows = np.arange(1, T + 1)
-    log_series(rec, plot_path("reward"), episode.rewards, rows, period, names=["reward"])
-    log_series(rec, plot_path("success"), episode.success.astype(np.float64), rows, period, names=["success"])
+    at = time_indexes(np.arange(1, T + 1), period)
+    log_series(rec, plot_path("reward"), episode.rewards, at, SeriesStyle(["reward"]))
+    log_series(rec, plot_path("success"), episode.success.astype(np.float64), at, SeriesStyle(["success"]))
     for key, values in episode.info.items():
         if key in ("success", "elapsed_steps") or values.ndim != 1:
             continue
-        log_series(rec, plot_path("info", key), values.astype(np.float64), rows, period, names=[key])
+        log_series(rec, plot_path("info", key), values.astype(np.float64), at, SeriesStyle([key]))
 
 
 def log_qpos(
@@ -83,23 +90,22 @@ def log_qpos(
         names = list(joint_names.get(art, []))[:dof] or [f"q{i}" for i in range(dof)]
         if not names:
             continue
-        log_series(rec, plot_path("qpos", art), a[:, 13 : 13 + len(names)], np.arange(len(a)), period, names=names)
+        log_series(rec, plot_path("qpos", art), a[:, 13 : 13 + len(names)], time_indexes(np.arange(len(a)), period),
+                   SeriesStyle(names))
 
 
-def log_contact_magnitudes(
-    rec: rr.RecordingStream, channels: Sequence[ContactChannel], forces: np.ndarray, active: np.ndarray,
-    period: float | None,
-) -> None:
+def log_contact_magnitudes(rec: rr.RecordingStream, channels: ActiveChannels, forces: np.ndarray,
+                           period: float | None) -> None:
     """``plots/contacts/net`` and ``plots/contacts/pair``: |F| in newtons of every channel that is ever non-zero."""
     if forces is None or not len(forces):
         return
     mags = np.linalg.norm(forces, axis=-1)
-    rows = np.arange(1, len(forces) + 1)
+    at = time_indexes(np.arange(1, len(forces) + 1), period)
     for kind in ("net", "pair"):
-        idx = [c for c, ch in enumerate(channels) if ch.kind == kind and active[c]]
-        if idx:
-            log_series(rec, plot_path("contacts", kind), mags[:, idx], rows, period,
-                       names=[channels[c].name for c in idx])
+        picked = [(c, ch) for c, ch in channels if ch.kind == kind]
+        if picked:
+            log_series(rec, plot_path("contacts", kind), mags[:, [c for c, _ in picked]], at,
+                       SeriesStyle([ch.name for _, ch in picked]))
 
 
 def log_errors(rec: rr.RecordingStream, comparison: ViewComparison, period: float | None) -> None:
@@ -110,10 +116,8 @@ def log_errors(rec: rr.RecordingStream, comparison: ViewComparison, period: floa
     for key in comparison.plotted_keys():
         rows, err, tol = rows_by_key[key]
         values = np.stack([np.where(np.isfinite(err), err, np.nan), np.full(len(err), tol)], axis=1)
-        path = plot_path("error", key)
-        rec.log(path, rr.SeriesLines(names=[key, "tolerance"], colors=[_error_color(key), _TOLERANCE_COLOR],
-                                     widths=[3.0 if key == first else 1.5, 1.0]), static=True)
-        log_series(rec, path, values, rows, period)
+        style = SeriesStyle([key, "tolerance"], [_error_color(key), _TOLERANCE_COLOR], [3.0 if key == first else 1.5, 1.0])
+        log_series(rec, plot_path("error", key), values, time_indexes(rows, period), style)
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from simreel.body_poses import body_poses_from_states
+from simreel.sim.poses import body_poses_from_states
 from simreel.viewers.scene_geometry import SceneBody
 
 __all__ = ["PoseSource", "wxyz_to_xyzw"]

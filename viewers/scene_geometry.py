@@ -120,41 +120,50 @@ def _agent_articulations(unwrapped: Any) -> set[str]:
     return {a.robot.name for a in agents if getattr(a, "robot", None) is not None}
 
 
-def scene_bodies(unwrapped: Any, *, env_idx: int = 0) -> list[SceneBody]:
-    """Every body of sub-scene `env_idx` of a live ManiSkill env, named as simreel names them."""
-    scene = unwrapped.scene
-    reg = scene.state_dict_registry
-    robots = _agent_articulations(unwrapped)
-    bodies: list[SceneBody] = []
-    seen: set[int] = set()
+class _BodyList:
+    """Bodies in the order they are found, each entity once."""
 
-    def add(name: str, entity: Any, body_type: str, group: str, in_registry: bool) -> None:
-        if entity.global_id in seen:
-            return
-        seen.add(entity.global_id)
-        bodies.append(SceneBody(name, entity, body_type, group, in_registry))
+    def __init__(self) -> None:
+        self.bodies: list[SceneBody] = []
+        self._seen: set[int] = set()
 
-    for name, actor in reg.actors.items():
-        k = _slot(actor, env_idx)
-        if k is not None:
-            add(name, actor._objs[k], str(getattr(actor, "px_body_type", "dynamic")), "actor", True)
-    for art_name, art in reg.articulations.items():
+    def add(self, name: str, entity: Any, body_type: str, group: str, in_registry: bool) -> None:
+        if entity.global_id not in self._seen:
+            self._seen.add(entity.global_id)
+            self.bodies.append(SceneBody(name, entity, body_type, group, in_registry))
+
+    def actors(self, actors: dict[str, Any], env_idx: int, *, in_registry: bool) -> None:
+        for name, actor in actors.items():
+            k = _slot(actor, env_idx)
+            if k is not None:
+                self.add(name, actor._objs[k], str(getattr(actor, "px_body_type", "dynamic")), "actor", in_registry)
+
+    def articulation(self, art_name: str, art: Any, env_idx: int, group: str) -> None:
         k = _slot(art, env_idx)
         if k is None:
-            continue
-        group = "robot" if art_name in robots else "articulation"
+            return
         for link in art.links:
             lk = _slot(link, env_idx)
             if lk is not None:
-                add(f"{art_name}/{link.name}", link._objs[lk].entity, "link", group, True)
+                self.add(f"{art_name}/{link.name}", link._objs[lk].entity, "link", group, True)
         # links that only this sub-scene's part of a merged articulation has
         for physx_link in art._objs[k].links:
-            add(f"{art_name}/{physx_link.entity.name}", physx_link.entity, "link", group, False)
-    for name, actor in scene.actors.items():
-        k = _slot(actor, env_idx)
-        if k is not None:
-            add(name, actor._objs[k], str(getattr(actor, "px_body_type", "dynamic")), "actor", False)
-    return bodies
+            self.add(f"{art_name}/{physx_link.entity.name}", physx_link.entity, "link", group, False)
+
+
+def scene_bodies(unwrapped: Any, *, env_idx: int = 0) -> list[SceneBody]:
+    """Every body of sub-scene `env_idx` of a live ManiSkill env, named as simreel names them: registry actors,
+    registry articulations' links (also those only one part of a merged articulation has), then the actors
+    that are not in the state dict."""
+    scene = unwrapped.scene
+    reg = scene.state_dict_registry
+    robots = _agent_articulations(unwrapped)
+    found = _BodyList()
+    found.actors(reg.actors, env_idx, in_registry=True)
+    for art_name, art in reg.articulations.items():
+        found.articulation(art_name, art, env_idx, "robot" if art_name in robots else "articulation")
+    found.actors(scene.actors, env_idx, in_registry=False)
+    return found.bodies
 
 
 # ----------------------------------------------------------------------------------------------- shapes
@@ -240,6 +249,42 @@ def _rgba(material: Any, fallback: RGBA) -> RGBA:
     return tuple(int(round(x * 255)) for x in c)  # type: ignore[return-value]
 
 
+def _render_primitive(shape: Any, color: RGBA) -> Primitive | None:
+    """A box, sphere, capsule or cylinder render shape as a primitive; None for meshes and planes."""
+    import sapien.render as render
+
+    pose = _pose7(shape.local_pose)
+    if isinstance(shape, render.RenderShapeBox):
+        return Primitive("box", tuple(float(x) for x in shape.half_size), pose, color)
+    if isinstance(shape, render.RenderShapeSphere):
+        r = float(shape.radius)
+        return Primitive("sphere", (r, r, r), pose, color)
+    if isinstance(shape, render.RenderShapeCapsule):
+        return Primitive("capsule", (float(shape.radius), float(shape.half_length), 0.0), pose, color)
+    if isinstance(shape, render.RenderShapeCylinder):
+        return Primitive("cylinder", (float(shape.radius), float(shape.half_length), 0.0), pose, color)
+    return None
+
+
+def _render_mesh_parts(shape: Any, color: RGBA) -> list[MeshPart]:
+    """A triangle-mesh (or plane) render shape's parts, each with its own material."""
+    pose = shape.local_pose
+    scale = getattr(shape, "scale", None)
+    parts = []
+    for part in shape.parts:
+        vertices = _transform(part.vertices, pose, scale)
+        tris = np.asarray(part.triangles, np.uint32)
+        if len(vertices) == 0 or len(tris) == 0:
+            continue
+        normals = np.asarray(part.vertex_normal, np.float32) if hasattr(part, "vertex_normal") else None
+        if normals is None or normals.shape != vertices.shape:
+            normals = _mesh_normals(vertices, tris)
+        else:
+            normals = _rotate(normals, pose)
+        parts.append(MeshPart(vertices, tris, normals, _rgba(part.material, color)))
+    return parts
+
+
 def _visual_geometry(entity: Any, fallback: RGBA) -> tuple[list[Primitive], list[MeshPart]]:
     import sapien.render as render
 
@@ -249,33 +294,15 @@ def _visual_geometry(entity: Any, fallback: RGBA) -> tuple[list[Primitive], list
         if not isinstance(comp, render.RenderBodyComponent):
             continue
         for shape in comp.render_shapes:
-            pose = shape.local_pose
             try:
                 color = _rgba(shape.material, fallback)
             except RuntimeError:  # a mesh whose parts have different materials: each part says its own
                 color = fallback
-            if isinstance(shape, render.RenderShapeBox):
-                prims.append(Primitive("box", tuple(float(x) for x in shape.half_size), _pose7(pose), color))
-            elif isinstance(shape, render.RenderShapeSphere):
-                r = float(shape.radius)
-                prims.append(Primitive("sphere", (r, r, r), _pose7(pose), color))
-            elif isinstance(shape, render.RenderShapeCapsule):
-                prims.append(Primitive("capsule", (float(shape.radius), float(shape.half_length), 0.0), _pose7(pose), color))
-            elif isinstance(shape, render.RenderShapeCylinder):
-                prims.append(Primitive("cylinder", (float(shape.radius), float(shape.half_length), 0.0), _pose7(pose), color))
-            else:  # triangle meshes (and planes): every part with its own material
-                scale = getattr(shape, "scale", None)
-                for part in shape.parts:
-                    vertices = _transform(part.vertices, pose, scale)
-                    tris = np.asarray(part.triangles, np.uint32)
-                    if len(vertices) == 0 or len(tris) == 0:
-                        continue
-                    normals = np.asarray(part.vertex_normal, np.float32) if hasattr(part, "vertex_normal") else None
-                    if normals is None or normals.shape != vertices.shape:
-                        normals = _mesh_normals(vertices, tris)
-                    else:
-                        normals = _rotate(normals, pose)
-                    meshes.append(MeshPart(vertices, tris, normals, _rgba(part.material, color)))
+            prim = _render_primitive(shape, color)
+            if prim is not None:
+                prims.append(prim)
+            else:
+                meshes += _render_mesh_parts(shape, color)
     return prims, meshes
 
 

@@ -9,6 +9,7 @@ the episode's length. One episode is one Rerun recording (recording id ``<file n
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,14 +17,21 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from simreel.compare import Tolerances
 from simreel.episode import Episode, RecordingMeta
-from simreel.errors import RecordingFileError, SimreelError, UsageError
-from simreel.formats import EpisodeReader, open_reader
-from simreel.rebuild import GYM_MAKE_SEED, reset_to_episode
-from simreel.state_tree import flatten, layout_differences, layout_of
+from simreel.errors import UsageError, ViewError
+from simreel.sim.rebuild import GYM_MAKE_SEED, reset_to_episode
+from simreel.sim.state import check_rebuilt_layout
 from simreel.viewers.compare import DEFAULT_MODE, ViewComparison, compare_for_view, divergence_row
 from simreel.viewers.paths import step_of_row
-from simreel.viewers.scene_geometry import BodyGeometry, SceneBody, scene_bodies, scene_geometry
+from simreel.viewers.scene_geometry import (
+    GEOMETRY_SOURCES,
+    BodyGeometry,
+    SceneBody,
+    scene_bodies,
+    scene_geometry,
+)
+from simreel.viewers.sources import EpisodeRun, Source, read_compare, read_run
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -31,47 +39,54 @@ if TYPE_CHECKING:
 
     from simreel.viewers.blueprint import Layout
 
-__all__ = ["APPLICATION_ID", "ViewError", "ViewSession", "build_session", "rebuild_env", "viewer_executable"]
+__all__ = [
+    "APPLICATION_ID",
+    "ViewError",
+    "ViewOptions",
+    "ViewSession",
+    "build_session",
+    "rebuild_env",
+    "viewer_executable",
+]
 
 APPLICATION_ID = "simreel"
-_DEFAULT_BLOCK_STEPS = 256
 
 
-class ViewError(SimreelError):
-    """A recording cannot be shown: its env does not rebuild to the recorded layout, or --compare does not fit."""
+@dataclass(frozen=True)
+class ViewOptions:
+    """What `build_session` shows and how.
 
+    Attributes:
+        episode: the episode's index (default: the first episode in the file).
+        compare: a replay of the same episode (a file written by ``simreel replay -o``, or any recording of
+            the same env): drawn as a translucent ghost, with the per-key state error and its first
+            divergence. The episode with the same index is used, or the file's only episode.
+        geometry: ``"auto"`` (visual shapes when a render device exists, else collision shapes),
+            ``"visual"`` or ``"collision"``.
+        mode, atol, tolerances: the comparison's tolerances, as for ``simreel replay --mode/--atol/--tol``: the
+            defaults of `mode` (``actions``, ``states`` or ``step``), `atol` for every group, then per-group
+            overrides such as ``{"pos": 1e-4}`` (see `simreel.compare.Tolerances.for_mode`).
+        block_steps: steps per `send_columns` block (bounds the memory of derived data).
+    """
 
-@dataclass
-class _Run:
-    """One episode to draw: the recorded one or the replayed one."""
+    episode: int | None = None
+    compare: Source | None = None
+    geometry: str = "auto"
+    mode: str = DEFAULT_MODE
+    atol: float | None = None
+    tolerances: dict[str, float] | None = None
+    block_steps: int = 256
 
-    label: str
-    meta: RecordingMeta
-    episode: Episode
-    file_name: str
-
-
-def _open(source: str | Path | EpisodeReader) -> tuple[EpisodeReader, bool]:
-    if isinstance(source, EpisodeReader):
-        return source, False
-    return open_reader(source), True
-
-
-def _read(source: str | Path | EpisodeReader, index: int | None, *, role: str) -> _Run:
-    reader, owned = _open(source)
-    try:
-        if not reader.episodes:
-            raise RecordingFileError(reader.path, "holds no committed episode to view")
-        if index is None:
-            index = reader.episodes[0].index
-        reader.episode_meta(index)  # a clear error naming the episodes there are
-        episode = reader.read_episode(index)
-        name = Path(reader.path).name
-        label = f"{name} episode {index}" + (f" ({role})" if role else "")
-        return _Run(label, reader.meta, episode, name)
-    finally:
-        if owned:
-            reader.close()
+    def check(self) -> Tolerances:
+        """The comparison's tolerances; `UsageError` for a bad geometry source, block size or tolerance."""
+        if self.geometry not in GEOMETRY_SOURCES:
+            raise UsageError(f"--geometry {self.geometry!r}: expected one of {', '.join(GEOMETRY_SOURCES)}")
+        if self.block_steps < 1:
+            raise UsageError(f"block_steps must be ≥ 1, got {self.block_steps}")
+        try:
+            return Tolerances.for_mode(self.mode, atol=self.atol, groups=self.tolerances)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
 
 
 def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto") -> Any:
@@ -80,7 +95,7 @@ def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto") -> Any:
     A render device is used when there is one (for visual meshes and colours) unless `geometry` is
     ``"collision"``, which builds the env without rendering (faster).
     """
-    from simreel.rebuild import env_from_meta
+    from simreel.sim.rebuild import env_from_meta
 
     env_kwargs = {k: v for k, v in meta.env_kwargs.items() if k not in ("render_mode", "num_envs")}
     return env_from_meta(
@@ -103,17 +118,6 @@ def viewer_executable() -> str | None:
         return found
     beside = Path(sys.executable).parent / "rerun"
     return str(beside) if beside.is_file() else None
-
-
-def _check_layout(u: Any, meta: RecordingMeta, path_label: str) -> None:
-    have = layout_of(flatten(u.get_state_dict()), batched=True)
-    if have == meta.state_layout:
-        return
-    diffs = layout_differences(meta.state_layout, have, old_label="recorded", new_label="rebuilt")
-    raise ViewError(
-        f"{path_label}: the rebuilt {meta.env_id} has a different state layout ({'; '.join(diffs[:3])}); "
-        "rebuild it with the recorded versions and --import modules (see `simreel inspect`)"
-    )
 
 
 def _joint_names(u: Any) -> dict[str, list[str]]:
@@ -148,14 +152,14 @@ def _eye(u: Any) -> tuple[tuple[float, float, float], tuple[float, float, float]
 class ViewSession:
     """A prepared session: log it with `save`, `spawn`, `serve` or `log_to`. Close it to free the env."""
 
-    recording: _Run
-    replayed: _Run | None
+    recording: EpisodeRun
+    replayed: EpisodeRun | None
     env: Any
     bodies: list[SceneBody]
     geometry: list[BodyGeometry]
     geometry_source: str
     comparison: ViewComparison | None = None
-    block_steps: int = _DEFAULT_BLOCK_STEPS
+    block_steps: int = 256
     joint_names: dict[str, list[str]] = field(default_factory=dict)
     eye: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     owns_env: bool = False
@@ -264,86 +268,10 @@ class ViewSession:
 
     # ------------------------------------------------------------------ logging
     def log_to(self, rec: rr.RecordingStream) -> None:
-        """Log the whole session into `rec` (whatever its sink)."""
-        import rerun as rr
+        """Log the whole session into `rec` (whatever its sink): `simreel.viewers.log_session`."""
+        from simreel.viewers.log_session import log_session
 
-        from simreel.viewers.log_cameras import camera_streams, log_camera_block, log_camera_formats
-        from simreel.viewers.log_contacts import active_channels, log_contact_block, log_contact_styles
-        from simreel.viewers.log_plots import (
-            episode_events,
-            log_contact_magnitudes,
-            log_errors,
-            log_events,
-            log_qpos,
-            log_step_plots,
-            time_indexes,
-        )
-        from simreel.viewers.log_scene import log_geometry, log_pose_block, log_static_poses
-        from simreel.viewers.paths import REPLAYED, WORLD
-        from simreel.viewers.poses import PoseSource
-
-        t0 = time.perf_counter()
-        ep, meta, period = self.episode, self.meta, self.period
-        rec.send_recording_name(self.recording.label)
-        rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        markers = [b.name for b in self.bodies if b.group == "actor"]
-        log_geometry(rec, WORLD, self.geometry, markers=markers)
-        if self.replayed is not None:
-            log_geometry(rec, REPLAYED, self.geometry, ghost=True)
-
-        u = self.env.unwrapped
-        names = [b.name for b in self.bodies]
-        moving = np.array([b.body_type != "static" for b in self.bodies])
-        moving_names = [n for n, m in zip(names, moving, strict=True) if m]
-        static_names = [n for n, m in zip(names, moving, strict=True) if not m]
-        index = {n: j for j, n in enumerate(names)}
-
-        channels = list(meta.contact_channels)
-        forces = ep.contact_forces
-        active = active_channels(forces) if forces is not None else np.zeros(len(channels), bool)
-        channel_body = np.array([index.get(ch.bodies[0], -1) for ch in channels], np.intp)
-        log_contact_styles(rec, channels, active)
-        streams = camera_streams(ep.obs)
-        log_camera_formats(rec, ep.obs, streams)
-
-        runs = [(WORLD, self.recording)] + ([(REPLAYED, self.replayed)] if self.replayed is not None else [])
-        sources = []
-        for root, run in runs:
-            src = PoseSource(u, self.bodies, run.episode.env_states, recorded=run.episode.body_poses,
-                             recorded_names=run.meta.pose_bodies)
-            sources.append(src)
-            total = run.episode.length + 1
-            for start in range(0, total, self.block_steps):
-                stop = min(total, start + self.block_steps)
-                poses = src.rows(start, stop)
-                if start == 0 and static_names:
-                    log_static_poses(rec, root, static_names, poses[0, ~moving])
-                indexes = time_indexes(np.arange(start, stop), period)
-                log_pose_block(rec, root, moving_names, poses[:, moving], indexes)
-                if root != WORLD:
-                    continue
-                if streams:
-                    log_camera_block(rec, ep.obs, streams, start, stop, indexes)
-                if forces is not None and active.any():
-                    first = max(start, 1)
-                    if first < stop:
-                        block = poses[first - start :]
-                        origins = np.full((len(block), len(channels), 3), np.nan, np.float32)
-                        known = channel_body >= 0
-                        origins[:, known] = block[:, channel_body[known], :3]
-                        log_contact_block(rec, channels, forces[first - 1 : stop - 1], origins,
-                                          time_indexes(np.arange(first, stop), period), active)
-        self.pose_source = "recorded" if sources[0].from_recording else "restored"
-
-        log_step_plots(rec, ep, period)
-        log_qpos(rec, ep.env_states, self.joint_names, period)
-        if forces is not None:
-            log_contact_magnitudes(rec, channels, forces, active, period)
-        if self.comparison is not None:
-            log_errors(rec, self.comparison, period)
-        label = self.replayed.label if self.replayed is not None else None
-        log_events(rec, episode_events(ep, channels=channels, comparison=self.comparison, compare_label=label), period)
-        self.timings["log_s"] = time.perf_counter() - t0
+        log_session(rec, self)
 
     # ------------------------------------------------------------------ lifetime
     def close(self) -> None:
@@ -358,121 +286,59 @@ class ViewSession:
         self.close()
 
 
-def build_session(
-    source: str | Path | EpisodeReader,
-    *,
-    episode: int | None = None,
-    compare: str | Path | EpisodeReader | None = None,
-    env: Any = None,
-    geometry: str = "auto",
-    mode: str = DEFAULT_MODE,
-    atol: float | None = None,
-    tolerances: dict[str, float] | None = None,
-    block_steps: int = _DEFAULT_BLOCK_STEPS,
-) -> ViewSession:
+def build_session(source: Source, options: ViewOptions | None = None, env: Any = None, **overrides: Any) -> ViewSession:
     """Prepare a Rerun session of one episode of the recording `source` (.h5 or .mcap path, or a reader).
 
     Args:
-        episode: the episode's index (default: the first episode in the file).
-        compare: a replay of the same episode (a file written by ``simreel replay -o``, or any recording of
-            the same env): drawn as a translucent ghost, with the per-key state error and its first
-            divergence. The episode with the same index is used, or the file's only episode.
+        options: a `ViewOptions`; keyword arguments override its fields, e.g. ``build_session("run.h5",
+            episode=3, compare="replayed.h5")``.
         env: an already built env of the recording's task with ``num_envs=1`` on the CPU sim (e.g. from
             `rebuild_env`); by default one is built from the recording's metadata and closed with the session.
-        geometry: ``"auto"`` (visual shapes when a render device exists, else collision shapes),
-            ``"visual"`` or ``"collision"``.
-        mode, atol, tolerances: the comparison's tolerances, as for ``simreel replay --mode/--atol/--tol``: the
-            defaults of `mode` (``actions``, ``states`` or ``step``), `atol` for every group, then per-group
-            overrides such as ``{"pos": 1e-4}`` (see `simreel.compare.Tolerances.for_mode`).
-        block_steps: steps per `send_columns` block (bounds the memory of derived data).
 
     Raises:
         RecordingFileError: a file is missing, unreadable or has no such episode.
-        ViewError: the rebuilt env does not match the recording, or `compare` is of another env.
+        StateLayoutError: the rebuilt env does not match the recording.
+        ViewError: `compare` is of another env or episode.
         EnvBuildError / RenderUnavailableError: the env cannot be rebuilt.
     """
-    from simreel.viewers.scene_geometry import GEOMETRY_SOURCES
-
-    if geometry not in GEOMETRY_SOURCES:
-        raise UsageError(f"--geometry {geometry!r}: expected one of {', '.join(GEOMETRY_SOURCES)}")
-    if block_steps < 1:
-        raise UsageError(f"block_steps must be ≥ 1, got {block_steps}")
-    try:
-        from simreel.compare import Tolerances
-
-        Tolerances.for_mode(mode, atol=atol, groups=tolerances)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    opts = dataclasses.replace(options or ViewOptions(), **overrides)
+    tolerances = opts.check()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    rec_run = _read(source, episode, role="")
-    rep_run = None
-    if compare is not None:
-        rep_run = _read_compare(compare, rec_run)
+    rec_run = read_run(source, opts.episode)
+    rep_run = read_compare(opts.compare, rec_run) if opts.compare is not None else None
     timings["read_s"] = time.perf_counter() - t0
-
     owns = env is None
     t1 = time.perf_counter()
     if env is None:
-        env = rebuild_env(rec_run.meta, geometry=geometry)
+        env = rebuild_env(rec_run.meta, geometry=opts.geometry)
     timings["env_s"] = time.perf_counter() - t1
     try:
-        u = env.unwrapped
-        if int(u.num_envs) != 1 or u.scene.gpu_sim_enabled:
-            raise UsageError("build_session(env=...) needs an env with num_envs=1 on the CPU sim (see rebuild_env)")
-        t2 = time.perf_counter()
-        # the episode's scene (heterogeneous tasks draw their objects when they build it); a caller's env: unknown
-        reset_to_episode(env, rec_run.episode.meta, scene_seed=GYM_MAKE_SEED if owns else None)
-        _check_layout(u, rec_run.meta, rec_run.label)
-        bodies = scene_bodies(u)
-        used, geo = scene_geometry(u, bodies, source=geometry)
-        timings["scene_s"] = time.perf_counter() - t2
-        comparison = None
-        if rep_run is not None:
-            comparison = compare_for_view(rec_run.episode, rep_run.episode, contact_channels=rec_run.meta.contact_channels,
-                                          mode=mode, atol=atol, groups=tolerances)
-        return ViewSession(
-            recording=rec_run,
-            replayed=rep_run,
-            env=env,
-            bodies=bodies,
-            geometry=geo,
-            geometry_source=used,
-            comparison=comparison,
-            block_steps=block_steps,
-            joint_names=_joint_names(u),
-            eye=_eye(u),
-            owns_env=owns,
-            timings=timings,
-        )
+        session = _prepare(env, owns, opts, (rec_run, rep_run), timings)
     except BaseException:
         if owns:
             env.close()
         raise
+    if rep_run is not None:
+        session.comparison = compare_for_view(rec_run.episode, rep_run.episode, channels=rec_run.meta.contact_channels,
+                                              tolerances=tolerances)
+    return session
 
 
-def _read_compare(compare: str | Path | EpisodeReader, rec_run: _Run) -> _Run:
-    reader, owned = _open(compare)
-    try:
-        index = rec_run.episode.meta.index
-        have = [m.index for m in reader.episodes]
-        if index not in have:
-            if len(have) != 1:
-                raise ViewError(
-                    f"--compare {reader.path}: no episode {index} to compare with episode {index} of the recording "
-                    f"(it has {', '.join(map(str, have)) or 'none'}); replay that episode with `simreel replay -o`"
-                )
-            index = have[0]
-        run = _read(reader, index, role="replayed")
-    finally:
-        if owned:
-            reader.close()
-    if run.meta.env_id != rec_run.meta.env_id:
-        raise ViewError(
-            f"--compare {run.label}: it is a recording of {run.meta.env_id}, not of {rec_run.meta.env_id}; "
-            "compare a replay of the same recording"
-        )
-    common = set(run.episode.env_states) & set(rec_run.episode.env_states)
-    if not common:
-        raise ViewError(f"--compare {run.label}: no state key in common with {rec_run.label}")
-    return run
+def _prepare(env: Any, owns: bool, opts: ViewOptions, runs: tuple[EpisodeRun, EpisodeRun | None],
+             timings: dict[str, float]) -> ViewSession:
+    """Reset `env` to the recorded episode's scene and read its bodies and geometry."""
+    rec_run, rep_run = runs
+    u = env.unwrapped
+    if int(u.num_envs) != 1 or u.scene.gpu_sim_enabled:
+        raise UsageError("build_session(env=...) needs an env with num_envs=1 on the CPU sim (see rebuild_env)")
+    t2 = time.perf_counter()
+    # the episode's scene (heterogeneous tasks draw their objects when they build it); a caller's env: unknown
+    reset_to_episode(env, rec_run.episode.meta, scene_seed=GYM_MAKE_SEED if owns else None)
+    check_rebuilt_layout(u, rec_run.meta.env_id, rec_run.meta.state_layout)
+    bodies = scene_bodies(u)
+    used, geo = scene_geometry(u, bodies, source=opts.geometry)
+    timings["scene_s"] = time.perf_counter() - t2
+    return ViewSession(recording=rec_run, replayed=rep_run, env=env, bodies=bodies, geometry=geo,
+                       geometry_source=used, block_steps=opts.block_steps,
+                       joint_names=_joint_names(u), eye=_eye(u), owns_env=owns, timings=timings)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 from typing import Any
 
 from simreel.cli.common import add_import_option, parse_json_kwargs
@@ -28,6 +27,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--steps", type=int, default=20, metavar="N", help="random steps before the restore (default 20)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the first instance; the second uses S+1")
     p.add_argument("--json", default=None, metavar="PATH", help="write the findings as JSON here")
+    p.add_argument("--overwrite", action="store_true", help="replace the --json file if it exists")
     p.add_argument("--control-mode", default=None, help="ManiSkill control_mode (default: the task's)")
     p.add_argument("--obs-mode", default="state", help="observation mode whose observations are compared (default state)")
     p.add_argument("--reward-mode", default=None, help="ManiSkill reward_mode (default: the task's)")
@@ -41,24 +41,18 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise UsageError(f"--steps must be >= 1, got {args.steps}")
-    if args.json is not None and not Path(args.json).resolve().parent.is_dir():
-        raise UsageError(f"--json {args.json}: folder {Path(args.json).parent} does not exist")
-    from simreel.replay.audit import audit_task
+    from simreel.formats.targets import check_output, write_text_atomic
+    from simreel.replay.audit import AuditOptions, audit_task
 
-    report = audit_task(
-        args.env_id,
-        imports=args.imports,
-        steps=args.steps,
-        seed=args.seed,
-        control_mode=args.control_mode,
-        obs_mode=args.obs_mode,
-        reward_mode=args.reward_mode,
-        env_kwargs=args.env_kwargs,
-    )
+    if args.json is not None:
+        check_output(args.json, overwrite=args.overwrite, option="--json")
+    options = AuditOptions(imports=tuple(args.imports), steps=args.steps, seed=args.seed, control_mode=args.control_mode,
+                           obs_mode=args.obs_mode, reward_mode=args.reward_mode, env_kwargs=args.env_kwargs)
+    report = audit_task(args.env_id, options)
     text = report.summary()
     if args.quiet:
         text = "\n".join(line for line in text.splitlines() if not line.lstrip().startswith(("checked:", "note:")))
     print(text)
     if args.json:
-        Path(args.json).write_text(json.dumps(report.to_json(), indent=2) + "\n")
+        write_text_atomic(args.json, json.dumps(report.to_json(), indent=2) + "\n")
     return 0 if report.ok else 1

@@ -4,12 +4,21 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from collections.abc import Iterable
 from typing import Any
 
 from simreel.errors import UsageError
 
 __all__ = ["add_env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
-           "add_tolerance_options", "parse_tolerance", "parse_group_tolerance"]
+           "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar"]
+
+
+def progress_bar(items: Iterable[Any] | None = None, *, quiet: bool, **options: Any) -> Any:
+    """A tqdm bar on stderr, shown only on a terminal (logs and CI output stay readable) and never with -q."""
+    from tqdm import tqdm
+
+    return tqdm(items, disable=True if quiet else None, file=sys.stderr, **options)
 
 
 def add_import_option(p: argparse.ArgumentParser) -> None:
@@ -36,7 +45,7 @@ def add_env_options(p: argparse.ArgumentParser) -> None:
 
 
 def apply_imports(specs: list[str]) -> None:
-    from simreel.envs import import_user_code
+    from simreel.sim.user_code import import_user_code
 
     for spec in specs:
         import_user_code(spec)

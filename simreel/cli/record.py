@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import add_env_options, apply_imports
+from simreel.cli.common import add_env_options, apply_imports, progress_bar
+from simreel.cli.policy_option import POLICY_HELP
 from simreel.errors import UsageError
-from simreel.policies import POLICY_HELP
 
 __all__ = ["add_parser", "run"]
 
@@ -50,45 +48,14 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--max-steps must be ≥ 1, got {args.max_steps}")
     if args.num_envs < 1:
         raise UsageError(f"--num-envs must be ≥ 1, got {args.num_envs}")
-    from simreel.formats import format_of
+    from simreel.formats import check_writable
 
-    format_of(args.output)  # reject what cannot be written before paying for the env
-    out = Path(args.output)
-    if not out.parent.is_dir():
-        raise UsageError(f"cannot write {out}: folder {out.parent} does not exist")
-    if out.exists() and not args.overwrite:
-        raise UsageError(f"{out} already exists; pass --overwrite to replace it")
+    check_writable(args.output, overwrite=args.overwrite)  # reject what cannot be written before paying for the env
     apply_imports(args.imports)
-    from simreel.envs import make_env
-    from simreel.policies import load_policy
+    from simreel.cli.policy_option import load_policy
 
     policy = load_policy(args.policy, args.env_id)
-    env = make_env(
-        args.env_id,
-        num_envs=args.num_envs,
-        obs_mode=args.obs_mode,
-        control_mode=args.control_mode,
-        reward_mode=args.reward_mode,
-        sim_backend=args.sim_backend,
-        render_backend=args.render_backend,
-        env_kwargs=args.env_kwargs,
-    )
-    from simreel.recorders import RecordWrapper
-
-    try:
-        rec = RecordWrapper(
-            env,
-            args.output,
-            contacts=args.contacts,
-            record_obs=args.record_obs,
-            poses=args.poses,
-            overwrite=args.overwrite,
-            imports=args.imports,
-            command=args.command_line,
-        )
-    except BaseException:
-        env.close()
-        raise
+    rec = _recorder(args)
     rec.action_space.seed(args.seed)  # `--policy random` is then reproducible from --seed
     max_steps = args.max_steps or rec.meta.max_episode_steps or _DEFAULT_MAX_STEPS
     try:
@@ -102,10 +69,25 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _progress(args: argparse.Namespace) -> Any:
-    from tqdm import tqdm
+def _recorder(args: argparse.Namespace) -> Any:
+    """The env the options ask for, wrapped in the recorder (the env is closed if the recorder refuses)."""
+    from simreel.recorders import RecordWrapper
+    from simreel.sim.make import EnvConfig, make_env
 
-    return tqdm(total=args.episodes, unit="ep", desc=f"record {args.env_id}", disable=True if args.quiet else None, file=sys.stderr)
+    config = EnvConfig(num_envs=args.num_envs, obs_mode=args.obs_mode, control_mode=args.control_mode,
+                       reward_mode=args.reward_mode, sim_backend=args.sim_backend,
+                       render_backend=args.render_backend, env_kwargs=args.env_kwargs)
+    env = make_env(args.env_id, config)
+    try:
+        return RecordWrapper(env, args.output, contacts=args.contacts, record_obs=args.record_obs, poses=args.poses,
+                             overwrite=args.overwrite, imports=tuple(args.imports), command=args.command_line)
+    except BaseException:
+        env.close()
+        raise
+
+
+def _progress(args: argparse.Namespace) -> Any:
+    return progress_bar(quiet=args.quiet, total=args.episodes, unit="ep", desc=f"record {args.env_id}")
 
 
 def _record_single(rec: Any, policy: Any, args: argparse.Namespace, max_steps: int) -> None:

@@ -5,18 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import (
-    add_import_option,
-    add_tolerance_options,
-    parse_group_tolerance,
-    parse_index_ranges,
-)
+from simreel.cli.common import add_import_option, add_tolerance_options, parse_index_ranges, progress_bar
 from simreel.errors import UsageError
 
-__all__ = ["add_parser", "run", "parse_group_tolerance"]
+__all__ = ["add_parser", "run"]
+
 
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
@@ -40,7 +35,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--episodes", default=None, metavar="LIST", help="episodes to replay, e.g. 0,3-7 (default: all)")
     p.add_argument("--report", default=None, metavar="REPORT.json", help="write the JSON report here")
     p.add_argument("-o", "--output", default=None, metavar="REPLAYED", help="write the replayed episodes (.h5/.mcap)")
-    p.add_argument("--overwrite", action="store_true", help="replace the -o file if it exists")
+    p.add_argument("--overwrite", action="store_true", help="replace the -o and --report files if they exist")
     p.add_argument("--obs-mode", default=None,
                    help="observation mode of the replay (e.g. rgb with --mode states -o OUT to re-render)")
     p.add_argument("--sim-backend", default=None,
@@ -52,49 +47,41 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from simreel.formats import open_reader
+def _options(args: argparse.Namespace) -> Any:
+    from simreel.replay.verify import ReplayOptions
 
     episodes = None if args.episodes is None else parse_index_ranges(args.episodes)
     if episodes is not None and not episodes:
         raise UsageError(f"--episodes {args.episodes!r} names no episode")
-    if args.report is not None and not Path(args.report).resolve().parent.is_dir():
-        raise UsageError(f"--report {args.report}: folder {Path(args.report).parent} does not exist")
-    with open_reader(args.path) as reader:  # a bad file fails here, before the env is built
-        total = len(reader.episodes) if episodes is None else len(episodes)
-        env_id = reader.meta.env_id
+    return ReplayOptions(mode=args.mode, resync=args.resync, episodes=episodes, atol=args.atol,
+                         group_tolerances=dict(args.tol), output=args.output, overwrite=args.overwrite,
+                         obs_mode=args.obs_mode, workers=args.workers, imports=args.imports,
+                         sim_backend=args.sim_backend, command=args.command_line)
 
-    from tqdm import tqdm
 
-    from simreel.replay.verify import verify_recording
+def run(args: argparse.Namespace) -> int:
+    from simreel.formats import recording_files
+    from simreel.formats.targets import check_distinct, check_output, write_text_atomic
+    from simreel.replay.verify import ReplayRun
 
-    with tqdm(total=total, unit="ep", desc=f"replay {env_id}", disable=True if args.quiet else None, file=sys.stderr) as bar:
+    if args.report is not None:
+        outputs = {"--report": [args.report], "-o": recording_files(args.output) if args.output else []}
+        check_distinct(outputs, recording_files(args.path), input_label="the recording being replayed")
+        check_output(args.report, overwrite=args.overwrite, option="--report")
+    with ReplayRun(args.path, _options(args)) as replay:  # a bad file or option fails here, before any env
+        bar = progress_bar(quiet=args.quiet, total=replay.total, unit="ep", desc=f"replay {replay.reader.meta.env_id}")
 
         def progress(ep: Any) -> None:
             bar.set_postfix_str(f"{ep.index}: {ep.verdict}")
             bar.update()
 
-        report = verify_recording(
-            args.path,
-            mode=args.mode,
-            resync=args.resync,
-            episodes=episodes,
-            atol=args.atol,
-            group_tolerances=dict(args.tol),
-            output=args.output,
-            overwrite=args.overwrite,
-            obs_mode=args.obs_mode,
-            workers=args.workers,
-            imports=args.imports,
-            sim_backend=args.sim_backend,
-            progress=progress,
-            command=args.command_line,
-        )
+        with bar:
+            report = replay.execute(progress)
     for line in report.warnings:
         sys.stderr.write(f"simreel replay: warning: {line}\n")
     print(report.summary())
     if args.output:
         print(f"replayed episodes written to {args.output}")
     if args.report:
-        Path(args.report).write_text(json.dumps(report.to_json(), indent=2) + "\n")
+        write_text_atomic(args.report, json.dumps(report.to_json(), indent=2) + "\n")
     return 0 if report.ok else 1

@@ -60,17 +60,30 @@ def default_output(path: str | Path, episode: int) -> Path:
     return Path.cwd() / f"{Path(path).stem}.episode{episode}.rrd"
 
 
-def _check_output(path: Path, *, overwrite: bool) -> None:
-    """Refuse an .rrd that exists (unless `overwrite`) or a folder that cannot be made, before any work."""
-    if path.is_dir():
-        raise UsageError(f"--save {path}: that is a folder; name the .rrd file to write")
-    if path.exists() and not overwrite:
-        raise UsageError(f"{path} already exists; pass --overwrite to replace it, or --save another .rrd")
-    folder = path.resolve().parent
-    existing = next(p for p in (folder, *folder.parents) if p.exists())  # save() creates the folders below it
-    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
-        what = "is not a folder" if not existing.is_dir() else "is not writable"
-        raise UsageError(f"--save {path}: cannot write into {folder}: {existing} {what}")
+def _first_episode(args: argparse.Namespace) -> int:
+    """The episode to show; a bad file or episode fails here, before the env is built."""
+    from simreel.formats import open_reader
+
+    with open_reader(args.path) as reader:
+        if args.episode is not None:
+            reader.episode_meta(args.episode)
+            return args.episode
+        return reader.episodes[0].index if reader.episodes else 0
+
+
+def _sink(args: argparse.Namespace, episode: int) -> tuple[str, str | None]:
+    """("save", the .rrd path) or ("spawn" | "serve", None); an .rrd is checked before any work."""
+    from simreel.formats.targets import check_output
+
+    mode = "save" if args.save else "spawn" if args.spawn else "serve" if args.serve else None
+    save = args.save
+    if mode is None:
+        mode = "spawn" if viewer_available() else "save"
+        if mode == "save":
+            save = str(default_output(args.path, episode))
+    if mode == "save":
+        check_output(save, overwrite=args.overwrite, option="--save")
+    return mode, save
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,34 +91,14 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--block-steps must be ≥ 1, got {args.block_steps}")
     if args.save is not None and not args.save.lower().endswith(".rrd"):
         raise UsageError(f"--save {args.save}: the output must end in .rrd")
-    from simreel.formats import open_reader
+    episode = _first_episode(args)
+    mode, save = _sink(args, episode)
+    from simreel.viewers import ViewOptions, build_session
 
-    with open_reader(args.path) as reader:  # fail fast on a bad file or episode, before building the env
-        if args.episode is not None:
-            reader.episode_meta(args.episode)
-        episode = args.episode if args.episode is not None else (reader.episodes[0].index if reader.episodes else 0)
-
-    from simreel.viewers import build_session
-
-    save = args.save
-    mode = "save" if save else "spawn" if args.spawn else "serve" if args.serve else None
-    if mode is None:
-        mode = "spawn" if viewer_available() else "save"
-        if mode == "save":
-            save = str(default_output(args.path, episode))
-    if mode == "save":
-        _check_output(Path(save), overwrite=args.overwrite)  # before the env is built
+    options = ViewOptions(episode=episode, compare=args.compare, geometry=args.geometry, mode=args.mode,
+                          atol=args.atol, tolerances=dict(args.tol) or None, block_steps=args.block_steps)
     t0 = time.perf_counter()
-    with build_session(
-        args.path,
-        episode=episode,
-        compare=args.compare,
-        geometry=args.geometry,
-        mode=args.mode,
-        atol=args.atol,
-        tolerances=dict(args.tol) or None,
-        block_steps=args.block_steps,
-    ) as session:
+    with build_session(args.path, options) as session:
         if args.geometry == "visual" and session.geometry_source != "visual":
             print("warning: no render device, so no visual meshes: showing collision shapes "
                   "(see `make setup` for the software Vulkan driver)", file=sys.stderr)
@@ -115,23 +108,35 @@ def run(args: argparse.Namespace) -> int:
             print(f"wrote {out} ({size:.0f} KiB, {session.episode.length} steps, {session.geometry_source} geometry) "
                   f"in {time.perf_counter() - t0:.1f} s; open it with: rerun {out}")
         elif mode == "spawn":
-            if not viewer_available():
-                print("warning: no display found; the viewer may not open (use --save OUT.rrd)", file=sys.stderr)
-            session.spawn(port=args.grpc_port)
-            print(f"sent {session.recording_id} to the Rerun viewer")
+            _spawn(session, args)
         else:
-            url = session.serve(web_port=args.web_port, grpc_port=args.grpc_port)
-            print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)", flush=True)
-            try:
-                while True:
-                    time.sleep(3600)
-            except KeyboardInterrupt:
-                pass
-        if session.comparison is not None:
-            c = session.comparison
-            if c.note:
-                print(f"note: {c.note}")
-            d = c.divergence
-            print(f"replay diverges at {d.describe()}" if d is not None
-                  else f"replay {c.comparison.verdict.replace('_', ' ')}: no value leaves its tolerance")
+            _serve(session, args)
+        _print_comparison(session.comparison)
     return 0
+
+
+def _spawn(session: Any, args: argparse.Namespace) -> None:
+    if not viewer_available():
+        print("warning: no display found; the viewer may not open (use --save OUT.rrd)", file=sys.stderr)
+    session.spawn(port=args.grpc_port)
+    print(f"sent {session.recording_id} to the Rerun viewer")
+
+
+def _serve(session: Any, args: argparse.Namespace) -> None:
+    url = session.serve(web_port=args.web_port, grpc_port=args.grpc_port)
+    print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
+
+
+def _print_comparison(c: Any) -> None:
+    if c is None:
+        return
+    if c.note:
+        print(f"note: {c.note}")
+    d = c.divergence
+    print(f"replay diverges at {d.describe()}" if d is not None
+          else f"replay {c.comparison.verdict.replace('_', ' ')}: no value leaves its tolerance")

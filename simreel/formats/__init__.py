@@ -11,9 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from simreel.episode import RecordingMeta
+from simreel.episode import RecordingMeta, StepBlock
 from simreel.errors import RecordingFileError, UsageError
-from simreel.formats.base import EpisodeReader, EpisodeSink, EpisodeWriter, StepBlock
+from simreel.formats.base import EpisodeReader, EpisodeSink, EpisodeWriter
 
 __all__ = [
     "open_writer",
@@ -21,6 +21,7 @@ __all__ = [
     "format_of",
     "check_writable",
     "remove_recording",
+    "recording_files",
     "records_poses_by_default",
     "EpisodeReader",
     "EpisodeWriter",
@@ -30,7 +31,6 @@ __all__ = [
 
 HDF5_SUFFIXES = (".h5", ".hdf5")
 MCAP_SUFFIXES = (".mcap",)
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def format_of(path: str | Path) -> str:
@@ -46,10 +46,10 @@ def format_of(path: str | Path) -> str:
 def _writer_class(path: str | Path) -> type[EpisodeWriter]:
     """The writer of the format `path`'s suffix names."""
     if format_of(path) == "hdf5":
-        from simreel.formats.hdf5 import Hdf5Writer
+        from simreel.formats.hdf5.writer import Hdf5Writer
 
         return Hdf5Writer
-    from simreel.formats.mcap import McapWriter
+    from simreel.formats.mcap.writer import McapWriter
 
     return McapWriter
 
@@ -66,6 +66,16 @@ def check_writable(path: str | Path, *, overwrite: bool = False) -> None:
     _writer_class(path).check_target(Path(path), overwrite=overwrite)
 
 
+def recording_files(path: str | Path) -> list[Path]:
+    """The recording `path` and the files its format keeps beside it (HDF5: the JSON sidecar and the
+    `.partial/` folder); just `path` for a suffix no format claims."""
+    try:
+        writer = _writer_class(path)
+    except UsageError:
+        return [Path(path)]
+    return [Path(path), *writer.side_paths(Path(path))]
+
+
 def remove_recording(path: str | Path) -> None:
     """Delete the recording `path` and the files its format keeps beside it (HDF5: the JSON sidecar and the
     `.partial/` scratch folder), e.g. a half-written output; missing ones are skipped."""
@@ -80,19 +90,20 @@ def records_poses_by_default(path: str | Path) -> bool:
 
 def open_reader(path: str | Path) -> EpisodeReader:
     """A reader for `path`, chosen by the file's magic bytes, whatever its suffix."""
+    from simreel.formats.hdf5.layout import HDF5_MAGIC
+    from simreel.formats.mcap.records import MCAP_MAGIC
+
     p = Path(path)
     if not p.is_file():
         raise RecordingFileError(p, "no such file")
     with open(p, "rb") as fh:
         head = fh.read(8)
-    from simreel.formats.hdf5 import HDF5_MAGIC
-
     if head == HDF5_MAGIC:
-        from simreel.formats.hdf5 import Hdf5Reader
+        from simreel.formats.hdf5.reader import Hdf5Reader
 
         return Hdf5Reader(p)
-    if head == _MCAP_MAGIC:
-        from simreel.formats.mcap import McapReader
+    if head == MCAP_MAGIC:
+        from simreel.formats.mcap.reader import McapReader
 
         return McapReader(p)
     if not head:

@@ -1,9 +1,10 @@
 """The reader/writer interface every recording format implements.
 
 Writing streams: `EpisodeWriter.begin_episode` opens an `EpisodeSink` per running episode (one per
-parallel env), the recorder appends `StepBlock`s of a few hundred steps, and `commit` makes the
-episode durable — after `commit` returns, a `kill -9` of the process must not lose it. Reading is
-per episode, so a large file never has to fit in memory.
+parallel env) with the episode's reset row, the recorder appends `StepBlock`s of a few hundred steps, and
+`commit` makes the episode durable — after `commit` returns, a `kill -9` of the process must not lose it.
+Every block is checked against the recording's field table (`simreel.episode.episode_fields`) on its way
+in. Reading is per episode, so a large file never has to fit in memory.
 """
 
 from __future__ import annotations
@@ -11,73 +12,15 @@ from __future__ import annotations
 import shutil
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 from typing import ClassVar
 
-import numpy as np
+from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock, episode_fields
+from simreel.errors import RecordingFileError
+from simreel.formats.targets import check_output
 
-from simreel.episode import Episode, EpisodeMeta, RecordingMeta
-from simreel.errors import RecordingFileError, UsageError
-
-__all__ = ["StepBlock", "EpisodeSink", "EpisodeWriter", "EpisodeReader", "reset_row"]
-
-
-def reset_row(
-    initial_state: dict[str, np.ndarray],
-    initial_obs: dict[str, np.ndarray] | None = None,
-    initial_poses: np.ndarray | None = None,
-) -> dict[str, np.ndarray]:
-    """Row 0 (the episode after reset) of the T+1-row fields, as `begin_episode` receives it.
-
-    Keys `env_states/<key path>`, `obs/<key path>` and `body_poses` (stored as float32, like every
-    pose row); every array gets a leading axis of 1 row.
-    """
-    row = {f"env_states/{p}": np.asarray(a)[None] for p, a in initial_state.items()}
-    row.update({f"obs/{p}": np.asarray(a)[None] for p, a in (initial_obs or {}).items()})
-    if initial_poses is not None:
-        row["body_poses"] = np.asarray(initial_poses, dtype=np.float32)[None]
-    return row
-
-
-@dataclass
-class StepBlock:
-    """k consecutive steps of one episode; every array has k rows (see `simreel.episode`)."""
-
-    actions: np.ndarray
-    rewards: np.ndarray
-    terminated: np.ndarray
-    truncated: np.ndarray
-    success: np.ndarray
-    fail: np.ndarray
-    env_states: dict[str, np.ndarray]
-    """The states *after* each of the k steps."""
-    obs: dict[str, np.ndarray] = field(default_factory=dict)
-    info: dict[str, np.ndarray] = field(default_factory=dict)
-    contact_forces: np.ndarray | None = None
-    body_poses: np.ndarray | None = None
-    """Poses after each of the k steps, when recorded."""
-
-    def __len__(self) -> int:
-        return int(self.actions.shape[0])
-
-    @classmethod
-    def from_episode(cls, ep: Episode) -> StepBlock:
-        """All steps of an episode as one block (its initial state/obs go to `begin_episode`)."""
-        return cls(
-            actions=ep.actions,
-            rewards=ep.rewards,
-            terminated=ep.terminated,
-            truncated=ep.truncated,
-            success=ep.success,
-            fail=ep.fail,
-            env_states={p: a[1:] for p, a in ep.env_states.items()},
-            obs={p: a[1:] for p, a in ep.obs.items()},
-            info=dict(ep.info),
-            contact_forces=ep.contact_forces,
-            body_poses=None if ep.body_poses is None else ep.body_poses[1:],
-        )
+__all__ = ["EpisodeSink", "EpisodeWriter", "EpisodeReader"]
 
 
 class EpisodeSink(ABC):
@@ -105,6 +48,10 @@ class EpisodeWriter(ABC):
     def __init__(self, path: str | Path, meta: RecordingMeta) -> None:
         self.path = Path(path)
         self.meta = meta
+        self.fields = episode_fields(meta)
+        """The field table every episode's blocks are checked against."""
+        self.reset_fields = [f for f in self.fields if f.per_state]
+        """The fields of an episode's reset row."""
 
     @classmethod
     def side_paths(cls, path: Path) -> list[Path]:
@@ -113,20 +60,9 @@ class EpisodeWriter(ABC):
 
     @classmethod
     def check_target(cls, path: Path, *, overwrite: bool) -> None:
-        """Raise `UsageError` if a new recording cannot go to `path`: its folder is missing, or (without
-        `overwrite`) it or one of its side paths already exists. Cheap: touches nothing."""
-        if not path.parent.is_dir():
-            raise UsageError(f"cannot write {path}: folder {path.parent} does not exist")
-        if overwrite:
-            return
-        if path.exists():
-            raise UsageError(f"{path} already exists; pass --overwrite to replace it")
-        for side in cls.side_paths(path):
-            if side.exists():
-                raise UsageError(
-                    f"{side} already exists and a recording to {path.name} would replace it; "
-                    "pass --overwrite to replace it"
-                )
+        """Raise `UsageError` if a new recording cannot go to `path` (`simreel.formats.targets.check_output`,
+        with this format's side paths). Cheap: touches nothing."""
+        check_output(path, overwrite=overwrite, side_paths=cls.side_paths(path))
 
     @classmethod
     def remove(cls, path: Path) -> None:
@@ -139,29 +75,16 @@ class EpisodeWriter(ABC):
                 side.unlink(missing_ok=True)
 
     @abstractmethod
-    def begin_episode(
-        self,
-        meta: EpisodeMeta,
-        initial_state: dict[str, np.ndarray],
-        initial_obs: dict[str, np.ndarray] | None = None,
-        initial_poses: np.ndarray | None = None,
-    ) -> EpisodeSink:
-        """Start an episode whose state after reset is `initial_state` (flat, one env, no batch dim).
-
-        `initial_poses` (B, 7) is given when `meta.pose_bodies` is not empty.
-        """
+    def begin_episode(self, meta: EpisodeMeta, reset: StepBlock) -> EpisodeSink:
+        """Start an episode whose state after reset is `reset`: one row of every per-state field
+        (`env_states/...`, `obs/...` and `body_poses` as the recording's field table lists them)."""
 
     def write_episode(self, episode: Episode) -> None:
         """Write a whole in-memory episode (convert, `replay -o`)."""
         episode.check_shapes()
-        sink = self.begin_episode(
-            episode.meta,
-            {p: a[0] for p, a in episode.env_states.items()},
-            {p: a[0] for p, a in episode.obs.items()} or None,
-            None if episode.body_poses is None else episode.body_poses[0],
-        )
+        sink = self.begin_episode(episode.meta, episode.reset_block())
         if episode.length:
-            sink.append(StepBlock.from_episode(episode))
+            sink.append(episode.steps_block())
         sink.commit(episode.meta)
 
     @abstractmethod

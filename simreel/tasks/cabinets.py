@@ -85,15 +85,25 @@ def add_cabinet_links(builder, spec: CabinetSpec, handle_material) -> None:
     for j, kind in enumerate(spec.joints):
         if kind == "drawer":
             name = "handle" if drawer_k == spec.target else f"drawer_{j}"
-            _add_drawer(builder, body, name, spec, spec.drawer_y(drawer_k), drawer_half_h, handle_material)
+            _add_drawer(builder, body, spec, _Slot(name, spec.drawer_y(drawer_k), drawer_half_h), handle_material)
             drawer_k += 1
         else:
             _add_knob(builder, body, f"knob_{j}", y=(j - 1) * 0.06 - 0.03, top=top)
 
 
-def _add_drawer(builder, body, name, spec, y, half_h, handle_material) -> None:
+@dataclass(frozen=True)
+class _Slot:
+    """Where a drawer goes: its link name, its centre across the body (y) and its half height."""
+
+    name: str
+    y: float
+    half_h: float
+
+
+def _add_drawer(builder, body, spec, slot: _Slot, handle_material) -> None:
     import sapien
 
+    name, y, half_h = slot.name, slot.y, slot.half_h
     link = builder.create_link_builder(body)
     link.set_name(name)
     # the link's origin is the handle's grasp point, HANDLE_OUT / 2 in front of the drawer face

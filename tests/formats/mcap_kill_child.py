@@ -19,8 +19,8 @@ def episode_actions(seed: int, steps: int) -> np.ndarray:
 
 
 def main(out: str, episodes: int, steps: int) -> None:
-    from simreel.envs import make_env
     from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
 
     rec = RecordWrapper(make_env("PickCube-v1"), out, poses=True, block_steps=4,
                         writer_options={"chunk_size": 2048})

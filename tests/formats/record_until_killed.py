@@ -4,8 +4,8 @@ import sys
 
 import numpy as np
 
-from simreel.envs import make_env
 from simreel.recorders import RecordWrapper
+from simreel.sim.make import make_env
 
 env = RecordWrapper(make_env("PickCube-v1"), sys.argv[1], contacts="auto")
 rng = np.random.default_rng(0)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import h5py
 import pytest
 
 from simreel.cli.main import main
@@ -99,26 +100,27 @@ def test_overwrite_replaces_output(tmp_path):
 )
 def test_poses_checks_out_before_building_the_env(tmp_path, monkeypatch, out, message):
     """Regression: `convert --poses` built the env before finding that OUT could not be written."""
-    import simreel.cli.convert as convert_module
     from simreel.errors import UsageError
+    from simreel.formats.copy import convert
 
     def no_env(meta):
         raise AssertionError("the env was built before OUT was checked")
 
-    monkeypatch.setattr(convert_module, "_LinkPoses", no_env)
     src, _ = _source(tmp_path, ".h5", poses=False)
     (tmp_path / "exists.mcap").write_bytes(b"keep me")
     with pytest.raises(UsageError, match=message):
-        convert_module.convert(src, tmp_path / out, poses=True)
+        convert(src, tmp_path / out, transform=no_env)
     assert (tmp_path / "exists.mcap").read_bytes() == b"keep me"
 
 
 def test_an_episode_that_does_not_fit_the_layout_is_one_line_and_leaves_no_output(tmp_path, capsys):
     """Regression: the MCAP writer's layout check raised a bare ValueError (a traceback from the CLI)."""
     meta = synthetic_meta()
-    good, bad = synthetic_episode(meta, 0, 4), synthetic_episode(meta, 1, 4)
-    bad.contact_forces = bad.contact_forces[:, :1]  # HDF5 stores it; MCAP's field table says 2 channels
-    src = write(tmp_path / "src.h5", meta, [good, bad])
+    src = write(tmp_path / "src.h5", meta, [synthetic_episode(meta, 0, 4), synthetic_episode(meta, 1, 4)])
+    with h5py.File(src, "a") as f:  # a hand-edited file: 1 contact channel where the layout says 2
+        forces = f["traj_1/contact_forces"][()]
+        del f["traj_1/contact_forces"]
+        f["traj_1/contact_forces"] = forces[:, :1]
     assert main(["convert", str(src), str(tmp_path / "out.mcap"), "-q"]) == 2
     err = capsys.readouterr().err
     assert err == ("simreel convert: error: episode 1: contact_forces has shape (4, 1, 3), expected (4, 2, 3) "

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from simreel import FORMAT_VERSION
-from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta
+from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import open_reader, open_writer
 from simreel.formats.hdf5 import partial_dir, sidecar_path
@@ -147,7 +147,8 @@ def test_remove_recording_removes_the_file_and_its_side_files(tmp_path):
 
     path = tmp_path / "r.h5"
     w = open_writer(path, _meta())
-    w.begin_episode(EpisodeMeta(index=0, seed=0), {"actors/cube": np.zeros(13, np.float32), "goal": np.zeros(1)})
+    reset = StepBlock.of({"env_states/actors/cube": np.zeros((1, 13), np.float32), "env_states/goal": np.zeros((1, 1))})
+    w.begin_episode(EpisodeMeta(index=0, seed=0), reset)
     (partial_dir(path) / "traj_0.h5").write_bytes(b"scratch")
     (tmp_path / "other.json").write_text("{}")
     remove_recording(path)

@@ -12,10 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simreel.cli.convert import convert
-from simreel.cli.recover import recover
 from simreel.errors import EpisodeLayoutError, RecordingFileError, SimreelError, UsageError
-from simreel.formats import StepBlock, open_reader
+from simreel.formats import open_reader
+from simreel.formats.copy import convert, recover
 from simreel.formats.mcap import TOPICS, McapReader, McapWriter
 
 HERE = Path(__file__).parent
@@ -47,8 +46,8 @@ def simreel_cli(*args: str) -> subprocess.CompletedProcess:
 
 # ----------------------------------------------------------------------------------- real recordings
 def _record(path: Path, episodes: int = 2, steps: int = 15) -> Path:
-    from simreel.envs import make_env
     from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
 
     rec = RecordWrapper(make_env("PickCube-v1"), path, poses=True, block_steps=8)
     rng = np.random.default_rng(0)
@@ -234,9 +233,8 @@ def test_discarded_and_uncommitted_episodes_are_not_read(tmp_path):
     w = McapWriter(tmp_path / "s.mcap", meta)
     w.write_episode(eps[0])
     for ep in eps[1:]:
-        sink = w.begin_episode(ep.meta, {p: a[0] for p, a in ep.env_states.items()},
-                               {p: a[0] for p, a in ep.obs.items()}, ep.body_poses[0])
-        sink.append(StepBlock.from_episode(ep))
+        sink = w.begin_episode(ep.meta, ep.reset_block())
+        sink.append(ep.steps_block())
         if ep.meta.index == 1:
             sink.discard()
     w.close()  # episode 2 never committed
@@ -289,7 +287,9 @@ def test_a_failing_writer_constructor_closes_and_removes_its_file(tmp_path, monk
         handles.append(self._fh)
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(McapWriter, "_register_channels", boom)
+    from simreel.formats.mcap.channels import McapChannels
+
+    monkeypatch.setattr(McapChannels, "_register", boom)
     path = tmp_path / "s.mcap"
     with pytest.raises(RuntimeError, match="boom"):
         McapWriter(path, synthetic_meta())
@@ -302,7 +302,7 @@ def test_a_failing_writer_constructor_closes_and_removes_its_file(tmp_path, monk
 
 def test_overwrite_never_truncates_a_file_another_writer_holds(tmp_path, monkeypatch):
     """Even when the `being_written` probe misses it (a race), the lock is taken before the file is emptied."""
-    import simreel.formats.mcap as mcap_module
+    import simreel.formats.mcap.writer as mcap_module
 
     meta = synthetic_meta()
     path = tmp_path / "live.mcap"
@@ -412,13 +412,13 @@ def test_recover_refuses_foreign_and_keeps_complete_files(tmp_path):
     meta = synthetic_meta()
     good = write(tmp_path / "good.mcap", meta, [synthetic_episode(meta, 0, 3)])
     before = good.read_bytes()
-    assert recover(good)["complete"] and good.read_bytes() == before
+    assert recover(good).complete and good.read_bytes() == before
 
 
 def test_recover_of_a_cut_file_keeps_the_committed_episodes(tmp_path):
     bad = _truncated(tmp_path)
     report = recover(bad)
-    assert report["output"] == str(bad) and report["lost_bytes"] > 0
+    assert report.output == str(bad) and report.lost_bytes > 0
     meta = synthetic_meta()
     with open_reader(bad) as r:
         assert 1 <= len(r.episodes) < 3
@@ -446,7 +446,7 @@ def test_recover_o_keeps_an_output_it_refuses(tmp_path, capsys):
             recover(bad, live, overwrite=True)
     with open_reader(live) as r:
         assert len(r) == 1
-    assert recover(bad, keep, overwrite=True)["output"] == str(keep)
+    assert recover(bad, keep, overwrite=True).output == str(keep)
     with open_reader(keep) as r:
         assert 1 <= len(r) < 3
 
@@ -456,7 +456,7 @@ def test_recover_o_with_an_h5_suffix_writes_hdf5(tmp_path):
     with open(tmp_path / "out.h5", "rb") as fh:
         assert fh.read(4) == b"\x89HDF"
     with open_reader(tmp_path / "out.h5") as r:
-        assert len(r) == report["episodes"] >= 1
+        assert len(r) == report.episodes >= 1
 
 
 # ----------------------------------------------------------------------------------- kill -9
@@ -508,7 +508,9 @@ def test_convert_with_poses_computes_the_recorded_link_poses(pickcube_h5, tmp_pa
     for ep in episodes:
         ep.body_poses = None
     write(tmp_path / "no_poses.h5", stripped, episodes)
-    convert(tmp_path / "no_poses.h5", tmp_path / "poses.mcap", poses=True)
+    from simreel.sim.poses import LinkPoses
+
+    convert(tmp_path / "no_poses.h5", tmp_path / "poses.mcap", transform=LinkPoses)
     with open_reader(tmp_path / "poses.mcap") as r:
         assert r.meta.pose_bodies == meta.pose_bodies
         for m, want in zip(r.episodes, recorded, strict=True):

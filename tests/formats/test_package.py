@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from simreel.errors import UsageError
 from simreel.formats import check_writable, records_poses_by_default
-from simreel.formats.base import reset_row
 
 
 @pytest.mark.parametrize(
@@ -49,15 +47,3 @@ def test_check_writable_raises_what_the_writer_would_and_touches_nothing(tmp_pat
     assert sorted(tmp_path.iterdir()) == before
     if make:
         assert (tmp_path / make).read_text() == "mine"
-
-
-def test_reset_row_gives_every_row_0_field_one_row():
-    state = {"actors/cube": np.arange(13, dtype=np.float32), "goal": np.zeros(2)}
-    row = reset_row(state, {"agent/qpos": np.ones(2, np.float32)}, np.zeros((3, 7), np.float64))
-    assert {k: (v.shape, v.dtype.str) for k, v in row.items()} == {
-        "env_states/actors/cube": ((1, 13), "<f4"),
-        "env_states/goal": ((1, 2), "<f8"),
-        "obs/agent/qpos": ((1, 2), "<f4"),
-        "body_poses": ((1, 3, 7), "<f4"),
-    }
-    assert reset_row(state).keys() == {"env_states/actors/cube", "env_states/goal"}

@@ -14,9 +14,9 @@ pytestmark = [
 
 
 def test_batched_recording_splits_envs_and_partial_resets(tmp_path):
-    from simreel.envs import make_env
     from simreel.formats import open_reader
     from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
     from simreel.state_tree import flatten, to_numpy
 
     n = 8
@@ -41,8 +41,8 @@ def test_batched_recording_splits_envs_and_partial_resets(tmp_path):
 
 @pytest.mark.parametrize("num_envs", [1, 4, 16])
 def test_heterogeneous_layout_does_not_depend_on_num_envs(tmp_path, num_envs):
-    from simreel.envs import make_env
     from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
 
     env = RecordWrapper(make_env("SimreelHeteroDrawer-v1", num_envs=num_envs, sim_backend="physx_cuda"),
                         tmp_path / f"h{num_envs}.h5")

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simreel.envs import make_env
+from simreel.errors import StateLayoutError
 from simreel.formats import open_reader
-from simreel.recorders import RecordWrapper, StateLayoutChanged
+from simreel.recorders import RecordWrapper
+from simreel.sim.make import make_env
 from simreel.state_tree import flatten, to_numpy
 
 TASKS = [
@@ -99,7 +100,7 @@ def test_contact_channels_match_maniskill_queries(tmp_path):
 
 def test_long_episode_streams_in_blocks(tmp_path, monkeypatch):
     """An episode longer than the block and the in-memory limit streams to a scratch file and reads back whole."""
-    import simreel.formats.hdf5 as hdf5
+    import simreel.formats.hdf5.writer as hdf5
 
     monkeypatch.setattr(hdf5, "_SPILL_BYTES", 4096)
     env = RecordWrapper(make_env("PickCube-v1", max_episode_steps=300), tmp_path / "long.h5", block_steps=16,
@@ -169,7 +170,7 @@ def test_state_layout_change_is_refused(tmp_path):
     env = RecordWrapper(make_env("PickCube-v1"), tmp_path / "l.h5")
     env.meta.state_layout = dict(env.meta.state_layout)
     env.meta.state_layout.pop("actors/cube")
-    with pytest.raises(StateLayoutChanged, match="actors/cube"):
+    with pytest.raises(StateLayoutError, match="actors/cube"):
         env.reset(seed=0)
     env.close()
 

@@ -60,12 +60,12 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, rec, args, message):
 def test_a_recording_of_another_layout_is_refused(tmp_path, capsys, rec):
     """A file whose episodes do not fit the env it names (another task version, a hand-edited file)."""
     bad = tmp_path / "mislabelled.h5"
-    with open_reader(rec) as r, open_writer(bad, dataclasses.replace(r.meta, env_id="PushCube-v1", state_layout={})) as w:
+    with open_reader(rec) as r, open_writer(bad, dataclasses.replace(r.meta, env_id="PushCube-v1")) as w:
         w.write_episode(r.read_episode(0))
     code, err = _run(capsys, ["replay", str(bad), "-q"])
     assert code == 2
     assert "the rebuilt PushCube-v1 has another state layout than the recording" in err
-    assert "actors/goal_site: recorded (13,) float32, replay absent" in err
+    assert "actors/goal_site: recorded (13,) float32, rebuilt absent" in err
 
 
 def _relabelled(src, dst, **changes):
@@ -100,13 +100,13 @@ def test_a_gpu_recording_on_a_machine_without_cuda_says_replay_on_the_cpu(tmp_pa
 
 
 def test_an_episode_of_inconsistent_length_is_a_simreel_error(tmp_path, rec):
-    from simreel.errors import EpisodeShapeError, SimreelError
+    from simreel.errors import EpisodeLayoutError, SimreelError
 
     with open_reader(rec) as r:
         meta, ep = r.meta, r.read_episode(0)
     short = dataclasses.replace(ep, rewards=ep.rewards[:-1])
-    with pytest.raises(EpisodeShapeError, match=r"episode 0: rewards has 19 rows, expected 20") as info:
+    with pytest.raises(EpisodeLayoutError, match=r"episode 0: rewards has 19 rows, expected 20") as info:
         short.check_shapes()
     assert isinstance(info.value, SimreelError)  # the CLI prints it as one line, exit 2
-    with open_writer(tmp_path / "out.h5", meta) as w, pytest.raises(EpisodeShapeError):
+    with open_writer(tmp_path / "out.h5", meta) as w, pytest.raises(EpisodeLayoutError):
         w.write_episode(short)

@@ -12,6 +12,7 @@ import pytest
 from simreel.compare import (
     DEFAULT_TOLERANCES,
     GROUPS,
+    CompareScope,
     Tolerances,
     compare_episode,
     component_error,
@@ -91,7 +92,7 @@ def test_quaternions_compare_as_rotations():
 
 def test_identical_episodes_are_exact():
     ep = _episode()
-    cmp = compare_episode(ep, _copy(ep), TOL, contact_channels=CHANNELS)
+    cmp = compare_episode(ep, _copy(ep), TOL, channels=CHANNELS)
     assert cmp.verdict == "exact" and cmp.first_divergence is None and cmp.ok
     assert set(cmp.max_abs_error) >= {"env_states/actors/cube[q]", "env_states/goal_height", "rewards", "success",
                                       "info/is_grasped", "contacts/cube", "contacts/panda/finger:cube"}
@@ -102,7 +103,7 @@ def test_small_errors_are_within_tolerance():
     rep = _copy(ep)
     rep.env_states["actors/cube"][2, 0] += 1e-7
     rep.rewards[1] += 1e-7
-    cmp = compare_episode(ep, rep, TOL, contact_channels=CHANNELS)
+    cmp = compare_episode(ep, rep, TOL, channels=CHANNELS)
     assert cmp.verdict == "within_tolerance"
     assert cmp.max_abs_error["env_states/actors/cube[p]"] == pytest.approx(1e-7, rel=0.5)  # float32 rounding
 
@@ -113,7 +114,7 @@ def test_first_divergence_names_step_key_error_and_tolerance():
     rep.env_states["articulations/panda"][3, 13] += 0.5  # qpos after action 2
     rep.env_states["actors/cube"][4, 0] += 0.5  # later
     rep.rewards[2] += 1.0  # same step, but state comes first
-    cmp = compare_episode(ep, rep, TOL, contact_channels=CHANNELS)
+    cmp = compare_episode(ep, rep, TOL, channels=CHANNELS)
     assert cmp.verdict == "diverged"
     d = cmp.first_divergence
     assert (d.step, d.key, d.at) == (2, "env_states/articulations/panda[qpos]", "step")
@@ -130,7 +131,7 @@ def test_initial_state_mismatch_is_reported_at_reset():
     rep.env_states["goal_height"][0] += 0.1
     d = compare_episode(ep, rep, TOL).first_divergence
     assert (d.at, d.step, d.key) == ("reset", 0, "env_states/goal_height")
-    assert compare_episode(ep, rep, TOL, compare_initial=False).verdict == "exact"
+    assert compare_episode(ep, rep, TOL, scope=CompareScope(initial=False)).verdict == "exact"
 
 
 def test_flags_and_integer_info_are_exact():
@@ -157,9 +158,9 @@ def test_contact_channels_are_named():
     ep = _episode()
     rep = _copy(ep)
     rep.contact_forces[1, 1, 2] += 5.0
-    d = compare_episode(ep, rep, TOL, contact_channels=CHANNELS).first_divergence
+    d = compare_episode(ep, rep, TOL, channels=CHANNELS).first_divergence
     assert (d.key, d.step) == ("contacts/panda/finger:cube", 1)
-    assert compare_episode(ep, rep, TOL, contact_channels=CHANNELS, compare_contacts=False).verdict == "exact"
+    assert compare_episode(ep, rep, TOL, channels=CHANNELS, scope=CompareScope(contacts=False)).verdict == "exact"
 
 
 def test_tolerances_per_mode_and_overrides():

@@ -11,7 +11,7 @@ import pytest
 from simreel.cli.common import parse_group_tolerance, parse_tolerance
 from simreel.cli.main import build_parser
 from simreel.compare import GROUPS, TOLERANCE_MODES, EpisodeComparison, Tolerances
-from simreel.replay.audit import AuditReport, _Auditor
+from simreel.replay.audit_checks import AuditReport, Check, compare_states
 from simreel.replay.engine import MODES
 from simreel.replay.verify import EpisodeReport, ReplayReport
 from simreel.state_tree import LeafSpec, layout_differences
@@ -54,10 +54,9 @@ def test_layout_differences_name_each_leaf():
 
 def test_audit_names_a_key_missing_after_the_restore():
     report = AuditReport(env_id="X-v1", seed=0, steps=1)
-    auditor = _Auditor(report, None, seed=0, steps=1)
     a = np.zeros((1, 3), np.float32)
-    auditor._compare_state("restore_state", {"gone": a, "kept": a}, {"kept": a, "new": a},
-                           Tolerances.for_mode("states"), None, "why")
+    check = Check("restore_state", Tolerances.for_mode("states"), why="why")
+    compare_states(report, check, {"gone": a, "kept": a}, {"kept": a, "new": a})
     details = {f.key: f.detail for f in report.findings}
     assert details["env_states/gone"] == "state key 'gone' missing after the restore: why"
     assert details["env_states/new"] == "state key 'new' present only after the restore: why"

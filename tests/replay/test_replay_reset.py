@@ -1,4 +1,4 @@
-"""Reproducing an episode's reset (`simreel.rebuild.reset_to_episode`, which replay, view and convert share) and
+"""Reproducing an episode's reset (`simreel.sim.rebuild.reset_to_episode`, which replay, view and convert share) and
 building with a render-device fallback, on a fake env that records what it is asked."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 
 from simreel.episode import EpisodeMeta
 from simreel.errors import RenderUnavailableError
-from simreel.rebuild import GYM_MAKE_SEED, build_with_render_fallback, reset_to_episode
+from simreel.sim.rebuild import GYM_MAKE_SEED, build_with_render_fallback, reset_to_episode
 
 
 class FakeEnv:

@@ -8,7 +8,7 @@ import torch
 
 from simreel.formats import open_reader
 from simreel.replay.engine import EpisodeReplayer
-from simreel.replay.restore import restore_state, state_row
+from simreel.sim.state import restore_state, state_row
 from simreel.state_tree import flatten, unflatten
 
 
@@ -70,7 +70,7 @@ def test_custom_state_and_step_count_are_restored(record):
     ],
 )
 def test_fast_state_reader_is_bit_identical_or_not_used(record, env_id, extra, fast):
-    from simreel.fast_state import FastStateReader
+    from simreel.sim.state import FastStateReader
 
     path = record(env_id, 1, 12, *extra)
     with open_reader(path) as r:

@@ -7,8 +7,8 @@ import json
 import numpy as np
 
 from simreel.cli.main import main
-from simreel.envs import make_env
 from simreel.recorders import RecordWrapper
+from simreel.sim.make import make_env
 
 
 def test_unseeded_episode_replays_from_its_initial_state(tmp_path, capsys):

@@ -78,8 +78,8 @@ def record_pickcube(path: Path, *, poses: bool) -> None:
     import sapien
     import torch
 
-    from simreel.envs import make_env
     from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
 
     env = make_env("PickCube-v1", render_backend="none", max_episode_steps=STEPS)
     rec = RecordWrapper(env, path, poses=poses, overwrite=True)

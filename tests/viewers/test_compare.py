@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from simreel.compare import Divergence
+from simreel.compare import Divergence, Tolerances
 from simreel.episode import Episode, EpisodeMeta
 from simreel.viewers.compare import compare_for_view, divergence_row
 
@@ -44,14 +44,15 @@ def test_quaternion_sign_and_rows_of_each_key():
 
 def test_unequal_lengths_compare_the_shorter():
     rec, rep = _episode(6), _episode(4)
-    c = compare_for_view(rec, rep, atol=1e-3)
+    c = compare_for_view(rec, rep, tolerances=Tolerances.for_mode("actions", atol=1e-3))
     assert c.steps == 4 and "compared the first 4" in c.note
     assert c.divergence is None and c.comparison.verdict == "exact"
     assert c.comparison.tolerance["env_states/actors/cube[p]"] == 1e-3
 
 
 def test_mode_tolerances():
-    c = compare_for_view(_episode(2), dataclasses.replace(_episode(2)), mode="step", groups={"pos": 0.5})
+    c = compare_for_view(_episode(2), dataclasses.replace(_episode(2)),
+                         tolerances=Tolerances.for_mode("step", groups={"pos": 0.5}))
     assert c.comparison.tolerance["env_states/actors/cube[p]"] == 0.5
     assert c.comparison.tolerance["env_states/actors/cube[q]"] == 0.2  # step mode's quat default
 

@@ -15,8 +15,8 @@ def _record(path, env_id, seeds, steps=4, **make_kwargs):
     import torch
 
     import simreel.tasks  # noqa: F401  (registers the example tasks)
-    from simreel.envs import make_env
     from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
 
     env = make_env(env_id, render_backend="none", **make_kwargs)
     rec = RecordWrapper(env, path, poses=False, imports=["simreel.tasks"])

@@ -157,7 +157,7 @@ def test_restored_poses_match_states(pickcube_h5, view_env, variant, rrd_reader,
 
 def test_restored_poses_come_from_the_core(pickcube_h5, view_env):
     """The viewer reads its bodies by entity (some have no registry name); registry bodies read the same by name."""
-    from simreel.body_poses import body_poses_from_states
+    from simreel.sim.poses import body_poses_from_states
     from simreel.viewers.poses import PoseSource
     from simreel.viewers.scene_geometry import scene_bodies
 

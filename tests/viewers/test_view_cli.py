@@ -12,7 +12,7 @@ from simreel.cli.main import main
 
 
 def test_view_save(pickcube_h5, tmp_path, capsys, rrd_reader):
-    out = tmp_path / "out" / "pc.rrd"
+    out = tmp_path / "pc.rrd"
     assert main(["view", str(pickcube_h5), "--save", str(out), "--geometry", "collision", "--episode", "0"]) == 0
     assert f"wrote {out}" in capsys.readouterr().out
     rrd = rrd_reader(out)
@@ -111,17 +111,18 @@ def test_view_refuses_to_overwrite_its_default_output(pickcube_h5, tmp_path, mon
 
 
 @pytest.mark.parametrize(
-    ("save", "message"),
+    "save_and_message",
     [
         ("{tmp}", "that is a folder"),
         ("{rec}/out.rrd", "is not a folder"),  # a folder that cannot be made: the recording is a file
     ],
 )
-def test_view_checks_the_output_folder_before_building_the_env(pickcube_h5, tmp_path, monkeypatch, capsys, save,
-                                                               message):
+def test_view_checks_the_output_folder_before_building_the_env(pickcube_h5, tmp_path, monkeypatch, capsys,
+                                                               save_and_message):
     import simreel.viewers.session as session
 
     monkeypatch.setattr(session, "rebuild_env", _no_env)
+    save, message = save_and_message
     save = save.format(tmp=tmp_path / "dir.rrd", rec=pickcube_h5)
     (tmp_path / "dir.rrd").mkdir()
     assert main(["view", str(pickcube_h5), "--save", save, "--geometry", "collision"]) == 2
@@ -149,7 +150,7 @@ def test_a_recording_of_another_layout_names_each_leaf(pickcube_h5, tmp_path, ca
         w.write_episode(dataclasses.replace(ep, body_poses=None))
     assert main(["view", str(other), "--geometry", "collision", "--save", str(tmp_path / "o.rrd")]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "the rebuilt PushCube-v1 has a different state layout" in err
+    assert err.count("\n") == 1 and "the rebuilt PushCube-v1 has another state layout than the recording" in err
     assert "actors/goal_site: recorded (13,) float32, rebuilt absent" in err
 
 

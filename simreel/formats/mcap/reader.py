@@ -1,13 +1,12 @@
 """`McapReader`: reads simreel's MCAP recordings, complete ones through their summary, killed ones front to back.
 
 Only the chunks inside an episode's time span are read and decompressed; the exact arrays come from the
-data channels (`simreel.formats.mcap_blocks`), never from the viewable ones.
+data channels (`simreel.formats.mcap.blocks`), never from the viewable ones.
 """
 
 from __future__ import annotations
 
 import io
-import json
 import os
 import struct
 from collections.abc import Iterator
@@ -18,17 +17,18 @@ from typing import IO, Any
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta
+from simreel.episode import Episode, EpisodeMeta
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader
-from simreel.formats.mcap_blocks import Field, fields_from_schema, unpack_block, unpack_header
-from simreel.formats.mcap_file import (
+from simreel.formats.mcap.blocks import WireField, fields_from_schema, unpack_block, unpack_header
+from simreel.formats.mcap.lock import lock_file
+from simreel.formats.mcap.records import (
     MCAP_MAGIC,
-    META_BEGIN,
-    META_DISCARD,
-    META_EPISODE,
-    META_RECORDING,
-    lock_file,
+    EpisodeBeginRecord,
+    EpisodeDiscardRecord,
+    EpisodeRecord,
+    RecordingRecord,
+    record_kind,
 )
 
 __all__ = ["McapReader"]
@@ -151,53 +151,58 @@ class McapReader(EpisodeReader):
         return chunks, records, size - pos
 
     def _parse_records(self, records: list[Any]) -> None:
-        heads = [r for r in records if r.name == META_RECORDING]
+        heads = [r for r in records if r.name == RecordingRecord.NAME]
         if not heads:
             raise RecordingFileError(
                 self.path,
                 "an MCAP file without simreel metadata (not recorded by simreel)"
                 + (" or cut before it" if self.recovered else ""),
             )
-        head = heads[0].metadata
         try:
-            version = int(head.get("format_version", "0"))
-            if version > FORMAT_VERSION:
-                raise RecordingFileError(
-                    self.path,
-                    f"format version {version} is newer than this simreel reads ({FORMAT_VERSION}); upgrade simreel",
-                )
-            self.meta = RecordingMeta.from_json(json.loads(head["recording_meta"]))
-            self._channel_ids = {k: int(v) for k, v in json.loads(head["channels"]).items()}
-            self._reset_fields = fields_from_schema(head["reset_fields"].encode())
-            self._step_fields = fields_from_schema(head["step_fields"].encode())
-            begun: dict[int, dict[str, str]] = {}
-            discarded: set[int] = set()
-            self._spans: dict[int, _Span] = {}
-            self.episodes = []
-            for r in records:
-                d = r.metadata
-                kind = r.name.rsplit(".", 1)[0]
-                if kind == META_BEGIN:
-                    begun[int(d["index"])] = d
-                elif kind == META_DISCARD:
-                    discarded.add(int(d["index"]))
-                elif kind == META_EPISODE:
-                    em = EpisodeMeta.from_json(json.loads(d["episode"]))
-                    self.episodes.append(em)
-                    self._spans[em.index] = _Span(int(d["start_ns"]), int(d["end_ns"]), int(d["steps"]))
+            self._read_head(heads[0].metadata)
+            begun, discarded = self._read_episode_records(records)
         except RecordingFileError:
             raise
         except (KeyError, ValueError, TypeError) as e:
             raise RecordingFileError(self.path, f"bad simreel metadata in the MCAP file ({type(e).__name__}: {e})") from None
         self.episodes.sort(key=lambda m: m.index)
         running = sorted(set(begun) - set(self._spans) - discarded)
-        self.unfinished = [self._describe_running(i, begun[i]) for i in running]
+        self.unfinished = [self._describe_running(begun[i]) for i in running]
         """Episodes that had begun but were never committed (the recording process stopped first)."""
 
-    def _describe_running(self, index: int, begin: dict[str, str]) -> str:
-        start = int(begin.get("start_ns", "0"))
-        rows = sum(n for key, n, _ in self._blocks(index, start, None, want_data=False) if key == "steps")
-        return f"episode {index} (env {begin.get('env_idx', '?')}, {rows} step(s) in the file)"
+    def _read_head(self, d: dict[str, str]) -> None:
+        version = RecordingRecord.version_of(d)
+        if version > FORMAT_VERSION:
+            raise RecordingFileError(
+                self.path, f"format version {version} is newer than this simreel reads ({FORMAT_VERSION}); upgrade simreel"
+            )
+        head = RecordingRecord.from_metadata(d)
+        self.meta = head.meta
+        self._channel_ids = head.channels
+        self._reset_fields = fields_from_schema(head.reset_schema)
+        self._step_fields = fields_from_schema(head.step_schema)
+
+    def _read_episode_records(self, records: list[Any]) -> tuple[dict[int, EpisodeBeginRecord], set[int]]:
+        begun: dict[int, EpisodeBeginRecord] = {}
+        discarded: set[int] = set()
+        self._spans: dict[int, _Span] = {}
+        self.episodes: list[EpisodeMeta] = []
+        for r in records:
+            kind = record_kind(r.name)
+            if kind == EpisodeBeginRecord.NAME:
+                b = EpisodeBeginRecord.from_metadata(r.metadata)
+                begun[b.index] = b
+            elif kind == EpisodeDiscardRecord.NAME:
+                discarded.add(EpisodeDiscardRecord.from_metadata(r.metadata).index)
+            elif kind == EpisodeRecord.NAME:
+                e = EpisodeRecord.from_metadata(r.metadata)
+                self.episodes.append(e.meta)
+                self._spans[e.meta.index] = _Span(e.start_ns, e.end_ns, e.steps)
+        return begun, discarded
+
+    def _describe_running(self, begin: EpisodeBeginRecord) -> str:
+        rows = sum(n for key, n, _ in self._blocks(begin.index, begin.start_ns, None, want_data=False) if key == "steps")
+        return f"episode {begin.index} (env {begin.env_idx}, {rows} step(s) in the file)"
 
     # ---------------------------------------------------------------- data
     def _blocks(
@@ -254,7 +259,7 @@ class McapReader(EpisodeReader):
         return self._assemble(meta, row0, blocks)
 
     def _assemble(self, meta: EpisodeMeta, row0: dict[str, np.ndarray], blocks: list[dict[str, np.ndarray]]) -> Episode:
-        def steps_of(f: Field) -> np.ndarray:
+        def steps_of(f: WireField) -> np.ndarray:
             if not blocks:
                 return np.empty((0, *f.shape), f.dtype)
             return np.concatenate([b[f.name] for b in blocks])
@@ -264,21 +269,7 @@ class McapReader(EpisodeReader):
             cols[f.name] = np.concatenate([row0[f.name], cols[f.name]])
         # Native byte order (a no-op on little-endian machines) so arrays compare and save like the HDF5 ones.
         cols = {k: v.astype(v.dtype.newbyteorder("="), copy=False) for k, v in cols.items()}
-
-        def group(prefix: str) -> dict[str, np.ndarray]:
-            return {k[len(prefix):]: v for k, v in cols.items() if k.startswith(prefix)}
-
-        return Episode(
-            meta=meta,
-            actions=cols["actions"],
-            rewards=cols["rewards"],
-            **{f: cols[f] for f in FLAG_FIELDS},
-            env_states=group("env_states/"),
-            obs=group("obs/"),
-            info=group("info/"),
-            contact_forces=cols.get("contact_forces"),
-            body_poses=cols.get("body_poses"),
-        )
+        return Episode.from_fields(meta, cols)
 
     def close(self) -> None:
         self._fh.close()

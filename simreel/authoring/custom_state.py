@@ -37,7 +37,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
-from simreel.errors import SimreelError
+from simreel.errors import CustomStateError
 
 __all__ = [
     "CustomStateMixin",
@@ -47,9 +47,6 @@ __all__ = [
     "set_custom_state",
 ]
 
-
-class CustomStateError(SimreelError):
-    """A declared custom state attribute is missing, has the wrong shape, or a state dict lacks it."""
 
 
 def custom_state_names(env: Any) -> tuple[str, ...]:

@@ -39,7 +39,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from simreel.errors import SimreelError
+from simreel.errors import HeterogeneousBuildError
 
 __all__ = [
     "HeterogeneousBuildError",
@@ -49,9 +49,6 @@ __all__ = [
     "merge_articulations",
 ]
 
-
-class HeterogeneousBuildError(SimreelError):
-    """Parts that cannot be merged into one record-safe view (DOF over the declared bound, missing link)."""
 
 
 def build_heterogeneous_actor(
@@ -84,16 +81,16 @@ def build_heterogeneous_articulation(
     build_part: Callable[[Any, int], Any],
     *,
     name: str,
-    state_dof: int | None,
-    merged_links: Sequence[str] = (),
     fix_root_link: bool = True,
     initial_pose: Any = None,
+    **merge: Any,
 ) -> Any:
     """Build one articulation per sub-scene and return their merged, registered, padded view.
 
     ``build_part(builder, i)`` creates the links of sub-scene ``i`` in a fresh
     ``scene.create_articulation_builder()`` (``builder.create_link_builder(parent)``, ``set_name``,
-    ``set_joint_properties``...). See `merge_articulations` for ``state_dof`` and ``merged_links``.
+    ``set_joint_properties``...). `merge` are `merge_articulations`' ``state_dof`` (required) and
+    ``merged_links``.
     """
     parts = []
     for i in range(scene.num_envs):
@@ -102,7 +99,7 @@ def build_heterogeneous_articulation(
         builder.initial_pose = _default_pose(initial_pose)
         build_part(builder, i)
         parts.append(builder.build(name=f"{name}-{i}", fix_root_link=fix_root_link))
-    return merge_articulations(parts, name=name, state_dof=state_dof, merged_links=merged_links)
+    return merge_articulations(parts, name=name, **merge)
 
 
 def merge_actors(parts: Sequence[Any], *, name: str) -> Any:

@@ -14,7 +14,7 @@ import numpy as np
 
 from simreel.episode import ContactChannel
 from simreel.errors import ContactSpecError
-from simreel.scene_info import dynamic_actor_names, named_bodies
+from simreel.sim.describe import dynamic_actor_names, named_bodies
 
 __all__ = ["contact_channels", "ContactSampler", "parse_pairs"]
 

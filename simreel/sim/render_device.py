@@ -1,6 +1,6 @@
 """Find the render device ManiSkill should use: an NVIDIA GPU, the software Vulkan (lavapipe) or none.
 
-Two steps, both cheap and both run by `simreel.envs.make_env`:
+Two steps, both cheap and both run by `simreel.sim.make.make_env`:
 
 1. `configure_vulkan()` points the Vulkan loader at the project-local lavapipe that `make setup` unpacks into
    ``<venv>/share/simreel/mesa`` (see ``tools/fetch_lavapipe.sh``), when the machine has no NVIDIA GPU and the
@@ -8,7 +8,7 @@ Two steps, both cheap and both run by `simreel.envs.make_env`:
    creates its Vulkan instance (safest: before sapien is imported).
 2. `detect_render_backend()` asks SAPIEN which device it would render with and returns the ManiSkill
    ``render_backend`` string: ``"gpu"`` (a CUDA-capable device, e.g. NVIDIA), ``"cpu"`` (any other device
-   SAPIEN accepts, e.g. lavapipe) or ``"none"`` (no device: state-only, see `simreel.norender`).
+   SAPIEN accepts, e.g. lavapipe) or ``"none"`` (no device: state-only, see `simreel.sim.norender`).
 
 The probe runs in a child process. Creating a Vulkan instance can segfault on a broken driver install
 (haosulab/SAPIEN#229, inside ``sapien.Device``); in a child that costs a wrong answer, not the user's process.
@@ -37,6 +37,7 @@ __all__ = [
     "RenderDevice",
     "RenderProbe",
     "configure_vulkan",
+    "device_expected",
     "lavapipe_icd_path",
     "start_render_probe",
     "probe_render_device",
@@ -78,6 +79,14 @@ def lavapipe_icd_path() -> Path:
 
 def _has_nvidia() -> bool:
     return any(os.path.exists(marker) for marker in _NVIDIA_MARKERS)
+
+
+def device_expected() -> bool:
+    """Cheap guess, without a probe: an NVIDIA GPU is present, or `configure_vulkan` pointed Vulkan at the
+    lavapipe that `make setup` fetched. False means only a probe can tell."""
+    icd = lavapipe_icd_path()
+    configured = os.environ.get("VK_ICD_FILENAMES") == os.path.abspath(icd) and icd.is_file()
+    return _has_nvidia() or configured
 
 
 def configure_vulkan() -> str | None:
@@ -267,6 +276,6 @@ def detect_render_backend() -> RenderBackend:
 
     ``"gpu"``: SAPIEN found a device it can render with that is paired with CUDA (NVIDIA).
     ``"cpu"``: a device it can render with but no CUDA (lavapipe/llvmpipe; ManiSkill's ``sapien_cpu``).
-    ``"none"``: no usable device; only state observations work (see `simreel.norender`).
+    ``"none"``: no usable device; only state observations work (see `simreel.sim.norender`).
     """
     return probe_render_device().backend

@@ -13,10 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from simreel.scene_info import named_bodies
+from simreel.episode import Episode, RecordingMeta
+from simreel.sim.describe import named_bodies
 from simreel.state_tree import to_numpy, unflatten
 
-__all__ = ["pose_body_names", "sample_body_poses", "body_poses_from_states", "entity_poses"]
+__all__ = ["pose_body_names", "sample_body_poses", "body_poses_from_states", "entity_poses", "LinkPoses"]
 
 
 def pose_body_names(unwrapped: Any) -> list[str]:
@@ -76,3 +77,30 @@ def body_poses_from_states(unwrapped: Any, names: list[str], states: Mapping[str
             unwrapped.scene._gpu_fetch_all()
         out[k] = entity_poses(entities) if entities is not None else sample_body_poses(unwrapped, names)[0]
     return out
+
+
+class LinkPoses:
+    """An episode transform (`simreel.formats.copy.EpisodeTransform`) that adds `body_poses` of every registry
+    body to each episode, computed by restoring its states into an env rebuilt from the recording's metadata
+    (``simreel convert --poses``)."""
+
+    def __init__(self, meta: RecordingMeta) -> None:
+        from simreel.sim.rebuild import env_from_meta
+
+        self._env = env_from_meta(meta, num_envs=1, sim_backend="physx_cpu", render_backend="none")
+        self._u = self._env.unwrapped
+        self._u.reset(seed=0)
+        self._scene_seed: int | None = None
+        self.meta = RecordingMeta.from_json(meta.to_json())
+        self.meta.pose_bodies = pose_body_names(self._u)
+
+    def __call__(self, episode: Episode) -> Episode:
+        from simreel.sim.rebuild import reset_to_episode
+
+        # the episode's own scene (objects of heterogeneous tasks); rebuilt only when it changes
+        self._scene_seed = reset_to_episode(self._env, episode.meta, scene_seed=self._scene_seed).scene_seed
+        episode.body_poses = body_poses_from_states(self._u, self.meta.pose_bodies, episode.env_states)
+        return episode
+
+    def close(self) -> None:
+        self._env.close()

@@ -161,7 +161,7 @@ def check_task(env_id: str) -> None:
 def install() -> bool:
     """Install the inert stand-ins if, and only if, creating a real ``RenderMaterial`` fails.
 
-    Returns whether the stand-ins are in place. Imports sapien (call `simreel.render_device.configure_vulkan`
+    Returns whether the stand-ins are in place. Imports sapien (call `simreel.sim.render_device.configure_vulkan`
     first). Idempotent.
     """
     global _installed

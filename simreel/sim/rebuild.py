@@ -1,7 +1,7 @@
 """Rebuild the env a recording was made in, from its `RecordingMeta` alone, and reset it to an episode's scene.
 
 Every room that needs the recorded scene again (replay, convert, view) calls `env_from_meta`; it is the
-one place that maps metadata fields back to `simreel.envs.make_env` arguments. `reset_to_episode` is the
+one place that maps metadata fields back to `simreel.sim.make.make_env` arguments. `reset_to_episode` is the
 one place that reproduces an episode's reset (its scene, seed and options) from its `EpisodeMeta`.
 mani_skill is imported only when a function runs.
 
@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from simreel.episode import EpisodeMeta, RecordingMeta
 from simreel.errors import RenderUnavailableError
+from simreel.state_tree import to_numpy
 
 if TYPE_CHECKING:
     import gymnasium as gym
@@ -30,7 +31,6 @@ __all__ = [
     "EpisodeReset",
     "build_with_render_fallback",
     "env_from_meta",
-    "make_kwargs_from_meta",
     "reset_to_episode",
 ]
 
@@ -39,55 +39,20 @@ GYM_MAKE_SEED = 2022
 
 _T = TypeVar("_T")
 
-_MAKE_ENV_ARGS = (
-    "num_envs",
-    "obs_mode",
-    "control_mode",
-    "sim_backend",
-    "render_backend",
-    "reward_mode",
-    "env_kwargs",
-    "max_episode_steps",
-    "sim_config",
-)
-
-
-def make_kwargs_from_meta(meta: RecordingMeta, **overrides: Any) -> dict[str, Any]:
-    """The `make_env` keyword arguments that rebuild `meta`'s env, with `overrides` applied.
-
-    Overrides use `make_env`'s names (`num_envs=1`, `obs_mode="state"`, `render_backend="none"`, ...);
-    an unknown name raises TypeError. The recorded render backend is not reused by default (it names
-    the recording machine's device): the default is ``"auto"``.
-    """
-    unknown = sorted(set(overrides) - set(_MAKE_ENV_ARGS))
-    if unknown:
-        raise TypeError(f"env_from_meta() got unknown overrides {unknown}; known: {', '.join(_MAKE_ENV_ARGS)}")
-    kwargs: dict[str, Any] = {
-        "num_envs": meta.num_envs,
-        "obs_mode": meta.obs_mode,
-        "control_mode": meta.control_mode,
-        "sim_backend": meta.sim_backend or "auto",
-        "render_backend": "auto",
-        "reward_mode": meta.reward_mode,
-        "env_kwargs": dict(meta.env_kwargs),
-        "max_episode_steps": meta.max_episode_steps,
-        "sim_config": dict(meta.sim_config) or None,
-    }
-    kwargs.update(overrides)
-    return kwargs
-
 
 def env_from_meta(meta: RecordingMeta, **overrides: Any) -> gym.Env:
-    """Import the recording's `--import` specs, then `make_env` the recorded env (see `make_kwargs_from_meta`).
+    """Import the recording's `--import` specs, then `make_env` the recorded env.
 
-    Raises `simreel.errors.EnvBuildError` / `RenderUnavailableError` as `make_env` does.
+    `overrides` replace arguments of `simreel.sim.make.EnvConfig.from_meta(meta)` (``num_envs=1``,
+    ``obs_mode="state"``, ``render_backend="none"``, ...); an unknown name raises TypeError. Raises
+    `simreel.errors.EnvBuildError` / `RenderUnavailableError` as `make_env` does.
     """
-    from simreel.envs import import_user_code, make_env
+    from simreel.sim.make import EnvConfig, make_env
+    from simreel.sim.user_code import import_user_code
 
     for spec in meta.imports:
         import_user_code(spec)
-    kwargs = make_kwargs_from_meta(meta, **overrides)
-    return make_env(meta.env_id, **kwargs)
+    return make_env(meta.env_id, EnvConfig.from_meta(meta), **overrides)
 
 
 def build_with_render_fallback(build: Callable[[str], _T], render_backend: str) -> tuple[_T, str]:
@@ -129,8 +94,6 @@ def reset_to_episode(env: Any, episode: EpisodeMeta, *, scene_seed: int | None =
             the returned `EpisodeReset.scene_seed` of the previous call, or None when unknown (the scene is
             then rebuilt).
     """
-    from simreel.state_tree import to_numpy
-
     u = env.unwrapped
     out = EpisodeReset(scene_seed=scene_seed)
     options = {k: v for k, v in (episode.reset_options or {}).items() if k not in ("env_idx", "reconfigure")}

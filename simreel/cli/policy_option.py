@@ -34,7 +34,7 @@ def load_policy(spec: str, env_id: str) -> Policy:
     if spec == "zero":
         return _zero
     if spec == "scripted":
-        from simreel.envs import import_user_code
+        from simreel.sim.user_code import import_user_code
 
         DEFAULT_POLICIES = import_user_code("simreel.tasks.policies").DEFAULT_POLICIES  # noqa: N806
         if env_id not in DEFAULT_POLICIES:
@@ -44,8 +44,8 @@ def load_policy(spec: str, env_id: str) -> Policy:
     module_spec, sep, attr = spec.rpartition(":")
     if not sep or not module_spec or not attr:
         raise UsageError(f"bad --policy {spec!r}: expected {POLICY_HELP}")
-    from simreel.envs import import_user_code
     from simreel.errors import EnvBuildError
+    from simreel.sim.user_code import import_user_code
 
     try:
         module = import_user_code(module_spec)

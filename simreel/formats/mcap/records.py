@@ -1,0 +1,157 @@
+"""What simreel's MCAP writer and reader share: topics, the time base, and the metadata records.
+
+Metadata records, each a dataclass with its `to_metadata` (write) and `from_metadata` (read) side by side:
+
+- `RecordingRecord` (name ``simreel``): format version, `RecordingMeta` JSON, channel ids, field tables.
+- `EpisodeBeginRecord` (``simreel.episode_begin.<i>``): an episode began (its env lane, start time, seed).
+- `EpisodeRecord` (``simreel.episode.<i>``): an episode was committed (`EpisodeMeta`, time span, steps).
+- `EpisodeDiscardRecord` (``simreel.episode_discard.<i>``): an episode was dropped.
+
+One name per record: Rerun merges records of the same name. See `simreel.formats.mcap` for the layout.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+from simreel.episode import EpisodeMeta, RecordingMeta
+
+__all__ = [
+    "MCAP_MAGIC",
+    "COMPRESSIONS",
+    "TOPICS",
+    "WORLD_FRAME",
+    "step_ns_of",
+    "RecordingRecord",
+    "EpisodeBeginRecord",
+    "EpisodeRecord",
+    "EpisodeDiscardRecord",
+    "record_kind",
+    "record_name",
+]
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+COMPRESSIONS = ("zstd", "lz4", "none")
+TOPICS = {"reset": "/simreel/reset", "steps": "/simreel/steps", "tf": "/tf", "plots": "/plots", "log": "/log"}
+WORLD_FRAME = "world"
+
+
+def step_ns_of(meta: RecordingMeta) -> int:
+    """Nanoseconds of log time per env step: the control period (1 s when the recording lacks it)."""
+    return int(round(1e9 / meta.control_freq)) if meta.control_freq else 1_000_000_000
+
+
+def record_kind(name: str) -> str:
+    """The record name without its episode index: ``simreel.episode.3`` → ``simreel.episode``."""
+    return name if name == RecordingRecord.NAME else name.rsplit(".", 1)[0]
+
+
+@dataclass(frozen=True)
+class RecordingRecord:
+    """The recording's metadata record: everything a reader needs before any message."""
+
+    NAME = "simreel"
+    format_version: int
+    simreel_version: str
+    meta: RecordingMeta
+    step_ns: int
+    channels: dict[str, int]
+    reset_schema: bytes
+    step_schema: bytes
+
+    def to_metadata(self) -> dict[str, str]:
+        m = self.meta
+        return {
+            "format_version": str(self.format_version),
+            "simreel_version": self.simreel_version,
+            "env_id": m.env_id,
+            "control_mode": str(m.control_mode),
+            "command": m.command,
+            "created_utc": m.created_utc,
+            "step_ns": str(self.step_ns),
+            "time": "log_time = episode start + row x step_ns; row 0 is the state after reset",
+            "pose_source": "recorded body poses" if m.pose_bodies else "state dict (actors, articulation roots)",
+            "channels": json.dumps(self.channels),
+            "reset_fields": self.reset_schema.decode(),
+            "step_fields": self.step_schema.decode(),
+            "recording_meta": json.dumps(m.to_json()),
+        }
+
+    @classmethod
+    def from_metadata(cls, d: dict[str, str]) -> RecordingRecord:
+        """Raises KeyError/ValueError/TypeError on a malformed record (the reader names the file)."""
+        return cls(
+            format_version=int(d.get("format_version", "0")),
+            simreel_version=d.get("simreel_version", ""),
+            meta=RecordingMeta.from_json(json.loads(d["recording_meta"])),
+            step_ns=int(d.get("step_ns", "0")),
+            channels={k: int(v) for k, v in json.loads(d["channels"]).items()},
+            reset_schema=d["reset_fields"].encode(),
+            step_schema=d["step_fields"].encode(),
+        )
+
+    @staticmethod
+    def version_of(d: dict[str, str]) -> int:
+        """The format version a record states, read before anything else is trusted."""
+        return int(d.get("format_version", "0"))
+
+
+@dataclass(frozen=True)
+class EpisodeBeginRecord:
+    NAME = "simreel.episode_begin"
+    index: int
+    env_idx: int
+    start_ns: int
+    seed: int | None
+
+    def to_metadata(self) -> dict[str, str]:
+        return {"index": str(self.index), "env_idx": str(self.env_idx), "start_ns": str(self.start_ns),
+                "seed": str(self.seed)}
+
+    @classmethod
+    def from_metadata(cls, d: dict[str, str]) -> EpisodeBeginRecord:
+        seed = d.get("seed", "None")
+        return cls(int(d["index"]), int(d.get("env_idx", "0")), int(d.get("start_ns", "0")),
+                   None if seed == "None" else int(seed))
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    NAME = "simreel.episode"
+    meta: EpisodeMeta
+    start_ns: int
+    end_ns: int
+    steps: int
+
+    def to_metadata(self) -> dict[str, str]:
+        return {"index": str(self.meta.index), "episode": json.dumps(self.meta.to_json()),
+                "start_ns": str(self.start_ns), "end_ns": str(self.end_ns), "steps": str(self.steps)}
+
+    @classmethod
+    def from_metadata(cls, d: dict[str, str]) -> EpisodeRecord:
+        return cls(EpisodeMeta.from_json(json.loads(d["episode"])), int(d["start_ns"]), int(d["end_ns"]),
+                   int(d["steps"]))
+
+
+@dataclass(frozen=True)
+class EpisodeDiscardRecord:
+    NAME = "simreel.episode_discard"
+    index: int
+    steps: int
+
+    def to_metadata(self) -> dict[str, str]:
+        return {"index": str(self.index), "steps": str(self.steps)}
+
+    @classmethod
+    def from_metadata(cls, d: dict[str, str]) -> EpisodeDiscardRecord:
+        return cls(int(d["index"]), int(d.get("steps", "0")))
+
+
+def record_name(record: Any) -> str:
+    """The metadata record name a record is written under (per-episode records carry their index)."""
+    if isinstance(record, RecordingRecord):
+        return RecordingRecord.NAME
+    index = record.meta.index if isinstance(record, EpisodeRecord) else record.index
+    return f"{record.NAME}.{index}"

@@ -1,0 +1,148 @@
+"""Describe a live ManiSkill env: its `RecordingMeta` (everything needed to rebuild it and judge a replay)
+and what its scene holds, by the names its state dict uses.
+
+The state dict is keyed by ManiSkill's state-dict *registry*, which for heterogeneous tasks holds merged
+views (`peg`) rather than the per-sub-scene parts (`peg_0`, ...). simreel names bodies the same way
+everywhere: `<actor>` or `<articulation>/<link>`. Functions take the (possibly wrapped) env or its
+unwrapped env as named; nothing heavy is imported at module level.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+from typing import Any
+
+from simreel.episode import RecordingMeta
+from simreel.errors import UsageError
+from simreel.sim.make import EnvConfig, env_versions
+from simreel.state_tree import flatten, layout_of
+
+__all__ = [
+    "recording_meta",
+    "max_episode_steps_of",
+    "flatten_obs",
+    "sim_config_json",
+    "describe_scene",
+    "named_bodies",
+    "dynamic_actor_names",
+]
+
+
+def max_episode_steps_of(env: Any) -> int | None:
+    """The time limit the wrapper stack enforces (ManiSkill's TimeLimitWrapper or gymnasium's)."""
+    e = env
+    while e is not None:
+        limit = getattr(e, "_max_episode_steps", None)
+        if limit is not None:
+            return int(limit)
+        e = getattr(e, "env", None)
+    spec = getattr(env, "spec", None)
+    return getattr(spec, "max_episode_steps", None)
+
+
+def flatten_obs(obs: Any, obs_mode: str) -> dict[str, Any]:
+    """Observations as flat key paths; a bare tensor observation is stored under its obs mode's name."""
+    if isinstance(obs, dict):
+        return flatten(obs)
+    return flatten({obs_mode: obs})
+
+
+def sim_config_json(cfg: Any) -> dict[str, Any]:
+    if dataclasses.is_dataclass(cfg):
+        return dataclasses.asdict(cfg)
+    return dict(cfg or {})
+
+
+def recording_meta(env: Any, **recorder_fields: Any) -> RecordingMeta:
+    """Describe `env` (a gym.make'd ManiSkill env, possibly wrapped) as recording metadata.
+
+    `recorder_fields` are the `RecordingMeta` fields only the recorder knows (``contact_channels``,
+    ``info_layout``, ``obs_layout``, ``pose_bodies``, ``imports``, ``command``); they are set as given.
+    """
+    u = env.unwrapped
+    spec = getattr(u, "spec", None) or getattr(env, "spec", None)
+    env_id = spec.id if spec is not None else type(u).__name__
+    make_kwargs = dict(getattr(spec, "kwargs", {}) or {})
+    return RecordingMeta(
+        env_id=env_id,
+        env_kwargs={k: v for k, v in make_kwargs.items() if k not in EnvConfig.names()},
+        obs_mode=u.obs_mode,
+        control_mode=u.control_mode,
+        reward_mode=u.reward_mode,
+        sim_backend=u.backend.sim_backend,
+        render_backend=u.backend.render_backend,
+        num_envs=int(u.num_envs),
+        max_episode_steps=max_episode_steps_of(env),
+        control_freq=float(u.control_freq),
+        sim_freq=float(u.sim_freq),
+        sim_config=sim_config_json(u.sim_config),
+        action_space=_action_space(env_id, u.single_action_space),
+        state_layout=layout_of(flatten(u.get_state_dict()), batched=True),
+        scene=describe_scene(u),
+        versions=env_versions(),
+        created_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        **recorder_fields,
+    )
+
+
+def _action_space(env_id: str, space: Any) -> dict[str, Any]:
+    if space.shape is None:
+        raise UsageError(
+            f"{env_id} has a {type(space).__name__} action space (a multi-agent task); simreel records "
+            "single-agent tasks with Box action spaces for now"
+        )
+    return {"shape": list(space.shape), "dtype": str(space.dtype), "low": space.low.tolist(),
+            "high": space.high.tolist()}
+
+
+# ----------------------------------------------------------------------------------------- the scene
+def _scene_idxs(obj: Any) -> list[int]:
+    idxs = getattr(obj, "_scene_idxs", None)
+    return [int(i) for i in idxs.tolist()] if idxs is not None else []
+
+
+def describe_scene(unwrapped: Any) -> dict[str, Any]:
+    """Registry actors/articulations with body type, sub-scene indices and whether they are merged views.
+
+    `merged` marks registry entries that are not themselves in `scene.actors`/`scene.articulations`
+    (a task built per-sub-scene parts and registered their merge).
+    """
+    scene = unwrapped.scene
+    reg = scene.state_dict_registry
+    actors = {
+        name: {
+            "body_type": str(getattr(a, "px_body_type", "")),
+            "scene_idxs": _scene_idxs(a),
+            "merged": name not in scene.actors,
+        }
+        for name, a in reg.actors.items()
+    }
+    arts = {
+        name: {
+            "links": [link.name for link in art.links],
+            "dof": int(getattr(art, "dof", [0])[0]) if hasattr(getattr(art, "dof", None), "__getitem__") else None,
+            "max_dof": int(getattr(art, "max_dof", 0)),
+            "scene_idxs": _scene_idxs(art),
+            "merged": name not in scene.articulations,
+        }
+        for name, art in reg.articulations.items()
+    }
+    unregistered = sorted(set(scene.actors) - set(reg.actors)) + sorted(set(scene.articulations) - set(reg.articulations))
+    return {"actors": actors, "articulations": arts, "not_in_state_dict": unregistered, "num_envs": unwrapped.num_envs}
+
+
+def named_bodies(unwrapped: Any) -> dict[str, Any]:
+    """`{"cube": Actor, "panda/panda_hand": Link, ...}` for every registry actor and articulation link."""
+    reg = unwrapped.scene.state_dict_registry
+    out: dict[str, Any] = dict(reg.actors)
+    for art_name, art in reg.articulations.items():
+        for link in art.links:
+            out[f"{art_name}/{link.name}"] = link
+    return out
+
+
+def dynamic_actor_names(unwrapped: Any) -> list[str]:
+    """Registry actors that move (neither static nor kinematic)."""
+    reg = unwrapped.scene.state_dict_registry
+    return [n for n, a in reg.actors.items() if str(getattr(a, "px_body_type", "")) == "dynamic"]

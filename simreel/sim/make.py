@@ -1,0 +1,314 @@
+"""Build ManiSkill envs the same way everywhere in simreel, on a GPU, on lavapipe or with no render device.
+
+`make_env` is the only place simreel calls ``gym.make``. It configures Vulkan before sapien loads, picks the
+render backend, switches on the no-render layer when there is no device, and turns every failure into a
+`simreel.errors.SimreelError` whose one line says what went wrong and how to fix it. `EnvConfig` is the one
+list of ``gym.make`` arguments simreel names: `make_env` takes them and a recording's metadata keeps them.
+mani_skill (~3 s to import) is imported inside the functions here, never at module level.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from simreel.errors import EnvBuildError, RenderUnavailableError
+from simreel.sim.render_device import (
+    configure_vulkan,
+    device_expected,
+    probe_render_device,
+    start_render_probe,
+)
+from simreel.sim.user_code import quiet_sapien_import
+
+if TYPE_CHECKING:
+    import gymnasium as gym
+
+    from simreel.episode import RecordingMeta
+
+__all__ = [
+    "EnvConfig",
+    "make_env",
+    "prepare_plain_gym_make",
+    "env_versions",
+    "camera_use",
+    "CAMERA_TEXTURES",
+    "SIMREEL_TASK_PREFIX",
+]
+
+CAMERA_TEXTURES = frozenset(
+    {"rgb", "depth", "rgbd", "pointcloud", "sensor_data", "segmentation", "position", "normal", "albedo"}
+)
+"""Parts of an ``obs_mode`` (split on ``+``) that need cameras, hence a render device."""
+
+SIMREEL_TASK_PREFIX = "Simreel"
+"""Env ids of simreel's own example tasks; `make_env` registers them on first use, no --import needed."""
+
+_VERSIONED_DISTRIBUTIONS = {
+    "simreel": "simreel",
+    "mani_skill": "mani-skill",
+    "sapien": "sapien",
+    "torch": "torch",
+    "numpy": "numpy",
+    "gymnasium": "gymnasium",
+}
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """The ``gym.make`` arguments of a ManiSkill env, as `make_env` takes them and `RecordingMeta` keeps them.
+
+    Attributes:
+        num_envs: parallel envs; more than 1 needs the GPU sim (ManiSkill's ``sim_backend="auto"`` picks it).
+        obs_mode: ManiSkill observation mode. ``"state"``/``"state_dict"``/``"none"`` need no render device;
+            ``rgb``, ``depth``, ``rgbd``, ``pointcloud``, ``sensor_data``, ``segmentation`` (and ``+`` mixes) do.
+        control_mode, reward_mode: ManiSkill's; None means the task's default.
+        sim_backend: ``"auto"``, ``"cpu"``/``"physx_cpu"`` or ``"gpu"``/``"physx_cuda"``, passed to ManiSkill.
+        render_backend: ``"auto"`` (probe: `simreel.sim.render_device.detect_render_backend`), ``"gpu"``,
+            ``"cpu"`` (software Vulkan) or ``"none"`` (state-only; `simreel.sim.norender` is switched on).
+        env_kwargs: further keyword arguments for the task, e.g. ``{"render_mode": "rgb_array"}``,
+            ``{"robot_uids": "panda"}``. They may not repeat the named arguments above.
+        max_episode_steps: override the task's time limit (None: the task's own).
+        sim_config: ManiSkill ``SimConfig`` overrides as a dict, e.g. ``{"sim_freq": 500}``.
+    """
+
+    num_envs: int = 1
+    obs_mode: str = "state"
+    control_mode: str | None = None
+    reward_mode: str | None = None
+    sim_backend: str = "auto"
+    render_backend: str = "auto"
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    max_episode_steps: int | None = None
+    sim_config: dict[str, Any] | None = None
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The argument names, in order."""
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+    @classmethod
+    def from_meta(cls, meta: RecordingMeta) -> EnvConfig:
+        """The config that rebuilds `meta`'s env. The recorded render backend is not reused (it names the
+        recording machine's device): the default is ``"auto"``."""
+        return cls(
+            num_envs=meta.num_envs,
+            obs_mode=meta.obs_mode,
+            control_mode=meta.control_mode,
+            reward_mode=meta.reward_mode,
+            sim_backend=meta.sim_backend or "auto",
+            env_kwargs=dict(meta.env_kwargs),
+            max_episode_steps=meta.max_episode_steps,
+            sim_config=dict(meta.sim_config) or None,
+        )
+
+    def with_overrides(self, **overrides: Any) -> EnvConfig:
+        """This config with some arguments replaced; an unknown name raises TypeError naming the known ones."""
+        unknown = sorted(set(overrides) - set(self.names()))
+        if unknown:
+            raise TypeError(f"unknown env arguments {unknown}; known: {', '.join(self.names())}")
+        return dataclasses.replace(self, **overrides)
+
+
+def camera_use(obs_mode: str | None, render_mode: str | None = None) -> str | None:
+    """Say why this ``obs_mode`` / ``render_mode`` needs a render device, or None if it does not."""
+    if obs_mode:
+        textures = sorted(set(obs_mode.split("+")) & CAMERA_TEXTURES)
+        if textures:
+            return f"obs_mode={obs_mode!r} needs camera images ({', '.join(textures)})"
+    if render_mode is not None:
+        return f"render_mode={render_mode!r} renders images"
+    return None
+
+
+def make_env(env_id: str, config: EnvConfig | None = None, **overrides: Any) -> gym.Env:
+    """Build a registered ManiSkill env with ``gym.make`` and return it.
+
+    `config` (default `EnvConfig()`) with `overrides` applied, e.g. ``make_env("PickCube-v1", obs_mode="rgb")``;
+    see `EnvConfig` for every argument. Custom tasks must be registered first (`simreel.sim.user_code.import_user_code`);
+    simreel's own example tasks (``Simreel*``) register themselves.
+
+    Raises:
+        EnvBuildError: unknown env id (with close matches), missing assets, bad kwargs (ManiSkill's own message).
+        RenderUnavailableError: cameras or ``render_mode`` were asked for but there is no render device, or the
+            task cannot be built without one (PushT-v1).
+    """
+    cfg = (config or EnvConfig()).with_overrides(**overrides)
+    repeated = sorted(set(EnvConfig.names()) & set(cfg.env_kwargs))
+    if repeated:
+        raise EnvBuildError(
+            f"{env_id}: env_kwargs repeats {', '.join(repeated)}; pass them as make_env keyword arguments instead"
+        )
+    configure_vulkan()
+    if cfg.render_backend == "auto":
+        start_render_probe()  # runs in a child process while mani_skill imports here
+    gym = _registered(env_id)
+    backend = _prepare_render(env_id, cfg)
+    kwargs = _gym_kwargs(cfg, backend)
+    try:
+        return gym.make(env_id, **kwargs)
+    except SystemExit as exc:  # ManiSkill calls exit() when asked for assets it cannot get
+        raise EnvBuildError(f"{env_id}: ManiSkill exited while building the env ({exc.code})") from exc
+    except Exception as exc:
+        raise _build_error(env_id, exc, backend=backend, cfg=cfg) from exc
+
+
+def prepare_plain_gym_make() -> None:
+    """Let the user's own ``gym.make`` (not `make_env`) build ManiSkill envs on this machine.
+
+    Points Vulkan at the software driver `make setup` fetched (`configure_vulkan`); where no render device is
+    expected (no NVIDIA GPU, no fetched driver) it asks the probe (a child process, ~0.3 s), and when there is
+    no device installs the no-render layer, so ``gym.make(env_id, obs_mode="state", render_backend="none")``
+    builds (ManiSkill itself needs ``render_backend="none"`` there). Call it before ``gym.make``;
+    importing `simreel.recorders` does.
+    """
+    configure_vulkan()
+    if device_expected() or probe_render_device().backend != "none":
+        return
+    from simreel.sim import norender
+
+    with quiet_sapien_import():
+        norender.install()
+
+
+def _registered(env_id: str) -> Any:
+    """Import mani_skill (registering its tasks; simreel's too for a ``Simreel*`` id), check `env_id` is known
+    and its assets are there; return gymnasium."""
+    import gymnasium
+
+    with quiet_sapien_import():
+        import mani_skill.envs  # noqa: F401  (registers the built-in tasks)
+    from mani_skill.utils.registration import REGISTERED_ENVS
+
+    spec = REGISTERED_ENVS.get(env_id)
+    if spec is None and env_id.startswith(SIMREEL_TASK_PREFIX):
+        import simreel.tasks  # noqa: F401  (simreel's example tasks register on import)
+
+        spec = REGISTERED_ENVS.get(env_id)
+    if spec is None:
+        raise EnvBuildError(_unknown_env_message(env_id, sorted(REGISTERED_ENVS)))
+    missing = _missing_assets(spec)
+    if missing:
+        raise EnvBuildError(
+            f"{env_id} needs assets that are not downloaded: {' '.join(missing)}. Fetch them with "
+            f"`python -m mani_skill.utils.download_asset {missing[0]}` (needs internet; MS_ASSET_DIR sets where)"
+        )
+    return gymnasium
+
+
+def _unknown_env_message(env_id: str, known: list[str]) -> str:
+    by_lower = {name.lower(): name for name in known}
+    close = difflib.get_close_matches(env_id.lower(), list(by_lower), n=3, cutoff=0.6)
+    hint = f"did you mean {', '.join(by_lower[c] for c in close)}?" if close else f"{len(known)} are registered"
+    return (
+        f"unknown ManiSkill env id {env_id!r}: {hint} "
+        "(a custom task must be registered first: pass --import MODULE_OR_FILE.py)"
+    )
+
+
+def _missing_assets(spec: Any) -> list[str]:
+    """Asset ids a registered task needs that are not downloaded (ManiSkill would prompt on stdin, then exit)."""
+    from mani_skill.utils import assets
+
+    missing: list[str] = []
+    for asset_id in spec.asset_download_ids or []:
+        if asset_id in assets.DATA_GROUPS:
+            ids = assets.expand_data_group_into_individual_data_source_ids(asset_id)
+        else:
+            ids = [asset_id]
+        missing += [i for i in ids if i in assets.DATA_SOURCES and not assets.is_data_source_downloaded(i)]
+    return missing
+
+
+def _prepare_render(env_id: str, cfg: EnvConfig) -> str:
+    """The ManiSkill render backend to build with; without a device, check that the env needs none and switch
+    on the no-render layer."""
+    backend, why = _resolve_render_backend(cfg.render_backend)
+    if backend == "none":
+        needs = camera_use(cfg.obs_mode, cfg.env_kwargs.get("render_mode"))
+        if needs is not None:
+            raise RenderUnavailableError(
+                f"{env_id}: {needs}, but there is no render device ({why}). {_FETCH_LAVAPIPE} "
+                "or use a GPU machine; or use obs_mode='state' and no render_mode."
+            )
+        from simreel.sim import norender
+
+        norender.check_task(env_id)
+        norender.install()
+    return backend
+
+
+def _resolve_render_backend(render_backend: str | None) -> tuple[str, str]:
+    """Return (ManiSkill render_backend, why)."""
+    if render_backend is None or render_backend == "none":
+        return "none", "render_backend='none' was asked for"
+    if render_backend != "auto":
+        return render_backend, f"render_backend={render_backend!r} was asked for"
+    probe = probe_render_device()
+    return probe.backend, probe.detail
+
+
+def _gym_kwargs(cfg: EnvConfig, backend: str) -> dict[str, Any]:
+    kwargs: dict[str, Any] = {
+        **cfg.env_kwargs,
+        "num_envs": cfg.num_envs,
+        "obs_mode": cfg.obs_mode,
+        "control_mode": cfg.control_mode,
+        "reward_mode": cfg.reward_mode,
+        "sim_backend": cfg.sim_backend,
+        "render_backend": backend,
+    }
+    if cfg.sim_config is not None:
+        kwargs["sim_config"] = cfg.sim_config
+    if cfg.max_episode_steps is not None:
+        kwargs["max_episode_steps"] = cfg.max_episode_steps
+    return kwargs
+
+
+_FETCH_LAVAPIPE = "Run `make setup` to fetch the software Vulkan driver (lavapipe)"
+
+
+def _build_error(env_id: str, exc: Exception, *, backend: str, cfg: EnvConfig) -> Exception:
+    message = " ".join(str(exc).split())  # one line
+    if message == "failed to find a rendering device" or "ErrorIncompatibleDriver" in message:
+        return RenderUnavailableError(
+            f"{env_id}: render_backend={backend!r} but there is no render device. {_FETCH_LAVAPIPE}, "
+            "or pass render_backend='auto' (or 'none' with obs_mode='state')."
+        )
+    if message == 'failed to find device "cuda"':
+        if cfg.num_envs > 1 and cfg.sim_backend in ("auto", "gpu", "cuda", "physx_cuda"):
+            return EnvBuildError(
+                f"{env_id}: num_envs={cfg.num_envs} needs the GPU sim (PhysX CUDA) and this machine has no CUDA "
+                "device; use num_envs=1 (CPU sim), or gymnasium's AsyncVectorEnv for several CPU envs"
+            )
+        return EnvBuildError(f"{env_id}: a CUDA device was asked for and this machine has none ({message})")
+    if isinstance(exc, AttributeError) and "render_shapes" in message:
+        return RenderUnavailableError(
+            f"{env_id} reads render shapes while building its scene, which needs a render device ({message}). "
+            f"{_FETCH_LAVAPIPE}, or use a GPU machine."
+        )
+    return EnvBuildError(f"{env_id}: could not build the env: {type(exc).__name__}: {message}")
+
+
+def env_versions() -> dict[str, str | None]:
+    """Versions of simreel, mani_skill, sapien, torch, numpy, gymnasium and Python (None: not installed).
+
+    Read from package metadata, so nothing heavy is imported.
+    """
+    import platform
+    from importlib import metadata
+
+    versions: dict[str, str | None] = {}
+    for key, distribution in _VERSIONED_DISTRIBUTIONS.items():
+        try:
+            versions[key] = metadata.version(distribution)
+        except metadata.PackageNotFoundError:
+            versions[key] = None
+    if versions["simreel"] is None:
+        from simreel import __version__
+
+        versions["simreel"] = __version__
+    versions["python"] = platform.python_version()
+    return versions

@@ -1,0 +1,212 @@
+"""A live env's state: read it (fast where that is exact), restore all of it, and check its layout.
+
+- `read_state` / `FastStateReader`: the flat state dict of a live env.
+- `restore_state`: put a recorded state back, all of it (task, custom keys, controller, step count).
+- `check_rebuilt_layout` / `check_same_layout`: the one check that a live env's state layout is the one a
+  recording needs, raising `simreel.errors.StateLayoutError` naming every leaf that differs.
+
+Fast reads: ManiSkill 3.0.1's `get_state_dict()` builds a `Pose` and several torch tensors per object (~240 µs for
+PickCube, a fifth of a CPU step). On the CPU sim with one env the same numbers are plain attributes of
+the SAPIEN entities; `FastStateReader` reads them into numpy (~30 µs). It is used only where it gives the
+very same values: a task that does not override `get_state_dict` (or only adds declared custom state
+through `simreel.authoring.custom_state.CustomStateMixin`), registry objects of ManiSkill's own `Actor` /
+`Articulation` classes, CPU sim, `num_envs == 1`. Its users (the recorder, the replay engine) check it
+bit for bit against `get_state_dict()` with `matches()` and fall back to `get_state_dict()` on any
+difference.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from simreel.errors import StateLayoutError
+from simreel.state_tree import LeafSpec, flatten, layout_differences, layout_of, to_numpy, unflatten
+
+__all__ = [
+    "FastStateReader",
+    "read_state",
+    "restore_state",
+    "state_row",
+    "live_layout",
+    "check_rebuilt_layout",
+    "check_same_layout",
+]
+
+
+def _base_get_state_dict() -> tuple[Any, ...]:
+    from mani_skill.envs.sapien_env import BaseEnv
+
+    from simreel.authoring.custom_state import CustomStateMixin
+
+    return BaseEnv.get_state_dict, CustomStateMixin.get_state_dict
+
+
+class FastStateReader:
+    """`read()` → flat state dict (key path → (1, ...) float32 array) of a supported CPU env."""
+
+    def __init__(self, unwrapped: Any) -> None:
+        from mani_skill.utils.structs import Actor, Articulation
+
+        u = unwrapped
+        self.u = u
+        self._actors: list[tuple[str, Any, Any, bool]] = []
+        self._arts: list[tuple[str, Any, Any]] = []
+        reg = u.scene.state_dict_registry
+        for name, actor in reg.actors.items():
+            if type(actor) is not Actor or len(actor._objs) != 1:
+                raise TypeError(name)
+            kind = actor.px_body_type
+            if kind == "static":
+                continue
+            self._actors.append((f"actors/{name}", actor._objs[0], actor._bodies[0], kind == "dynamic"))
+        for name, art in reg.articulations.items():
+            if type(art) is not Articulation or len(art._objs) != 1 or art.max_dof != art._objs[0].dof:
+                raise TypeError(name)
+            root = art.root
+            self._arts.append((f"articulations/{name}", art._objs[0], root._bodies[0]))
+        self._custom = type(u).get_state_dict is _base_get_state_dict()[1]
+
+    @classmethod
+    def for_env(cls, unwrapped: Any) -> FastStateReader | None:
+        """A reader for `unwrapped`, or None where only `get_state_dict()` gives the right answer."""
+        from mani_skill.envs.scene import ManiSkillScene
+
+        u = unwrapped
+        if getattr(u, "gpu_sim_enabled", True) or int(u.num_envs) != 1:
+            return None
+        if type(u).get_state_dict not in _base_get_state_dict():
+            return None
+        if type(u.scene).get_sim_state is not ManiSkillScene.get_sim_state:
+            return None
+        try:
+            return cls(u)
+        except (TypeError, AttributeError, IndexError):
+            return None
+
+    def read(self) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        zeros = np.zeros(3, np.float32)
+        for key, entity, body, dynamic in self._actors:
+            pose = entity.pose
+            if dynamic:
+                v, w = body.linear_velocity, body.angular_velocity
+            else:
+                v = w = zeros
+            out[key] = np.concatenate([pose.p, pose.q, v, w]).astype(np.float32, copy=False)[None]
+        for key, px_art, root in self._arts:
+            pose = root.entity_pose
+            out[key] = np.concatenate(
+                [pose.p, pose.q, root.linear_velocity, root.angular_velocity, px_art.qpos, px_art.qvel]
+            ).astype(np.float32, copy=False)[None]
+        u = self.u
+        agent = getattr(u, "agent", None)
+        if agent is not None:
+            controller = agent.get_controller_state()
+            if isinstance(agent.controller, dict):
+                controller = {k: v for k, v in controller.items() if len(v) > 0}
+            if len(controller) > 0:
+                out.update(flatten({"controller": controller}))
+        if self._custom:
+            from simreel.authoring.custom_state import get_custom_state
+
+            out.update({k: to_numpy(v) for k, v in get_custom_state(u).items()})
+        return out
+
+    def matches(self) -> bool:
+        """Whether `read()` equals `get_state_dict()` now, bit for bit, key for key."""
+        fast, slow = self.read(), flatten(self.u.get_state_dict())
+        if list(fast) != list(slow) and set(fast) != set(slow):
+            return False
+        return all(
+            fast[k].shape == slow[k].shape and fast[k].dtype == slow[k].dtype and np.array_equal(fast[k], slow[k])
+            for k in slow
+        )
+
+
+def read_state(unwrapped: Any) -> dict[str, np.ndarray]:
+    """The flat state dict of a live env, key path → (num_envs, ...) array (ManiSkill's `get_state_dict()`)."""
+    return flatten(unwrapped.get_state_dict())
+
+
+# ------------------------------------------------------------------------------------------ restoring
+# ManiSkill 3.0.1's `BaseEnv.set_state_dict` restores actors and articulations (and, through a task's override
+# such as `CustomStateMixin`, custom task keys) but ignores the ``controller`` entry that `get_state_dict`
+# returns for target-based control modes (``pd_ee_target_delta_pos``, ...): the controller keeps the target of
+# the env's own last step. `restore_state` also hands the controller its saved targets, and sets the episode's
+# elapsed step count, which the time limit and ``info["elapsed_steps"]`` read.
+
+
+def state_row(env_states: Mapping[str, np.ndarray], t: int) -> dict[str, np.ndarray]:
+    """Row t of flat (T+1, ...) state arrays, each with a batch dimension of 1."""
+    return {p: a[t : t + 1] for p, a in env_states.items()}
+
+
+def _to_torch(tree: Any, device: Any) -> Any:
+    import torch
+
+    if isinstance(tree, Mapping):
+        return {k: _to_torch(v, device) for k, v in tree.items()}
+    return torch.as_tensor(np.array(tree), device=device)  # a copy: controllers may modify targets in place
+
+
+def restore_state(unwrapped: Any, flat_state: Mapping[str, np.ndarray], *, elapsed_steps: int | None = None) -> None:
+    """Put the env into the recorded state `flat_state` (key path → (1, ...) array).
+
+    Calls the task's `set_state_dict` (actors, articulations, custom keys), then the agent's
+    `set_controller_state` with the saved ``controller`` entry, and sets the elapsed step count when given.
+    """
+    u = unwrapped
+    state = _to_torch(unflatten(flat_state), u.device)
+    u.set_state_dict(state)
+    controller = state.get("controller")
+    agent = getattr(u, "agent", None)
+    if controller and agent is not None:
+        agents = getattr(agent, "agents_dict", None)  # MultiAgent: one controller state per robot uid
+        if agents is not None:
+            for uid, sub in controller.items():
+                if uid in agents and sub:
+                    agents[uid].set_controller_state(sub)
+        else:
+            agent.set_controller_state(controller)
+    if elapsed_steps is not None:
+        u._elapsed_steps[...] = int(elapsed_steps)
+
+
+# ------------------------------------------------------------------------------------------ the layout
+def live_layout(unwrapped: Any) -> dict[str, LeafSpec]:
+    """The per-env layout (key path → shape, dtype) of a live env's state dict."""
+    return layout_of(read_state(unwrapped), batched=True)
+
+
+def _layout_error(want: Mapping[str, LeafSpec], have: Mapping[str, LeafSpec], labels: tuple[str, str],
+                  what: str, fix: str) -> StateLayoutError | None:
+    diffs = layout_differences(want, have, old_label=labels[0], new_label=labels[1])
+    if not diffs:
+        return None
+    more = f"; {len(diffs) - 4} more" if len(diffs) > 4 else ""
+    return StateLayoutError(f"{what} ({'; '.join(diffs[:4])}{more}); {fix}")
+
+
+def check_rebuilt_layout(unwrapped: Any, env_id: str, recorded: Mapping[str, LeafSpec]) -> None:
+    """Raise `StateLayoutError` unless the env rebuilt for a recording of `env_id` has its `recorded` layout."""
+    error = _layout_error(
+        recorded, live_layout(unwrapped), ("recorded", "rebuilt"),
+        f"the rebuilt {env_id} has another state layout than the recording",
+        "rebuild it with the task version and --import modules that recorded it (see `simreel inspect`)",
+    )
+    if error is not None:
+        raise error
+
+
+def check_same_layout(env_id: str, first: Mapping[str, LeafSpec], now: Mapping[str, LeafSpec]) -> None:
+    """Raise `StateLayoutError` when a task's state layout `now` is not the layout of its `first` episode."""
+    error = _layout_error(
+        first, now, ("first episode", "now"),
+        f"the state dict of {env_id} changed after a reset",
+        "one recording needs one layout — register merged views for per-episode objects (see simreel.heterogeneous)",
+    )
+    if error is not None:
+        raise error
