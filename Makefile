@@ -6,6 +6,8 @@ STAMP  := $(VENV)/.simreel-setup
 MESA   := $(VENV)/share/simreel/mesa
 DEMO   := demo_out
 PYTEST_ARGS ?=
+# One worker per core, each test file on one worker (module fixtures are built once; README blocks run in order).
+PARALLEL := -n auto --dist loadfile
 
 .PHONY: setup demo test test-all test-gpu lint bench clean
 
@@ -35,10 +37,10 @@ lint: setup
 	$(BIN)/ruff check simreel recorders replay viewers tests benchmarks
 
 test: lint
-	$(BIN)/python -m pytest $(PYTEST_ARGS)
+	$(BIN)/python -m pytest $(PARALLEL) $(PYTEST_ARGS)
 
 test-all: lint
-	$(BIN)/python -m pytest -m "not gpu" $(PYTEST_ARGS)
+	$(BIN)/python -m pytest $(PARALLEL) -m "not gpu" $(PYTEST_ARGS)
 
 test-gpu: setup
 	$(BIN)/python -m pytest -m gpu $(PYTEST_ARGS)

@@ -67,7 +67,7 @@ def _ensure_render_or_norender() -> None:
         from simreel.sim import norender
 
         norender.install()
-        print("no render device: ManiSkill's tool runs with simreel.norender installed")
+        print("no render device: ManiSkill's tool runs with simreel.sim.norender installed")
 
 
 def _timed(fn: Any) -> tuple[float, float]:

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import types
+import typing
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.errors import EpisodeLayoutError
+from simreel.errors import EpisodeLayoutError, MetadataError
 from simreel.state_tree import LeafSpec, unflatten
 
 __all__ = [
@@ -65,6 +67,41 @@ def json_default(o: Any) -> Any:
     return repr(o)
 
 
+def _accepts(annotation: Any) -> tuple[type, ...]:
+    """The JSON value types a field annotated `annotation` accepts (an int where a float is declared)."""
+    if isinstance(annotation, types.UnionType) or typing.get_origin(annotation) is typing.Union:
+        return tuple(t for arg in typing.get_args(annotation) for t in _accepts(arg))
+    origin = typing.get_origin(annotation) or annotation
+    if annotation is type(None):
+        return (type(None),)
+    if origin is float:
+        return (int, float)
+    return (origin,) if isinstance(origin, type) else (object,)
+
+
+def _type_name(annotation: Any) -> str:
+    return annotation.__name__ if isinstance(annotation, type) else str(annotation).replace("typing.", "")
+
+
+def _fields_from_json(cls: type, d: Any, what: str) -> dict[str, Any]:
+    """The fields of dataclass `cls` found in JSON object `d`, each checked against its declared type;
+    `MetadataError` naming `what`, the field and what was found. Unknown keys are ignored (newer writers)."""
+    if not isinstance(d, Mapping):
+        raise MetadataError(f"{what} is {type(d).__name__}, expected a JSON object")
+    hints = typing.get_type_hints(cls)
+    out = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in d:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise MetadataError(f"{what} lacks {f.name!r}")
+            continue
+        value, accepted = d[f.name], _accepts(hints[f.name])
+        if not isinstance(value, accepted) or (isinstance(value, bool) and bool not in accepted):
+            raise MetadataError(f"{what}: {f.name} is {value!r}, expected {_type_name(hints[f.name])}")
+        out[f.name] = value
+    return out
+
+
 @dataclass(frozen=True)
 class ContactChannel:
     """One recorded contact-force channel.
@@ -85,7 +122,16 @@ class ContactChannel:
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> ContactChannel:
-        return cls(str(d["kind"]), tuple(d["bodies"]))
+        """`MetadataError` unless `d` is a net channel of one body or a pair channel of two."""
+        if not isinstance(d, Mapping):
+            raise MetadataError(f"contact channel {d!r}: expected {{'kind': 'net' | 'pair', 'bodies': [...]}}")
+        kind, bodies = d.get("kind"), d.get("bodies")
+        count = {"net": 1, "pair": 2}.get(kind) if isinstance(kind, str) else None
+        if count is None or not isinstance(bodies, list) or len(bodies) != count or not all(
+            isinstance(b, str) and b for b in bodies
+        ):
+            raise MetadataError(f"contact channel {dict(d)!r}: expected kind 'net' with 1 body name or 'pair' with 2")
+        return cls(kind, tuple(bodies))
 
 
 @dataclass
@@ -136,11 +182,16 @@ class RecordingMeta:
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> RecordingMeta:
-        known = {f.name for f in dataclasses.fields(cls)}
-        kw = {k: v for k, v in d.items() if k in known}
+        """The metadata of JSON object `d`; `MetadataError` naming the first field that is missing or malformed."""
+        kw = _fields_from_json(cls, d, "recording metadata")
         for key in ("state_layout", "obs_layout", "info_layout"):
-            kw[key] = {p: LeafSpec.from_json(s) for p, s in d.get(key, {}).items()}
-        kw["contact_channels"] = [ContactChannel.from_json(c) for c in d.get("contact_channels", [])]
+            kw[key] = {p: LeafSpec.from_json(s) for p, s in kw.get(key, {}).items()}
+        kw["contact_channels"] = [ContactChannel.from_json(c) for c in kw.get("contact_channels", [])]
+        if kw.get("num_envs", 1) < 1:
+            raise MetadataError(f"recording metadata: num_envs is {kw['num_envs']}, expected >= 1")
+        shape = kw.get("action_space", {}).get("shape", [])
+        if not isinstance(shape, list) or not all(isinstance(x, int) and x >= 0 for x in shape):
+            raise MetadataError(f"recording metadata: action_space shape is {shape!r}, expected a list of sizes")
         return cls(**kw)
 
 
@@ -169,8 +220,12 @@ class EpisodeMeta:
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> EpisodeMeta:
-        known = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{k: v for k, v in d.items() if k in known})
+        """The metadata of JSON object `d`; `MetadataError` naming the first field that is missing or malformed."""
+        kw = _fields_from_json(cls, d, "episode metadata")
+        for name in ("index", "length", "env_idx"):
+            if kw.get(name, 0) < 0:
+                raise MetadataError(f"episode metadata: {name} is {kw[name]}, expected >= 0")
+        return cls(**kw)
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,8 @@ __all__ = [
     "EnvBuildError",
     "ContactSpecError",
     "EpisodeLayoutError",
+    "MetadataError",
+    "KeyPathError",
     "StateLayoutError",
     "CustomStateError",
     "HeterogeneousBuildError",
@@ -60,6 +62,16 @@ class EpisodeLayoutError(SimreelError, ValueError):
     """An episode's arrays do not fit its recording's field table (`simreel.episode.episode_fields`): a field
     is missing, has another row shape, or a row count that does not fit T (per step) or T+1 (per state).
     Also a `ValueError`, which writers raised for this before."""
+
+
+class MetadataError(SimreelError, ValueError):
+    """Recording metadata (`RecordingMeta`, `EpisodeMeta`, a layout) read from JSON is malformed: a field is
+    missing or of the wrong type. Readers report it with the file's name."""
+
+
+class KeyPathError(SimreelError, ValueError):
+    """A nested state dict cannot become flat key paths, or flat key paths cannot become a nested dict (a key
+    holding ``/``, an empty key, a path below a leaf)."""
 
 
 class StateLayoutError(SimreelError):

@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from simreel.errors import KeyPathError, MetadataError
+
 __all__ = ["LeafSpec", "flatten", "unflatten", "to_numpy", "layout_of", "layout_differences", "describe_leaf", "SEP"]
 
 SEP = "/"
@@ -30,7 +32,18 @@ class LeafSpec:
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> LeafSpec:
-        return cls(tuple(int(x) for x in d["shape"]), str(d["dtype"]))
+        """The spec of `d` = ``{"shape": [...], "dtype": "..."}``; `MetadataError` naming what is wrong."""
+        if not isinstance(d, Mapping) or "shape" not in d or "dtype" not in d:
+            raise MetadataError(f"leaf spec {d!r}: expected {{'shape': [...], 'dtype': '...'}}")
+        shape, dtype = d["shape"], d["dtype"]
+        if not isinstance(shape, list) or not all(isinstance(x, int) and not isinstance(x, bool) and x >= 0
+                                                  for x in shape):
+            raise MetadataError(f"leaf spec {d!r}: shape must be a list of sizes >= 0")
+        try:
+            np.dtype(dtype)
+        except TypeError:
+            raise MetadataError(f"leaf spec {d!r}: {dtype!r} is not a numpy dtype") from None
+        return cls(tuple(shape), str(dtype))
 
 
 def to_numpy(x: Any) -> np.ndarray:
@@ -44,8 +57,10 @@ def to_numpy(x: Any) -> np.ndarray:
 
 def _walk(tree: Mapping[str, Any], prefix: str) -> Iterator[tuple[str, Any]]:
     for key, value in tree.items():
+        if not isinstance(key, str) or not key:
+            raise KeyPathError(f"state key {key!r} under {prefix or 'the root'!r}: keys must be non-empty strings")
         if SEP in key:
-            raise ValueError(f"state key {key!r} contains {SEP!r}; key paths could not be split back")
+            raise KeyPathError(f"state key {key!r} contains {SEP!r}; key paths could not be split back")
         path = f"{prefix}{key}"
         if isinstance(value, Mapping):
             yield from _walk(value, path + SEP)
@@ -59,14 +74,23 @@ def flatten(tree: Mapping[str, Any], *, prefix: str = "") -> dict[str, np.ndarra
 
 
 def unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
-    """Inverse of `flatten`: `{"a/b": x}` → `{"a": {"b": x}}`."""
+    """Inverse of `flatten`: `{"a/b": x}` → `{"a": {"b": x}}`.
+
+    Raises `KeyPathError` for a path with an empty part (``a//b``) and for a path that is both a leaf and a
+    group of other paths (``a`` and ``a/b``)."""
     tree: dict[str, Any] = {}
     for path, value in flat.items():
+        parts = path.split(SEP)
+        if not all(parts):
+            raise KeyPathError(f"key path {path!r} has an empty part")
         node = tree
-        *parents, leaf = path.split(SEP)
-        for part in parents:
+        for k, part in enumerate(parts[:-1]):
             node = node.setdefault(part, {})
-        node[leaf] = value
+            if not isinstance(node, dict):
+                raise KeyPathError(f"key path {path!r} goes below the leaf {SEP.join(parts[: k + 1])!r}")
+        if isinstance(node.get(parts[-1]), dict):
+            raise KeyPathError(f"key path {path!r} is both a leaf and a group of other paths")
+        node[parts[-1]] = value
     return tree
 
 

@@ -1,16 +1,22 @@
-"""Shared fixtures: environments for subprocesses that render with lavapipe, or that have no render device.
+"""Shared fixtures: environments for subprocesses that render with lavapipe or have no render device, real
+recordings made once per session, and the viewer tests' recording and .rrd reader.
 
 Vulkan variables must be set before sapien loads, so tests of either render mode run their env code in a
-subprocess started with one of these environments (see tests/test_envs.py).
+subprocess started with one of these environments (see tests/sim/test_make.py).
 """
 
 from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from support.rrd import read_rrd
+from support.viewer_data import record_pickcube, write_variant
+
+from simreel.cli.main import main
 
 REPO = Path(__file__).resolve().parents[1]
 _VULKAN_VARS = ("VK_ICD_FILENAMES", "VK_DRIVER_FILES", "VK_ADD_DRIVER_FILES", "SIMREEL_VK_ICD")
@@ -54,3 +60,56 @@ def no_render_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     if any(os.path.exists(p) for p in _SYSTEM_VULKAN):
         env["VK_ICD_FILENAMES"] = env["SIMREEL_VK_ICD"]
     return env
+
+
+@pytest.fixture(scope="session")
+def record(tmp_path_factory: pytest.TempPathFactory) -> Callable[..., Path]:
+    """`record(env_id, n=2, steps=20, *extra_args)` → path of a fresh recording (cached per argument list), made
+    in-process and state-only (no render device needed)."""
+    cache: dict[tuple, Path] = {}
+    folder = tmp_path_factory.mktemp("recordings")
+
+    def _record(env_id: str, n: int = 2, steps: int = 20, *extra: str) -> Path:
+        key = (env_id, n, steps, *extra)
+        if key not in cache:
+            out = folder / f"{len(cache):02d}_{env_id}.h5"
+            args = ["record", env_id, "-o", str(out), "-n", str(n), "--max-steps", str(steps), "--seed", "3",
+                    "--render-backend", "none", "-q", *extra]
+            if env_id.startswith("Simreel"):
+                args += ["--policy", "scripted", "--import", "simreel.tasks"]
+            assert main(args) == 0
+            cache[key] = out
+        return cache[key]
+
+    return _record
+
+
+@pytest.fixture(scope="session")
+def rrd_reader():
+    return read_rrd
+
+
+@pytest.fixture(scope="session")
+def variant():
+    """`variant(src, dst, shift_from=, drop_poses=, camera=)`: see `support.viewer_data.write_variant`."""
+    return write_variant
+
+
+@pytest.fixture(scope="session")
+def pickcube_h5(tmp_path_factory) -> Path:
+    """30 steps of PickCube-v1 with body poses recorded (see `support.viewer_data.record_pickcube`)."""
+    path = tmp_path_factory.mktemp("rec") / "pickcube.h5"
+    record_pickcube(path, poses=True)
+    return path
+
+
+@pytest.fixture(scope="session")
+def view_env(pickcube_h5):
+    """One PickCube env rebuilt for viewing (collision geometry, no rendering), shared by the tests."""
+    from simreel.formats import open_reader
+    from simreel.viewers import rebuild_env
+
+    with open_reader(pickcube_h5) as r:
+        env = rebuild_env(r.meta, geometry="collision")
+    yield env
+    env.close()

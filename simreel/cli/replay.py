@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from simreel.replay.verify import ReplayRun
 
     if args.report is not None:
-        outputs = {"--report": [args.report], "-o": recording_files(args.output) if args.output else []}
+        outputs = {"-o": recording_files(args.output) if args.output else [], "--report": [args.report]}
         check_distinct(outputs, recording_files(args.path), input_label="the recording being replayed")
         check_output(args.report, overwrite=args.overwrite, option="--report")
     with ReplayRun(args.path, _options(args)) as replay:  # a bad file or option fails here, before any env

@@ -21,7 +21,7 @@ from simreel.formats import open_reader, open_writer
 from simreel.formats.hdf5 import partial_dir, sidecar_path
 from simreel.state_tree import LeafSpec
 
-HERE = Path(__file__).parent
+SUPPORT = Path(__file__).parents[1] / "support"
 
 
 def _meta() -> RecordingMeta:
@@ -207,7 +207,7 @@ def test_truncated_and_newer_files_are_refused(tmp_path):
 def test_kill_9_keeps_every_committed_episode(tmp_path):
     """A real recording process killed mid-episode: every episode it committed is readable."""
     path = tmp_path / "killed.h5"
-    child = subprocess.Popen([sys.executable, str(HERE / "record_until_killed.py"), str(path)],
+    child = subprocess.Popen([sys.executable, str(SUPPORT / "record_until_killed.py"), str(path)],
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     side = sidecar_path(path)
     deadline = time.monotonic() + 120
@@ -235,3 +235,17 @@ def test_kill_9_keeps_every_committed_episode(tmp_path):
     out = subprocess.run([sys.executable, "-m", "simreel", "inspect", str(path)], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert f"episodes: {len(r)}," in out.stdout
+
+
+def test_a_short_episode_with_a_large_field_is_written_whole(tmp_path):
+    """Regression: a field over the contiguous limit with fewer rows than a chunk (6 camera frames) failed
+    ("Chunk shape must not be greater than data shape")."""
+    import dataclasses
+
+    meta = dataclasses.replace(_meta(), obs_layout={"rgb": LeafSpec((128, 128, 3), "uint8")})
+    ep = _episode(0, 5, np.random.default_rng(3))
+    ep.obs = {"rgb": np.random.default_rng(4).integers(0, 255, (6, 128, 128, 3), dtype=np.uint8)}
+    with open_writer(tmp_path / "big.h5", meta) as w:
+        w.write_episode(ep)
+    with open_reader(tmp_path / "big.h5") as r:
+        np.testing.assert_array_equal(r.read_episode(0).obs["rgb"], ep.obs["rgb"])

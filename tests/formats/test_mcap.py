@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import signal
 import subprocess
@@ -11,28 +10,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
 
 from simreel.errors import EpisodeLayoutError, RecordingFileError, SimreelError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.copy import convert, recover
 from simreel.formats.mcap import TOPICS, McapReader, McapWriter
 
-HERE = Path(__file__).parent
+SUPPORT = Path(__file__).parents[1] / "support"
 
 
 # ----------------------------------------------------------------------------------- helpers
-def _load_samples():
-    spec = importlib.util.spec_from_file_location("mcap_samples", Path(__file__).with_name("mcap_samples.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-_samples = _load_samples()
-synthetic_meta, synthetic_episode = _samples.synthetic_meta, _samples.synthetic_episode
-assert_same_episode, write = _samples.assert_same_episode, _samples.write
-
-
 def messages(path: Path, topic: str) -> list:
     from mcap.reader import make_reader
 
@@ -462,7 +450,7 @@ def test_recover_o_with_an_h5_suffix_writes_hdf5(tmp_path):
 # ----------------------------------------------------------------------------------- kill -9
 def test_kill_9_then_recover_keeps_every_committed_episode(tmp_path, monkeypatch, capsys):
     out = tmp_path / "killed.mcap"
-    child = subprocess.Popen([sys.executable, str(HERE / "mcap_kill_child.py"), str(out), "3", "12"],
+    child = subprocess.Popen([sys.executable, str(SUPPORT / "mcap_kill_child.py"), str(out), "3", "12"],
                              stdout=subprocess.PIPE, text=True)
     try:
         lines = []
@@ -487,15 +475,14 @@ def test_kill_9_then_recover_keeps_every_committed_episode(tmp_path, monkeypatch
     assert "recovered 3 committed episode(s), 36 steps" in printed
     assert "lost (never committed): episode 3 (env 0, " in printed  # the running one, with its steps on disk
 
-    spec = importlib.util.spec_from_file_location("mcap_kill_child", HERE / "mcap_kill_child.py")
-    child_module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(child_module)
+    from support.mcap_kill_child import episode_actions
+
     with open_reader(out) as r:
         assert [(m.index, m.seed, m.length) for m in r.episodes] == [(k, k, 12) for k in range(3)]
         assert r.unfinished == []
         for k in range(3):
             ep = r.read_episode(k)
-            np.testing.assert_array_equal(ep.actions, child_module.episode_actions(k, 12))
+            np.testing.assert_array_equal(ep.actions, episode_actions(k, 12))
             assert ep.env_states["actors/cube"].shape == (13, 13) and ep.body_poses.shape[0] == 13
 
 

@@ -194,3 +194,16 @@ def test_wrappers_that_change_actions_must_sit_above_the_recorder(tmp_path):
     with pytest.raises(UsageError, match="RecordWrapper wraps ClipAction, which changes the task's actions"):
         RecordWrapper(gym.wrappers.ClipAction(make_env("PushCube-v1")), tmp_path / "w.h5")
     assert not (tmp_path / "w.h5").exists()
+
+
+def test_the_wrapper_keeps_its_arguments_in_env_spec(tmp_path):
+    """Like gymnasium's own wrappers (RecordConstructorArgs): the spec names the recorder and its options."""
+    path = tmp_path / "r.h5"
+    env = RecordWrapper(make_env("PushCube-v1"), path, contacts="none", record_obs=True, block_steps=16)
+    try:
+        wrapper = env.spec.additional_wrappers[-1]
+        assert wrapper.name == "RecordWrapper"
+        assert wrapper.kwargs == {"path": str(path), "contacts": "none", "record_obs": True, "block_steps": 16}
+        assert env.options.record_obs and env.options.block_steps == 16
+    finally:
+        env.close()

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from support.viewer_data import STEPS  # the length of the `pickcube_h5` recording
 
 from simreel.formats import open_reader
 from simreel.viewers import build_session
 from simreel.viewers.log_contacts import FORCE_THRESHOLD_N
 from simreel.viewers.poses import wxyz_to_xyzw
 
-STEPS = 30  # the length of the `pickcube_h5` recording (conftest.STEPS)
 DIVERGE_AT = 12
 T_ = "Transform3D:translation"
 Q_ = "Transform3D:quaternion"

@@ -82,13 +82,20 @@ class Hdf5Reader(EpisodeReader):
                 self.path,
                 f"format version {version} is newer than this simreel reads ({FORMAT_VERSION}); upgrade simreel",
             )
-        return RecordingMeta.from_json(json.loads(attrs[META_ATTR]))
+        try:
+            return RecordingMeta.from_json(json.loads(attrs[META_ATTR]))
+        except (ValueError, TypeError) as e:  # MetadataError and JSONDecodeError are ValueErrors
+            raise RecordingFileError(self.path, f"bad simreel metadata ({e})") from None
 
     def _read_episode_metas(self) -> list[EpisodeMeta]:
         metas = []
         for name in self._file:
-            if name.startswith("traj_") and EPISODE_ATTR in self._file[name].attrs:
+            if not (name.startswith("traj_") and EPISODE_ATTR in self._file[name].attrs):
+                continue
+            try:
                 metas.append(EpisodeMeta.from_json(json.loads(self._file[name].attrs[EPISODE_ATTR])))
+            except (ValueError, TypeError) as e:
+                raise RecordingFileError(self.path, f"{name}: bad episode metadata ({e})") from None
         return sorted(metas, key=lambda m: m.index)
 
     def read_episode(self, index: int) -> Episode:

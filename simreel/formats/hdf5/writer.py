@@ -78,7 +78,7 @@ def _write_final(group: Any, name: str, data: Any, compression: str | None) -> N
         group.create_dataset(name, data=data[()])
         return
     shape = data.shape[1:]
-    rows = _chunk_rows(shape, data.dtype.itemsize)
+    rows = min(_chunk_rows(shape, data.dtype.itemsize), data.shape[0])  # a chunk no longer than the data
     out = group.create_dataset(name, shape=data.shape, dtype=data.dtype, chunks=(rows, *shape),
                                compression=compression)
     step = rows * 16

@@ -2,26 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import h5py
 import pytest
+from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
 
 from simreel.cli.main import main
 from simreel.formats import open_reader
-
-
-def _load_samples():
-    spec = importlib.util.spec_from_file_location("mcap_samples", Path(__file__).with_name("mcap_samples.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-_samples = _load_samples()
-synthetic_meta, synthetic_episode = _samples.synthetic_meta, _samples.synthetic_episode
-assert_same_episode, write = _samples.assert_same_episode, _samples.write
 
 
 def _source(tmp_path: Path, suffix: str, *, poses: bool = True) -> tuple[Path, list]:
@@ -65,25 +53,6 @@ def test_progress_bar_counts_episodes_on_a_terminal_only(tmp_path, capsys, monke
     monkeypatch.setattr(sys, "stderr", Terminal())
     assert main(["convert", str(src), str(tmp_path / "out.mcap")]) == 0
     assert "3/3" in sys.stderr.getvalue()
-
-
-@pytest.mark.parametrize(
-    ("args", "message"),
-    [
-        (["{src}", "{tmp}/out.txt"], "unknown recording suffix '.txt'"),
-        (["{tmp}/missing.h5", "{tmp}/out.mcap"], "missing.h5: no such file"),
-        (["{src}", "{src}"], "IN and OUT are the same file"),
-        (["{src}", "{tmp}/exists.mcap"], "exists.mcap already exists; pass --overwrite to replace it"),
-    ],
-)
-def test_bad_arguments_are_one_line_and_exit_2(tmp_path, capsys, args, message):
-    src, _ = _source(tmp_path, ".h5")
-    (tmp_path / "exists.mcap").write_bytes(b"keep me")
-    argv = [a.format(src=src, tmp=tmp_path) for a in args]
-    assert main(["convert", *argv, "-q"]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("simreel convert: error: ") and message in err, err
-    assert (tmp_path / "exists.mcap").read_bytes() == b"keep me"
 
 
 def test_overwrite_replaces_output(tmp_path):

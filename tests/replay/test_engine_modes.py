@@ -101,7 +101,8 @@ def test_step_mode_reports_per_key_one_step_errors(record, capsys):
 def test_states_mode_recomputes_and_writes_a_replayed_recording(record, tmp_path):
     path = record("SimreelLiftCube-v1", 2, 20, "--record-obs")
     out = tmp_path / "replayed.h5"
-    report = verify_recording(path, mode="states", output=out)
+    command = f"simreel replay {path} --mode states -o {out}"
+    report = verify_recording(path, mode="states", output=out, command=command)
     assert report.ok, report.summary()
     assert report.episodes[0].max_abs_error["env_states/goal_height"] == 0.0  # custom state restored
     assert any(k.startswith("obs/") for k in report.episodes[0].max_abs_error)  # observations recomputed, compared
@@ -112,7 +113,7 @@ def test_states_mode_recomputes_and_writes_a_replayed_recording(record, tmp_path
         np.testing.assert_allclose(rb.rewards, ra.rewards, atol=1e-5)
         np.testing.assert_array_equal(rb.success, ra.success)
         assert set(rb.obs) == set(ra.obs)
-        assert "replay" in b.meta.command or b.meta.command == ""
+        assert b.meta.command == command  # the replay's provenance, not the recording's
     assert verify_recording(out).ok  # the replayed file is itself a replayable recording
 
 

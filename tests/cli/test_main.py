@@ -1,0 +1,175 @@
+"""The `simreel` command as a whole: bad input to any command is one line and exit 2 (a table, run in-process),
+no command replaces a file without --overwrite, an internal error is exit 3, and `--help` is instant."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from simreel.cli.main import main
+
+
+def _run(capsys, argv: list[str]) -> tuple[int, str]:
+    try:
+        code = main(argv)
+    except SystemExit as e:  # argparse's own errors
+        code = e.code
+    return code, capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def rec(record) -> Path:
+    return record("PickCube-v1", 2, 20)
+
+
+BAD_INPUT = [
+    # record
+    ("record-unknown-env", ["record", "PickCub-v1", "-o", "{tmp}/x.h5"],
+     "unknown ManiSkill env id 'PickCub-v1': did you mean PickCube-v1"),
+    ("record-unknown-body", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--contacts", "panda/nose:cube"],
+     "unknown body 'panda/nose'"),
+    ("record-bad-pair", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--contacts", "cube"], "bad contact pair 'cube'"),
+    ("record-no-dir", ["record", "PickCube-v1", "-o", "{tmp}/no/such/dir/x.h5"], "does not exist"),
+    ("record-bad-suffix", ["record", "PickCube-v1", "-o", "{tmp}/x.txt"], "unknown recording suffix '.txt'"),
+    ("record-bad-policy", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "nosuchmod:f"],
+     "cannot import nosuchmod"),
+    ("record-zero-episodes", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "-n", "0"], "--episodes must be ≥ 1"),
+    ("record-non-int", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "-n", "two"],
+     "argument -n/--episodes: invalid int value"),
+    ("record-bad-json", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--env-kwargs", "[1]"], "expected a JSON object"),
+    ("record-bad-import", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--import", "{tmp}/missing.py"], "missing.py"),
+    ("record-broken-policy-file", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/broken.py:f"],
+     "broken.py"),
+    ("record-multi-agent", ["record", "TwoRobotPickCube-v1", "-o", "{tmp}/x.h5"],
+     "Dict action space (a multi-agent task)"),
+    # inspect
+    ("inspect-missing", ["inspect", "{tmp}/missing.h5"], "missing.h5: no such file"),
+    ("inspect-junk", ["inspect", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
+    # replay
+    ("replay-missing", ["replay", "{tmp}/nope.h5"], "nope.h5: no such file"),
+    ("replay-junk", ["replay", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
+    ("replay-no-episode", ["replay", "{rec}", "--episodes", "7"], "no episode 7 (episodes: 0, 1)"),
+    ("replay-bad-episodes", ["replay", "{rec}", "--episodes", "x"], "bad episode list 'x'"),
+    ("replay-resync-mode", ["replay", "{rec}", "--mode", "states", "--resync", "5"],
+     "--resync works with --mode actions only"),
+    ("replay-resync-0", ["replay", "{rec}", "--resync", "0"], "--resync must be >= 1, got 0"),
+    ("replay-workers-0", ["replay", "{rec}", "--workers", "0"], "--workers must be >= 1, got 0"),
+    ("replay-atol", ["replay", "{rec}", "--atol", "-1"], "argument --atol: must be a finite number >= 0, got -1"),
+    ("replay-tol", ["replay", "{rec}", "--tol", "speed=1"], "expected GROUP=NUMBER with GROUP one of pos"),
+    ("replay-mode", ["replay", "{rec}", "--mode", "sideways"], "argument --mode: invalid choice: 'sideways'"),
+    ("replay-o-is-input", ["replay", "{rec}", "-o", "{rec}", "--overwrite"], "is the recording being replayed"),
+    ("replay-o-exists", ["replay", "{rec}", "-o", "{tmp}/exists.h5"], "exists.h5 already exists; pass --overwrite"),
+    ("replay-o-suffix", ["replay", "{rec}", "-o", "{tmp}/out.txt"], "unknown recording suffix '.txt'"),
+    ("replay-report-no-dir", ["replay", "{rec}", "--report", "{tmp}/no/dir/r.json"], "does not exist"),
+    ("replay-report-is-o-sidecar", ["replay", "{rec}", "-o", "{tmp}/out.h5", "--report", "{tmp}/out.json"],
+     "--report {tmp}/out.json is also written by -o"),
+    ("replay-bad-import", ["replay", "{rec}", "--import", "no_such_module_xyz"],
+     "no module named 'no_such_module_xyz'"),
+    # audit
+    ("audit-unknown-env", ["audit", "PickCub-v1"], "unknown ManiSkill env id 'PickCub-v1': did you mean PickCube-v1"),
+    ("audit-steps-0", ["audit", "PickCube-v1", "--steps", "0"], "--steps must be >= 1, got 0"),
+    ("audit-json-no-dir", ["audit", "PickCube-v1", "--json", "{tmp}/no/dir/a.json"], "does not exist"),
+    # view
+    ("view-no-episode", ["view", "{rec}", "--episode", "7"], "no episode 7 (episodes: 0, 1)"),
+    ("view-save-suffix", ["view", "{rec}", "--save", "x.png"], "--save x.png: the output must end in .rrd"),
+    ("view-block-steps", ["view", "{rec}", "--block-steps", "0"], "--block-steps must be ≥ 1, got 0"),
+    ("view-compare-missing", ["view", "{rec}", "--compare", "{tmp}/missing.h5", "--save", "{tmp}/v.rrd"],
+     "missing.h5: no such file"),
+    # convert
+    ("convert-suffix", ["convert", "{rec}", "{tmp}/out.txt"], "unknown recording suffix '.txt'"),
+    ("convert-missing", ["convert", "{tmp}/missing.h5", "{tmp}/out.mcap"], "missing.h5: no such file"),
+    ("convert-same", ["convert", "{rec}", "{rec}"], "IN and OUT are the same file"),
+    # recover
+    ("recover-h5", ["recover", "{rec}"], "only MCAP recordings need recovery"),
+    ("recover-missing", ["recover", "{tmp}/missing.mcap"], "missing.mcap: no such file"),
+]
+
+
+@pytest.mark.parametrize(("argv", "message"), [case[1:] for case in BAD_INPUT], ids=[case[0] for case in BAD_INPUT])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, rec, argv, message):
+    (tmp_path / "junk.h5").write_text("not a recording")
+    (tmp_path / "exists.h5").write_bytes(b"")
+    (tmp_path / "broken.py").write_text("raise RuntimeError('oops')\n")
+    argv = [a.format(tmp=tmp_path, rec=rec) for a in argv]
+    code, err = _run(capsys, [*argv, "-q"] if argv[0] in ("record", "replay", "convert") else argv)
+    assert code == 2, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert message.format(tmp=tmp_path) in err
+
+
+# Every command that writes, and every file it would write: an existing one is refused without --overwrite,
+# named in the one line, and left as it was.
+EXISTING_OUTPUT = [
+    ("record", ["record", "PushCube-v1", "-o", "{tmp}/out.h5", "--max-steps", "2"], "out.h5"),
+    ("record-sidecar", ["record", "PushCube-v1", "-o", "{tmp}/out.h5", "--max-steps", "2"], "out.json"),
+    ("record-mcap", ["record", "PushCube-v1", "-o", "{tmp}/out.mcap", "--max-steps", "2"], "out.mcap"),
+    ("replay-o", ["replay", "{rec}", "-o", "{tmp}/out.h5"], "out.h5"),
+    ("replay-o-sidecar", ["replay", "{rec}", "-o", "{tmp}/out.h5"], "out.json"),
+    ("replay-o-partial", ["replay", "{rec}", "-o", "{tmp}/out.h5"], "out.h5.partial"),
+    ("replay-report", ["replay", "{rec}", "--report", "{tmp}/report.json"], "report.json"),
+    ("convert", ["convert", "{rec}", "{tmp}/out.mcap"], "out.mcap"),
+    ("convert-sidecar", ["convert", "{rec}", "{tmp}/out.h5"], "out.json"),
+    ("recover-o", ["recover", "{cut}", "-o", "{tmp}/out.mcap"], "out.mcap"),
+    ("view-save", ["view", "{rec}", "--save", "{tmp}/out.rrd", "--geometry", "collision"], "out.rrd"),
+    ("audit-json", ["audit", "PickCube-v1", "--steps", "2", "--json", "{tmp}/audit.json"], "audit.json"),
+]
+
+
+@pytest.mark.parametrize(("argv", "existing"), [c[1:] for c in EXISTING_OUTPUT], ids=[c[0] for c in EXISTING_OUTPUT])
+def test_no_command_replaces_a_file_without_overwrite(tmp_path, capsys, rec, argv, existing):
+    from support.mcap_samples import synthetic_episode, synthetic_meta, write
+
+    cut = write(tmp_path / "cut.mcap", synthetic_meta(), [synthetic_episode(synthetic_meta(), 0, 3)])
+    cut.write_bytes(cut.read_bytes()[:-40])  # no footer: what a killed recording leaves
+    target = tmp_path / existing
+    if existing.endswith(".partial"):
+        target.mkdir()
+        (target / "traj_0.h5").write_bytes(b"mine")
+    else:
+        target.write_bytes(b"mine")
+    argv = [a.format(tmp=tmp_path, rec=rec, cut=cut) for a in argv]
+    code, err = _run(capsys, argv)
+    assert code == 2, err
+    assert err.count("\n") == 1 and f"{target} already exists" in err and "pass --overwrite" in err, err
+    kept = target / "traj_0.h5" if target.is_dir() else target
+    assert kept.read_bytes() == b"mine"
+
+
+def test_the_command_line_itself_gives_one_line_and_exit_2():
+    """The one subprocess check: what a shell sees (stderr, exit status) from `python -m simreel`."""
+    done = subprocess.run([sys.executable, "-m", "simreel", "inspect", "no-such-file.h5"], capture_output=True,
+                          text=True)
+    assert done.returncode == 2
+    assert done.stderr == "simreel inspect: error: no-such-file.h5: no such file\n"
+
+
+def test_help_is_instant_and_imports_nothing_heavy():
+    code = (
+        "import sys, time; t = time.perf_counter(); from simreel.cli.main import build_parser; build_parser(); "
+        "heavy = [m for m in ('mani_skill', 'sapien', 'torch', 'rerun', 'h5py', 'gymnasium') if m in sys.modules]; "
+        "print(heavy, time.perf_counter() - t)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    heavy, seconds = out.stdout.split("] ")
+    assert heavy == "[", f"simreel --help imported {heavy}]"
+    assert float(seconds) < 0.5
+    t = time.perf_counter()
+    assert subprocess.run([sys.executable, "-m", "simreel", "--help"], capture_output=True).returncode == 0
+    assert time.perf_counter() - t < 3  # whole interpreter start included; mani_skill alone costs ~3 s
+
+
+def test_an_internal_error_is_one_line_and_exit_3(monkeypatch, capsys):
+    import simreel.cli.inspect as inspect_cmd
+
+    def broken(args):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(inspect_cmd, "run", broken)
+    assert main(["inspect", "whatever.h5"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["simreel inspect: internal error: RuntimeError: boom (rerun with --debug for the traceback, "
+                   "and please report it)"]

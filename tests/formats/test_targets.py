@@ -1,0 +1,90 @@
+"""`simreel.formats.targets`: the one rule for every output file, distinct outputs, atomic small files."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from simreel.errors import UsageError
+from simreel.formats.targets import check_distinct, check_output, write_text_atomic
+
+
+@pytest.mark.parametrize(
+    ("target", "overwrite", "message"),
+    [
+        ("new.json", False, None),
+        ("old.json", True, None),
+        ("old.json", False, "{tmp}/old.json already exists; pass --overwrite to replace it"),
+        ("dir", False, "--report {tmp}/dir: that is a folder; name the file to write"),
+        ("dir", True, "--report {tmp}/dir: that is a folder; name the file to write"),
+        ("missing/r.json", True, "cannot write {tmp}/missing/r.json: folder {tmp}/missing does not exist"),
+        ("old.json/r.json", True, "cannot write {tmp}/old.json/r.json: {tmp}/old.json is not a folder"),
+    ],
+)
+def test_check_output(tmp_path, target, overwrite, message):
+    (tmp_path / "old.json").write_text("mine")
+    (tmp_path / "dir").mkdir()
+    before = sorted(tmp_path.iterdir())
+    if message is None:
+        assert check_output(tmp_path / target, overwrite=overwrite, option="--report") == tmp_path / target
+    else:
+        with pytest.raises(UsageError) as e:
+            check_output(tmp_path / target, overwrite=overwrite, option="--report")
+        assert str(e.value) == message.format(tmp=tmp_path)
+    assert sorted(tmp_path.iterdir()) == before and (tmp_path / "old.json").read_text() == "mine"
+
+
+def test_a_side_file_is_named_as_what_the_recording_would_replace(tmp_path):
+    (tmp_path / "out.json").write_text("mine")
+    with pytest.raises(UsageError) as e:
+        check_output(tmp_path / "out.h5", overwrite=False, side_paths=[tmp_path / "out.json"])
+    assert str(e.value) == (f"{tmp_path}/out.json already exists and a recording to out.h5 would replace it; "
+                            "pass --overwrite to replace it")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_a_read_only_folder_is_refused(tmp_path):
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        with pytest.raises(UsageError, match="is not writable"):
+            check_output(folder / "r.json", overwrite=True)
+    finally:
+        folder.chmod(0o700)
+
+
+@pytest.mark.parametrize(
+    ("outputs", "message"),
+    [
+        ({"-o": ["in.h5"]}, "-o in.h5 is the recording; write it to another file"),
+        ({"--report": ["in.json"]}, "--report in.json is a file of the recording; write it to another file"),
+        ({"-o": ["out.h5", "out.json"], "--report": ["out.json"]},
+         "--report out.json is also written by -o; write it to another file"),
+        ({"-o": ["out.h5", "out.json"], "--report": ["report.json"]}, None),
+    ],
+)
+def test_check_distinct(tmp_path, monkeypatch, outputs, message):
+    monkeypatch.chdir(tmp_path)
+    if message is None:
+        check_distinct(outputs, ["in.h5", "in.json"], input_label="the recording")
+        return
+    with pytest.raises(UsageError) as e:
+        check_distinct(outputs, ["in.h5", "in.json"], input_label="the recording")
+    assert str(e.value) == message
+
+
+def test_write_text_atomic_replaces_whole_and_leaves_no_temporary_file(tmp_path, monkeypatch):
+    path = tmp_path / "r.json"
+    write_text_atomic(path, "one")
+    write_text_atomic(path, "two")
+    assert path.read_text() == "two" and sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+
+    def full(*args):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", full)
+    with pytest.raises(OSError):
+        write_text_atomic(path, "three")
+    assert path.read_text() == "two" and sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]

@@ -1,0 +1,18 @@
+"""The audit's comparisons: the findings they add, worded with what differs and why."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simreel.compare import Tolerances
+from simreel.replay.audit_checks import AuditReport, Check, compare_states
+
+
+def test_audit_names_a_key_missing_after_the_restore():
+    report = AuditReport(env_id="X-v1", seed=0, steps=1)
+    a = np.zeros((1, 3), np.float32)
+    check = Check("restore_state", Tolerances.for_mode("states"), why="why")
+    compare_states(report, check, {"gone": a, "kept": a}, {"kept": a, "new": a})
+    details = {f.key: f.detail for f in report.findings}
+    assert details["env_states/gone"] == "state key 'gone' missing after the restore: why"
+    assert details["env_states/new"] == "state key 'new' present only after the restore: why"

@@ -1,0 +1,31 @@
+"""Replay reports: notes that limit a verdict, and the worst keys ranked like the comparison ranks them."""
+
+from __future__ import annotations
+
+from simreel.compare import EpisodeComparison
+from simreel.replay.verify import EpisodeReport, ReplayReport
+
+
+def _report(verdict: str, notes: list[str], limits: list[str]) -> ReplayReport:
+    ep = EpisodeReport(index=0, seed=None, length=3, verdict=verdict, first_divergence=None, max_abs_error={},
+                       notes=notes, limits=limits)
+    return ReplayReport(path="r.h5", env_id="PickCube-v1", mode="actions", resync=None, tolerances={}, episodes=[ep])
+
+
+def test_notes_that_limit_the_check_show_even_when_exact():
+    limit = "contacts not compared: the rebuilt scene has no body 'cube'"
+    text = _report("exact", ["rebuilt the scene with seed 4", limit], [limit]).summary()
+    assert f"note: {limit}" in text
+    assert "rebuilt the scene" not in text  # how it was done: only worth a line when the episode is not exact
+    text = _report("within_tolerance", ["rebuilt the scene with seed 4", limit], [limit]).summary()
+    assert "note: rebuilt the scene with seed 4" in text and text.count(limit) == 1
+    assert _report("exact", [limit], [limit]).to_json()["episodes"][0]["limits"] == [limit]
+
+
+def test_episode_report_ranks_keys_like_the_comparison():
+    errors = {"a": 2e-5, "b": 0.0, "c": 1.0, "flag": 1.0}
+    tol = {"a": 1e-5, "b": 1e-5, "c": 1e-3, "flag": 0.0}
+    cmp = EpisodeComparison(verdict="diverged", first_divergence=None, max_abs_error=errors, tolerance=tol)
+    rep = EpisodeReport(index=0, seed=0, length=1, verdict="diverged", first_divergence=None, max_abs_error=errors,
+                        tolerance=tol)
+    assert rep.worst(3) == cmp.worst(3) == [("flag", 1.0, 0.0), ("c", 1.0, 1e-3), ("a", 2e-5, 1e-5)]

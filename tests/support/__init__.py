@@ -1,0 +1,7 @@
+"""Helpers the tests share (importable as `support`: pytest puts tests/ on sys.path, see pyproject.toml).
+
+- `mcap_samples`: synthetic recordings (arrays a float formatter would damage), no env
+- `rrd`: read a Rerun .rrd back with rerun-sdk's own reader
+- `viewer_data`: a small real PickCube recording and replay-like variants of it
+- `mcap_kill_child`, `record_until_killed`: child processes the kill -9 tests start and kill
+"""
