@@ -8,6 +8,11 @@ actions and compares every state-dict leaf, reward, flag, info entry and contact
     .venv/bin/python benchmarks/bench_replay.py                      # records PickCube-v1, 20 x 50 steps
     .venv/bin/python benchmarks/bench_replay.py --recording x.h5 --rounds 7
     .venv/bin/python benchmarks/bench_replay.py --save-traj          # ManiSkill also writes its replayed file
+    .venv/bin/python benchmarks/bench_replay.py --maniskill          # on a file ManiSkill itself wrote
+
+With ``--maniskill`` the replayed file is one ManiSkill's own tools wrote (its RecordEpisode, inside
+`replay_trajectory --save-traj` of the recording): no simreel metadata, state observations, no rewards; simreel
+reads it as a ManiSkill trajectory file and verifies what it holds (states, observations, flags).
 
 ManiSkill's tool builds its env with ``render_mode="rgb_array"``, which needs a Vulkan device; simreel finds
 the software one (lavapipe, `make setup`) itself. Without any device the benchmark installs simreel's
@@ -56,6 +61,19 @@ def _prepare(args: argparse.Namespace, tmp: Path) -> Path:
     shutil.copy(src, rec)
     shutil.copy(src.with_suffix(".json"), rec.with_suffix(".json"))
     return rec
+
+
+def _as_maniskill_file(rec: Path, ms_replay: Any) -> Path:
+    """The recording rewritten by ManiSkill's own RecordEpisode (replay_trajectory --save-traj), moved into a
+    folder of its own so that nothing else there is taken for it."""
+    with _quiet():
+        ms_replay.main(ms_replay.parse_args(["--traj-path", str(rec), "--save-traj", "--allow-failure"]))
+    written = next(p for p in rec.parent.glob(f"{rec.stem}.*.h5"))
+    folder = rec.parent / "maniskill"
+    folder.mkdir()
+    for path in (written, written.with_suffix(".json")):
+        path.rename(folder / path.name.replace(f"{rec.stem}.", "demos."))
+    return next(folder.glob("*.h5"))
 
 
 def _ensure_render_or_norender() -> None:
@@ -113,6 +131,7 @@ def main() -> int:
     p.add_argument("--steps", type=int, default=50)
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--save-traj", action="store_true", help="ManiSkill also writes its replayed trajectory")
+    p.add_argument("--maniskill", action="store_true", help="replay a file written by ManiSkill's own RecordEpisode")
     args = p.parse_args()
 
     from simreel.sim.render_device import configure_vulkan
@@ -124,6 +143,9 @@ def main() -> int:
         rec = _prepare(args, tmp)
         _ensure_render_or_norender()
         from mani_skill.trajectory import replay_trajectory as ms_replay
+
+        if args.maniskill:
+            rec = _as_maniskill_file(rec, ms_replay)
 
         from simreel.formats import open_reader
         from simreel.replay.verify import verify_recording
@@ -142,7 +164,8 @@ def main() -> int:
             exact.append(report.ok and all(e.verdict == "exact" for e in report.episodes))
 
         wall, cpu = _rounds({"maniskill": run_maniskill, "simreel": run_simreel}, args.rounds)
-        print(f"recording: {env_id}, {n_eps} episodes, {steps} steps (CPU sim, state obs); {args.rounds} rounds each")
+        kind = "a ManiSkill RecordEpisode file" if args.maniskill else "a simreel recording"
+        print(f"{kind}: {env_id}, {n_eps} episodes, {steps} steps (CPU sim, state obs); {args.rounds} rounds each")
         _print_results(wall, cpu, steps, args.save_traj)
         print(f"simreel verdicts: {'every episode exact' if all(exact) else 'NOT all exact'}")
         return 0

@@ -244,12 +244,13 @@ class EpisodeReplayer:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # ManiSkill warns on every out-of-bounds action; the recording had them too
             out = run(episode, resync) if mode == "actions" else run(episode)
-        out.notes = done.notes + done.limits + out.limits + out.notes
-        out.limits = done.limits + out.limits
+        file_notes = list(episode.meta.notes)  # what the reader found in the file about this episode
+        out.notes = done.notes + file_notes + done.limits + out.limits + out.notes
+        out.limits = file_notes + done.limits + out.limits
         return out
 
     def _check_layout(self) -> None:
-        if not self._layout_checked:
+        if not self._layout_checked and self.meta.state_layout:  # a file without env_states has none to check
             check_rebuilt_layout(self.u, self.meta.env_id, self.meta.state_layout)
             self._layout_checked = True
 
@@ -336,7 +337,8 @@ class EpisodeReplayer:
         buf = self._new(episode)
         self._initial(buf)
         for t in range(episode.length):
-            restore_state(self.u, state_row(episode.env_states, t), elapsed_steps=t)
+            if t or episode.meta.initial_state_known:  # else step 0 starts from the reproduced reset
+                restore_state(self.u, state_row(episode.env_states, t), elapsed_steps=t)
             self._after_step(buf, t, self._step(actions[t]))
         return ReplayedEpisode(buf.episode())
 

@@ -51,7 +51,10 @@ def fingerprint_differences(
     backend = getattr(getattr(unwrapped, "backend", None), "sim_backend", None)
     if backend is not None and meta.sim_backend and backend != meta.sim_backend:
         diffs.append(f"sim backend: recorded {meta.sim_backend}, replaying {backend}")
-    return diffs + _sim_config_differences(meta.sim_config, sim_config_json(getattr(unwrapped, "sim_config", None)))
+    now = sim_config_json(getattr(unwrapped, "sim_config", None))
+    if "sim_config" in meta.unknown:  # the file gives only the overrides passed to gym.make: compare those
+        now = {k: v for k, v in now.items() if k in meta.sim_config}
+    return diffs + _sim_config_differences(meta.sim_config, now)
 
 
 def _version_differences(recorded: Mapping[str, Any], versions: Mapping[str, Any] | None) -> list[str]:

@@ -10,11 +10,14 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import Episode, RecordingMeta
+from simreel.episode import OPTIONAL_STEP_FIELDS, Episode, RecordingMeta
 from simreel.formats import format_of
 from simreel.state_tree import layout_of
 
 __all__ = ["ReplayOutput", "ReplayedWriter", "output_pose_bodies"]
+
+_PRODUCED = ("versions", *OPTIONAL_STEP_FIELDS)
+"""What a replay knows even where the recording did not hold it: this machine's versions, rewards and flags."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,6 +77,7 @@ class ReplayedWriter:
             versions={k: v for k, v in env_versions().items() if v is not None},
             created_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             command=self.spec.command,
+            unknown=[u for u in self.meta.unknown if u not in _PRODUCED],
         )
 
     def _write(self, episode: Episode) -> None:

@@ -10,7 +10,39 @@ from typing import Any
 from simreel.compare import Divergence, EpisodeComparison, format_number, json_number, worst_keys
 from simreel.episode import Episode
 
-__all__ = ["EpisodeReport", "ReplayReport"]
+__all__ = ["EpisodeReport", "ReplayReport", "checked_groups", "recording_limits"]
+
+_CHECK_ORDER = ("env_states", "obs", "contacts", "info", "rewards", "terminated", "truncated", "success", "fail")
+_LIMITS = {
+    "env_states": "states not compared: the file holds no env_states (recorded without them); the checks are "
+                  "the observations, rewards and flags it holds",
+    "rewards": "rewards not compared: the file holds none",
+    "success": "success not compared: the file holds none",
+    "fail": "fail not compared: the file holds none",
+    "contacts": "contact forces not compared: the file holds none",
+    "info": "info not compared beyond success/fail: the file holds no other info",
+    "versions": "versions unknown: the file does not say which ManiSkill and SAPIEN recorded it",
+    "sim_config": "sim config unknown beyond the overrides the file gives gym.make",
+    "scene_seeds": "scene seeds unknown: each reset is made as the file gives it, on the scene the env holds, as "
+                   "ManiSkill's replay_trajectory makes it",
+    "reset_options": "reset options unknown: ManiSkill records none for parallel envs; each episode is reset "
+                     "with its seed alone",
+    "env_idx": "sub-scenes unknown: ManiSkill does not record which parallel env ran an episode; each is "
+               "replayed alone (num_envs=1)",
+}
+"""What a replay cannot check or reproduce when a file does not hold something (`RecordingMeta.unknown`)."""
+
+
+def recording_limits(unknown: list[str]) -> list[str]:
+    """The limits of a replay of a recording that does not hold `unknown`, one line each."""
+    return [_LIMITS[u] for u in unknown if u in _LIMITS]
+
+
+def checked_groups(keys: list[str]) -> list[str]:
+    """What a comparison's keys cover, in a fixed order: ``env_states``, ``obs``, ``contacts``, ``info``,
+    ``rewards`` and each flag."""
+    groups = {k.split("/", 1)[0].split("[", 1)[0] for k in keys}
+    return [g for g in _CHECK_ORDER if g in groups]
 
 
 @dataclass
@@ -30,6 +62,8 @@ class EpisodeReport:
     seconds: float = 0.0
     limits: list[str] = field(default_factory=list)
     """Notes on what was not checked or not reproduced ("contacts not compared: ..."): shown whatever the verdict."""
+    checked: list[str] = field(default_factory=list)
+    """What was compared at every step (`checked_groups`)."""
 
     @classmethod
     def from_comparison(cls, recorded: Episode, cmp: EpisodeComparison, *, notes: list[str], limits: list[str],
@@ -47,6 +81,7 @@ class EpisodeReport:
             notes=notes,
             limits=limits,
             seconds=seconds,
+            checked=checked_groups(list(cmp.errors)),
         )
 
     @property
@@ -68,6 +103,7 @@ class EpisodeReport:
             "diverged_keys": dict(self.diverged_keys),
             "notes": list(self.notes),
             "limits": list(self.limits),
+            "checked": list(self.checked),
             "seconds": round(self.seconds, 4),
         }
 
@@ -84,6 +120,8 @@ class ReplayReport:
     warnings: list[str] = field(default_factory=list)
     episodes: list[EpisodeReport] = field(default_factory=list)
     output: str | None = None
+    limits: list[str] = field(default_factory=list)
+    """What no episode of this recording could check (the file does not hold it: `recording_limits`)."""
 
     @property
     def ok(self) -> bool:
@@ -98,6 +136,7 @@ class ReplayReport:
             "resync": self.resync,
             "tolerances": dict(self.tolerances),
             "warnings": list(self.warnings),
+            "limits": list(self.limits),
             "output": self.output,
             "episodes": [e.to_json() for e in self.episodes],
         }
@@ -109,18 +148,13 @@ class ReplayReport:
         lines = [f"replay of {self.path}: {self.env_id}, mode {mode}, {len(self.episodes)} episode(s), {steps} steps"]
         lines.append(f"  {'episode':>7} {'steps':>6}  {'verdict':<17} first divergence")
         for e in self.episodes:
-            first = e.first_divergence.describe() if e.first_divergence else ""
-            lines.append(f"  {e.index:>7} {e.length:>6}  {e.verdict:<17} {first}".rstrip())
-            if not e.ok:
-                also = [f"{k} {format_number(v)} (tol {format_number(t)})" for k, v, t in e.worst(4)
-                        if e.first_divergence is None or k != e.first_divergence.key]
-                if also:
-                    n = len(e.diverged_keys)
-                    lines.append(f"  {'':>7} {'':>6}  {'':<17} {n} keys left their tolerance; worst: " + ", ".join(also[:3]))
-            for note in e.notes if e.verdict != "exact" else e.limits:  # what was not checked: always
-                lines.append(f"  {'':>7} {'':>6}  {'':<17} note: {note}")
+            lines += _episode_lines(e)
         if self.mode == "step" or self.resync:
             lines.append(self._per_key_table(top))
+        if self.limits:  # a file that does not hold everything: say what was checked, and what not
+            checked = [g for g in _CHECK_ORDER if any(g in e.checked for e in self.episodes)]
+            lines.append(f"checked at every step: {', '.join(checked) or 'nothing'}")
+            lines += [f"limit: {limit}" for limit in self.limits]
         n_exact = sum(e.verdict == "exact" for e in self.episodes)
         n_within = sum(e.verdict == "within_tolerance" for e in self.episodes)
         n_div = len(self.episodes) - n_exact - n_within
@@ -149,3 +183,17 @@ class ReplayReport:
         if not keys:
             lines.append("  none: every key was reproduced exactly")
         return "\n".join(lines)
+
+
+def _episode_lines(e: EpisodeReport) -> list[str]:
+    """An episode's row of the summary table, its worst keys when it diverged, and its notes."""
+    pad = f"  {'':>7} {'':>6}  {'':<17}"
+    first = e.first_divergence.describe() if e.first_divergence else ""
+    lines = [f"  {e.index:>7} {e.length:>6}  {e.verdict:<17} {first}".rstrip()]
+    if not e.ok:
+        also = [f"{k} {format_number(v)} (tol {format_number(t)})" for k, v, t in e.worst(4)
+                if e.first_divergence is None or k != e.first_divergence.key]
+        if also:
+            lines.append(f"{pad} {len(e.diverged_keys)} keys left their tolerance; worst: " + ", ".join(also[:3]))
+    lines += [f"{pad} note: {note}" for note in (e.notes if e.verdict != "exact" else e.limits)]  # always: unchecked
+    return lines

@@ -26,7 +26,7 @@ from simreel.formats import EpisodeReader, check_writable, format_of, open_reade
 from simreel.formats.targets import check_distinct
 from simreel.replay.engine import MODES, ReplayerOptions
 from simreel.replay.output import ReplayedWriter, ReplayOutput, output_pose_bodies
-from simreel.replay.report import EpisodeReport, ReplayReport
+from simreel.replay.report import EpisodeReport, ReplayReport, recording_limits
 from simreel.replay.workers import EpisodeResult, ReplayJob, ReplaySession, run_pool
 
 __all__ = ["ReplayOptions", "ReplayRun", "verify_recording"]
@@ -111,10 +111,19 @@ class ReplayRun:
             check_writable(opts.output, overwrite=opts.overwrite)
         self.reader: EpisodeReader = open_reader(path)
         try:
+            self._check_mode()
             self.indices = self._indices()
         except BaseException:
             self.reader.close()
             raise
+
+    def _check_mode(self) -> None:
+        """Modes that restore recorded states need a file that holds them."""
+        opts = self.options
+        if (opts.mode != "actions" or opts.resync) and not self.reader.meta.state_layout:
+            what = f"--mode {opts.mode}" if opts.mode != "actions" else "--resync"
+            raise UsageError(f"{what} restores recorded states and {self.path} holds none (recorded without "
+                             "env_states); replay it with --mode actions")
 
     def _indices(self) -> list[int]:
         episodes = self.options.episodes
@@ -156,7 +165,8 @@ class ReplayRun:
         opts, meta = self.options, self.reader.meta
         job = self._job()
         report = ReplayReport(path=self.path, env_id=meta.env_id, mode=opts.mode, resync=opts.resync,
-                              tolerances=self.tolerances.to_json(), output=opts.output)
+                              tolerances=self.tolerances.to_json(), output=opts.output,
+                              limits=recording_limits(meta.unknown))
         sink = None
         if opts.output is not None:
             spec = ReplayOutput(opts.output, opts.overwrite, opts.obs_mode, job.replayer.pose_bodies, opts.command)

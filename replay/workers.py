@@ -78,7 +78,8 @@ class ReplaySession:
 
     def _report(self, recorded: Episode, replayed: ReplayedEpisode) -> EpisodeReport:
         obs_mode = self.job.replayer.obs_mode
-        scope = CompareScope(obs=obs_mode is None or obs_mode == self.meta.obs_mode,
+        scope = CompareScope(initial=recorded.meta.initial_state_known,
+                             obs=obs_mode is None or obs_mode == self.meta.obs_mode,
                              contacts=replayed.compare_contacts)
         cmp = compare_episode(recorded, replayed.episode, self.job.tolerances,
                               channels=self.meta.contact_channels, scope=scope)

@@ -346,10 +346,13 @@ class _Errors:
                 self.add(f"info/{key}", component_error(rec, rep), "info", per_state=False)
 
     def step_fields(self, recorded: Episode, replayed: Episode) -> None:
-        self.add("rewards", component_error(recorded.rewards, replayed.rewards), "reward", per_state=False)
+        """Rewards and flags, where both episodes hold them (a file may hold no rewards, success or fail)."""
+        if recorded.rewards is not None and replayed.rewards is not None:
+            self.add("rewards", component_error(recorded.rewards, replayed.rewards), "reward", per_state=False)
         for name in FLAG_FIELDS:
             rec, rep = getattr(recorded, name), getattr(replayed, name)
-            self.add(name, (np.asarray(rec) != np.asarray(rep)).astype(np.float64), "flag", per_state=False)
+            if rec is not None and rep is not None:
+                self.add(name, (np.asarray(rec) != np.asarray(rep)).astype(np.float64), "flag", per_state=False)
 
     def first_bad_row(self, key: str) -> int | None:
         bad = np.flatnonzero(self.errors[key] > self.tol[key])

@@ -45,6 +45,7 @@ __all__ = [
     "episode_fields",
     "STEP_FIELDS",
     "FLAG_FIELDS",
+    "OPTIONAL_STEP_FIELDS",
     "json_default",
 ]
 
@@ -52,6 +53,9 @@ FLAG_FIELDS = ("terminated", "truncated", "success", "fail")
 """Boolean per-step fields, in the order every format stores them."""
 STEP_FIELDS = ("actions", "rewards", *FLAG_FIELDS)
 """Fixed per-step fields with T rows (beside the dict-valued `info`, `contact_forces`)."""
+OPTIONAL_STEP_FIELDS = ("rewards", "success", "fail")
+"""Fixed per-step fields a file may not hold (ManiSkill's files without rewards, success or fail): listed in
+`RecordingMeta.unknown`, left out of the field table, None in the `Episode`, never invented."""
 
 
 def json_default(o: Any) -> Any:
@@ -167,6 +171,13 @@ class RecordingMeta:
     created_utc: str = ""
     command: str = ""
     format_version: int = FORMAT_VERSION
+    source: dict[str, Any] = field(default_factory=dict)
+    """Where the recording came from when simreel did not record it: ``{"format": "maniskill", "source_type",
+    "source_desc", "commit_info", ...}`` as the file says (empty for simreel recordings)."""
+    unknown: list[str] = field(default_factory=list)
+    """What the file does not hold, never invented: step fields (``rewards``, ``success``, ``fail``; left out
+    of the field table) and facts a replay cannot check (``versions``, ``sim_config``, ``control_freq``,
+    ``contacts``, ``scene_seeds``, ``body_poses``, ``info``, ``env_states``). Empty for simreel recordings."""
 
     @property
     def control_period(self) -> float | None:
@@ -206,14 +217,20 @@ class EpisodeMeta:
     reset_options: dict[str, Any] = field(default_factory=dict)
     env_idx: int = 0
     """Which parallel env (sub-scene) ran it."""
-    reconfigured: bool = False
-    """The reset that started this episode rebuilt the scene."""
+    reconfigured: bool | None = False
+    """The reset that started this episode rebuilt the scene (None: unknown, as in ManiSkill's files: the reset is
+    then reproduced as given, and the task rebuilds its scene when it would)."""
     scene_seed: int | None = None
     """Seed of the reset that last built the scene: objects of heterogeneous tasks come from it."""
     length: int = 0
     success: bool | None = None
     """Final `info["success"]` (None if the task reports none)."""
     ever_success: bool | None = None
+    initial_state_known: bool = True
+    """False where the file's state row 0 is not the state after the reset (ManiSkill's replay_trajectory writes
+    the state after step 0 there in its state modes): replays then do not compare row 0."""
+    notes: list[str] = field(default_factory=list)
+    """What the reader found about this episode in the file (quirks, mismatches), for reports."""
 
     def to_json(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=json_default))
@@ -261,6 +278,7 @@ def episode_fields(meta: RecordingMeta) -> list[FieldSpec]:
         *(FieldSpec(name, "bool", ()) for name in FLAG_FIELDS),
         *(FieldSpec(f"info/{k}", s.dtype, tuple(s.shape)) for k, s in meta.info_layout.items()),
     ]
+    fields = [f for f in fields if f.name not in meta.unknown]
     if meta.contact_channels:
         fields.append(FieldSpec("contact_forces", "float32", (len(meta.contact_channels), 3)))
     fields += [FieldSpec(f"env_states/{p}", s.dtype, tuple(s.shape), True) for p, s in meta.state_layout.items()]
@@ -331,11 +349,12 @@ class Episode:
 
     meta: EpisodeMeta
     actions: np.ndarray
-    rewards: np.ndarray
+    rewards: np.ndarray | None
+    """None where the file holds no rewards (see `OPTIONAL_STEP_FIELDS`); likewise `success`, `fail`."""
     terminated: np.ndarray
     truncated: np.ndarray
-    success: np.ndarray
-    fail: np.ndarray
+    success: np.ndarray | None
+    fail: np.ndarray | None
     env_states: dict[str, np.ndarray]
     obs: dict[str, np.ndarray] = field(default_factory=dict)
     info: dict[str, np.ndarray] = field(default_factory=dict)
@@ -351,8 +370,8 @@ class Episode:
         return unflatten({p: a[t][None] for p, a in self.env_states.items()})
 
     def fields(self) -> dict[str, np.ndarray]:
-        """Every array under its flat field name (see `episode_fields`)."""
-        out = {name: getattr(self, name) for name in STEP_FIELDS}
+        """Every array under its flat field name (see `episode_fields`); fields the episode lacks are left out."""
+        out = {name: getattr(self, name) for name in STEP_FIELDS if getattr(self, name) is not None}
         for group in _GROUPS:
             out.update({f"{group}/{p}": a for p, a in getattr(self, group).items()})
         for name in _OPTIONAL:
@@ -368,12 +387,12 @@ class Episode:
             prefix = name + "/"
             return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
 
-        missing = [name for name in STEP_FIELDS if name not in arrays]
+        missing = [name for name in STEP_FIELDS if name not in arrays and name not in OPTIONAL_STEP_FIELDS]
         if missing:
             raise EpisodeLayoutError(f"episode {meta.index}: no {', '.join(missing)}")
         return cls(
             meta=meta,
-            **{name: arrays[name] for name in STEP_FIELDS},
+            **{name: arrays.get(name) for name in STEP_FIELDS},
             **{g: group(g) for g in _GROUPS},
             **{name: arrays.get(name) for name in _OPTIONAL},
         )

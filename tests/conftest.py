@@ -50,6 +50,13 @@ def lavapipe_env() -> dict[str, str]:
 
 
 @pytest.fixture(scope="session")
+def maniskill_env(lavapipe_env) -> dict[str, str]:
+    """os.environ for ManiSkill's own tools (replay_trajectory) on this machine: they do not import simreel, so
+    the lavapipe driver is named to the Vulkan loader directly, as the README tells users to."""
+    return {**lavapipe_env, "VK_ICD_FILENAMES": lavapipe_env["SIMREEL_VK_ICD"]}
+
+
+@pytest.fixture(scope="session")
 def no_render_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     """os.environ for a subprocess with no render device: VK_ICD_FILENAMES unset, SIMREEL_VK_ICD missing.
 

@@ -134,12 +134,20 @@ def test_row_counts_that_do_not_fit_t_or_t_plus_1_are_named(change, message):
     assert str(e.value) == message
 
 
-def test_from_fields_needs_the_fixed_step_fields():
+def test_from_fields_needs_actions_and_the_done_flags_and_leaves_the_others_unknown():
     fields = _episode().fields()
     del fields["rewards"], fields["fail"]
+    episode = Episode.from_fields(EpisodeMeta(index=2), fields)
+    assert episode.rewards is None and episode.fail is None and "rewards" not in episode.fields()
+    del fields["actions"], fields["truncated"]
     with pytest.raises(EpisodeLayoutError) as e:
         Episode.from_fields(EpisodeMeta(index=2), fields)
-    assert str(e.value) == "episode 2: no rewards, fail"
+    assert str(e.value) == "episode 2: no actions, truncated"
+
+
+def test_fields_a_file_does_not_hold_leave_the_table():
+    names = [f.name for f in episode_fields(_meta(unknown=["rewards", "fail", "versions"]))]
+    assert "rewards" not in names and "fail" not in names and "success" in names
 
 
 def test_metadata_round_trips_through_json():

@@ -69,8 +69,10 @@ def log_step_plots(rec: rr.RecordingStream, episode: Episode, period: float | No
     if T == 0:
         return
     at = time_indexes(np.arange(1, T + 1), period)
-    log_series(rec, plot_path("reward"), episode.rewards, at, SeriesStyle(["reward"]))
-    log_series(rec, plot_path("success"), episode.success.astype(np.float64), at, SeriesStyle(["success"]))
+    if episode.rewards is not None:
+        log_series(rec, plot_path("reward"), episode.rewards, at, SeriesStyle(["reward"]))
+    if episode.success is not None:
+        log_series(rec, plot_path("success"), episode.success.astype(np.float64), at, SeriesStyle(["success"]))
     for key, values in episode.info.items():
         if key in ("success", "elapsed_steps") or values.ndim != 1:
             continue
@@ -147,10 +149,11 @@ def episode_events(
     """Start, success on/off, pair contacts beginning/ending, termination/truncation, first divergence."""
     m = episode.meta
     start = f"episode {m.index} starts (seed {m.seed}, env {m.env_idx}, {episode.length} steps)"
-    events = [Event(0, "INFO", start)]
-    on, off = _transitions(episode.success)
-    events += [Event(int(t) + 1, "INFO", f"success at step {int(t)}") for t in on]
-    events += [Event(int(t) + 1, "WARN", f"success lost at step {int(t)}") for t in off]
+    events = [Event(0, "INFO", start), *(Event(0, "WARN", note) for note in m.notes)]
+    if episode.success is not None:
+        on, off = _transitions(episode.success)
+        events += [Event(int(t) + 1, "INFO", f"success at step {int(t)}") for t in on]
+        events += [Event(int(t) + 1, "WARN", f"success lost at step {int(t)}") for t in off]
     if episode.contact_forces is not None and len(episode.contact_forces):
         touching = np.linalg.norm(episode.contact_forces, axis=-1) > FORCE_THRESHOLD_N
         for c, ch in enumerate(channels):

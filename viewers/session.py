@@ -21,7 +21,7 @@ from simreel.compare import Tolerances
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import UsageError, ViewError
 from simreel.sim.rebuild import GYM_MAKE_SEED, reset_to_episode
-from simreel.sim.state import check_rebuilt_layout
+from simreel.sim.state import check_rebuilt_layout, read_state
 from simreel.viewers.compare import DEFAULT_MODE, ViewComparison, compare_for_view, divergence_row
 from simreel.viewers.paths import step_of_row
 from simreel.viewers.scene_geometry import (
@@ -325,6 +325,19 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
     return session
 
 
+def states_by_stepping(unwrapped: Any, episode: Episode) -> None:
+    """Fill the `env_states` of an episode whose file holds none (a ManiSkill file recorded without them) by
+    stepping its recorded actions from the reproduced reset in `unwrapped`; the session then draws those."""
+    import torch
+
+    rows = [read_state(unwrapped)]
+    for action in episode.actions:
+        unwrapped.step(torch.from_numpy(np.ascontiguousarray(action))[None])
+        rows.append(read_state(unwrapped))
+    episode.env_states = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
+    episode.meta.notes.append("the file holds no states: the poses shown come from stepping its recorded actions")
+
+
 def _prepare(env: Any, owns: bool, opts: ViewOptions, runs: tuple[EpisodeRun, EpisodeRun | None],
              timings: dict[str, float]) -> ViewSession:
     """Reset `env` to the recorded episode's scene and read its bodies and geometry."""
@@ -335,7 +348,10 @@ def _prepare(env: Any, owns: bool, opts: ViewOptions, runs: tuple[EpisodeRun, Ep
     t2 = time.perf_counter()
     # the episode's scene (heterogeneous tasks draw their objects when they build it); a caller's env: unknown
     reset_to_episode(env, rec_run.episode.meta, scene_seed=GYM_MAKE_SEED if owns else None)
-    check_rebuilt_layout(u, rec_run.meta.env_id, rec_run.meta.state_layout)
+    if rec_run.meta.state_layout:
+        check_rebuilt_layout(u, rec_run.meta.env_id, rec_run.meta.state_layout)
+    else:
+        states_by_stepping(u, rec_run.episode)
     bodies = scene_bodies(u)
     used, geo = scene_geometry(u, bodies, source=opts.geometry)
     timings["scene_s"] = time.perf_counter() - t2

@@ -1,13 +1,15 @@
 """The `simreel` command: one subcommand module per verb, imported only as far as argparse needs.
 
 Exit status: 0 success, 1 a verdict that failed (replay diverged, audit findings), 2 bad input (one line on
-stderr), 3 an internal error (one line; `--debug` shows the traceback), 130 interrupted.
+stderr), 3 an internal error (one line; `--debug` shows the traceback), 130 interrupted, 141 stdout closed
+(a pipe into `head`).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import shlex
 import sys
 from collections.abc import Sequence
@@ -66,6 +68,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write(f"simreel {args.command}: interrupted\n")
         return 130
+    except BrokenPipeError:  # `simreel inspect x | head`: the reader left; say nothing more, as shell tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except Exception as e:  # a bug, not bad input: still one line, and not 1 (which replay uses for "diverged")
         if args.debug:
             raise

@@ -111,6 +111,8 @@ def run(args: argparse.Namespace) -> int:
             _spawn(session, args)
         else:
             _serve(session, args)
+        for note in session.episode.meta.notes:
+            print(f"note: {note}")
         _print_comparison(session.comparison)
     return 0
 

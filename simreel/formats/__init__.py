@@ -1,5 +1,8 @@
 """Recording formats behind one interface: pick a writer by file suffix, a reader by file content.
 
+Readers: simreel's HDF5 (`hdf5`), simreel's MCAP (`mcap`), and ManiSkill's own trajectory files (`maniskill`:
+HDF5 without simreel's metadata, with traj_N groups and a JSON sidecar).
+
 `open_writer("x.h5", meta)` / `open_writer("x.mcap", meta)` and `open_reader(path)` are the only entry
 points the rooms use; no code outside `simreel.formats` knows how a format lays out its bytes or which
 files it writes beside the recording (`check_writable`, `remove_recording`, `records_poses_by_default`
@@ -99,9 +102,13 @@ def open_reader(path: str | Path) -> EpisodeReader:
     with open(p, "rb") as fh:
         head = fh.read(8)
     if head == HDF5_MAGIC:
-        from simreel.formats.hdf5.reader import Hdf5Reader
+        from simreel.formats.hdf5.reader import Hdf5Reader, holds_simreel_metadata
 
-        return Hdf5Reader(p)
+        if holds_simreel_metadata(p):
+            return Hdf5Reader(p)
+        from simreel.formats.maniskill.reader import ManiskillReader
+
+        return ManiskillReader(p)
     if head == MCAP_MAGIC:
         from simreel.formats.mcap.reader import McapReader
 

@@ -105,6 +105,8 @@ class EpisodeReader(ABC):
     path: Path
     meta: RecordingMeta
     episodes: list[EpisodeMeta]
+    kind: str = "recording"
+    """What the file is, for people: "simreel HDF5 recording (format 1)", "ManiSkill trajectory file", ..."""
 
     @abstractmethod
     def read_episode(self, index: int) -> Episode:

@@ -6,7 +6,8 @@ one place that reproduces an episode's reset (its scene, seed and options) from 
 mani_skill is imported only when a function runs.
 
 Reproducing a reset: an episode whose reset rebuilt the scene (``reconfigured``) is reset with
-``reconfigure=True`` and its own seed. Otherwise the scene it ran in was built by the reset with seed
+``reconfigure=True`` and its own seed. Where that is unknown (``reconfigured`` None: ManiSkill's own files do
+not say) the reset is made as given, as ManiSkill's replay_trajectory makes it, on the scene the env holds. Otherwise the scene it ran in was built by the reset with seed
 ``scene_seed`` (None: the scene ``gym.make`` built, i.e. seed `GYM_MAKE_SEED` + sub-scene index); if the
 env's scene came from another seed it is rebuilt first with ``reset(seed=scene_seed,
 options={"reconfigure": True})``, then the episode is reset with its seed and options, with ManiSkill's
@@ -94,27 +95,46 @@ def reset_to_episode(env: Any, episode: EpisodeMeta, *, scene_seed: int | None =
             the returned `EpisodeReset.scene_seed` of the previous call, or None when unknown (the scene is
             then rebuilt).
     """
-    u = env.unwrapped
     out = EpisodeReset(scene_seed=scene_seed)
     options = {k: v for k, v in (episode.reset_options or {}).items() if k not in ("env_idx", "reconfigure")}
-    if episode.reconfigured:
+    if episode.reconfigured is None:
+        _reset_as_given(env, episode, options, out)
+    elif episode.reconfigured:
         env.reset(seed=episode.seed, options={**options, "reconfigure": True})
         out.scene_seed = episode.seed
         out.scene_builds += 1
     else:
-        wanted = episode.scene_seed if episode.scene_seed is not None else GYM_MAKE_SEED + int(episode.env_idx)
-        if wanted != out.scene_seed:
-            env.reset(seed=wanted, options={"reconfigure": True})
-            out.scene_seed = wanted
-            out.scene_builds += 1
-            out.notes.append(f"rebuilt the scene with seed {wanted}")
-        if getattr(u, "reconfiguration_freq", 0) and getattr(u, "_reconfig_counter", 1) == 0:
-            u._reconfig_counter = 1  # the recorded reset did not reconfigure; hold ManiSkill's periodic one off
-        _, info = env.reset(seed=episode.seed, options=options or None)
-        if bool(to_numpy(info.get("reconfigure", False)).any()):
-            out.scene_seed = episode.seed
-            out.scene_builds += 1
-            out.limits.append("the reset reconfigured the scene, the recorded one did not")
+        _reset_in_its_scene(env, episode, options, out)
     if episode.seed is None:
         out.limits.append("the episode has no seed: its reset cannot be reproduced")
     return out
+
+
+def _reconfigured(info: dict[str, Any]) -> bool:
+    return bool(to_numpy(info.get("reconfigure", False)).any())
+
+
+def _reset_as_given(env: Any, episode: EpisodeMeta, options: dict[str, Any], out: EpisodeReset) -> None:
+    """Whether the recorded reset rebuilt the scene is unknown: reset as ManiSkill's replay_trajectory does."""
+    _, info = env.reset(seed=episode.seed, options=options or None)
+    if _reconfigured(info):
+        out.scene_seed = episode.seed
+        out.scene_builds += 1
+
+
+def _reset_in_its_scene(env: Any, episode: EpisodeMeta, options: dict[str, Any], out: EpisodeReset) -> None:
+    """The recorded reset kept its scene: get that scene back first, then reset without rebuilding it."""
+    u = env.unwrapped
+    wanted = episode.scene_seed if episode.scene_seed is not None else GYM_MAKE_SEED + int(episode.env_idx)
+    if wanted != out.scene_seed:
+        env.reset(seed=wanted, options={"reconfigure": True})
+        out.scene_seed = wanted
+        out.scene_builds += 1
+        out.notes.append(f"rebuilt the scene with seed {wanted}")
+    if getattr(u, "reconfiguration_freq", 0) and getattr(u, "_reconfig_counter", 1) == 0:
+        u._reconfig_counter = 1  # the recorded reset did not reconfigure; hold ManiSkill's periodic one off
+    _, info = env.reset(seed=episode.seed, options=options or None)
+    if _reconfigured(info):
+        out.scene_seed = episode.seed
+        out.scene_builds += 1
+        out.limits.append("the reset reconfigured the scene, the recorded one did not")

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -147,19 +146,17 @@ def test_the_command_line_itself_gives_one_line_and_exit_2():
     assert done.stderr == "simreel inspect: error: no-such-file.h5: no such file\n"
 
 
-def test_help_is_instant_and_imports_nothing_heavy():
+def test_help_imports_nothing_heavy():
+    """`simreel --help` stays instant because building the parser imports no simulator, file library or viewer
+    (a module list, not a stopwatch: timings belong to benchmarks/)."""
+    heavy = ("mani_skill", "sapien", "torch", "rerun", "h5py", "gymnasium", "mcap")
     code = (
-        "import sys, time; t = time.perf_counter(); from simreel.cli.main import build_parser; build_parser(); "
-        "heavy = [m for m in ('mani_skill', 'sapien', 'torch', 'rerun', 'h5py', 'gymnasium') if m in sys.modules]; "
-        "print(heavy, time.perf_counter() - t)"
+        "import sys; from simreel.cli.main import build_parser; build_parser(); "
+        f"print([m for m in {heavy!r} if m in sys.modules])"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    heavy, seconds = out.stdout.split("] ")
-    assert heavy == "[", f"simreel --help imported {heavy}]"
-    assert float(seconds) < 0.5
-    t = time.perf_counter()
+    assert out.stdout.strip() == "[]", f"building the CLI parser imported {out.stdout.strip()}"
     assert subprocess.run([sys.executable, "-m", "simreel", "--help"], capture_output=True).returncode == 0
-    assert time.perf_counter() - t < 3  # whole interpreter start included; mani_skill alone costs ~3 s
 
 
 def test_an_internal_error_is_one_line_and_exit_3(monkeypatch, capsys):

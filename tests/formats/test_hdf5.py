@@ -177,7 +177,9 @@ def test_a_file_open_through_h5py_with_locking_is_reported_as_such(tmp_path):
         (lambda p: None, "no such file"),
         (lambda p: p.write_bytes(b""), "empty file"),
         (lambda p: p.write_text("hello"), "neither an HDF5 nor an MCAP file"),
-        (lambda p: h5py.File(p, "w").close(), "an HDF5 file without simreel metadata (not a simreel recording)"),
+        (lambda p: h5py.File(p, "w").close(),
+         "an HDF5 file that is neither a simreel recording (no simreel metadata) nor a ManiSkill trajectory file "
+         "(no traj_N groups)"),
     ],
     ids=["missing", "empty", "foreign-bytes", "foreign-hdf5"],
 )

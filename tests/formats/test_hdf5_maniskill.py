@@ -12,24 +12,19 @@ import sys
 
 import h5py
 import numpy as np
+import pytest
+from support.maniskill_files import replay_maniskill
 
 from simreel.formats import open_reader
 
 
-def test_maniskill_replay_trajectory_replays_a_simreel_recording(record, lavapipe_env, tmp_path):
+def test_maniskill_replay_trajectory_replays_a_simreel_recording(record, maniskill_env, tmp_path):
     src = record("PickCube-v1", 2, 20)
     h5 = tmp_path / "pick.h5"
     shutil.copy(src, h5)
     shutil.copy(src.with_suffix(".json"), h5.with_suffix(".json"))
-    env = {**lavapipe_env, "VK_ICD_FILENAMES": lavapipe_env["SIMREEL_VK_ICD"]}
-    out = subprocess.run(
-        [sys.executable, "-m", "mani_skill.trajectory.replay_trajectory", "--traj-path", str(h5),
-         "--save-traj", "--allow-failure"],
-        env=env, capture_output=True, text=True, timeout=300, cwd=tmp_path,
-    )
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert "Replayed 2 episodes, 2/2" in out.stdout + out.stderr
-    replayed = tmp_path / "pick.state.pd_joint_delta_pos.physx_cpu.h5"
+    replayed = replay_maniskill(h5, maniskill_env)
+    assert replayed.name == "pick.state.pd_joint_delta_pos.physx_cpu.h5"
     with h5py.File(replayed, "r") as f, open_reader(h5) as r:
         for i in range(2):
             ep = r.read_episode(i)
@@ -59,3 +54,31 @@ def test_states_mode_re_renders_rgb_observations(record, lavapipe_env, tmp_path)
             # the states are the recorded ones, read back after restoring (get -> set -> get: <= 1.5e-8)
             np.testing.assert_allclose(ep.env_states["actors/cube"], orig.read_episode(1).env_states["actors/cube"],
                                        atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("obs_mode", "extra"),
+    [("state", ["--record-obs"]), ("state_dict", ["--record-obs"]), ("state", [])],
+    ids=["state-array", "state_dict-nested", "no-observations"],
+)
+def test_maniskills_dataset_loader_reads_simreel_recordings(record, obs_mode, extra):
+    """ManiSkillTrajectoryDataset gets ManiSkill's layout: `obs` one array for obs_mode state, nested groups for a
+    dict observation, an empty group when none were recorded (as ManiSkill's obs_mode=none demos)."""
+    from mani_skill.trajectory.dataset import ManiSkillTrajectoryDataset
+
+    from simreel.state_tree import flatten
+
+    path = record("PickCube-v1", 2, 8, "--obs-mode", obs_mode, *extra)
+    with open_reader(path) as r:
+        episodes = [r.read_episode(m.index) for m in r.episodes]
+    data = ManiSkillTrajectoryDataset(str(path))  # keeps its h5py file open (with HDF5's locking) from here on
+    np.testing.assert_array_equal(data.actions, np.concatenate([ep.actions for ep in episodes]))
+    np.testing.assert_array_equal(data.rewards, np.concatenate([ep.rewards for ep in episodes]))
+    if not extra:
+        assert data.obs == {}
+        return
+    assert isinstance(data.obs, np.ndarray) == (obs_mode == "state")
+    loaded = {"state": data.obs} if obs_mode == "state" else flatten(data.obs)
+    assert set(loaded) == set(episodes[0].obs)
+    for key, values in loaded.items():  # the loader drops each episode's last observation
+        np.testing.assert_array_equal(values, np.concatenate([ep.obs[key][:-1] for ep in episodes]))

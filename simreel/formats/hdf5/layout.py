@@ -13,12 +13,16 @@ Layout (ManiSkill-compatible where ManiSkill has a convention)::
     <name>.json             ManiSkill's sidecar (env_info, episodes[]) for its own tools
     <name>.h5.partial/      episodes still being recorded (scratch files, removed when committed)
 
-Datasets inside `traj_N` are the recording's fields (`simreel.episode.episode_fields`) under their flat names.
+Datasets inside `traj_N` are the recording's fields (`simreel.episode.episode_fields`) under their flat names,
+laid out as ManiSkill lays them out (`simreel.formats.maniskill.layout`: a bare-array observation is the dataset
+`obs`), so ManiSkill's own tools read the file.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+
+from simreel.formats.maniskill.layout import group_name, sidecar_path
 
 __all__ = ["HDF5_MAGIC", "META_ATTR", "VERSION_ATTR", "EPISODE_ATTR", "group_name", "sidecar_path", "partial_dir"]
 
@@ -26,16 +30,6 @@ HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 META_ATTR = "simreel_meta"
 VERSION_ATTR = "simreel_format_version"
 EPISODE_ATTR = "simreel_episode"
-
-
-def group_name(index: int) -> str:
-    """The group of episode `index`: ManiSkill's ``traj_<index>``."""
-    return f"traj_{index}"
-
-
-def sidecar_path(path: Path) -> Path:
-    """ManiSkill's JSON sidecar beside `path` (`x.h5` → `x.json`)."""
-    return path.with_suffix(".json")
 
 
 def partial_dir(path: Path) -> Path:

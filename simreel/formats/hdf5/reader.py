@@ -18,8 +18,30 @@ from simreel.formats.hdf5.layout import (
     group_name,
     partial_dir,
 )
+from simreel.formats.maniskill.layout import dataset_name
 
-__all__ = ["Hdf5Reader"]
+__all__ = ["Hdf5Reader", "open_hdf5", "holds_simreel_metadata"]
+
+
+def open_hdf5(path: Path) -> Any:
+    """`path` as a read-only `h5py.File`, without a file lock (a reader must never make a running recorder fail
+    to commit); `RecordingFileError` saying what a failure to open means."""
+    import h5py
+
+    try:
+        return h5py.File(path, "r", locking=False)
+    except OSError as e:
+        raise RecordingFileError(path, _open_problem(e)) from None
+
+
+def holds_simreel_metadata(path: Path) -> bool:
+    """Whether the HDF5 file `path` carries simreel's metadata (True also when it cannot be opened: the simreel
+    reader then says why)."""
+    try:
+        with open_hdf5(path) as f:
+            return META_ATTR in f.attrs
+    except RecordingFileError:
+        return True
 
 
 def _open_problem(e: OSError) -> str:
@@ -50,27 +72,18 @@ class Hdf5Reader(EpisodeReader):
         with open(self.path, "rb") as fh:
             if fh.read(len(HDF5_MAGIC)) != HDF5_MAGIC:
                 raise RecordingFileError(self.path, "not an HDF5 file")
-        self._file = self._open()
+        self._file = open_hdf5(self.path)
         try:
             self.meta = self._read_meta()
         except BaseException:
             self._file.close()
             raise
         self.fields = episode_fields(self.meta)
+        self.kind = f"simreel HDF5 recording (format {self.meta.format_version})"
         self.episodes = self._read_episode_metas()
         scratch = partial_dir(self.path)
         self.unfinished = sorted(p.name for p in scratch.glob("traj_*.h5")) if scratch.is_dir() else []
         """Scratch files of episodes that were running when a recording process died."""
-
-    def _open(self) -> Any:
-        """The file as an `h5py.File` (h5py is imported here, not at module import)."""
-        import h5py
-
-        try:
-            # No file lock: a reader must never make a running recorder fail to commit.
-            return h5py.File(self.path, "r", locking=False)
-        except OSError as e:
-            raise RecordingFileError(self.path, _open_problem(e)) from None
 
     def _read_meta(self) -> RecordingMeta:
         attrs = self._file.attrs
@@ -101,10 +114,17 @@ class Hdf5Reader(EpisodeReader):
     def read_episode(self, index: int) -> Episode:
         meta = self.episode_meta(index)
         group = self._file[group_name(index)]
-        missing = [f.name for f in self.fields if f.name not in group]
+        names = {f.name: self._dataset(group, f.name) for f in self.fields}
+        missing = [d for d in names.values() if d not in group]
         if missing:
             raise RecordingFileError(self.path, f"{group_name(index)} lacks a dataset: {missing[0]!r}")
-        return Episode.from_fields(meta, {f.name: group[f.name][()] for f in self.fields})
+        return Episode.from_fields(meta, {f: group[d][()] for f, d in names.items()})
+
+    def _dataset(self, group: Any, field: str) -> str:
+        """Where `field` is in `group`: ManiSkill's layout, or simreel's format-1 name (a bare-array observation
+        as ``obs/<obs mode>``)."""
+        name = dataset_name(field, self.meta)
+        return name if name in group or field not in group else field
 
     def close(self) -> None:
         self._file.close()

@@ -31,7 +31,8 @@ from simreel.formats.hdf5.layout import (
     partial_dir,
     sidecar_path,
 )
-from simreel.formats.hdf5.sidecar import write_sidecar
+from simreel.formats.maniskill.layout import OBS, dataset_name
+from simreel.formats.maniskill.sidecar import write_sidecar
 
 __all__ = ["Hdf5Writer"]
 
@@ -127,9 +128,9 @@ class _Hdf5Sink(EpisodeSink):
         if self._file is None:
             arrays = {name: np.concatenate(parts) for name, parts in self._pending.items()}
             arrays.update({f.name: np.zeros((0, *f.shape), f.dtype) for f in self._writer.fields if f.name not in arrays})
-            compression = self._writer.compression
+            compression, rec = self._writer.compression, self._writer.meta
             self._writer.commit_group(meta, lambda group: [
-                _write_final(group, name, a, compression) for name, a in arrays.items()
+                _write_final(group, dataset_name(name, rec), a, compression) for name, a in arrays.items()
             ])
             return
         self._spill()
@@ -145,12 +146,12 @@ class _Hdf5Sink(EpisodeSink):
             if f.name not in traj:
                 traj.create_dataset(f.name, data=np.zeros((0, *f.shape), f.dtype))
         self._file.close()
-        compression = self._writer.compression
+        compression, rec = self._writer.compression, self._writer.meta
         with h5py.File(self._scratch_path, "r") as src:
             def copy(group: Any) -> None:
                 src["traj"].visititems(
-                    lambda name, obj: _write_final(group, name, obj, compression) if isinstance(obj, h5py.Dataset)
-                    else None
+                    lambda name, obj: _write_final(group, dataset_name(name, rec), obj, compression)
+                    if isinstance(obj, h5py.Dataset) else None
                 )
 
             self._writer.commit_group(meta, copy)
@@ -221,6 +222,8 @@ class Hdf5Writer(EpisodeWriter):
         with self._open_main() as dst:
             group = dst.create_group(group_name(meta.index))
             fill(group)
+            if OBS not in group:  # ManiSkill's loader needs the group; its own obs_mode="none" files have it empty
+                group.create_group(OBS)
             group.attrs[EPISODE_ATTR] = json.dumps(meta.to_json())
         self.committed.append(meta)
         if time.monotonic() - self._sidecar_written >= _SIDECAR_PERIOD_S:

@@ -209,8 +209,9 @@ class McapChannels:
             self._mcap.add_message(self._ids["tf"], times[j], msg, times[j], first_row + j)
 
     def _plots(self, lane: EpisodeLane, arrays: dict[str, np.ndarray], first: int, rows: int) -> None:
-        rewards, actions = _json_column(arrays["rewards"]), _json_column(arrays["actions"])
-        flags = {f: np.asarray(arrays[f], bool).tolist() for f in FLAG_FIELDS}
+        rewards = _json_column(arrays["rewards"]) if "rewards" in arrays else [None] * rows
+        actions = _json_column(arrays["actions"])
+        flags = {f: np.asarray(arrays[f], bool).tolist() for f in FLAG_FIELDS if f in arrays}
         info = {k: _json_column(arrays[f"info/{k}"]) for k in self.meta.info_layout}
         for j in range(rows):
             row = {

@@ -178,6 +178,7 @@ class McapReader(EpisodeReader):
             )
         head = RecordingRecord.from_metadata(d)
         self.meta = head.meta
+        self.kind = f"simreel MCAP recording (format {version})"
         self._channel_ids = head.channels
         self._reset_fields = fields_from_schema(head.reset_schema)
         self._step_fields = fields_from_schema(head.step_schema)
@@ -253,7 +254,7 @@ class McapReader(EpisodeReader):
             if first != row:
                 raise RecordingFileError(self.path, f"episode {index}: steps {row}–{first - 1} are missing")
             blocks.append(steps[first])
-            row += len(steps[first]["rewards"])
+            row += len(steps[first]["actions"])
         if row != span.steps:
             raise RecordingFileError(self.path, f"episode {index}: {row} steps in the file, its record says {span.steps}")
         return self._assemble(meta, row0, blocks)

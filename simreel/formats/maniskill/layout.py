@@ -1,0 +1,75 @@
+"""ManiSkill's trajectory-file layout, which simreel's HDF5 recordings share so ManiSkill's own tools read them.
+
+A ManiSkill trajectory file (written by `mani_skill.utils.wrappers.RecordEpisode` and by
+`mani_skill.trajectory.replay_trajectory`) is an HDF5 file of groups ``traj_<episode id>`` and a JSON sidecar
+``<name>.json`` beside it (`simreel.formats.maniskill.sidecar`). Inside a group:
+
+    actions terminated truncated              (T, ...)   always
+    rewards success fail                      (T,)       when recorded / when the task reports them
+    env_states/<key path>                     (T+1, ...) when the state was recorded (record_env_state)
+    obs                                       (T+1, D)   an observation that is one array (obs_mode "state")
+    obs/<key path>                            (T+1, ...) a dict observation (state_dict, rgb, sensor_data, ...)
+
+A field of simreel's table (`simreel.episode.episode_fields`) is the dataset of the same name, except a
+bare-array observation: simreel names it ``obs/<obs mode>`` (the key `flatten_obs` gives it), ManiSkill stores
+it as the dataset ``obs`` itself; `dataset_name` and `field_name` translate.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from simreel.episode import RecordingMeta
+
+__all__ = ["group_name", "group_index", "sidecar_path", "obs_is_array", "dataset_name", "field_name", "maniskill_tools",
+           "OBS"]
+
+OBS = "obs"
+_GROUP = re.compile(r"traj_(\d+)")
+
+
+def group_name(index: int) -> str:
+    """The group of episode `index`: ``traj_<index>``."""
+    return f"traj_{index}"
+
+
+def group_index(name: str) -> int | None:
+    """The episode index of a group named ``traj_<index>``; None for any other name."""
+    m = _GROUP.fullmatch(name)
+    return int(m.group(1)) if m else None
+
+
+def sidecar_path(path: Path) -> Path:
+    """The JSON sidecar beside `path` (`x.h5` → `x.json`), as ManiSkill's tools look for it."""
+    return Path(path).with_suffix(".json")
+
+
+def obs_is_array(meta: RecordingMeta) -> bool:
+    """Whether the recording's observation is one array (its only obs key is the obs mode's name)."""
+    return list(meta.obs_layout) == [meta.obs_mode]
+
+
+def dataset_name(field: str, meta: RecordingMeta) -> str:
+    """Where field `field` is stored in a ``traj_N`` group."""
+    if obs_is_array(meta) and field == f"{OBS}/{meta.obs_mode}":
+        return OBS
+    return field
+
+
+def field_name(dataset: str, obs_mode: str) -> str:
+    """The field a dataset of a ``traj_N`` group holds (inverse of `dataset_name`)."""
+    return f"{OBS}/{obs_mode}" if dataset == OBS else dataset
+
+
+def maniskill_tools(meta: RecordingMeta, *, hdf5: bool) -> list[str]:
+    """What ManiSkill's own tools can do with a recording of `meta` (one line each), and why not where not."""
+    if not hdf5:
+        return ["ManiSkill's tools read HDF5 only: `simreel convert FILE.mcap FILE.h5` writes one they read"]
+    lines = ["mani_skill.trajectory.replay_trajectory replays it (it needs a Vulkan device: see the README)"]
+    if meta.obs_layout:
+        lines.append("ManiSkillTrajectoryDataset loads it with its observations (ManiSkill's layout)")
+    else:
+        lines.append("ManiSkillTrajectoryDataset loads it without observations, like ManiSkill's obs_mode=none "
+                     "demos (record with --record-obs, or re-render them, to train on them)")
+    return lines

@@ -1,0 +1,231 @@
+"""`ManiskillReader`: ManiSkill's own trajectory files (RecordEpisode, replay_trajectory, the published demos),
+read onto simreel's episode model so that every command and the Python reader API work on them.
+
+What such a file holds is mapped as it is; what it does not hold is listed in `RecordingMeta.unknown`, never
+invented: simreel's versions, the full sim config and control frequency, contact forces, body poses, info
+beyond success/fail, which resets rebuilt the scene, and — where the file lacks them — rewards, success,
+fail and env_states. Quirks found in the file go to the episode's `EpisodeMeta.notes`:
+
+- seeds stored as one-element lists in `reset_kwargs`, or a `reset_kwargs.seed` that is not the
+  `episode_seed` (ManiSkill's replay_trajectory uses `episode_seed`, and so does simreel);
+- `elapsed_steps` that is not the number of actions;
+- a state row 0 equal to row 1 within restore noise: files that replay_trajectory wrote in its state modes
+  (`--use-env-states`, `--use-first-env-state`) store the state *after* step 0 as the first state (off by
+  one), so row 0 is not the reset state (`EpisodeMeta.initial_state_known` is False and replays skip it);
+- episodes the sidecar lists that the .h5 lacks (an error), groups the sidecar does not list (skipped, as
+  ManiSkill's tools skip them).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simreel.compare import Tolerances, component_error, components_of
+from simreel.episode import (
+    OPTIONAL_STEP_FIELDS,
+    Episode,
+    EpisodeMeta,
+    RecordingMeta,
+    episode_fields,
+)
+from simreel.errors import EpisodeLayoutError, RecordingFileError
+from simreel.formats.base import EpisodeReader
+from simreel.formats.hdf5.reader import open_hdf5
+from simreel.formats.maniskill.layout import OBS, dataset_name, field_name, group_index, group_name
+from simreel.formats.maniskill.sidecar import Sidecar
+from simreel.state_tree import LeafSpec
+
+__all__ = ["ManiskillReader", "ALWAYS_UNKNOWN"]
+
+ALWAYS_UNKNOWN = ("versions", "sim_config", "control_freq", "contacts", "body_poses", "info", "scene_seeds")
+"""What no ManiSkill trajectory file holds (besides the fields a given file lacks)."""
+_DEFAULT_SIM_BACKEND = "physx_cpu"
+"""ManiSkill's replay_trajectory assumes the CPU sim for files that do not name a backend."""
+
+
+def _datasets(group: Any, prefix: str = "") -> dict[str, Any]:
+    """Every dataset below `group` by its path relative to the group (h5py objects, not read)."""
+    import h5py
+
+    out: dict[str, Any] = {}
+    group.visititems(lambda name, obj: out.__setitem__(prefix + name, obj) if isinstance(obj, h5py.Dataset) else None)
+    return out
+
+
+def _layout(datasets: dict[str, Any]) -> dict[str, LeafSpec]:
+    return {name: LeafSpec(tuple(ds.shape[1:]), ds.dtype.name) for name, ds in datasets.items()}
+
+
+class ManiskillReader(EpisodeReader):
+    """Reads a ManiSkill trajectory file (``traj_N`` groups + JSON sidecar). Raises `RecordingFileError` for a
+    missing or mismatching sidecar, and for an HDF5 file that is no trajectory file at all."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise RecordingFileError(self.path, "no such file")
+        self._file = open_hdf5(self.path)
+        try:
+            self._open()
+        except BaseException:
+            self._file.close()
+            raise
+        self.unfinished: list[str] = []
+
+    def _open(self) -> None:
+        groups = {i: name for name in self._file if (i := group_index(name)) is not None}
+        if not groups:
+            raise RecordingFileError(
+                self.path, "an HDF5 file that is neither a simreel recording (no simreel metadata) nor a ManiSkill "
+                "trajectory file (no traj_N groups)"
+            )
+        self.sidecar = Sidecar.read(self.path)
+        self.episodes = _episode_metas(self.sidecar, groups)
+        self.notes = _unlisted(self.sidecar, groups)
+        """Recording-level quirks (groups the sidecar does not list)."""
+        first = self._file[group_name(self.episodes[0].index)] if self.episodes else None
+        self.meta = _recording_meta(self.sidecar, first, self.episodes)
+        self.fields = episode_fields(self.meta)
+        self.kind = f"ManiSkill trajectory file (JSON sidecar {self.sidecar.path.name})"
+
+    def read_episode(self, index: int) -> Episode:
+        meta = dataclasses.replace(self.episode_meta(index))
+        meta.notes = list(meta.notes)
+        group = self._file[group_name(index)]
+        arrays = {}
+        for f in self.fields:
+            name = dataset_name(f.name, self.meta)
+            if name not in group:
+                raise RecordingFileError(self.path, f"{group_name(index)} has no {name} (the first episode has it)")
+            arrays[f.name] = group[name][()]
+        try:
+            episode = Episode.from_fields(meta, arrays)
+            episode.check_shapes()
+        except EpisodeLayoutError as e:
+            raise RecordingFileError(self.path, f"{group_name(index)}: {e}") from None
+        _note_quirks(episode)
+        return episode
+
+    def close(self) -> None:
+        self._file.close()
+
+
+# --------------------------------------------------------------------------------------------- metadata
+def _recording_meta(sidecar: Sidecar, first: Any, episodes: list[EpisodeMeta]) -> RecordingMeta:
+    """The recording's metadata from the sidecar and the datasets of its first episode."""
+    from simreel.sim.make import EnvConfig
+
+    kw = sidecar.env_kwargs
+    obs_mode = kw.get("obs_mode") or "state"
+    held = _datasets(first) if first is not None else {}
+    states = {k[len("env_states/"):]: ds for k, ds in held.items() if k.startswith("env_states/")}
+    obs = {field_name(k, obs_mode)[len(OBS) + 1:]: ds for k, ds in held.items() if k == OBS or k.startswith(OBS + "/")}
+    actions = held.get("actions")
+    lacking = [name for name in OPTIONAL_STEP_FIELDS if first is not None and name not in held]
+    num_envs = int(kw.get("num_envs") or 1)
+    if num_envs > 1:  # RecordEpisode writes no reset options and no sub-scene index for parallel envs
+        lacking += ["reset_options", "env_idx"]
+    return RecordingMeta(
+        env_id=sidecar.env_id,
+        env_kwargs={k: v for k, v in kw.items() if k not in EnvConfig.names()},
+        obs_mode=obs_mode,
+        control_mode=kw.get("control_mode") or _episode_control_mode(sidecar),
+        reward_mode=kw.get("reward_mode"),
+        sim_backend=kw.get("sim_backend") or _DEFAULT_SIM_BACKEND,
+        render_backend=kw.get("render_backend") or "none",
+        num_envs=num_envs,
+        max_episode_steps=sidecar.max_episode_steps,
+        sim_config=dict(kw.get("sim_config") or {}),
+        action_space={"shape": list(actions.shape[1:]), "dtype": actions.dtype.name} if actions is not None else {},
+        state_layout=_layout(states),
+        obs_layout=_layout(obs),
+        command=str(sidecar.source.get("source_desc", "")),
+        source={"format": "maniskill", **sidecar.source, "sidecar": str(sidecar.path)},
+        unknown=[*ALWAYS_UNKNOWN, *lacking, *([] if states or first is None else ["env_states"])],
+    )
+
+
+def _episode_control_mode(sidecar: Sidecar) -> str | None:
+    modes = {e.get("control_mode") for e in sidecar.episodes} - {None}
+    return modes.pop() if len(modes) == 1 else None
+
+
+def _seed(entry: dict[str, Any], notes: list[str]) -> int | None:
+    """The episode's seed: `episode_seed` (what replay_trajectory uses), checked against `reset_kwargs.seed`."""
+    seed = entry.get("episode_seed")
+    given = (entry.get("reset_kwargs") or {}).get("seed")
+    if isinstance(given, list):
+        notes.append(f"reset_kwargs.seed is a list ({given}); ManiSkill's replay takes its one element")
+        given = given[0] if len(given) == 1 else given
+    if given is not None and seed is not None and given != seed:
+        notes.append(f"reset_kwargs.seed {given} is not episode_seed {seed}; replayed with episode_seed")
+    seed = seed if seed is not None else given
+    return int(seed) if isinstance(seed, (int, np.integer)) else None
+
+
+def _episode_metas(sidecar: Sidecar, groups: dict[int, str]) -> list[EpisodeMeta]:
+    """One `EpisodeMeta` per episode the sidecar lists, in its order; an error for those the .h5 lacks."""
+    missing = [int(e["episode_id"]) for e in sidecar.episodes if int(e["episode_id"]) not in groups]
+    if missing:
+        shown = ", ".join(group_name(i) for i in missing[:5])
+        raise RecordingFileError(sidecar.path, f"lists episodes the .h5 does not hold ({shown}): the sidecar belongs "
+                                               "to another file, or the .h5 was cut")
+    metas = []
+    for entry in sidecar.episodes:
+        notes: list[str] = []
+        options = dict((entry.get("reset_kwargs") or {}).get("options") or {})
+        metas.append(EpisodeMeta(
+            index=int(entry["episode_id"]),
+            seed=_seed(entry, notes),
+            reset_options=options,
+            reconfigured=True if options.get("reconfigure") else None,
+            length=int(entry.get("elapsed_steps") or 0),
+            success=entry.get("success") if isinstance(entry.get("success"), bool) else None,
+            notes=notes,
+        ))
+    return metas
+
+
+def _unlisted(sidecar: Sidecar, groups: dict[int, str]) -> list[str]:
+    listed = {int(e["episode_id"]) for e in sidecar.episodes}
+    extra = sorted(set(groups) - listed)
+    if not extra:
+        return []
+    return [f"{len(extra)} group(s) the sidecar does not list ({', '.join(groups[i] for i in extra[:5])}) are "
+            "skipped, as ManiSkill's tools skip them"]
+
+
+def _note_quirks(episode: Episode) -> None:
+    """Notes on what the episode's arrays say about the file: a stale `elapsed_steps`, an off-by-one row 0."""
+    meta = episode.meta
+    if meta.length != episode.length:
+        meta.notes.append(f"elapsed_steps {meta.length} in the sidecar, {episode.length} actions in the file")
+        meta.length = episode.length
+    gap = _first_step_gap(episode.env_states) if episode.length >= 1 else None
+    if gap is not None:
+        meta.initial_state_known = False
+        meta.notes.append(
+            f"env_states[0] and env_states[1] agree within restore noise (largest difference {gap:.3g}), as in files "
+            "replay_trajectory writes with --use-env-states or --use-first-env-state, whose first state is the "
+            "state after step 0 (off by one): the reset state is not compared; such files restore the original's "
+            "state at every step, so --mode step checks them as they were made"
+        )
+
+
+def _first_step_gap(states: dict[str, np.ndarray]) -> float | None:
+    """The largest difference between state rows 0 and 1 when every part of every leaf agrees within the
+    tolerances of a restore (`simreel.compare`, mode ``states``), else None (a real first step moved something)."""
+    if not states:
+        return None
+    tolerances, gap = Tolerances.for_mode("states"), 0.0
+    for path, rows in states.items():
+        for comp in components_of(path, rows.shape[1:]):
+            err = float(component_error(rows[:1], rows[1:2], comp)[0])
+            if err > tolerances[comp.group]:
+                return None
+            gap = max(gap, err)
+    return gap

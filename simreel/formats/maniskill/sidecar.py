@@ -1,0 +1,116 @@
+"""ManiSkill's JSON sidecar (``<name>.json`` beside ``<name>.h5``), written and read here, side by side.
+
+Its document, as ManiSkill 3.0.1's RecordEpisode writes it::
+
+    {"env_info": {"env_id": ..., "env_kwargs": {gym.make kwargs as given}, "max_episode_steps": ...},
+     "commit_info": {...} | null, "source_type": ..., "source_desc": ...,   (the last two only when given)
+     "episodes": [{"episode_id", "episode_seed", "control_mode", "elapsed_steps",
+                   "reset_kwargs": {"seed", "options"} ({} for num_envs > 1), "success", "fail"}, ...]}
+
+simreel writes it beside its HDF5 recordings so ManiSkill's tools (`replay_trajectory`, its dataset loaders)
+read them; simreel itself needs it only for ManiSkill's own files (`simreel.formats.maniskill.reader`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from simreel.episode import EpisodeMeta, RecordingMeta, json_default
+from simreel.errors import RecordingFileError
+from simreel.formats.maniskill.layout import sidecar_path
+from simreel.formats.targets import write_text_atomic
+
+__all__ = ["Sidecar", "sidecar_document", "write_sidecar"]
+
+
+# ------------------------------------------------------------------------------------------------ writing
+def sidecar_document(meta: RecordingMeta, episodes: list[EpisodeMeta]) -> dict[str, Any]:
+    """The sidecar's JSON of a simreel recording: `env_info` (env id, gym.make kwargs, time limit) and one
+    entry per committed episode."""
+    env_kwargs = {
+        **meta.env_kwargs,
+        "obs_mode": meta.obs_mode,
+        "control_mode": meta.control_mode,
+        "sim_backend": meta.sim_backend,
+        "render_backend": meta.render_backend,
+        "reward_mode": meta.reward_mode,
+    }
+    return {
+        "env_info": {
+            "env_id": meta.env_id,
+            "env_kwargs": {k: v for k, v in env_kwargs.items() if v is not None},
+            "max_episode_steps": meta.max_episode_steps,
+        },
+        "source_type": "simreel",
+        "source_desc": meta.command,
+        "episodes": [_episode_entry(meta, e) for e in episodes],
+    }
+
+
+def _episode_entry(meta: RecordingMeta, e: EpisodeMeta) -> dict[str, Any]:
+    return {
+        "episode_id": e.index,
+        "episode_seed": e.seed,
+        "reset_kwargs": {"seed": e.seed, **({"options": e.reset_options} if e.reset_options else {})},
+        "control_mode": meta.control_mode,
+        "elapsed_steps": e.length,
+        "success": e.success,
+    }
+
+
+def write_sidecar(path: Path, meta: RecordingMeta, episodes: list[EpisodeMeta]) -> None:
+    """(Re)write the sidecar of the recording `path` atomically."""
+    doc = sidecar_document(meta, episodes)
+    write_text_atomic(sidecar_path(path), json.dumps(doc, indent=2, default=json_default))
+
+
+# ------------------------------------------------------------------------------------------------ reading
+@dataclass(frozen=True)
+class Sidecar:
+    """A ManiSkill sidecar as read: the env it names, its episodes, and where the data came from."""
+
+    path: Path
+    env_id: str
+    env_kwargs: dict[str, Any]
+    max_episode_steps: int | None
+    episodes: list[dict[str, Any]]
+    source: dict[str, Any] = field(default_factory=dict)
+    """``source_type``, ``source_desc``, ``commit_info`` as the file gives them."""
+
+    @classmethod
+    def read(cls, h5_path: Path) -> Sidecar:
+        """The sidecar beside `h5_path`; `RecordingFileError` naming it when it is missing or malformed."""
+        path = sidecar_path(h5_path)
+        if not path.is_file():
+            raise RecordingFileError(
+                h5_path, f"a ManiSkill trajectory file (traj_N groups) without its JSON sidecar: {path} is missing "
+                "(ManiSkill's RecordEpisode and replay_trajectory write it beside the .h5; copy it along)"
+            )
+        try:
+            doc = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, ValueError) as e:
+            raise RecordingFileError(path, f"unreadable ManiSkill sidecar ({e})") from None
+        return cls._from_document(path, doc)
+
+    @classmethod
+    def _from_document(cls, path: Path, doc: Any) -> Sidecar:
+        info = doc.get("env_info") if isinstance(doc, Mapping) else None
+        if not isinstance(info, Mapping) or not isinstance(info.get("env_id"), str):
+            raise RecordingFileError(
+                path, "a ManiSkill sidecar without env_info.env_id (RecordEpisode writes none when the env was not "
+                "made with gym.make): simreel cannot tell which env to rebuild"
+            )
+        episodes = doc.get("episodes")
+        if not isinstance(episodes, list) or not all(isinstance(e, Mapping) and "episode_id" in e for e in episodes):
+            raise RecordingFileError(path, "a ManiSkill sidecar whose `episodes` is not a list of {episode_id, ...}")
+        kwargs = info.get("env_kwargs") or {}
+        if not isinstance(kwargs, Mapping):
+            raise RecordingFileError(path, f"env_info.env_kwargs is {type(kwargs).__name__}, expected an object")
+        steps = info.get("max_episode_steps")
+        source = {k: doc[k] for k in ("source_type", "source_desc", "commit_info") if doc.get(k) is not None}
+        return cls(path, info["env_id"], dict(kwargs), steps if isinstance(steps, int) else None,
+                   [dict(e) for e in episodes], source)
