@@ -2,8 +2,10 @@
 states, step; actions can also restore the recorded state every K steps, ``resync``), verify every step,
 and audit a task for state that its state dict does not capture.
 
-- `verify_recording(path, mode=..., resync=..., ...)` → `ReplayReport` (what `simreel replay` runs);
-  `ReplayOptions` holds its options, `ReplayRun` is the same in two steps
+- `ReplayRun(inputs, options).execute()` → `RunTally`: what `simreel replay` runs over recordings, folders and
+  patterns (local worker processes or Ray; a streaming, resumable report); `ReplayOptions` holds its options
+- `verify_recording(path, mode=..., resync=..., ...)` → `ReplayReport`: one recording, every episode's report kept
+- `read_verdicts(report)` → `Verdicts`: the verdicts a replay report holds (for filtering a dataset by them)
 - `EpisodeReplayer(meta)`: one rebuilt env that reproduces each episode's reset and replays it
 - `audit_task(env_id, ...)` → `AuditReport` (what `simreel audit` runs)
 
@@ -14,7 +16,9 @@ Importing this package imports neither mani_skill nor torch.
 
 from simreel.replay.audit import AuditFinding, AuditOptions, AuditReport, audit_task
 from simreel.replay.engine import MODES, EpisodeReplayer, ReplayedEpisode, ReplayerOptions
-from simreel.replay.report import EpisodeReport, ReplayReport
+from simreel.replay.report import EpisodeReport
+from simreel.replay.report_log import Verdicts, read_verdicts
+from simreel.replay.tally import ReplayReport, RunTally
 from simreel.replay.verify import ReplayOptions, ReplayRun, verify_recording
 
 __all__ = [
@@ -29,6 +33,9 @@ __all__ = [
     "ReplayRun",
     "ReplayedEpisode",
     "ReplayerOptions",
+    "RunTally",
+    "Verdicts",
     "audit_task",
+    "read_verdicts",
     "verify_recording",
 ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -54,16 +55,18 @@ class ReplayedWriter:
     def __init__(self, spec: ReplayOutput, meta: RecordingMeta, order: list[int]) -> None:
         self.spec = spec
         self.meta = meta
-        self.order = list(order)
+        self.order = deque(order)
         self.waiting: dict[int, Episode] = {}
         self.writer: Any = None
 
-    def put(self, episode: Episode | None) -> None:
-        if episode is None:
-            return
-        self.waiting[episode.meta.index] = episode
+    def put(self, index: int, episode: Episode | None) -> None:
+        """Write episode `index` once those before it in the order are written; None: it has no replay (it could not
+        be replayed), go on without it."""
+        self.waiting[index] = episode
         while self.order and self.order[0] in self.waiting:
-            self._write(self.waiting.pop(self.order.pop(0)))
+            episode = self.waiting.pop(self.order.popleft())
+            if episode is not None:
+                self._write(episode)
 
     def _output_meta(self, episode: Episode) -> RecordingMeta:
         from simreel.sim.make import env_versions

@@ -1,18 +1,22 @@
-"""The reports of a replay: `EpisodeReport` (one episode's verdict and the numbers behind it) and
-`ReplayReport` (every episode of a run, its summary table and its JSON)."""
+"""One episode's verdict and the numbers behind it (`EpisodeReport`), as a run's summary prints it and its report
+file holds it; and what a recording cannot let a replay check (`recording_limits`). A run's totals and summary
+are `simreel.replay.tally`."""
 
 from __future__ import annotations
 
-import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from simreel.compare import Divergence, EpisodeComparison, format_number, json_number, worst_keys
 from simreel.episode import Episode
 
-__all__ = ["EpisodeReport", "ReplayReport", "checked_groups", "recording_limits"]
+__all__ = ["EpisodeReport", "VERIFIED", "CHECK_ORDER", "checked_groups", "recording_limits", "episode_lines"]
 
-_CHECK_ORDER = ("env_states", "obs", "contacts", "info", "rewards", "terminated", "truncated", "success", "fail")
+VERIFIED = ("exact", "within_tolerance")
+"""Verdicts of an episode that verified; the others are ``diverged`` and ``error`` (it could not be replayed:
+its data is damaged, or its env does not build here)."""
+CHECK_ORDER = ("env_states", "obs", "contacts", "info", "rewards", "terminated", "truncated", "success", "fail")
 _LIMITS = {
     "env_states": "states not compared: the file holds no env_states (recorded without them); the checks are "
                   "the observations, rewards and flags it holds",
@@ -42,7 +46,7 @@ def checked_groups(keys: list[str]) -> list[str]:
     """What a comparison's keys cover, in a fixed order: ``env_states``, ``obs``, ``contacts``, ``info``,
     ``rewards`` and each flag."""
     groups = {k.split("/", 1)[0].split("[", 1)[0] for k in keys}
-    return [g for g in _CHECK_ORDER if g in groups]
+    return [g for g in CHECK_ORDER if g in groups]
 
 
 @dataclass
@@ -64,6 +68,9 @@ class EpisodeReport:
     """Notes on what was not checked or not reproduced ("contacts not compared: ..."): shown whatever the verdict."""
     checked: list[str] = field(default_factory=list)
     """What was compared at every step (`checked_groups`)."""
+    keys_compared: int = 0
+    error: str | None = None
+    """Why the episode could not be replayed (verdict ``error``)."""
 
     @classmethod
     def from_comparison(cls, recorded: Episode, cmp: EpisodeComparison, *, notes: list[str], limits: list[str],
@@ -82,115 +89,68 @@ class EpisodeReport:
             limits=limits,
             seconds=seconds,
             checked=checked_groups(list(cmp.errors)),
+            keys_compared=len(cmp.max_abs_error),
         )
+
+    @classmethod
+    def errored(cls, index: int, length: int, error: str) -> EpisodeReport:
+        """The report of an episode that could not be replayed, and why."""
+        return cls(index=index, seed=None, length=length, verdict="error", first_divergence=None, max_abs_error={},
+                   error=error)
 
     @property
     def ok(self) -> bool:
-        return self.verdict != "diverged"
+        """It verified: exact or within tolerance."""
+        return self.verdict in VERIFIED
 
     def worst(self, n: int = 3) -> list[tuple[str, float, float]]:
         """Up to n keys that left their tolerance (or came closest), largest error/tolerance first."""
         return worst_keys(self.max_abs_error, self.tolerance, n)
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        """The episode's entry in a report file: the keys that were not reproduced exactly, with their largest error
+        and tolerance (every other of the `keys_compared` keys was exact)."""
+        off = {k: v for k, v in self.max_abs_error.items() if v != 0.0}
+        out = {
             "index": self.index,
             "seed": self.seed,
             "length": self.length,
             "verdict": self.verdict,
             "first_divergence": None if self.first_divergence is None else self.first_divergence.to_json(),
-            "max_abs_error": {k: json_number(v) for k, v in self.max_abs_error.items()},
+            "max_abs_error": {k: json_number(v) for k, v in off.items()},
+            "tolerance": {k: json_number(self.tolerance.get(k, 0.0)) for k in off},
+            "keys_compared": self.keys_compared,
             "diverged_keys": dict(self.diverged_keys),
             "notes": list(self.notes),
             "limits": list(self.limits),
             "checked": list(self.checked),
             "seconds": round(self.seconds, 4),
         }
+        if self.error is not None:
+            out["error"] = self.error
+        return out
 
-
-@dataclass
-class ReplayReport:
-    """All episodes of one `simreel replay` run."""
-
-    path: str
-    env_id: str
-    mode: str
-    resync: int | None
-    tolerances: dict[str, float]
-    warnings: list[str] = field(default_factory=list)
-    episodes: list[EpisodeReport] = field(default_factory=list)
-    output: str | None = None
-    limits: list[str] = field(default_factory=list)
-    """What no episode of this recording could check (the file does not hold it: `recording_limits`)."""
-
-    @property
-    def ok(self) -> bool:
-        return all(e.ok for e in self.episodes)
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "ok": self.ok,
-            "path": self.path,
-            "env_id": self.env_id,
-            "mode": self.mode,
-            "resync": self.resync,
-            "tolerances": dict(self.tolerances),
-            "warnings": list(self.warnings),
-            "limits": list(self.limits),
-            "output": self.output,
-            "episodes": [e.to_json() for e in self.episodes],
-        }
-
-    def summary(self, *, top: int = 8) -> str:
-        """The readable table `simreel replay` prints."""
-        mode = self.mode + (f" --resync {self.resync}" if self.resync else "")
-        steps = sum(e.length for e in self.episodes)
-        lines = [f"replay of {self.path}: {self.env_id}, mode {mode}, {len(self.episodes)} episode(s), {steps} steps"]
-        lines.append(f"  {'episode':>7} {'steps':>6}  {'verdict':<17} first divergence")
-        for e in self.episodes:
-            lines += _episode_lines(e)
-        if self.mode == "step" or self.resync:
-            lines.append(self._per_key_table(top))
-        if self.limits:  # a file that does not hold everything: say what was checked, and what not
-            checked = [g for g in _CHECK_ORDER if any(g in e.checked for e in self.episodes)]
-            lines.append(f"checked at every step: {', '.join(checked) or 'nothing'}")
-            lines += [f"limit: {limit}" for limit in self.limits]
-        n_exact = sum(e.verdict == "exact" for e in self.episodes)
-        n_within = sum(e.verdict == "within_tolerance" for e in self.episodes)
-        n_div = len(self.episodes) - n_exact - n_within
-        verdict = "all verified" if n_div == 0 else f"{n_div} diverged"
-        lines.append(
-            f"{len(self.episodes) - n_div} of {len(self.episodes)} episode(s) verified "
-            f"({n_exact} exact, {n_within} within tolerance); {verdict}"
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> EpisodeReport:
+        """The report `to_json` wrote (its zero errors left out)."""
+        first = d.get("first_divergence")
+        return cls(
+            index=int(d["index"]), seed=d.get("seed"), length=int(d.get("length") or 0), verdict=str(d["verdict"]),
+            first_divergence=None if first is None else Divergence.from_json(first),
+            max_abs_error={k: float(v) for k, v in d.get("max_abs_error", {}).items()},
+            tolerance={k: float(v) for k, v in d.get("tolerance", {}).items()},
+            diverged_keys=dict(d.get("diverged_keys", {})), notes=list(d.get("notes", [])),
+            seconds=float(d.get("seconds", 0.0)), limits=list(d.get("limits", [])), checked=list(d.get("checked", [])),
+            keys_compared=int(d.get("keys_compared", 0)), error=d.get("error"),
         )
-        return "\n".join(lines)
-
-    def _per_key_table(self, top: int) -> str:
-        worst: dict[str, float] = {}
-        tol: dict[str, float] = {}
-        for e in self.episodes:
-            for k, v in e.max_abs_error.items():
-                worst[k] = max(worst.get(k, 0.0), v)
-                tol[k] = e.tolerance.get(k, 0.0)
-        keys = sorted((k for k in worst if worst[k] > 0), key=lambda k: worst[k] / tol[k] if tol[k] else math.inf,
-                      reverse=True)
-        title = "one-step" if self.mode == "step" else f"resync-{self.resync}"
-        lines = [f"largest {title} errors per key (all episodes):"]
-        for k in keys[:top]:
-            lines.append(f"  {k:<55} {format_number(worst[k]):>10}  (tolerance {format_number(tol[k])})")
-        if len(keys) > top:
-            lines.append(f"  ... {len(keys) - top} more keys differ; see --report")
-        if not keys:
-            lines.append("  none: every key was reproduced exactly")
-        return "\n".join(lines)
 
 
-def _episode_lines(e: EpisodeReport) -> list[str]:
+def episode_lines(e: EpisodeReport) -> list[str]:
     """An episode's row of the summary table, its worst keys when it diverged, and its notes."""
     pad = f"  {'':>7} {'':>6}  {'':<17}"
-    first = e.first_divergence.describe() if e.first_divergence else ""
+    first = e.first_divergence.describe() if e.first_divergence else (e.error or "")
     lines = [f"  {e.index:>7} {e.length:>6}  {e.verdict:<17} {first}".rstrip()]
-    if not e.ok:
+    if e.verdict == "diverged":
         also = [f"{k} {format_number(v)} (tol {format_number(t)})" for k, v, t in e.worst(4)
                 if e.first_divergence is None or k != e.first_divergence.key]
         if also:

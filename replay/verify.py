@@ -1,56 +1,73 @@
-"""Replay a recording and verify every episode: the loop behind `simreel replay`.
+"""Replay recordings and verify every episode: the run behind `simreel replay`.
 
-`verify_recording(path, mode=..., ...)` replays the chosen episodes (in this process, or with ``workers=N``
-in this one and N - 1 worker processes, each with its own env: `simreel.replay.workers`), compares each with
-its recording (`simreel.compare`) and returns a `ReplayReport` (`simreel.replay.report`): one `EpisodeReport`
-per episode with its verdict (``exact``, ``within_tolerance`` or ``diverged``), the first divergence (step,
-key path, error, tolerance) and the largest error per key. With ``output`` it also writes the replayed
-episodes as a simreel recording (`simreel.replay.output`).
+A `ReplayRun` takes recordings — files, folders of them, glob patterns — and makes one work list of their
+episodes (`simreel.replay.worklist`), ordered so each worker reuses its env. It replays them in this process,
+in worker processes (``workers=N``: this one and N - 1 more, `simreel.replay.workers`) or on a Ray cluster
+(``ray=...``: `simreel.replay.ray_pool`), compares each with its recording (`simreel.compare`) and counts the
+verdicts in a `RunTally` (`simreel.replay.tally`): ``exact``, ``within_tolerance``, ``diverged`` — with the first
+divergence (step, key path, error, tolerance) and the largest error per key — or ``error`` (the episode could not
+be replayed). With ``report`` the verdicts stream into REPORT.jsonl as they come and REPORT.json is written at the
+end (`simreel.replay.report_log`); ``resume`` continues such a report. With ``output`` the replayed episodes of one
+recording are written as a simreel recording (`simreel.replay.output`).
 
-`ReplayRun` is the same in two steps, for callers that want to know what will run before it does (the CLI's
-progress bar): building it opens the recording once and checks every option; `execute` replays.
+A run with one recording file is strict: an env that does not build for it raises (the CLI's one line, exit 2).
+A dataset run (several files, a folder, a pattern) reports such errors per file and episode and goes on.
+`verify_recording(path, ...)` is a one-file run kept whole in a `ReplayReport`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import datetime
 import math
-from collections.abc import Callable, Mapping
+import os
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from simreel import __version__
 from simreel.compare import Tolerances
-from simreel.errors import UsageError
-from simreel.formats import EpisodeReader, check_writable, format_of, open_reader, recording_files
-from simreel.formats.targets import check_distinct
-from simreel.replay.engine import MODES, ReplayerOptions
-from simreel.replay.output import ReplayedWriter, ReplayOutput, output_pose_bodies
-from simreel.replay.report import EpisodeReport, ReplayReport, recording_limits
-from simreel.replay.workers import EpisodeResult, ReplayJob, ReplaySession, run_pool
+from simreel.errors import FileProblemError, UsageError
+from simreel.formats import check_writable, format_of, recording_files
+from simreel.formats.targets import check_distinct, check_output
+from simreel.replay.engine import MODES
+from simreel.replay.output import ReplayedWriter, ReplayOutput
+from simreel.replay.report import EpisodeReport, recording_limits
+from simreel.replay.report_log import LoggedRun, ReportLog, load_log, report_paths, tally_of_log, write_report
+from simreel.replay.tally import FileTally, ReplayReport, RunTally
+from simreel.replay.workers import EpisodeResult, ReplayJob, ReplayWorker, run_pool
+from simreel.replay.worklist import RecordingInfo, WorkItem, WorkList, build_worklist
 
 __all__ = ["ReplayOptions", "ReplayRun", "verify_recording"]
+
+Progress = Callable[[WorkItem, EpisodeReport], None]
+"""Called with each episode's report as it finishes."""
 
 
 @dataclass(frozen=True)
 class ReplayOptions:
-    """How `verify_recording` replays and judges a recording.
+    """How a `ReplayRun` replays and judges recordings.
 
     Attributes:
         mode: "actions", "states" or "step" (see `simreel.replay.engine`).
         resync: with mode "actions", restore the recorded state before every `resync`-th action.
-        episodes: episode indices (None: all, in file order).
+        episodes: episode indices of every recording (None: all, in file order).
         atol: one absolute tolerance for every group (flags stay exact); `group_tolerances` then overrides
             single groups, e.g. ``{"contact": 5.0}``. Defaults: `simreel.compare.DEFAULT_TOLERANCES`.
-        output: write the replayed episodes here (.h5 or .mcap), with observations when the recording has
-            them or `obs_mode` is given; `overwrite` lets it replace an existing recording.
+        output: write the replayed episodes here (.h5 or .mcap; one recording only), with observations when the
+            recording has them or `obs_mode` is given; `overwrite` lets it (and `report`) replace existing files.
         obs_mode: observation mode of the replay, e.g. "rgb" to re-render observations into `output`.
-        workers: processes replaying episodes in parallel, each with its own env (this one and workers - 1
-            more).
+        workers: processes replaying episodes in parallel, each with its own env (this one and workers - 1 more).
         imports: `--import` specs to import before rebuilding the env (besides those the recording names).
         sim_backend: replay on this backend instead of the recorded one (e.g. "physx_cpu" for a GPU
             recording: a different engine, so expect `within_tolerance` or `diverged` in actions mode).
         command: the command line, kept in `output`'s metadata.
+        report: stream every verdict into REPORT.jsonl as it comes and write REPORT.json (this path) at the end.
+        resume: continue `report`: replay only the episodes it has no verdict for, with the options it was made with.
+        ray: replay on a Ray cluster: "local" starts one on this machine, "auto" joins the one this machine belongs
+            to, anything else is a cluster address (``ray://host:10001``, ``host:6379``); `workers` actors.
     """
 
     mode: str = "actions"
@@ -65,13 +82,18 @@ class ReplayOptions:
     imports: tuple[str, ...] = ()
     sim_backend: str | None = None
     command: str = ""
+    report: str | None = None
+    resume: bool = False
+    ray: str | None = None
 
     def __post_init__(self) -> None:
         if self.episodes is not None:
             object.__setattr__(self, "episodes", tuple(self.episodes))
         object.__setattr__(self, "imports", tuple(self.imports))
-        if self.output is not None:
-            object.__setattr__(self, "output", str(self.output))
+        object.__setattr__(self, "group_tolerances", dict(self.group_tolerances))
+        for name in ("output", "report"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, str(getattr(self, name)))
 
     def tolerances(self) -> Tolerances:
         """The tolerances these options ask for; `UsageError` for a bad mode, resync, worker count or tolerance."""
@@ -85,122 +107,226 @@ class ReplayOptions:
             raise UsageError(f"--workers must be >= 1, got {self.workers}")
         if self.atol is not None and (not math.isfinite(self.atol) or self.atol < 0):
             raise UsageError(f"--atol must be a number >= 0, got {self.atol}")
+        if self.resume and self.report is None:
+            raise UsageError("resume needs the report to continue (--resume REPORT.json)")
         try:
             return Tolerances.for_mode("resync" if self.resync else self.mode, atol=self.atol,
                                        groups=self.group_tolerances)
         except ValueError as e:
             raise UsageError(str(e)) from None
 
+    def verdict_options(self) -> dict[str, Any]:
+        """The options that decide the verdicts, as a report's run line keeps them (a resumed run uses them)."""
+        return {name: _json_value(getattr(self, name)) for name in _VERDICT_OPTIONS}
+
+
+_VERDICT_OPTIONS = ("mode", "resync", "episodes", "atol", "group_tolerances", "obs_mode", "sim_backend", "imports")
+
+
+def _json_value(value: Any) -> Any:
+    return list(value) if isinstance(value, tuple) else value
+
 
 class ReplayRun:
-    """One replay-and-verify run over a recording: checked and ready when built, done by `execute`.
+    """One replay-and-verify run over recordings: checked and ready when built, done by `execute`.
 
-    Building it checks the options and the `-o` target, opens the recording (the one time this process
-    does) and resolves the episodes; `total` says how many will be replayed.
+    Building it checks the options and every output, reads each recording's header (metadata and episode list:
+    `worklist`) and, when resuming, the report; nothing is replayed or written yet.
     """
 
-    def __init__(self, path: str | Path, options: ReplayOptions | None = None, **overrides: Any) -> None:
+    def __init__(self, inputs: str | Path | Sequence[str | Path], options: ReplayOptions | None = None,
+                 **overrides: Any) -> None:
         opts = dataclasses.replace(options or ReplayOptions(), **overrides)
-        self.path = str(path)
         self.options = opts
         self.tolerances = opts.tolerances()
-        if opts.output is not None:
-            format_of(opts.output)
-            check_distinct({"-o": recording_files(opts.output)}, recording_files(path),
-                           input_label="the recording being replayed")
-            check_writable(opts.output, overwrite=opts.overwrite)
-        self.reader: EpisodeReader = open_reader(path)
-        try:
-            self._check_mode()
-            self.indices = self._indices()
-        except BaseException:
-            self.reader.close()
-            raise
+        self.inputs = [str(inputs)] if isinstance(inputs, (str, Path)) else [str(p) for p in inputs]
+        if not self.inputs:
+            raise UsageError("no recordings to replay: name files, folders or patterns")
+        self.strict = len(self.inputs) == 1 and Path(self.inputs[0]).is_file()
+        """One recording file: an error of its env raises instead of being reported per episode."""
+        self.report_json, self.report_log = report_paths(opts.report) if opts.report else (None, None)
+        logged = self._logged()
+        restores = f"--mode {opts.mode}" if opts.mode != "actions" else ("--resync" if opts.resync else None)
+        self.worklist: WorkList = build_worklist(self.inputs, episodes=opts.episodes, restores=restores,
+                                                 done=logged.done if logged else ())
+        self._check_outputs()
+        self.tally = self._tally(logged)
+        self._new_files = [f for f in self.worklist.files if logged is None or f.path not in logged.files]
+        if self.strict and not self.worklist.items and logged is None:
+            raise UsageError(f"{self.inputs[0]}: the recording has no episodes to replay")
 
-    def _check_mode(self) -> None:
-        """Modes that restore recorded states need a file that holds them."""
+    @classmethod
+    def resume(cls, report: str | Path, **execution: Any) -> ReplayRun:
+        """Continue the run that wrote `report`, with its inputs and verdict options; `execution` may change how it
+        runs (workers, ray, command), not what decides a verdict."""
+        allowed = {"workers", "ray", "command"}
+        if set(execution) - allowed:
+            raise UsageError(f"a resumed run takes its options from the report; only {', '.join(sorted(allowed))} "
+                             f"may change, not {', '.join(sorted(set(execution) - allowed))}")
+        _, log = report_paths(report)
+        run = load_log(log).run
+        options = ReplayOptions(**run["options"], report=str(report), resume=True, **execution)
+        return cls(run["inputs"], options)
+
+    # ------------------------------------------------------------------ checks
+    def _logged(self) -> LoggedRun | None:
+        """The report being resumed, checked against this run's options and files."""
         opts = self.options
-        if (opts.mode != "actions" or opts.resync) and not self.reader.meta.state_layout:
-            what = f"--mode {opts.mode}" if opts.mode != "actions" else "--resync"
-            raise UsageError(f"{what} restores recorded states and {self.path} holds none (recorded without "
-                             "env_states); replay it with --mode actions")
+        if not opts.resume:
+            return None
+        logged = load_log(self.report_log)
+        if logged.run.get("output"):
+            raise UsageError(f"{self.report_json}: its run wrote replayed episodes (-o), which cannot be resumed; "
+                             "run it again with --overwrite")
+        mine = opts.verdict_options()
+        for name, value in logged.run["options"].items():
+            if mine.get(name) != value:
+                raise UsageError(f"{self.report_json} was made with {name}={value!r} and this run asks for "
+                                 f"{name}={mine.get(name)!r}; resume with the report's options (simreel replay "
+                                 f"--resume {self.report_json} alone)")
+        return logged
 
-    def _indices(self) -> list[int]:
-        episodes = self.options.episodes
-        if episodes is None:
-            indices = [m.index for m in self.reader.episodes]
-        else:
-            for i in episodes:
-                self.reader.episode_meta(i)  # raises RecordingFileError naming the episodes the file has
-            indices = list(dict.fromkeys(episodes))
-        if not indices:
-            raise UsageError(f"{self.path}: the recording has no episodes to replay")
-        return indices
+    def _check_outputs(self) -> None:
+        opts = self.options
+        inputs = [side for f in self.worklist.files for side in recording_files(f.path)]
+        outputs: dict[str, list[Path]] = {}
+        if opts.output is not None:
+            if not self.strict:
+                raise UsageError("-o writes the replayed episodes of one recording; name one file to replay")
+            format_of(opts.output)
+            outputs["-o"] = recording_files(opts.output)
+        if self.report_json is not None:
+            outputs["--report"] = [self.report_json, self.report_log]
+        check_distinct(outputs, inputs, input_label="a recording being replayed")
+        if opts.output is not None:
+            check_writable(opts.output, overwrite=opts.overwrite)
+        if self.report_json is not None and not opts.resume:
+            check_output(self.report_json, overwrite=opts.overwrite, side_paths=[self.report_log], option="--report")
+        if self.report_json is not None and opts.resume:
+            self._check_unchanged(load_log(self.report_log))
 
-    def close(self) -> None:
-        """Close the recording (`execute` does; call it when a run is not executed)."""
-        self.reader.close()
+    def _check_unchanged(self, logged: LoggedRun) -> None:
+        """A resumed run must replay the files the report began with, not newer versions of them."""
+        for f in self.worklist.files:
+            then = logged.files.get(f.path)
+            if then is not None and (then.get("size"), then.get("mtime_ns")) != f.identity:
+                raise UsageError(f"{f.path} changed since {self.report_json} began (size or modification time "
+                                 "differ): its verdicts would mix two recordings; start a new report (--overwrite)")
 
-    def __enter__(self) -> ReplayRun:
-        return self
+    def _tally(self, logged: LoggedRun | None) -> RunTally:
+        opts = self.options
+        tally = tally_of_log(self.report_log) if logged else RunTally(opts.mode, opts.resync, self.tolerances.to_json())
+        for f in self.worklist.files:
+            tally.add_file(_file_tally(f))
+        return tally
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
+    # ------------------------------------------------------------------ running
     @property
     def total(self) -> int:
         """Episodes this run replays."""
-        return len(self.indices)
+        return len(self.worklist.items)
 
     def _job(self) -> ReplayJob:
-        opts, meta = self.options, self.reader.meta
-        replayer = ReplayerOptions(obs_mode=opts.obs_mode, need_obs=bool(meta.obs_layout) or opts.obs_mode is not None,
-                                   pose_bodies=output_pose_bodies(meta, opts.output), sim_backend=opts.sim_backend)
-        return ReplayJob(path=self.path, mode=opts.mode, resync=opts.resync, tolerances=self.tolerances,
-                         replayer=replayer, keep_episode=opts.output is not None, imports=tuple(opts.imports))
+        opts = self.options
+        return ReplayJob(mode=opts.mode, resync=opts.resync, tolerances=self.tolerances, obs_mode=opts.obs_mode,
+                         sim_backend=opts.sim_backend, output=opts.output, imports=opts.imports)
 
-    def execute(self, progress: Callable[[EpisodeReport], None] | None = None) -> ReplayReport:
-        """Replay every episode, calling `progress` with each episode's report as it finishes; closes the
-        recording. Raises the user errors (`SimreelError`) a session meets: bad env, another layout, ..."""
-        opts, meta = self.options, self.reader.meta
+    def execute(self, progress: Progress | None = None) -> RunTally:
+        """Replay every episode of the work list, calling `progress` as each finishes; returns the run's tally
+        (a resumed run's includes the verdicts it found in the report). Raises the user errors (`SimreelError`)
+        a strict run meets; Ctrl-C stops it with every verdict reached so far in the report."""
+        worker = ReplayWorker(self._job())
+        try:
+            if self.strict and self.worklist.items:
+                worker.prepare(self.worklist.items[0])  # a bad env fails before anything is written
+            with self._log() as log, self._sink() as sink:
+                self._dispatch(worker, self._collector(log, sink, progress))
+                if log is not None:
+                    log.write({"type": "end"})
+        finally:
+            worker.close()
+            if self.report_log is not None and self.report_log.exists():
+                write_report(self.report_log, self.report_json, output=self.options.output)
+        return self.tally
+
+    @contextlib.contextmanager
+    def _log(self) -> Iterator[ReportLog | None]:
+        if self.report_log is None:
+            yield None
+            return
+        with ReportLog(self.report_log, resume=self.options.resume) as log:
+            log.write(self._run_line())
+            for f in self._new_files:
+                log.write({"type": "file", **self.tally.files[f.path].to_json()})
+            yield log
+
+    def _run_line(self) -> dict[str, Any]:
+        opts = self.options
+        return {"type": "run", "simreel": __version__, "resumed": opts.resume, "cwd": os.getcwd(),
+                "started_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                "inputs": [os.path.abspath(p) for p in self.inputs], "options": opts.verdict_options(),
+                "tolerances": self.tolerances.to_json(), "output": opts.output, "command": opts.command}
+
+    @contextlib.contextmanager
+    def _sink(self) -> Iterator[ReplayedWriter | None]:
+        opts = self.options
+        if opts.output is None:
+            yield None
+            return
+        f = self.worklist.files[0]
         job = self._job()
-        report = ReplayReport(path=self.path, env_id=meta.env_id, mode=opts.mode, resync=opts.resync,
-                              tolerances=self.tolerances.to_json(), output=opts.output,
-                              limits=recording_limits(meta.unknown))
-        sink = None
-        if opts.output is not None:
-            spec = ReplayOutput(opts.output, opts.overwrite, opts.obs_mode, job.replayer.pose_bodies, opts.command)
-            sink = ReplayedWriter(spec, meta, self.indices)
+        spec = ReplayOutput(opts.output, opts.overwrite, opts.obs_mode, job.replayer_options(f.meta).pose_bodies,
+                            opts.command)
+        sink = ReplayedWriter(spec, f.meta, list(f.episodes))
+        try:
+            yield sink
+        finally:
+            sink.close()
 
+    def _collector(self, log: ReportLog | None, sink: ReplayedWriter | None,
+                   progress: Progress | None) -> Callable[[EpisodeResult], None]:
         def collect(result: EpisodeResult) -> None:
-            episode_report, episode = result
-            report.episodes.append(episode_report)
+            item = result.item
+            report = self._report_of(result)
+            if not self.tally.add(item.path, report, result.warnings):
+                return  # an episode replayed twice (a retried Ray task): its first verdict stands
+            if log is not None:
+                log.episode(item.path, report, result.warnings)
             if sink is not None:
-                sink.put(episode)
+                sink.put(item.index, result.episode)
             if progress is not None:
-                progress(episode_report)
+                progress(item, report)
 
-        try:
-            self._replay(job, report, collect)
-        finally:
-            if sink is not None:
-                sink.close()
-        order = {i: k for k, i in enumerate(self.indices)}
-        report.episodes.sort(key=lambda e: order[e.index])
-        return report
+        return collect
 
-    def _replay(self, job: ReplayJob, report: ReplayReport, collect: Callable[[EpisodeResult], None]) -> None:
-        session = ReplaySession(job, self.reader)  # the session closes the reader
-        try:
-            report.warnings = list(session.warnings)
-            workers = min(self.options.workers, len(self.indices))
-            if workers == 1:
-                for index in self.indices:
-                    collect(session.run(index))
-            else:
-                run_pool(session, self.indices, workers, collect)
-        finally:
-            session.close()
+    def _report_of(self, result: EpisodeResult) -> EpisodeReport:
+        if result.error is None:
+            assert result.report is not None
+            return result.report
+        if self.strict and result.env_error:
+            raise result.error
+        error = result.error
+        why = error.problem if isinstance(error, FileProblemError) else str(error)  # the file is named beside it
+        return EpisodeReport.errored(result.item.index, result.item.steps, why)
+
+    def _dispatch(self, worker: ReplayWorker, collect: Callable[[EpisodeResult], None]) -> None:
+        items = self.worklist.items
+        if self.options.ray is not None:
+            from simreel.replay.ray_pool import run_ray
+
+            run_ray(worker.job, items, self.options, collect)
+            return
+        workers = min(self.options.workers, len(items))
+        if workers <= 1:
+            for item in items:
+                collect(worker.run(item))
+        else:
+            run_pool(worker, items, workers, collect)
+
+
+def _file_tally(f: RecordingInfo) -> FileTally:
+    return FileTally(f.path, f.meta.env_id if f.meta else None, len(f.episodes), size=f.size, mtime_ns=f.mtime_ns,
+                     error=f.error, limits=recording_limits(f.meta.unknown) if f.meta else [])
 
 
 def verify_recording(
@@ -210,13 +336,25 @@ def verify_recording(
     progress: Callable[[EpisodeReport], None] | None = None,
     **overrides: Any,
 ) -> ReplayReport:
-    """Replay episodes of the recording at `path` and verify each one: `ReplayRun(path, options,
-    **overrides).execute(progress)`. `overrides` are `ReplayOptions` fields, e.g.
-    ``verify_recording("rec.h5", mode="step", episodes=[0, 3])``.
+    """Replay episodes of the recording at `path` and verify each one, keeping every report: a `ReplayRun` of one
+    file. `overrides` are `ReplayOptions` fields, e.g. ``verify_recording("rec.h5", mode="step", episodes=[0, 3])``.
 
     Raises:
         UsageError / RecordingFileError / EnvBuildError (exit 2 in the CLI) for bad arguments, a bad
         file, an unknown episode, an env that cannot be rebuilt; `StateLayoutError` when its layout differs.
     """
-    with ReplayRun(path, options, **overrides) as run:
-        return run.execute(progress)
+    run = ReplayRun(path, options, **overrides)
+    reports: dict[int, EpisodeReport] = {}
+
+    def keep(item: WorkItem, report: EpisodeReport) -> None:
+        reports[item.index] = report
+        if progress is not None:
+            progress(report)
+
+    tally = run.execute(keep)
+    (f,) = run.worklist.files
+    (counted,) = tally.files.values()
+    return ReplayReport(path=str(path), env_id=f.meta.env_id, mode=run.options.mode, resync=run.options.resync,
+                        tolerances=run.tolerances.to_json(), warnings=list(counted.warnings),
+                        episodes=[reports[i] for i in f.episodes if i in reports], output=run.options.output,
+                        limits=list(counted.limits))

@@ -1,151 +1,236 @@
-"""Where episodes are replayed: a `ReplaySession` (one reader, one rebuilt env) in this process, and one in
-each worker process of a pool (`run_pool`), each replaying whole episodes and answering with their reports.
+"""Where episodes are replayed: a `ReplayWorker` (readers and one rebuilt env) in this process, and one in each
+worker process of a pool (`run_pool`), each replaying whole episodes of any file of the run and answering with
+an `EpisodeResult`.
 
-A `ReplayJob` is everything a session needs, picklable so that worker processes (started with ``spawn``:
-sapien/torch state must not be forked) can build their own.
+A worker keeps the env it built for the last env key (`simreel.replay.worklist.env_key`) and rebuilds only when
+the key changes; the work list is ordered by key so that is rare. A `ReplayJob` is everything a worker needs,
+picklable so that worker processes (started with ``spawn``: sapien/torch state must not be forked) and Ray
+actors can build their own.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import multiprocessing
-from collections import deque
+import os
+import signal
+import threading
+import time
+from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from simreel.compare import CompareScope, Tolerances, compare_episode
-from simreel.episode import Episode
-from simreel.errors import SimreelError
+from simreel.episode import Episode, RecordingMeta
+from simreel.errors import EpisodeLayoutError, MetadataError, RecordingFileError, SimreelError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.replay.engine import EpisodeReplayer, ReplayedEpisode, ReplayerOptions
+from simreel.replay.output import output_pose_bodies
 from simreel.replay.report import EpisodeReport
+from simreel.replay.worklist import WorkItem
 
-__all__ = ["ReplayJob", "ReplaySession", "EpisodeResult", "run_pool"]
+__all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "run_pool"]
 
-EpisodeResult = tuple[EpisodeReport, Episode | None]
-"""An episode's report, and its replayed arrays when they are written out (`-o`)."""
+_EPISODE_DATA_ERRORS = (RecordingFileError, EpisodeLayoutError, MetadataError)
+"""Errors about one episode's data (damaged, missing, malformed); any other error is about the env its file
+needs (it does not build, another state layout) and stops every episode of that file alike."""
+_OPEN_READERS = 8
+"""Recordings a worker keeps open (the work list visits files in turn, so few are ever needed again)."""
 
 
 @dataclass(frozen=True)
 class ReplayJob:
-    """What every session of one run does: which file, which mode and tolerances, what env options."""
+    """What every worker of one run does with an episode: mode, tolerances, and how to build the env."""
 
-    path: str
     mode: str
     resync: int | None
     tolerances: Tolerances
-    replayer: ReplayerOptions
-    keep_episode: bool
+    obs_mode: str | None = None
+    sim_backend: str | None = None
+    output: str | None = None
+    """Where the replayed episodes go (`-o`): workers then return them, with the bodies' poses it needs."""
     imports: tuple[str, ...] = ()
 
+    def replayer_options(self, meta: RecordingMeta) -> ReplayerOptions:
+        """How to build the env replaying the recording with `meta`."""
+        need_obs = bool(meta.obs_layout) or self.obs_mode is not None
+        return ReplayerOptions(obs_mode=self.obs_mode, need_obs=need_obs, sim_backend=self.sim_backend,
+                               pose_bodies=output_pose_bodies(meta, self.output))
 
-class ReplaySession:
-    """One reader + one replayer; lives in the main process and in each worker process.
+    def meta_for(self, meta: RecordingMeta) -> RecordingMeta:
+        """The recording's metadata with the job's `--import`s added to its own."""
+        if not self.imports:
+            return meta
+        return dataclasses.replace(meta, imports=list(dict.fromkeys([*meta.imports, *self.imports])))
 
-    `reader`: an open reader of `job.path` to use (and close with the session); None opens one.
-    """
 
-    def __init__(self, job: ReplayJob, reader: EpisodeReader | None = None) -> None:
-        from simreel.replay.fingerprint import fingerprint_differences
+@dataclass
+class EpisodeResult:
+    """What replaying one work item gave: its report (and the replayed arrays for `-o`), or the user error that
+    stopped it (an unreadable episode, an env that does not build), which the caller reports or raises."""
 
+    item: WorkItem
+    report: EpisodeReport | None = None
+    episode: Episode | None = None
+    warnings: list[str] = field(default_factory=list)
+    """What differs between the recording's machine and this one (`simreel.replay.fingerprint`); given with the
+    first result of each file a worker replays."""
+    error: SimreelError | None = None
+
+    @property
+    def env_error(self) -> bool:
+        """The error is about the file's env, not this episode's data: the file's other episodes fail alike."""
+        return self.error is not None and not isinstance(self.error, _EPISODE_DATA_ERRORS)
+
+
+class ReplayWorker:
+    """Replays work items of any file of a run: one process's readers and its one env (per env key)."""
+
+    def __init__(self, job: ReplayJob) -> None:
         self.job = job
-        self.reader = reader if reader is not None else open_reader(job.path)
-        try:
-            meta = self.reader.meta
-            if job.imports:
-                meta = dataclasses.replace(meta, imports=list(dict.fromkeys([*meta.imports, *job.imports])))
-            self.meta = meta
-            self.replayer = EpisodeReplayer(meta, job.replayer)
-        except BaseException:
-            self.reader.close()
-            raise
-        self.warnings = fingerprint_differences(meta, self.replayer.u)
+        self._readers: OrderedDict[str, EpisodeReader] = OrderedDict()
+        self._key: str | None = None
+        self._replayer: EpisodeReplayer | None = None
+        self._failed: dict[str, SimreelError] = {}
+        """Env keys whose env could not be built, with why: their other episodes fail at once, the same way."""
+        self._warned: set[str] = set()
 
-    def run(self, index: int) -> EpisodeResult:
-        recorded = self.reader.read_episode(index)
-        replayed = self.replayer.replay(recorded, mode=self.job.mode, resync=self.job.resync)
-        report = self._report(recorded, replayed)
-        if not self.job.keep_episode:
+    def run(self, item: WorkItem) -> EpisodeResult:
+        """Replay and verify `item`; a `SimreelError` comes back in the result, never raised."""
+        try:
+            reader = self._reader(item.path)
+            replayer = self._replayer_for(item.key, reader.meta)
+            report, episode = self._replay(reader, replayer, item.index)
+        except SimreelError as e:
+            return EpisodeResult(item, error=e)
+        return EpisodeResult(item, report, episode, self._warnings(item.path, reader.meta, replayer))
+
+    def prepare(self, item: WorkItem) -> None:
+        """Open `item`'s file and build its env now; raises the `SimreelError` that stops that."""
+        self._replayer_for(item.key, self._reader(item.path).meta)
+
+    def _reader(self, path: str) -> EpisodeReader:
+        reader = self._readers.get(path)
+        if reader is None:
+            reader = self._readers[path] = open_reader(path)
+            if len(self._readers) > _OPEN_READERS:
+                self._readers.popitem(last=False)[1].close()
+        self._readers.move_to_end(path)
+        return reader
+
+    def _replayer_for(self, key: str, meta: RecordingMeta) -> EpisodeReplayer:
+        if key in self._failed:
+            raise self._failed[key]
+        if key != self._key or self._replayer is None:
+            self._close_replayer()
+            try:
+                self._replayer = EpisodeReplayer(self.job.meta_for(meta), self.job.replayer_options(meta))
+            except SimreelError as e:
+                self._failed[key] = e
+                raise
+            self._key = key
+        return self._replayer
+
+    def _replay(self, reader: EpisodeReader, replayer: EpisodeReplayer, index: int) -> tuple[EpisodeReport, Episode | None]:
+        job = self.job
+        recorded = reader.read_episode(index)
+        replayed = replayer.replay(recorded, mode=job.mode, resync=job.resync)
+        report = self._report(reader.meta, recorded, replayed)
+        if job.output is None:
             return report, None
         episode = replayed.episode
-        if self.job.mode == "states":
+        if job.mode == "states":
             # states were restored from the recording; its contact forces are the true ones of the original run
             # (the replay's come from one step simulated from each restored state)
             episode = dataclasses.replace(episode, contact_forces=recorded.contact_forces)
         return report, episode
 
-    def _report(self, recorded: Episode, replayed: ReplayedEpisode) -> EpisodeReport:
-        obs_mode = self.job.replayer.obs_mode
+    def _report(self, meta: RecordingMeta, recorded: Episode, replayed: ReplayedEpisode) -> EpisodeReport:
         scope = CompareScope(initial=recorded.meta.initial_state_known,
-                             obs=obs_mode is None or obs_mode == self.meta.obs_mode,
+                             obs=self.job.obs_mode is None or self.job.obs_mode == meta.obs_mode,
                              contacts=replayed.compare_contacts)
-        cmp = compare_episode(recorded, replayed.episode, self.job.tolerances,
-                              channels=self.meta.contact_channels, scope=scope)
+        cmp = compare_episode(recorded, replayed.episode, self.job.tolerances, channels=meta.contact_channels,
+                              scope=scope)
         return EpisodeReport.from_comparison(recorded, cmp, notes=replayed.notes, limits=replayed.limits,
                                              seconds=replayed.seconds)
 
+    def _warnings(self, path: str, meta: RecordingMeta, replayer: EpisodeReplayer) -> list[str]:
+        from simreel.replay.fingerprint import fingerprint_differences
+
+        if path in self._warned:
+            return []
+        self._warned.add(path)
+        return fingerprint_differences(meta, replayer.u)
+
+    def _close_replayer(self) -> None:
+        if self._replayer is not None:
+            self._replayer.close()
+            self._replayer, self._key = None, None
+
     def close(self) -> None:
-        self.replayer.close()
-        self.reader.close()
+        self._close_replayer()
+        while self._readers:
+            self._readers.popitem()[1].close()
 
 
-_WORKER: ReplaySession | SimreelError | None = None
-"""A worker process's session, or the user error that building it raised (re-raised in the parent)."""
+_WORKER: ReplayWorker | None = None
+"""A worker process's worker."""
 
 
 def _worker_init(job: ReplayJob) -> None:
     global _WORKER
-    try:
-        _WORKER = ReplaySession(job)
-    except SimreelError as e:  # an initializer that raises breaks the whole pool (BrokenProcessPool)
-        _WORKER = e
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+    _WORKER = ReplayWorker(job)
 
 
-def _worker_run(index: int) -> EpisodeResult | SimreelError:
-    """One episode's result, or the user error that stopped it (raised by the parent)."""
-    if isinstance(_WORKER, SimreelError):
-        return _WORKER
+def _exit_with_parent(parent: int) -> None:
+    """End this worker process when its parent is gone (killed with -9, it cannot stop the pool): a pool worker
+    waiting for work does not notice by itself, and would replay on, orphaned."""
+    while os.getppid() == parent:
+        time.sleep(0.5)
+    os._exit(1)
+
+
+def _worker_run(item: WorkItem) -> EpisodeResult:
     if _WORKER is None:
         raise RuntimeError("_worker_run called in a process that _worker_init did not set up")
-    try:
-        return _WORKER.run(index)
-    except SimreelError as e:
-        return e
+    return _WORKER.run(item)
 
 
-def _unwrap(result: EpisodeResult | SimreelError) -> EpisodeResult:
-    if isinstance(result, SimreelError):
-        raise result
-    return result
-
-
-def run_pool(session: ReplaySession, indices: Iterable[int], workers: int, collect: Callable[[EpisodeResult], Any]) -> None:
-    """Replay `indices` in `session` (this process) and `workers - 1` worker processes; `collect` each result.
-
-    The caller builds `session` first, so a user error (an --import that fails, an env that does not build,
-    another state layout) is raised here before any worker starts; a worker returns the errors it meets
-    instead of raising them, and they are raised here too. On an error, the queued episodes are dropped.
-    """
-    queue = deque(indices)
-    ahead = 2 * (workers - 1)  # episodes handed to the workers at a time; the rest stay for this process
+def run_pool(worker: ReplayWorker, items: Iterable[WorkItem], workers: int,
+             collect: Callable[[EpisodeResult], Any]) -> None:
+    """Replay `items` in `worker` (this process) and `workers - 1` worker processes; `collect` each result here,
+    as it arrives. When `collect` raises (a strict run meeting an error, Ctrl-C), the queued items are dropped
+    and the pool is shut down."""
+    queue = deque(items)
+    ahead = 2 * (workers - 1)  # items handed to the workers at a time; the rest stay for this process
     ctx = multiprocessing.get_context("spawn")  # sapien/torch state must not be forked
     pool = ProcessPoolExecutor(max_workers=workers - 1, mp_context=ctx, initializer=_worker_init,
-                               initargs=(session.job,))
+                               initargs=(worker.job,))
     pending: set[Any] = set()
     try:
         while queue or pending:
             while queue and len(pending) < ahead:
                 pending.add(pool.submit(_worker_run, queue.popleft()))
             if queue:
-                collect(_unwrap(session.run(queue.popleft())))
+                collect(worker.run(queue.popleft()))
                 done = {fut for fut in pending if fut.done()}
             else:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
             pending -= done
             for fut in done:
-                collect(_unwrap(fut.result()))
+                collect(fut.result())
+    except BaseException:
+        _stop(pool)
+        raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """End the pool's processes now (Ctrl-C, an error raised here): an episode they are replaying is not waited for."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.terminate()

@@ -230,6 +230,12 @@ class Divergence:
         return {"step": self.step, "at": self.at, "key": self.key, "error": json_number(self.error),
                 "tolerance": json_number(self.tolerance)}
 
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> Divergence:
+        """The divergence `to_json` wrote ("inf"/"nan" strings back to floats)."""
+        return cls(step=int(d["step"]), key=str(d["key"]), error=float(d["error"]), tolerance=float(d["tolerance"]),
+                   at=str(d.get("at", "step")))
+
     def describe(self) -> str:
         where = "after reset" if self.at == "reset" else f"step {self.step}"
         return f"{where}: {self.key} off by {format_number(self.error)} (tolerance {format_number(self.tolerance)})"

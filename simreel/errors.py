@@ -9,7 +9,9 @@ from __future__ import annotations
 __all__ = [
     "SimreelError",
     "UsageError",
+    "FileProblemError",
     "RecordingFileError",
+    "ReportFileError",
     "RenderUnavailableError",
     "EnvBuildError",
     "ContactSpecError",
@@ -32,8 +34,8 @@ class UsageError(SimreelError):
     """A bad option or argument value."""
 
 
-class RecordingFileError(SimreelError):
-    """A recording file is missing, truncated, foreign or of an unknown format version."""
+class FileProblemError(SimreelError):
+    """A file simreel reads is missing or unusable: `path` and the `problem`, joined as ``path: problem``."""
 
     def __init__(self, path: object, problem: str) -> None:
         self.path = str(path)
@@ -44,6 +46,15 @@ class RecordingFileError(SimreelError):
         # the default rebuilds from `args` (the joined message), which this __init__ does not take; replay
         # workers send these errors back to the parent process pickled
         return type(self), (self.path, self.problem)
+
+
+class RecordingFileError(FileProblemError):
+    """A recording file is missing, truncated, foreign or of an unknown format version."""
+
+
+class ReportFileError(FileProblemError):
+    """A replay report (`--report`, `--resume`) is missing, damaged, of another run, or being written by another
+    process."""
 
 
 class RenderUnavailableError(SimreelError):

@@ -11,11 +11,15 @@ __all__ = ["add_parser", "run", "summarize"]
 
 
 def add_parser(sub: Any) -> None:
-    p = sub.add_parser("inspect", help="summarize a recording (.h5 or .mcap, simreel's or ManiSkill's)",
+    p = sub.add_parser("inspect", help="summarize recordings (.h5 or .mcap, simreel's or ManiSkill's)",
                        description="Print episodes, lengths, success, state layout, contact channels and metadata, "
-                                   "and what the file does not hold.")
-    p.add_argument("path", metavar="PATH")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+                                   "and what the file does not hold. Several recordings (files, folders, glob "
+                                   "patterns): one line per file and the totals. Exit status 2 when one cannot be "
+                                   "read.")
+    p.add_argument("paths", nargs="+", metavar="PATH", help="recordings, folders of recordings, or glob patterns")
+    p.add_argument("--json", action="store_true",
+                   help="print the summary as JSON (several recordings: a list, with an error entry for each "
+                        "unreadable one)")
     p.set_defaults(run=run)
 
 
@@ -24,6 +28,7 @@ def summarize(reader: Any) -> dict[str, Any]:
     m = reader.meta
     return {
         "path": str(reader.path),
+        "kind": reader.kind,
         "meta": m.to_json(),
         "episodes": [e.to_json() for e in reader.episodes],
         "total_steps": sum(e.length for e in reader.episodes),
@@ -109,10 +114,50 @@ def _print_text(reader: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from simreel.formats import open_reader
+    from simreel.formats.inputs import expand_inputs
 
-    with open_reader(args.path) as reader:
-        if args.json:
-            print(json.dumps(summarize(reader), indent=2))
-        else:
-            _print_text(reader)
-    return 0
+    files = expand_inputs(args.paths)
+    if len(files) == 1 and files[0][1]:
+        with open_reader(args.paths[0]) as reader:
+            if args.json:
+                print(json.dumps(summarize(reader), indent=2))
+            else:
+                _print_text(reader)
+        return 0
+    return _inspect_many([path for path, _ in files], as_json=args.json)
+
+
+def _inspect_many(paths: list[Any], *, as_json: bool) -> int:
+    """One line per recording (or a JSON list of summaries), the totals; 2 when one could not be read."""
+    from simreel.errors import FileProblemError, SimreelError
+    from simreel.formats import open_reader
+    from simreel.formats.inputs import shown_path
+
+    entries: list[dict[str, Any]] = []
+    for path in paths:
+        try:
+            with open_reader(path) as reader:
+                entries.append(summarize(reader))
+        except SimreelError as e:
+            entries.append({"path": str(path), "error": e.problem if isinstance(e, FileProblemError) else str(e)})
+    if as_json:
+        print(json.dumps(entries, indent=2))
+    else:
+        _print_table(entries, shown_path)
+    return 2 if any("error" in e for e in entries) else 0
+
+
+def _print_table(entries: list[dict[str, Any]], shown: Any) -> None:
+    width = max(len(shown(e["path"])) for e in entries)
+    print(f"{'file':<{width}}  {'env id':<28} {'episodes':>8} {'steps':>8} {'success':>8}  format")
+    for e in entries:
+        name = shown(e["path"])
+        if "error" in e:
+            print(f"{name:<{width}}  unreadable: {e['error']}")
+            continue
+        eps = e["episodes"]
+        success = sum(1 for m in eps if m["success"])
+        print(f"{name:<{width}}  {e['meta']['env_id']:<28} {len(eps):>8} {e['total_steps']:>8} {success:>8}  {e['kind']}")
+    good = [e for e in entries if "error" not in e]
+    print(f"{len(entries)} recordings ({len(entries) - len(good)} unreadable): "
+          f"{sum(len(e['episodes']) for e in good)} episodes, {sum(e['total_steps'] for e in good)} steps")

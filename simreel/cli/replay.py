@@ -1,9 +1,9 @@
-"""`simreel replay`: replay a recording and verify every step; exit 0 when every episode verifies, 1 if any diverges."""
+"""`simreel replay`: replay recordings and verify every step; exit 0 when every episode verifies, 1 if any diverges,
+2 when a recording or an episode could not be replayed (bad input)."""
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
@@ -16,14 +16,16 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "replay",
-        help="replay a recording and verify it step by step",
+        help="replay recordings and verify them step by step",
         description=(
             "Rebuild the recorded env, replay each episode and compare every state-dict leaf, reward, flag, "
-            "info entry and contact force with the recording. Exit status: 0 every episode verifies "
-            "(exact or within tolerance), 1 some episode diverged, 2 bad input."
+            "info entry and contact force with the recording. PATH: recordings (.h5, .mcap, ManiSkill .h5), "
+            "folders of them, or glob patterns; their episodes are one work list. Exit status: 0 every episode "
+            "verifies (exact or within tolerance), 1 some episode diverged, 2 bad input (a recording or an "
+            "episode that cannot be replayed included)."
         ),
     )
-    p.add_argument("path", metavar="PATH", help="a simreel recording (.h5 or .mcap)")
+    p.add_argument("paths", nargs="*", metavar="PATH", help="recordings, folders of recordings, or glob patterns")
     add_tolerance_options(
         p,
         mode_help="actions: step the recorded actions from the reproduced reset (default); "
@@ -32,56 +34,97 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("--resync", type=int, default=None, metavar="K",
                    help="with --mode actions: restore the recorded state every K steps")
-    p.add_argument("--episodes", default=None, metavar="LIST", help="episodes to replay, e.g. 0,3-7 (default: all)")
-    p.add_argument("--report", default=None, metavar="REPORT.json", help="write the JSON report here")
-    p.add_argument("-o", "--output", default=None, metavar="REPLAYED", help="write the replayed episodes (.h5/.mcap)")
+    p.add_argument("--episodes", default=None, metavar="LIST",
+                   help="episodes to replay of every recording, e.g. 0,3-7 (default: all)")
+    p.add_argument("--report", default=None, metavar="REPORT.json",
+                   help="stream every verdict into REPORT.jsonl as it comes and write the report REPORT.json")
+    p.add_argument("--resume", default=None, metavar="REPORT.json",
+                   help="finish the run that wrote REPORT.json (interrupted, killed): replay only the episodes it "
+                        "has no verdict for, with its recordings and options")
+    p.add_argument("-o", "--output", default=None, metavar="REPLAYED",
+                   help="write the replayed episodes of one recording (.h5/.mcap)")
     p.add_argument("--overwrite", action="store_true", help="replace the -o and --report files if they exist")
     p.add_argument("--obs-mode", default=None,
                    help="observation mode of the replay (e.g. rgb with --mode states -o OUT to re-render)")
     p.add_argument("--sim-backend", default=None,
                    help="replay on another sim backend than the recorded one (physx_cpu, physx_cuda); a GPU "
                         "recording on a machine without CUDA: physx_cpu (another engine, so the verdict is not exact)")
-    p.add_argument("--workers", type=int, default=1, metavar="N", help="parallel processes (default 1)")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="parallel processes, or Ray actors with --ray (default 1)")
+    p.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                   help="replay on a Ray cluster (pip install 'simreel[ray]'): alone, a cluster started on this "
+                        "machine; 'auto', the cluster this machine belongs to; or its address (host:6379, "
+                        "ray://host:10001)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     add_import_option(p)
-    p.set_defaults(run=run)
+    p.set_defaults(run=run, resumed_defaults={dest: p.get_default(dest) for dest in _VERDICT_FLAGS})
 
 
-def _options(args: argparse.Namespace) -> Any:
-    from simreel.replay.verify import ReplayOptions
+_VERDICT_FLAGS = ("mode", "atol", "tol", "resync", "episodes", "report", "output", "overwrite", "obs_mode",
+                  "sim_backend", "imports")
+"""Options a resumed run takes from its report."""
 
+
+def _build_run(args: argparse.Namespace) -> Any:
+    from simreel.replay.verify import ReplayOptions, ReplayRun
+
+    if args.resume is not None:
+        changed = [k for k in _VERDICT_FLAGS if getattr(args, k) != args.resumed_defaults[k]]
+        if args.paths or changed:
+            what = "PATH" if args.paths else "--" + changed[0].replace("_", "-")
+            raise UsageError(f"--resume takes the recordings and options from the report; drop {what} (only "
+                             "--workers, --ray and -q may change)")
+        return ReplayRun.resume(args.resume, workers=args.workers, ray=args.ray, command=args.command_line)
+    if not args.paths:
+        raise UsageError("name the recordings to replay (files, folders, patterns), or --resume REPORT.json")
     episodes = None if args.episodes is None else parse_index_ranges(args.episodes)
     if episodes is not None and not episodes:
         raise UsageError(f"--episodes {args.episodes!r} names no episode")
-    return ReplayOptions(mode=args.mode, resync=args.resync, episodes=episodes, atol=args.atol,
-                         group_tolerances=dict(args.tol), output=args.output, overwrite=args.overwrite,
-                         obs_mode=args.obs_mode, workers=args.workers, imports=args.imports,
-                         sim_backend=args.sim_backend, command=args.command_line)
+    options = ReplayOptions(mode=args.mode, resync=args.resync, episodes=episodes, atol=args.atol,
+                            group_tolerances=dict(args.tol), output=args.output, overwrite=args.overwrite,
+                            obs_mode=args.obs_mode, workers=args.workers, imports=args.imports,
+                            sim_backend=args.sim_backend, command=args.command_line, report=args.report, ray=args.ray)
+    return ReplayRun(args.paths, options)
 
 
 def run(args: argparse.Namespace) -> int:
-    from simreel.formats import recording_files
-    from simreel.formats.targets import check_distinct, check_output, write_text_atomic
-    from simreel.replay.verify import ReplayRun
+    from simreel.formats.inputs import shown_path
 
-    if args.report is not None:
-        outputs = {"-o": recording_files(args.output) if args.output else [], "--report": [args.report]}
-        check_distinct(outputs, recording_files(args.path), input_label="the recording being replayed")
-        check_output(args.report, overwrite=args.overwrite, option="--report")
-    with ReplayRun(args.path, _options(args)) as replay:  # a bad file or option fails here, before any env
-        bar = progress_bar(quiet=args.quiet, total=replay.total, unit="ep", desc=f"replay {replay.reader.meta.env_id}")
+    replay = _build_run(args)  # a bad file, report or option fails here, before any env
+    files = replay.worklist.readable
+    desc = f"replay {files[0].meta.env_id}" if len(files) == 1 else f"replay {len(files)} recordings"
+    bar = progress_bar(quiet=args.quiet, total=replay.total + replay.worklist.skipped,
+                       initial=replay.worklist.skipped, unit="ep", desc=desc)
 
-        def progress(ep: Any) -> None:
-            bar.set_postfix_str(f"{ep.index}: {ep.verdict}")
-            bar.update()
+    def progress(item: Any, report: Any) -> None:
+        where = f"{shown_path(item.path)}:{item.index}" if len(files) > 1 else str(item.index)
+        bar.set_postfix_str(f"{where} {report.verdict}")
+        bar.update()
 
+    try:
         with bar:
-            report = replay.execute(progress)
-    for line in report.warnings:
-        sys.stderr.write(f"simreel replay: warning: {line}\n")
-    print(report.summary())
-    if args.output:
-        print(f"replayed episodes written to {args.output}")
-    if args.report:
-        write_text_atomic(args.report, json.dumps(report.to_json(), indent=2) + "\n")
-    return 0 if report.ok else 1
+            tally = replay.execute(progress)
+    except KeyboardInterrupt:
+        if replay.report_json is not None:
+            sys.stderr.write(f"simreel replay: {replay.tally.total} of {replay.tally.planned} episodes have their "
+                             f"verdict in {replay.report_json}; finish with: simreel replay --resume "
+                             f"{replay.report_json}\n")
+        raise
+    _print(tally, replay)
+    return tally.exit_status()
+
+
+def _print(tally: Any, replay: Any) -> None:
+    from simreel.formats.inputs import shown_path
+
+    for f in tally.files.values():
+        where = f"{shown_path(f.path)}: " if len(tally.files) > 1 else ""
+        for line in f.warnings:
+            sys.stderr.write(f"simreel replay: warning: {where}{line}\n")
+    print(tally.summary())
+    if replay.worklist.skipped:
+        print(f"resumed {replay.report_json}: {replay.worklist.skipped} episode(s) already had their verdict")
+    if replay.options.output:
+        print(f"replayed episodes written to {replay.options.output}")
+    if replay.report_json is not None:
+        print(f"report: {replay.report_json} (each verdict as it came: {replay.report_log})")

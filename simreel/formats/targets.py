@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import os
 import tempfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
+from typing import IO
 
 from simreel.errors import UsageError
 
-__all__ = ["check_output", "check_distinct", "write_text_atomic"]
+__all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic"]
 
 
 def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path] = (), option: str = "") -> Path:
@@ -42,7 +44,7 @@ def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path
         raise UsageError(f"{p} already exists; pass --overwrite to replace it")
     for side in side_paths:
         if side.exists() or side.is_symlink():
-            raise UsageError(f"{side} already exists and a recording to {p.name} would replace it; "
+            raise UsageError(f"{side} already exists and writing {p.name} would replace it; "
                              "pass --overwrite to replace it")
     return p
 
@@ -64,15 +66,23 @@ def check_distinct(outputs: Mapping[str, Iterable[str | Path]], input_files: Seq
             seen[resolved] = f"also written by {option}"
 
 
-def write_text_atomic(path: str | Path, text: str) -> None:
-    """Write `text` to `path` through a temporary file in the same folder and one rename: a reader sees the old
-    file or the whole new one, never a part; an interrupted write leaves no temporary file behind."""
+@contextmanager
+def open_text_atomic(path: str | Path) -> Iterator[IO[str]]:
+    """A text file to write `path` through: a temporary file in the same folder, renamed to `path` when the block
+    ends without error. A reader sees the old file or the whole new one, never a part; an interrupted write leaves
+    no temporary file behind."""
     p = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.resolve().parent)
     try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            yield fh
         os.replace(tmp, p)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    """Write `text` to `path` at once (`open_text_atomic`)."""
+    with open_text_atomic(path) as fh:
+        fh.write(text)

@@ -48,6 +48,7 @@ BAD_INPUT = [
     # inspect
     ("inspect-missing", ["inspect", "{tmp}/missing.h5"], "missing.h5: no such file"),
     ("inspect-junk", ["inspect", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
+    ("inspect-empty-folder", ["inspect", "{tmp}/empty"], "no recordings (.h5, .hdf5, .mcap) found in this folder"),
     # replay
     ("replay-missing", ["replay", "{tmp}/nope.h5"], "nope.h5: no such file"),
     ("replay-junk", ["replay", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
@@ -60,7 +61,7 @@ BAD_INPUT = [
     ("replay-atol", ["replay", "{rec}", "--atol", "-1"], "argument --atol: must be a finite number >= 0, got -1"),
     ("replay-tol", ["replay", "{rec}", "--tol", "speed=1"], "expected GROUP=NUMBER with GROUP one of pos"),
     ("replay-mode", ["replay", "{rec}", "--mode", "sideways"], "argument --mode: invalid choice: 'sideways'"),
-    ("replay-o-is-input", ["replay", "{rec}", "-o", "{rec}", "--overwrite"], "is the recording being replayed"),
+    ("replay-o-is-input", ["replay", "{rec}", "-o", "{rec}", "--overwrite"], "is a recording being replayed"),
     ("replay-o-exists", ["replay", "{rec}", "-o", "{tmp}/exists.h5"], "exists.h5 already exists; pass --overwrite"),
     ("replay-o-suffix", ["replay", "{rec}", "-o", "{tmp}/out.txt"], "unknown recording suffix '.txt'"),
     ("replay-report-no-dir", ["replay", "{rec}", "--report", "{tmp}/no/dir/r.json"], "does not exist"),
@@ -68,6 +69,17 @@ BAD_INPUT = [
      "--report {tmp}/out.json is also written by -o"),
     ("replay-bad-import", ["replay", "{rec}", "--import", "no_such_module_xyz"],
      "no module named 'no_such_module_xyz'"),
+    ("replay-nothing", ["replay"], "name the recordings to replay (files, folders, patterns), or --resume"),
+    ("replay-empty-folder", ["replay", "{tmp}/empty"], "empty: no recordings (.h5, .hdf5, .mcap) found in this folder"),
+    ("replay-no-match", ["replay", "{tmp}/*.mcap"], "no recordings (.h5, .hdf5, .mcap) found in this pattern"),
+    ("replay-o-many", ["replay", "{rec}", "{rec2}", "-o", "{tmp}/out.h5"],
+     "-o writes the replayed episodes of one recording; name one file to replay"),
+    ("replay-report-suffix", ["replay", "{rec}", "--report", "{tmp}/r.txt"], "a report is a .json file"),
+    ("replay-resume-missing", ["replay", "--resume", "{tmp}/none.json"], "none.jsonl: no such report"),
+    ("replay-resume-junk", ["replay", "--resume", "{tmp}/junk.json"], "junk.jsonl: line 1 is not JSON"),
+    ("replay-resume-and-path", ["replay", "{rec}", "--resume", "{tmp}/junk.json"],
+     "--resume takes the recordings and options from the report; drop PATH"),
+    ("replay-resume-and-mode", ["replay", "--resume", "{tmp}/junk.json", "--mode", "step"], "drop --mode"),
     # audit
     ("audit-unknown-env", ["audit", "PickCub-v1"], "unknown ManiSkill env id 'PickCub-v1': did you mean PickCube-v1"),
     ("audit-steps-0", ["audit", "PickCube-v1", "--steps", "0"], "--steps must be >= 1, got 0"),
@@ -88,12 +100,20 @@ BAD_INPUT = [
 ]
 
 
+@pytest.fixture(scope="module")
+def recs(rec, record) -> dict[str, Path]:
+    """{rec} and {rec2} of the table: two recordings."""
+    return {"rec": rec, "rec2": record("PickCube-v1", 1, 10)}
+
+
 @pytest.mark.parametrize(("argv", "message"), [case[1:] for case in BAD_INPUT], ids=[case[0] for case in BAD_INPUT])
-def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, rec, argv, message):
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, recs, argv, message):
     (tmp_path / "junk.h5").write_text("not a recording")
+    (tmp_path / "junk.jsonl").write_text("not a report\n")
     (tmp_path / "exists.h5").write_bytes(b"")
     (tmp_path / "broken.py").write_text("raise RuntimeError('oops')\n")
-    argv = [a.format(tmp=tmp_path, rec=rec) for a in argv]
+    (tmp_path / "empty").mkdir()
+    argv = [a.format(tmp=tmp_path, **recs) for a in argv]
     code, err = _run(capsys, [*argv, "-q"] if argv[0] in ("record", "replay", "convert") else argv)
     assert code == 2, err
     assert err.count("\n") == 1 and "Traceback" not in err, err
@@ -110,6 +130,7 @@ EXISTING_OUTPUT = [
     ("replay-o-sidecar", ["replay", "{rec}", "-o", "{tmp}/out.h5"], "out.json"),
     ("replay-o-partial", ["replay", "{rec}", "-o", "{tmp}/out.h5"], "out.h5.partial"),
     ("replay-report", ["replay", "{rec}", "--report", "{tmp}/report.json"], "report.json"),
+    ("replay-report-stream", ["replay", "{rec}", "--report", "{tmp}/report.json"], "report.jsonl"),
     ("convert", ["convert", "{rec}", "{tmp}/out.mcap"], "out.mcap"),
     ("convert-sidecar", ["convert", "{rec}", "{tmp}/out.h5"], "out.json"),
     ("recover-o", ["recover", "{cut}", "-o", "{tmp}/out.mcap"], "out.mcap"),

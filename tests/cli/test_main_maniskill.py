@@ -34,7 +34,7 @@ def _every_command(path: Path, tmp_path: Path, capsys) -> None:
     assert main(["inspect", str(path)]) == 0
     report = _replay_report(path, tmp_path, capsys)
     assert [e["verdict"] for e in report["episodes"]] == ["exact"] * len(report["episodes"]), report
-    assert "contact forces not compared: the file holds none" in report["limits"]
+    assert "contact forces not compared: the file holds none" in report["files"][0]["limits"]
     rrd = tmp_path / f"{path.name}.rrd"
     assert main(["view", str(path), "--save", str(rrd), "--geometry", "collision"]) == 0 and rrd.stat().st_size
     replayed = tmp_path / f"{path.name}.replayed.h5"

@@ -30,7 +30,7 @@ def test_records_poses_by_default_refuses_an_unknown_suffix():
         ("out.mcap", "out.mcap", False, "{tmp}/out.mcap already exists; pass --overwrite to replace it"),
         ("out.mcap", "out.mcap", True, None),
         ("out.h5", "out.json", False,
-         "{tmp}/out.json already exists and a recording to out.h5 would replace it; pass --overwrite to replace it"),
+         "{tmp}/out.json already exists and writing out.h5 would replace it; pass --overwrite to replace it"),
         ("out.h5", "out.json", True, None),
     ],
 )

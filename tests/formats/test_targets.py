@@ -39,7 +39,7 @@ def test_a_side_file_is_named_as_what_the_recording_would_replace(tmp_path):
     (tmp_path / "out.json").write_text("mine")
     with pytest.raises(UsageError) as e:
         check_output(tmp_path / "out.h5", overwrite=False, side_paths=[tmp_path / "out.json"])
-    assert str(e.value) == (f"{tmp_path}/out.json already exists and a recording to out.h5 would replace it; "
+    assert str(e.value) == (f"{tmp_path}/out.json already exists and writing out.h5 would replace it; "
                             "pass --overwrite to replace it")
 
 

@@ -1,15 +1,16 @@
-"""Worker processes of `verify_recording(workers=N)` (`simreel.replay.workers`): user errors come back as
-`SimreelError`s, never as a broken pool, and a session that fails to build leaves no file open."""
+"""Replay workers (`simreel.replay.workers`): user errors come back in results (and cross process boundaries),
+an env that does not build is not built again for its other episodes, and a worker keeps its env across the
+recordings of one env key."""
 
 from __future__ import annotations
 
-import dataclasses
 import pickle
 
-import pytest
-
-from simreel.errors import EnvBuildError, RecordingFileError, SimreelError
-from simreel.replay import workers
+from simreel.compare import Tolerances
+from simreel.errors import EnvBuildError, RecordingFileError
+from simreel.formats import open_reader
+from simreel.replay.workers import ReplayJob, ReplayWorker
+from simreel.replay.worklist import WorkItem, env_key
 
 
 def test_recording_file_error_survives_pickling():
@@ -19,61 +20,50 @@ def test_recording_file_error_survives_pickling():
                                            "/data/run.h5: no episode 7 (episodes: 0, 1)")
 
 
-def _job(path, **changes) -> workers.ReplayJob:
-    from simreel.compare import Tolerances
-    from simreel.replay.engine import ReplayerOptions
-
-    job = workers.ReplayJob(path=str(path), mode="actions", resync=None, tolerances=Tolerances.for_mode("actions"),
-                            replayer=ReplayerOptions(), keep_episode=False)
-    return dataclasses.replace(job, **changes)
+def _job(**changes) -> ReplayJob:
+    return ReplayJob(mode="actions", resync=None, tolerances=Tolerances.for_mode("actions"), **changes)
 
 
-def test_a_worker_returns_user_errors_instead_of_raising(tmp_path, monkeypatch):
-    """An initializer that raises breaks the whole pool; the error is kept and returned for each episode."""
-    monkeypatch.setattr(workers, "_WORKER", None)
-    workers._worker_init(_job(tmp_path / "missing.h5"))
-    result = workers._worker_run(0)
-    assert isinstance(result, RecordingFileError) and "missing.h5: no such file" in str(result)
-    pickle.loads(pickle.dumps(result))  # it crosses the process boundary
-
-    class FailingSession:
-        def run(self, index):
-            raise EnvBuildError(f"episode {index}: cannot build")
-
-    monkeypatch.setattr(workers, "_WORKER", FailingSession())
-    assert str(workers._worker_run(3)) == "episode 3: cannot build"
+def _item(path, index: int = 0) -> WorkItem:
+    with open_reader(path) as reader:
+        return WorkItem(env_key(reader.meta), str(path), index, reader.episode_meta(index).length)
 
 
-def test_the_parent_raises_what_a_worker_returned():
-    with pytest.raises(EnvBuildError, match="cannot build"):
-        workers._unwrap(EnvBuildError("cannot build"))
+def test_a_worker_returns_user_errors_instead_of_raising(tmp_path):
+    worker = ReplayWorker(_job())
+    result = worker.run(WorkItem("key", str(tmp_path / "missing.h5"), 0))
+    assert isinstance(result.error, RecordingFileError) and "missing.h5: no such file" in str(result.error)
+    assert result.report is None and not result.env_error  # about the file's data, not its env
+    again = pickle.loads(pickle.dumps(result))  # it crosses the process boundary
+    assert str(again.error) == str(result.error)
 
 
-def test_a_session_that_cannot_build_its_env_closes_the_reader(record, monkeypatch):
-    closed = []
+def test_an_env_that_does_not_build_fails_each_of_its_episodes_without_being_built_again(record):
+    path = record("PickCube-v1", 2, 10)
+    worker = ReplayWorker(_job(imports=("simreel_no_such_module_xyz",)))
+    try:
+        first, second = worker.run(_item(path, 0)), worker.run(_item(path, 1))
+    finally:
+        worker.close()
+    assert isinstance(first.error, EnvBuildError) and "simreel_no_such_module_xyz" in str(first.error)
+    assert first.env_error
+    assert second.error is first.error  # the remembered failure, not a second build
 
-    class Refused(SimreelError):
-        pass
 
-    def refuse(*args, **kwargs):
-        raise Refused("the env does not build")
-
-    real_open = workers.open_reader
-
-    def spy(path):
-        reader = real_open(path)
-        real_close = reader.close
-
-        def close():
-            closed.append(path)
-            real_close()
-
-        reader.close = close
-        return reader
-
-    monkeypatch.setattr(workers, "open_reader", spy)
-    monkeypatch.setattr(workers, "EpisodeReplayer", refuse)
-    path = str(record("PickCube-v1", 2, 20))
-    with pytest.raises(Refused):
-        workers.ReplaySession(_job(path))
-    assert closed == [path]
+def test_a_worker_keeps_its_env_for_recordings_of_one_env_key_and_rebuilds_for_another(record):
+    a, b = record("PickCube-v1", 2, 10), record("PickCube-v1", 1, 12, "--seed", "40")
+    other = record("StackCube-v1", 1, 8)
+    worker = ReplayWorker(_job())
+    try:
+        results = [worker.run(_item(a, 1))]
+        env = worker._replayer.env
+        results.append(worker.run(_item(b, 0)))
+        assert worker._replayer.env is env
+        results.append(worker.run(_item(other, 0)))
+        assert worker._replayer.env is not env
+        assert [r.report.verdict for r in results] == ["exact"] * 3, [r.error for r in results]
+        assert [r.report.length for r in results] == [10, 12, 8]
+        assert results[1].warnings == []  # the same machine: nothing differs
+    finally:
+        worker.close()
+    assert worker._readers == {} and worker._replayer is None

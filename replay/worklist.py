@@ -1,0 +1,124 @@
+"""What a replay run over many recordings replays: the files its inputs name, and one work item per episode.
+
+Inputs are recording files, folders of them and glob patterns (`simreel.formats.inputs.expand_inputs`).
+Each file's header is read once (metadata and episode list, no episode data); a file found by a folder or a
+glob that is no recording is kept as unreadable (with the reason) rather than ending the run. The work items
+are ordered by env key — the env a replay of the episode needs — so a worker that replays them in turn
+rebuilds its env only when the key changes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from simreel.episode import RecordingMeta, json_default
+from simreel.errors import FileProblemError, SimreelError, UsageError
+from simreel.formats import open_reader
+from simreel.formats.inputs import expand_inputs
+
+__all__ = ["RecordingInfo", "WorkItem", "WorkList", "env_key", "build_worklist"]
+
+@dataclass(frozen=True)
+class WorkItem:
+    """One episode to replay: its env key, its file (absolute path), its index and its number of steps."""
+
+    key: str
+    path: str
+    index: int
+    steps: int = 0
+
+
+@dataclass
+class RecordingInfo:
+    """A file of the run: its header, or why it cannot be read."""
+
+    path: str
+    """Absolute path."""
+    meta: RecordingMeta | None = None
+    episodes: dict[int, int] = field(default_factory=dict)
+    """Index → steps of each episode the run replays."""
+    error: str | None = None
+    """Why the file cannot be replayed (unreadable, foreign, no such episode); None when it can."""
+    size: int | None = None
+    mtime_ns: int | None = None
+    """What identifies this version of the file: a resumed run refuses a file that changed."""
+
+    @property
+    def identity(self) -> tuple[int | None, int | None]:
+        return self.size, self.mtime_ns
+
+
+@dataclass
+class WorkList:
+    """The files of a run and its episodes, in the order they are replayed."""
+
+    files: list[RecordingInfo]
+    items: list[WorkItem]
+    skipped: int = 0
+    """Episodes not replayed because a resumed report already holds their verdict."""
+
+    @property
+    def readable(self) -> list[RecordingInfo]:
+        return [f for f in self.files if f.error is None]
+
+
+def env_key(meta: RecordingMeta) -> str:
+    """What the env replaying an episode of `meta` depends on: two recordings with one key share an env."""
+    from simreel.sim.make import EnvConfig
+
+    config = dataclasses.asdict(EnvConfig.from_meta(meta).with_overrides(num_envs=1))
+    parts = [meta.env_id, config, meta.imports, [c.to_json() for c in meta.contact_channels], meta.pose_bodies,
+             bool(meta.obs_layout), meta.obs_mode]
+    return json.dumps(parts, sort_keys=True, default=json_default)
+
+
+def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None) -> RecordingInfo:
+    stat = path.stat() if path.is_file() else None
+    with open_reader(path) as reader:
+        if restores is not None and not reader.meta.state_layout:
+            raise UsageError(f"{path}: holds no env_states (recorded without them), and {restores} restores recorded "
+                             "states; replay it with --mode actions")
+        steps = {m.index: m.length for m in reader.episodes}
+        if wanted is not None:
+            for i in wanted:
+                reader.episode_meta(i)  # raises RecordingFileError naming the episodes the file has
+            steps = {i: steps[i] for i in dict.fromkeys(wanted)}
+        return RecordingInfo(str(path), reader.meta, steps, size=stat and stat.st_size,
+                             mtime_ns=stat and stat.st_mtime_ns)
+
+
+def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | None = None,
+                   done: Iterable[tuple[str, int]] = (), restores: str | None = None) -> WorkList:
+    """Read every input's header and list its episodes to replay (`episodes`: these indices of every file),
+    ordered by env key, leaving out the (absolute path, index) pairs in `done` (a resumed run). `restores`: the
+    option that makes the run restore recorded states (``--mode step``), so a file without any cannot be replayed.
+
+    A file given by name that cannot be read raises its `SimreelError`; one found in a folder or by a glob
+    is kept with its error, so one bad file does not end a dataset run.
+    """
+    files: list[RecordingInfo] = []
+    for path, explicit in expand_inputs(specs):
+        try:
+            files.append(_read_header(path, episodes, restores))
+        except SimreelError as e:
+            if explicit:
+                raise
+            files.append(RecordingInfo(str(path), error=str(e.problem if isinstance(e, FileProblemError) else e)))
+    done_set = {(str(p), int(i)) for p, i in done}
+    items: list[tuple[str, int, int, WorkItem]] = []
+    skipped = 0
+    for order, info in enumerate(files):
+        if info.meta is None:
+            continue
+        key = env_key(info.meta)
+        for position, (index, steps) in enumerate(info.episodes.items()):
+            if (info.path, index) in done_set:
+                skipped += 1
+            else:
+                items.append((key, order, position, WorkItem(key, info.path, index, steps)))
+    items.sort(key=lambda x: x[:3])  # env key, then input order, then the order asked for
+    return WorkList(files, [item for *_, item in items], skipped)

@@ -1,0 +1,50 @@
+"""Which recording files a command's inputs name: files, folders (searched below for .h5/.hdf5/.mcap files) and glob
+patterns; and how a summary shows a path."""
+
+from __future__ import annotations
+
+import glob
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+from simreel.errors import UsageError
+from simreel.formats import HDF5_SUFFIXES, MCAP_SUFFIXES
+
+__all__ = ["RECORDING_SUFFIXES", "expand_inputs", "shown_path"]
+
+RECORDING_SUFFIXES = (*HDF5_SUFFIXES, *MCAP_SUFFIXES)
+
+
+def _is_pattern(spec: str) -> bool:
+    return any(ch in spec for ch in "*?[")
+
+
+def _found_in(spec: str) -> list[Path]:
+    """Recording files below a folder or matching a glob (not the scratch files of running HDF5 recordings)."""
+    p = Path(spec)
+    found = p.rglob("*") if p.is_dir() else (Path(x) for x in glob.glob(spec, recursive=True))
+    return sorted(x for x in found if x.is_file() and x.suffix.lower() in RECORDING_SUFFIXES
+                  and not any(part.endswith(".partial") for part in x.parts))
+
+
+def expand_inputs(specs: Sequence[str | Path]) -> list[tuple[Path, bool]]:
+    """(absolute path, named explicitly) for every input file: a file as given; a folder or glob as the
+    recordings it holds (`UsageError` when it holds none). Each file once, in the order given."""
+    out: dict[Path, tuple[Path, bool]] = {}
+    for spec in map(str, specs):
+        if Path(spec).is_dir() or (_is_pattern(spec) and not Path(spec).exists()):
+            found = _found_in(spec)
+            if not found:
+                kind = "folder" if Path(spec).is_dir() else "pattern"
+                raise UsageError(f"{spec}: no recordings (.h5, .hdf5, .mcap) found in this {kind}")
+            out.update((f.resolve(), (Path(os.path.abspath(f)), False)) for f in found if f.resolve() not in out)
+        else:
+            out.setdefault(Path(spec).resolve(), (Path(os.path.abspath(spec)), True))
+    return list(out.values())
+
+
+def shown_path(path: str | Path) -> str:
+    """`path` as a summary shows it: relative to the working folder when it is below it."""
+    rel = os.path.relpath(path)
+    return str(path) if rel.startswith("..") else rel

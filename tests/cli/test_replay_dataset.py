@@ -1,0 +1,92 @@
+"""`simreel replay` over a dataset: files, folders and patterns of simreel and ManiSkill recordings as one work
+list; one line per file and the episodes that did not verify; a damaged episode or file reported (exit 2) without
+ending the run; the JSON report with one entry per file and per episode, each episode exactly once."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections import Counter
+
+import h5py
+import pytest
+from support.maniskill_files import record_maniskill
+
+from simreel.cli.main import main
+
+
+@pytest.fixture(scope="module")
+def dataset(record, tmp_path_factory):
+    """data/: PickCube (HDF5 and MCAP), StackCube, a ManiSkill RecordEpisode file, one with an altered action,
+    one with a damaged episode, and a file that is no recording."""
+    data = tmp_path_factory.mktemp("dataset") / "data"
+    (data / "more").mkdir(parents=True)
+    shutil.copy(record("PickCube-v1", 2, 8), data / "pick.h5")
+    assert main(["convert", str(record("PickCube-v1", 1, 9, "--seed", "11")), str(data / "more" / "pick.mcap"),
+                 "-q"]) == 0
+    shutil.copy(record("StackCube-v1", 1, 6), data / "more" / "stack.h5")
+    record_maniskill(data, "PickCube-v1", name="maniskill", episodes=2, steps=7)
+    shutil.copy(record("PickCube-v1", 2, 8), data / "altered.h5")
+    with h5py.File(data / "altered.h5", "r+") as f:
+        f["traj_1/actions"][4] += 0.5
+    shutil.copy(record("PickCube-v1", 2, 8), data / "damaged.h5")
+    with h5py.File(data / "damaged.h5", "r+") as f:
+        del f["traj_0/actions"]
+    (data / "more" / "junk.mcap").write_text("not a recording")
+    return data
+
+
+def test_a_dataset_is_one_run_with_a_line_per_file_and_every_episode_once(dataset, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(dataset.parent)
+    report = tmp_path / "r.json"
+    code = main(["replay", "data", "--workers", "2", "--report", str(report), "-q"])
+    out = capsys.readouterr().out
+    assert code == 2, out  # a damaged episode and an unreadable file are bad input, after the run
+    lines = out.splitlines()
+    assert lines[0] == "replay of 7 recordings (2 env id(s)), mode actions: 10 episode(s), 77 steps"
+    rows = {line.split()[0]: line.split()[1:] for line in lines[2:9]}
+    assert rows["data/pick.h5"] == ["PickCube-v1", "2", "2", "0", "0", "0"]
+    assert rows["data/maniskill.h5"] == ["PickCube-v1", "2", "2", "0", "0", "0"]
+    assert rows["data/more/stack.h5"] == ["StackCube-v1", "1", "1", "0", "0", "0"]
+    assert rows["data/altered.h5"] == ["PickCube-v1", "2", "1", "0", "1", "0"]
+    assert rows["data/damaged.h5"] == ["PickCube-v1", "2", "1", "0", "0", "1"]
+    assert " ".join(rows["data/more/junk.mcap"]) == "cannot be replayed: neither an HDF5 nor an MCAP file"
+    text = "\n".join(lines)
+    assert "data/altered.h5\n        1      8  diverged          step 4: " in text
+    assert "data/damaged.h5\n        0      8  error             traj_0 lacks a dataset: 'actions'" in text
+    assert "limit: contact forces not compared: the file holds none (1 of 7 files)" in text
+    assert lines[-2] == ("8 of 10 episode(s) verified (8 exact, 0 within tolerance); 1 diverged; "
+                         "1 could not be replayed; 1 file(s) unreadable")
+
+    doc = json.loads(report.read_text())
+    assert doc["ok"] is False and doc["complete"] is True and len(doc["files"]) == 7
+    assert Counter((e["file"], e["index"]) for e in doc["episodes"]).most_common(1)[0][1] == 1
+    assert len(doc["episodes"]) == 10
+    by_file = {f["path"].split("/data/")[1]: f for f in doc["files"]}
+    assert by_file["more/junk.mcap"]["error"] == "neither an HDF5 nor an MCAP file"
+    assert by_file["maniskill.h5"]["limits"] and not by_file["pick.h5"]["limits"]
+    diverged = [e for e in doc["episodes"] if e["verdict"] == "diverged"]
+    assert [(e["file"].split("/data/")[1], e["index"], e["first_divergence"]["step"]) for e in diverged] == [
+        ("altered.h5", 1, 4)]
+
+
+def test_patterns_and_several_files_and_the_exit_status_of_a_clean_dataset(dataset, capsys, monkeypatch):
+    monkeypatch.chdir(dataset)
+    assert main(["replay", "pick.h5", "more/*.h5", "--episodes", "0", "-q"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("replay of 2 recordings (2 env id(s)), mode actions: 2 episode(s), 14 steps")
+    assert main(["replay", "pick.h5", "altered.h5", "-q"]) == 1  # diverged, nothing unreadable
+    capsys.readouterr()
+
+
+def test_inspect_of_a_dataset_is_a_line_per_file(dataset, capsys, monkeypatch):
+    monkeypatch.chdir(dataset)
+    assert main(["inspect", "."]) == 2  # junk.mcap cannot be read
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[:3] == ["file", "env", "id"]
+    assert any(line.startswith("maniskill.h5 ") and "ManiSkill" in line for line in lines)
+    assert "more/junk.mcap  unreadable: neither an HDF5 nor an MCAP file" in lines
+    assert lines[-1] == "7 recordings (1 unreadable): 10 episodes, 77 steps"
+    assert main(["inspect", "pick.h5", "more/stack.h5", "--json"]) == 0
+    summaries = json.loads(capsys.readouterr().out)
+    assert [s["meta"]["env_id"] for s in summaries] == ["PickCube-v1", "StackCube-v1"]

@@ -1,0 +1,106 @@
+"""A `simreel replay --report` run that is interrupted keeps every verdict it reached: killed with -9 (its worker
+processes end with it) or stopped with Ctrl-C, `--resume` then replays only the episodes without a verdict, and
+the report holds each episode exactly once."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(scope="module")
+def long_run(record) -> Path:
+    """Enough episodes that a run is still going when it is interrupted after its first verdicts."""
+    return record("PickCube-v1", 24, 30)
+
+
+def _replay(*args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "simreel", "replay", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _episode_lines(log: Path) -> list[dict]:
+    if not log.exists():
+        return []
+    return [json.loads(line) for line in log.read_text().splitlines(keepends=True)
+            if line.endswith("\n") and '"type":"episode"' in line]
+
+
+def _wait_for_verdicts(proc: subprocess.Popen, log: Path, count: int) -> None:
+    deadline = time.monotonic() + 300
+    while len(_episode_lines(log)) < count:
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "no verdicts after 300 s"
+        time.sleep(0.1)
+
+
+def _children(pid: int) -> list[int]:
+    kids = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            kids.append(int(stat.parent.name))
+    return kids
+
+
+def _alive(pids: list[int]) -> list[int]:
+    return [p for p in pids if Path(f"/proc/{p}").exists() and "Z" not in Path(f"/proc/{p}/stat").read_text().split()[2]]
+
+
+def _resume_and_check(report: Path, total: int, before: int) -> dict:
+    done = subprocess.run([sys.executable, "-m", "simreel", "replay", "--resume", str(report), "-q"],
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert f"resumed {report}: {before} episode(s) already had their verdict" in done.stdout
+    lines = _episode_lines(report.with_name(report.name + "l"))
+    assert len(lines) == total and max(Counter(e["index"] for e in lines).values()) == 1  # each replayed once
+    doc = json.loads(report.read_text())
+    assert doc["complete"] is True and doc["ok"] is True and len(doc["episodes"]) == total
+    return doc
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds worker processes through /proc")
+def test_kill_9_of_the_driver_keeps_its_verdicts_ends_its_workers_and_resume_finishes(long_run, tmp_path):
+    report = tmp_path / "r.json"
+    proc = _replay(str(long_run), "--report", str(report), "--workers", "2", "-q")
+    _wait_for_verdicts(proc, tmp_path / "r.jsonl", 3)
+    workers = _children(proc.pid)
+    assert workers  # the pool's process (and multiprocessing's resource tracker)
+    proc.kill()
+    proc.wait()
+    before = len(_episode_lines(tmp_path / "r.jsonl"))
+    assert 3 <= before < 24, "the run ended before it could be killed: make the recording longer"
+    deadline = time.monotonic() + 15
+    while _alive(workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _alive(workers), "worker processes outlived their killed driver"
+    assert not report.exists()  # kill -9 leaves the lines only; the document is written by the next run
+    _resume_and_check(report, 24, before)
+
+
+def test_ctrl_c_writes_the_report_so_far_and_says_how_to_finish(long_run, tmp_path):
+    report = tmp_path / "r.json"
+    proc = _replay(str(long_run), "--report", str(report), "--workers", "2", "-q")
+    _wait_for_verdicts(proc, tmp_path / "r.jsonl", 2)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.endswith("simreel replay: interrupted\n") and "Traceback" not in err, err
+    assert f"finish with: simreel replay --resume {report}" in err
+    doc = json.loads(report.read_text())
+    before = len(doc["episodes"])
+    assert doc["complete"] is False and doc["totals"]["planned"] == 24 and 2 <= before < 24
+    assert f"{before} of 24 episodes have their verdict" in err
+    _resume_and_check(report, 24, before)
+    assert os.path.getsize(report) > 0

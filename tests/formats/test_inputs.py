@@ -1,0 +1,47 @@
+"""Which recordings a command's inputs name (`simreel.formats.inputs`): files as given, folders searched below,
+glob patterns; each file once; never the scratch files of a running HDF5 recording."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from simreel.errors import UsageError
+from simreel.formats.inputs import expand_inputs, shown_path
+
+
+def _touch(path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"")
+
+
+def test_files_folders_and_patterns_each_once_in_the_order_given(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    for name in ("data/b.h5", "data/a.mcap", "data/deep/c.HDF5", "data/notes.txt", "data/a.json",
+                 "data/run.h5.partial/traj_3.h5", "other/x.h5"):
+        _touch(tmp_path / name)
+    found = expand_inputs(["other/x.h5", "data", "data/*.h5", "other/x.h5"])
+    assert [(os.path.relpath(p), explicit) for p, explicit in found] == [
+        ("other/x.h5", True), ("data/a.mcap", False), ("data/b.h5", False), ("data/deep/c.HDF5", False)]
+    assert all(p.is_absolute() for p, _ in found)
+
+
+def test_a_named_file_is_kept_even_if_missing_so_its_reader_can_say_why(tmp_path):
+    ((path, explicit),) = expand_inputs([tmp_path / "missing.h5"])
+    assert path == tmp_path / "missing.h5" and explicit
+
+
+@pytest.mark.parametrize(("spec", "kind"), [("empty", "folder"), ("*.mcap", "pattern")])
+def test_a_folder_or_pattern_without_recordings_is_bad_input(tmp_path, monkeypatch, spec, kind):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "readme.txt").write_text("no recordings here")
+    with pytest.raises(UsageError, match=f"no recordings .* found in this {kind}"):
+        expand_inputs([spec])
+
+
+def test_shown_paths_are_relative_below_the_working_folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert shown_path(tmp_path / "d" / "a.h5") == "d/a.h5"
+    assert shown_path("/elsewhere/a.h5") == "/elsewhere/a.h5"
