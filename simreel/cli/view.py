@@ -100,8 +100,10 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with build_session(args.path, options) as session:
         if args.geometry == "visual" and session.geometry_source != "visual":
-            print("warning: no render device, so no visual meshes: showing collision shapes "
-                  "(see `make setup` for the software Vulkan driver)", file=sys.stderr)
+            from simreel.sim.make import no_render_device_fix
+
+            print("warning: no render device, so no visual meshes: showing collision shapes (for the meshes, "
+                  f"{no_render_device_fix()})", file=sys.stderr)
         if mode == "save":
             out = session.save(save)
             size = out.stat().st_size / 1024

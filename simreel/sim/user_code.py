@@ -18,7 +18,10 @@ from types import ModuleType
 from simreel.errors import EnvBuildError
 from simreel.sim.render_device import configure_vulkan
 
-__all__ = ["import_user_code", "quiet_sapien_import"]
+__all__ = ["import_user_code", "imported_user_code", "quiet_sapien_import"]
+
+_IMPORTED: dict[str, str] = {}
+"""Every spec `import_user_code` imported in this process, in order, and the name of the module it gave."""
 
 
 @contextlib.contextmanager
@@ -40,7 +43,15 @@ def import_user_code(spec: str) -> ModuleType:
     """
     configure_vulkan()
     with quiet_sapien_import():
-        return _import_user_code(spec)
+        module = _import_user_code(spec)
+    _IMPORTED.setdefault(spec, module.__name__)
+    return module
+
+
+def imported_user_code() -> dict[str, str]:
+    """The user's code this process imported (`import_user_code` spec -> module name), simreel's own modules
+    left out; error messages name it (an env id none of it registers)."""
+    return {spec: name for spec, name in _IMPORTED.items() if name != "simreel" and not name.startswith("simreel.")}
 
 
 def _import_user_code(spec: str) -> ModuleType:
