@@ -120,6 +120,11 @@ def viewer_executable() -> str | None:
     return str(beside) if beside.is_file() else None
 
 
+def _first_line(error: Exception) -> str:
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
+
+
 def _joint_names(u: Any) -> dict[str, list[str]]:
     out = {}
     for name, art in u.scene.state_dict_registry.articulations.items():
@@ -250,10 +255,14 @@ class ViewSession:
         try:
             rr.spawn(port=port, default_blueprint=self.blueprint(), recording=rec, executable_path=viewer_executable())
         except RuntimeError as e:
-            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-            raise ViewError(f"could not start the Rerun viewer ({first}); use --save OUT.rrd and open it elsewhere") from e
+            raise ViewError(f"could not start the Rerun viewer ({_first_line(e)}); use --save OUT.rrd and open it "
+                            "elsewhere") from e
         self.log_to(rec)
-        rec.flush()
+        try:
+            rec.flush()  # raises when the viewer never listened (it could not open its window)
+        except RuntimeError as e:
+            raise ViewError(f"the Rerun viewer did not take the session ({_first_line(e)}); its window may not have "
+                            "opened: use --save OUT.rrd and open it elsewhere, or --serve") from e
 
     def serve(self, *, web_port: int = 9090, grpc_port: int = 9876, open_browser: bool = False) -> str:
         """Serve the session over gRPC and the web viewer; returns the URL to open. Keeps serving until exit."""

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -13,7 +12,7 @@ from typing import Any
 from simreel.cli.common import add_tolerance_options
 from simreel.errors import UsageError
 
-__all__ = ["add_parser", "run", "default_output", "viewer_available"]
+__all__ = ["add_parser", "run", "default_output", "has_display", "viewer_available"]
 
 
 def add_parser(sub: Any) -> None:
@@ -48,11 +47,31 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(run=run)
 
 
+def has_display() -> bool:
+    """Whether a window can open here: macOS and Windows always; elsewhere an X11 or Wayland display is set."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return any(os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
+
+
 def viewer_available() -> bool:
     """Whether the native viewer could open a window here: a display and the `rerun` executable."""
-    has_display = sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    exe = shutil.which("rerun") or (Path(sys.executable).parent / "rerun").is_file()
-    return has_display and bool(exe)
+    from simreel.viewers.session import viewer_executable
+
+    return has_display() and viewer_executable() is not None
+
+
+def _check_spawn() -> None:
+    """`--spawn` without a display or without the viewer is bad input, refused before any work."""
+    from simreel.viewers.session import viewer_executable
+
+    if not has_display():
+        raise UsageError("--spawn opens the Rerun viewer in a window, and there is no display here (DISPLAY and "
+                         "WAYLAND_DISPLAY are unset); write the session with --save OUT.rrd and open it where there "
+                         "is one, or serve it to a browser with --serve")
+    if viewer_executable() is None:
+        raise UsageError("--spawn: the Rerun viewer (`rerun`, installed with rerun-sdk) is neither on PATH nor "
+                         f"beside {sys.executable}; write the session with --save OUT.rrd, or use --serve")
 
 
 def default_output(path: str | Path, episode: int) -> Path:
@@ -83,6 +102,8 @@ def _sink(args: argparse.Namespace, episode: int) -> tuple[str, str | None]:
             save = str(default_output(args.path, episode))
     if mode == "save":
         check_output(save, overwrite=args.overwrite, option="--save")
+    elif mode == "spawn":
+        _check_spawn()
     return mode, save
 
 
@@ -120,8 +141,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _spawn(session: Any, args: argparse.Namespace) -> None:
-    if not viewer_available():
-        print("warning: no display found; the viewer may not open (use --save OUT.rrd)", file=sys.stderr)
     session.spawn(port=args.grpc_port)
     print(f"sent {session.recording_id} to the Rerun viewer")
 

@@ -1,8 +1,12 @@
-"""`simreel view`: saving a session, the default output, --compare, and recordings it cannot show."""
+"""`simreel view`: saving a session, the default output, --compare, --spawn, and recordings it cannot show."""
 
 from __future__ import annotations
 
+import subprocess
+import time
+
 import pytest
+from support.processes import DISPLAY_VARS, free_port, simreel_command, without_display
 
 from simreel.cli.main import main
 
@@ -138,3 +142,41 @@ def test_a_gpu_recording_is_viewed_on_the_cpu_sim(pickcube_h5, tmp_path):
     with open_writer(gpu, meta) as w:
         w.write_episode(ep)
     assert main(["view", str(gpu), "--geometry", "collision", "--save", str(tmp_path / "gpu.rrd")]) == 0
+
+
+def test_spawn_without_a_display_is_bad_input_at_once(pickcube_h5, tmp_path):
+    """What a shell sees: one line saying there is no display and what to use instead, exit 2, in about the
+    time Python takes to start (before, the viewer failed to open and an 'internal error' came ~20 s later)."""
+    started = time.perf_counter()
+    done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn"), env=without_display(),
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    seconds = time.perf_counter() - started
+    assert done.returncode == 2, done.stderr
+    [line] = done.stderr.splitlines()
+    assert line.startswith("simreel view: error: --spawn opens the Rerun viewer in a window, and there is no "
+                           "display here (DISPLAY and WAYLAND_DISPLAY are unset)")
+    assert "--save OUT.rrd" in line and "--serve" in line
+    assert seconds < 10 and not list(tmp_path.iterdir())
+
+
+def test_spawn_without_a_display_builds_no_env(pickcube_h5, monkeypatch, capsys):
+    import simreel.viewers.session as session
+
+    for name in DISPLAY_VARS:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(session, "rebuild_env", _no_env)
+    assert main(["view", str(pickcube_h5), "--spawn"]) == 2
+    assert "there is no display here" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_viewer_that_cannot_open_its_window_is_bad_input(pickcube_h5, tmp_path):
+    """A display is set but unusable (no X server there): the spawned viewer exits, and simreel says so in one
+    line, exit 2, instead of an internal error."""
+    env = {**without_display(), "DISPLAY": f":{free_port()}"}  # a display number no X server has
+    done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn", "--geometry", "collision",
+                                          "--grpc-port", str(free_port())),
+                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr
+    ours = [line for line in done.stderr.splitlines() if line.startswith("simreel view:")]
+    assert len(ours) == 1 and ours[0].startswith("simreel view: error: the Rerun viewer did not take the session")
