@@ -47,6 +47,7 @@ __all__ = [
     "build_session",
     "rebuild_env",
     "viewer_executable",
+    "web_viewer_url",
 ]
 
 APPLICATION_ID = "simreel"
@@ -120,6 +121,14 @@ def viewer_executable() -> str | None:
     return str(beside) if beside.is_file() else None
 
 
+def web_viewer_url(web_port: int, grpc_url: str) -> str:
+    """The web viewer's address with the gRPC server to open (``?url=rerun%2Bhttp://...``: a ``+`` left as it is
+    would reach the viewer as a space)."""
+    from urllib.parse import quote
+
+    return f"http://localhost:{web_port}/?url={quote(grpc_url, safe=':/')}"
+
+
 def _first_line(error: Exception) -> str:
     text = str(error).strip()
     return text.splitlines()[0] if text else type(error).__name__
@@ -171,6 +180,8 @@ class ViewSession:
     pose_source: str = ""
     """``recorded`` (body poses read from the file) or ``restored`` (states restored into the env), after logging."""
     timings: dict[str, float] = field(default_factory=dict)
+    served: Any = field(default=None, repr=False)
+    """The recording stream `serve` serves (its gRPC server stops with it), until `close`."""
 
     # ------------------------------------------------------------------ identity and layout
     @property
@@ -265,15 +276,21 @@ class ViewSession:
                             "opened: use --save OUT.rrd and open it elsewhere, or --serve") from e
 
     def serve(self, *, web_port: int = 9090, grpc_port: int = 9876, open_browser: bool = False) -> str:
-        """Serve the session over gRPC and the web viewer; returns the URL to open. Keeps serving until exit."""
+        """Serve the session: a gRPC server holding it, and the web viewer (HTML + Wasm) that connects to it.
+
+        Returns the web viewer's URL, whose ``url`` parameter names the gRPC server. Both serve until this session
+        is closed (or the process ends): Rerun shuts a gRPC server down with its recording stream, so the session
+        keeps the stream. The server keeps everything logged, so viewers that connect later see the whole episode.
+        """
         import rerun as rr
 
         rec = self.new_stream()
         grpc_url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=self.blueprint())
+        self.served = rec
         rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=grpc_url)
         self.log_to(rec)
         rec.flush()
-        return f"http://localhost:{web_port}/?url={grpc_url}"
+        return web_viewer_url(web_port, grpc_url)
 
     # ------------------------------------------------------------------ logging
     def log_to(self, rec: rr.RecordingStream) -> None:
@@ -284,6 +301,10 @@ class ViewSession:
 
     # ------------------------------------------------------------------ lifetime
     def close(self) -> None:
+        """Stop serving (`serve`) and close the env if the session built it."""
+        if self.served is not None:
+            self.served.disconnect()
+            self.served = None
         if self.owns_env and self.env is not None:
             self.env.close()
             self.env = None

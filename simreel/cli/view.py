@@ -36,7 +36,8 @@ def add_parser(sub: Any) -> None:
     sink.add_argument("--save", default=None, metavar="OUT.rrd",
                       help="write a .rrd file (the default when no viewer can be opened: <recording>.episode<I>.rrd)")
     sink.add_argument("--spawn", action="store_true", help="open the native Rerun viewer")
-    sink.add_argument("--serve", action="store_true", help="serve the web viewer (for a remote machine); Ctrl-C stops")
+    sink.add_argument("--serve", action="store_true",
+                      help="serve the episode to the web viewer (for a remote machine) until Ctrl-C or SIGTERM")
     p.add_argument("--web-port", type=int, default=9090, help="web viewer port for --serve (default 9090)")
     p.add_argument("--grpc-port", type=int, default=9876, help="gRPC port for --serve/--spawn (default 9876)")
     p.add_argument("--geometry", default="auto", choices=("auto", "visual", "collision"),
@@ -104,7 +105,27 @@ def _sink(args: argparse.Namespace, episode: int) -> tuple[str, str | None]:
         check_output(save, overwrite=args.overwrite, option="--save")
     elif mode == "spawn":
         _check_spawn()
+    else:
+        _check_ports(args)
     return mode, save
+
+
+def _check_ports(args: argparse.Namespace) -> None:
+    """`--serve`'s ports must be free: Rerun reports a busy gRPC port only in its log, and serves nothing."""
+    import socket
+
+    if args.web_port == args.grpc_port:
+        raise UsageError(f"--web-port and --grpc-port are both {args.web_port}; the two servers need two ports")
+    for option, port in (("--web-port", args.web_port), ("--grpc-port", args.grpc_port)):
+        if not 0 < port < 65536:
+            raise UsageError(f"{option} {port}: a port is a number from 1 to 65535")
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as servers bind: TIME_WAIT is no obstacle
+            try:
+                probe.bind(("0.0.0.0", port))  # Rerun's servers listen on every interface
+            except OSError as e:
+                raise UsageError(f"{option} {port}: the port is taken ({e.strerror}); choose a free one with "
+                                 f"{option} N") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -131,28 +152,41 @@ def run(args: argparse.Namespace) -> int:
             print(f"wrote {out} ({size:.0f} KiB, {session.episode.length} steps, {session.geometry_source} geometry) "
                   f"in {time.perf_counter() - t0:.1f} s; open it with: rerun {out}")
         elif mode == "spawn":
-            _spawn(session, args)
+            session.spawn(port=args.grpc_port)
+            print(f"sent {session.recording_id} to the Rerun viewer")
         else:
-            _serve(session, args)
+            url = session.serve(web_port=args.web_port, grpc_port=args.grpc_port)
+            print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)")
         for note in session.episode.meta.notes:
             print(f"note: {note}")
         _print_comparison(session.comparison)
+        if mode == "serve":
+            sys.stdout.flush()
+            print(f"stopped serving ({_wait_for_stop()})")
     return 0
 
 
-def _spawn(session: Any, args: argparse.Namespace) -> None:
-    session.spawn(port=args.grpc_port)
-    print(f"sent {session.recording_id} to the Rerun viewer")
+class _Stop(Exception):
+    """Raised in the main thread by the SIGTERM handler `_wait_for_stop` installs."""
 
 
-def _serve(session: Any, args: argparse.Namespace) -> None:
-    url = session.serve(web_port=args.web_port, grpc_port=args.grpc_port)
-    print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)", flush=True)
+def _wait_for_stop() -> str:
+    """Block until Ctrl-C (SIGINT) or SIGTERM, and say which came."""
+    import signal
+
+    def stop(signum: int, frame: Any) -> None:
+        raise _Stop(signal.Signals(signum).name)
+
+    previous = signal.signal(signal.SIGTERM, stop)
     try:
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
-        pass
+        return "Ctrl-C"
+    except _Stop as e:
+        return str(e)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _print_comparison(c: Any) -> None:

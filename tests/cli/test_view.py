@@ -1,12 +1,18 @@
-"""`simreel view`: saving a session, the default output, --compare, --spawn, and recordings it cannot show."""
+"""`simreel view`: saving a session, the default output, --compare, --spawn, --serve, and recordings it cannot show."""
 
 from __future__ import annotations
 
+import signal
+import socket
 import subprocess
 import time
+from urllib.parse import parse_qs, urlparse
+from urllib.request import urlopen
 
 import pytest
-from support.processes import DISPLAY_VARS, free_port, simreel_command, without_display
+from support.processes import DISPLAY_VARS, free_port, read_line, simreel_command, without_display
+from support.rrd import read_served
+from support.viewer_data import STEPS
 
 from simreel.cli.main import main
 
@@ -180,3 +186,58 @@ def test_a_viewer_that_cannot_open_its_window_is_bad_input(pickcube_h5, tmp_path
     assert done.returncode == 2, done.stderr
     ours = [line for line in done.stderr.splitlines() if line.startswith("simreel view:")]
     assert len(ours) == 1 and ours[0].startswith("simreel view: error: the Rerun viewer did not take the session")
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_serve_serves_the_episode_until_stopped(pickcube_h5, tmp_path, rrd_reader, stop):
+    """A real `simreel view --serve` on free ports: the page loads, the gRPC server named in the printed URL
+    serves the whole episode (read back with `rerun download`, the same data `--save` writes) until Ctrl-C or
+    SIGTERM, which end it with exit 0 and free both ports."""
+    web, grpc = free_port(), free_port()
+    child = subprocess.Popen(simreel_command("view", str(pickcube_h5), "--serve", "--geometry", "collision",
+                                             "--web-port", str(web), "--grpc-port", str(grpc)),
+                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = read_line(child, timeout=240)
+        assert line.startswith(f"serving pickcube.h5#episode-0 at http://localhost:{web}/?url=rerun%2Bhttp://")
+        assert line.endswith(" (Ctrl-C to stop)")
+        [grpc_url] = parse_qs(urlparse(line.split(" at ")[1].split(" ")[0]).query)["url"]
+        assert grpc_url == f"rerun+http://127.0.0.1:{grpc}/proxy"
+        with urlopen(f"http://localhost:{web}/", timeout=30) as page:
+            assert page.status == 200 and b"web viewer" in page.read()
+        served = read_served(grpc_url, tmp_path / "served",
+                             lambda c: c.steps("/world/cube", "Transform3D:translation") == list(range(-1, STEPS)))
+        assert child.poll() is None  # still serving
+        child.send_signal(stop)
+        out, err = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.communicate()
+    assert child.returncode == 0, err
+    assert out.splitlines() == [f"stopped serving ({'Ctrl-C' if stop == signal.SIGINT else 'SIGTERM'})"]
+    saved = tmp_path / "saved.rrd"
+    assert main(["view", str(pickcube_h5), "--geometry", "collision", "--save", str(saved)]) == 0
+    expected = rrd_reader(saved)
+    assert served.recording_ids == expected.recording_ids == ["pickcube.h5#episode-0"]
+    assert served.data == expected.data
+    assert sorted(served.blueprint_views) == sorted(expected.blueprint_views)
+    for port in (web, grpc):  # nothing listens any more
+        with socket.socket() as s:
+            assert s.connect_ex(("127.0.0.1", port)) != 0
+
+
+@pytest.mark.parametrize("option", ["--web-port", "--grpc-port"])
+def test_serve_on_a_taken_port_is_refused_before_building_the_env(pickcube_h5, monkeypatch, capsys, option):
+    """Rerun reports a taken gRPC port only in its log and then serves nothing; simreel checks both first."""
+    import simreel.viewers.session as session
+
+    monkeypatch.setattr(session, "rebuild_env", _no_env)
+    with socket.socket() as taken:
+        taken.bind(("0.0.0.0", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        other = "--grpc-port" if option == "--web-port" else "--web-port"
+        assert main(["view", str(pickcube_h5), "--serve", option, str(port), other, str(free_port())]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{option} {port}: the port is taken" in err and f"{option} N" in err

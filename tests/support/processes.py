@@ -4,11 +4,14 @@ lines it prints, signals, ports it serves."""
 from __future__ import annotations
 
 import os
+import selectors
 import socket
+import subprocess
 import sys
+import time
 from collections.abc import Mapping
 
-__all__ = ["DISPLAY_VARS", "free_port", "simreel_command", "without_display"]
+__all__ = ["DISPLAY_VARS", "free_port", "read_line", "simreel_command", "without_display"]
 
 DISPLAY_VARS = ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")
 """The variables through which a process finds an X11 or Wayland display."""
@@ -29,3 +32,19 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def read_line(process: subprocess.Popen[str], timeout: float) -> str:
+    """The next line `process` writes to its stdout (a text pipe), without its newline; AssertionError if none
+    comes within `timeout` seconds or the process ends first (its stderr then says why)."""
+    deadline = time.monotonic() + timeout
+    with selectors.DefaultSelector() as selector:
+        selector.register(process.stdout, selectors.EVENT_READ)
+        while time.monotonic() < deadline:
+            if selector.select(timeout=0.5):
+                line = process.stdout.readline()
+                if line:
+                    return line.rstrip("\n")
+            if process.poll() is not None:
+                raise AssertionError(f"exited with {process.returncode}: {process.stderr.read()[-3000:]}")
+    raise AssertionError(f"no line on stdout in {timeout} s")
