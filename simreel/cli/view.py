@@ -12,7 +12,7 @@ from typing import Any
 from simreel.cli.common import add_tolerance_options
 from simreel.errors import UsageError
 
-__all__ = ["add_parser", "run", "default_output", "has_display", "viewer_available"]
+__all__ = ["add_parser", "run", "default_output", "has_display", "open_command", "viewer_available"]
 
 
 def add_parser(sub: Any) -> None:
@@ -73,6 +73,27 @@ def _check_spawn() -> None:
     if viewer_executable() is None:
         raise UsageError("--spawn: the Rerun viewer (`rerun`, installed with rerun-sdk) is neither on PATH nor "
                          f"beside {sys.executable}; write the session with --save OUT.rrd, or use --serve")
+
+
+def open_command(rrd: str | Path) -> str:
+    """The shell command that opens `rrd` in the Rerun viewer simreel itself uses (`viewer_executable`).
+
+    ``rerun FILE`` where `rerun` on PATH is that viewer (an activated venv), else the viewer by its path, relative
+    to the current folder when it lies inside it: ``.venv/bin/rerun FILE`` in the repository root, where
+    ``make demo`` runs. Either way the command works in the shell simreel was started from.
+    """
+    import shlex
+    import shutil
+
+    from simreel.viewers.session import viewer_executable
+
+    viewer = viewer_executable()
+    if viewer is None or viewer == shutil.which("rerun"):
+        command = "rerun"
+    else:
+        relative = os.path.relpath(viewer)
+        command = viewer if relative.startswith("..") else relative if os.sep in relative else f"./{relative}"
+    return f"{shlex.quote(command)} {shlex.quote(str(rrd))}"
 
 
 def default_output(path: str | Path, episode: int) -> Path:
@@ -150,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
             out = session.save(save)
             size = out.stat().st_size / 1024
             print(f"wrote {out} ({size:.0f} KiB, {session.episode.length} steps, {session.geometry_source} geometry) "
-                  f"in {time.perf_counter() - t0:.1f} s; open it with: rerun {out}")
+                  f"in {time.perf_counter() - t0:.1f} s")
         elif mode == "spawn":
             session.spawn(port=args.grpc_port)
             print(f"sent {session.recording_id} to the Rerun viewer")
@@ -160,7 +181,9 @@ def run(args: argparse.Namespace) -> int:
         for note in session.episode.meta.notes:
             print(f"note: {note}")
         _print_comparison(session.comparison)
-        if mode == "serve":
+        if mode == "save":
+            print(f"open it with: {open_command(out)}")
+        elif mode == "serve":
             sys.stdout.flush()
             print(f"stopped serving ({_wait_for_stop()})")
     return 0

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import os
+import shlex
 import signal
 import socket
 import subprocess
+import sys
 import time
+from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 from urllib.request import urlopen
 
@@ -26,12 +30,64 @@ def test_view_save(pickcube_h5, tmp_path, capsys, rrd_reader):
 
 
 def test_view_defaults_to_saving_without_a_display(pickcube_h5, tmp_path, monkeypatch, capsys):
-    monkeypatch.delenv("DISPLAY", raising=False)
-    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    from simreel.cli.view import open_command
+
+    for name in DISPLAY_VARS:
+        monkeypatch.delenv(name, raising=False)
     monkeypatch.chdir(tmp_path)
     assert main(["view", str(pickcube_h5), "--geometry", "collision"]) == 0
-    assert (tmp_path / "pickcube.episode0.rrd").is_file()
-    assert "open it with: rerun" in capsys.readouterr().out
+    out = tmp_path / "pickcube.episode0.rrd"
+    assert out.is_file()
+    assert capsys.readouterr().out.splitlines()[-1] == f"open it with: {open_command(out)}"
+
+
+VENV_BIN = Path(sys.executable).parent
+"""The venv's bin/: simreel, python and rerun, as `make setup` installs them."""
+
+
+def _runs_here(command: str, cwd: Path, path_variable: str) -> str:
+    """Run the viewer of an `open it with:` command with --version, in the shell the hint was printed for."""
+    viewer, _ = shlex.split(command)
+    done = subprocess.run(["bash", "-c", f"{shlex.quote(viewer)} --version"], cwd=cwd, capture_output=True,
+                          text=True, env={**os.environ, "PATH": path_variable}, timeout=60)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+@pytest.mark.parametrize("where", ["activated", "venv-parent", "elsewhere"])
+def test_the_open_hint_works_in_the_shell_it_is_printed_in(tmp_path, monkeypatch, where):
+    """`rerun FILE` only where `rerun` on PATH is simreel's viewer (an activated venv); otherwise the viewer's
+    path, relative where it lies below the current folder (`.venv/bin/rerun` in the repository root)."""
+    from simreel.cli.view import open_command
+
+    bare_path = os.pathsep.join(p for p in os.environ["PATH"].split(os.pathsep) if Path(p) != VENV_BIN)
+    path_variable = f"{VENV_BIN}{os.pathsep}{bare_path}" if where == "activated" else bare_path
+    cwd = VENV_BIN.parents[1] if where == "venv-parent" else tmp_path
+    monkeypatch.setenv("PATH", path_variable)
+    monkeypatch.chdir(cwd)
+    command = open_command(tmp_path / "my session.rrd")
+    expected = {"activated": "rerun", "venv-parent": os.path.relpath(VENV_BIN / "rerun", cwd),
+                "elsewhere": str(VENV_BIN / "rerun")}[where]
+    assert command == f"{expected} '{tmp_path}/my session.rrd'"
+    assert _runs_here(command, cwd, path_variable).startswith("rerun-cli 0.41.0")
+
+
+def test_make_demo_prints_one_hint_that_works(pickcube_h5, tmp_path):
+    """What `make demo` runs: the venv's simreel from the repository root, the venv not activated. The last line
+    is the only hint, and its command works in that shell (before, it said `rerun ...`: not on that PATH)."""
+    repo = VENV_BIN.parents[1]
+    bare_path = os.pathsep.join(p for p in os.environ["PATH"].split(os.pathsep) if Path(p) != VENV_BIN)
+    out = tmp_path / "pickcube.rrd"
+    done = subprocess.run([os.path.relpath(VENV_BIN / "simreel", repo), "view", str(pickcube_h5), "--geometry",
+                           "collision", "--save", str(out)], cwd=repo, env={**os.environ, "PATH": bare_path},
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert [line for line in lines if "rerun" in line] == [lines[-1]]
+    assert lines[-1] == f"open it with: {os.path.relpath(VENV_BIN / 'rerun', repo)} {out}"
+    _runs_here(lines[-1].removeprefix("open it with: "), repo, bare_path)
+    makefile = (repo / "Makefile").read_text()
+    assert "rerun" not in makefile.split("\ndemo:")[1].split("\n\n")[0]  # the demo target prints no hint of its own
 
 
 def test_compare_with_another_env_is_refused(pickcube_h5, tmp_path, capsys):
