@@ -21,6 +21,7 @@ from simreel.errors import SimreelError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.replay.engine import EpisodeReplayer, ReplayedEpisode, ReplayerOptions
 from simreel.replay.report import EpisodeReport
+from simreel.sim.user_code import resolve_task_imports
 
 __all__ = ["ReplayJob", "ReplaySession", "EpisodeResult", "run_pool"]
 
@@ -39,6 +40,7 @@ class ReplayJob:
     replayer: ReplayerOptions
     keep_episode: bool
     imports: tuple[str, ...] = ()
+    """`--import` specs given now: used instead of the recorded ones (`resolve_task_imports`)."""
 
 
 class ReplaySession:
@@ -53,9 +55,9 @@ class ReplaySession:
         self.job = job
         self.reader = reader if reader is not None else open_reader(job.path)
         try:
-            meta = self.reader.meta
-            if job.imports:
-                meta = dataclasses.replace(meta, imports=list(dict.fromkeys([*meta.imports, *job.imports])))
+            meta = self.reader.meta  # its task's code: the --import given now, else the recorded one, found here
+            meta = dataclasses.replace(meta, imports=resolve_task_imports(meta.imports, explicit=job.imports,
+                                                                          recording=job.path))
             self.meta = meta
             self.replayer = EpisodeReplayer(meta, job.replayer)
         except BaseException:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,6 +21,7 @@ import numpy as np
 from simreel.compare import Tolerances
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import UsageError, ViewError
+from simreel.formats import EpisodeReader
 from simreel.sim.rebuild import GYM_MAKE_SEED, reset_to_episode
 from simreel.sim.state import check_rebuilt_layout, read_state
 from simreel.viewers.compare import DEFAULT_MODE, ViewComparison, compare_for_view, divergence_row
@@ -68,6 +70,7 @@ class ViewOptions:
             defaults of `mode` (``actions``, ``states`` or ``step``), `atol` for every group, then per-group
             overrides such as ``{"pos": 1e-4}`` (see `simreel.compare.Tolerances.for_mode`).
         block_steps: steps per `send_columns` block (bounds the memory of derived data).
+        imports: ``--import`` specs that register the task, used instead of those the recording names.
     """
 
     episode: int | None = None
@@ -77,6 +80,7 @@ class ViewOptions:
     atol: float | None = None
     tolerances: dict[str, float] | None = None
     block_steps: int = 256
+    imports: tuple[str, ...] = ()
 
     def check(self) -> Tolerances:
         """The comparison's tolerances; `UsageError` for a bad geometry source, block size or tolerance."""
@@ -90,17 +94,22 @@ class ViewOptions:
             raise UsageError(str(e)) from None
 
 
-def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto") -> Any:
+def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto", imports: Sequence[str] = (),
+                recording: str | Path | None = None) -> Any:
     """The recorded env rebuilt for viewing: CPU sim, one sub-scene, state observations, no render mode.
 
     A render device is used when there is one (for visual meshes and colours) unless `geometry` is
-    ``"collision"``, which builds the env without rendering (faster).
+    ``"collision"``, which builds the env without rendering (faster). The task's code is imported first:
+    `imports` (``--import``) if given, else the recorded imports, found also beside `recording` (its path)
+    (`simreel.sim.user_code.resolve_task_imports`).
     """
     from simreel.sim.rebuild import env_from_meta
+    from simreel.sim.user_code import resolve_task_imports
 
+    found = resolve_task_imports(meta.imports, explicit=imports, recording=recording)
     env_kwargs = {k: v for k, v in meta.env_kwargs.items() if k not in ("render_mode", "num_envs")}
     return env_from_meta(
-        meta,
+        dataclasses.replace(meta, imports=found),
         num_envs=1,
         sim_backend="physx_cpu",
         obs_mode="state",
@@ -341,7 +350,8 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
     owns = env is None
     t1 = time.perf_counter()
     if env is None:
-        env = rebuild_env(rec_run.meta, geometry=opts.geometry)
+        path = source.path if isinstance(source, EpisodeReader) else source
+        env = rebuild_env(rec_run.meta, geometry=opts.geometry, imports=opts.imports, recording=path)
     timings["env_s"] = time.perf_counter() - t1
     try:
         session = _prepare(env, owns, opts, (rec_run, rep_run), timings)

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import add_tolerance_options
+from simreel.cli.common import add_import_option, add_tolerance_options
 from simreel.errors import UsageError
 
 __all__ = ["add_parser", "run", "default_output", "has_display", "open_command", "viewer_available"]
@@ -45,6 +45,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--block-steps", type=int, default=256, metavar="N",
                    help="steps logged per batch; bounds memory on long episodes (default 256)")
     p.add_argument("--overwrite", action="store_true", help="replace the .rrd file if it exists")
+    add_import_option(p)
     p.set_defaults(run=run)
 
 
@@ -159,7 +160,8 @@ def run(args: argparse.Namespace) -> int:
     from simreel.viewers import ViewOptions, build_session
 
     options = ViewOptions(episode=episode, compare=args.compare, geometry=args.geometry, mode=args.mode,
-                          atol=args.atol, tolerances=dict(args.tol) or None, block_steps=args.block_steps)
+                          atol=args.atol, tolerances=dict(args.tol) or None, block_steps=args.block_steps,
+                          imports=tuple(args.imports))
     t0 = time.perf_counter()
     with build_session(args.path, options) as session:
         if args.geometry == "visual" and session.geometry_source != "visual":
