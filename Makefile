@@ -24,14 +24,14 @@ $(STAMP): pyproject.toml tools/install_torch.sh tools/fetch_lavapipe.sh
 	@touch $(STAMP)
 
 # Record a few PickCube-v1 episodes, show what the file holds, replay and verify every step (writing
-# the replay and a JSON report), and build a Rerun session of episode 0 beside its replay.
+# the replay and a JSON report), and build a Rerun session of episode 0 beside its replay. Everything goes
+# to $(DEMO)/; the last line, printed by `simreel view`, is the command that opens the session.
 demo: setup
 	@mkdir -p $(DEMO)
 	$(BIN)/simreel record PickCube-v1 -o $(DEMO)/pickcube.h5 -n 3 --seed 0 --overwrite
 	$(BIN)/simreel inspect $(DEMO)/pickcube.h5
 	$(BIN)/simreel replay $(DEMO)/pickcube.h5 -o $(DEMO)/pickcube.replayed.h5 --overwrite --report $(DEMO)/report.json
 	$(BIN)/simreel view $(DEMO)/pickcube.h5 --episode 0 --compare $(DEMO)/pickcube.replayed.h5 --save $(DEMO)/pickcube.rrd --overwrite
-	@echo "demo outputs in $(DEMO)/: open the session with '$(BIN)/rerun $(DEMO)/pickcube.rrd'"
 
 lint: setup
 	$(BIN)/ruff check simreel recorders replay viewers tests benchmarks

@@ -27,6 +27,7 @@ from simreel.sim.contacts import ContactSampler, contact_channels
 from simreel.sim.describe import flatten_obs, recording_meta
 from simreel.sim.poses import pose_body_names, sample_body_poses
 from simreel.sim.state import FastStateReader, check_same_layout, read_state
+from simreel.sim.user_code import recorded_spec
 from simreel.state_tree import layout_of, to_numpy
 
 __all__ = ["RecordWrapper", "RecordOptions"]
@@ -46,7 +47,8 @@ class RecordOptions:
             per step as the state dict). None: the format's default (on for .mcap, off for .h5).
         overwrite: replace an existing file instead of refusing.
         block_steps: steps buffered in memory before they are streamed to the file.
-        imports: `--import` specs that registered the task, stored so replay can import them again.
+        imports: `--import` specs that registered the task, stored so replay can import them again (a file by
+            its absolute path: `simreel.sim.user_code.recorded_spec`).
         command: the command line, stored for provenance.
         writer_options: keyword options for the format's writer (e.g. HDF5 `compression`).
     """
@@ -133,7 +135,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             info_layout=layout_of(_scalar_info(u.get_info(), self._n), batched=True),
             obs_layout=obs_layout,
             pose_bodies=pose_body_names(u) if poses else [],
-            imports=list(opts.imports),
+            imports=[recorded_spec(spec) for spec in opts.imports],  # a file by its absolute path
             command=opts.command,
         )
 

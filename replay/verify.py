@@ -60,7 +60,8 @@ class ReplayOptions:
             recording has them or `obs_mode` is given; `overwrite` lets it (and `report`) replace existing files.
         obs_mode: observation mode of the replay, e.g. "rgb" to re-render observations into `output`.
         workers: processes replaying episodes in parallel, each with its own env (this one and workers - 1 more).
-        imports: `--import` specs to import before rebuilding the env (besides those the recording names).
+        imports: `--import` specs to import before rebuilding the env, instead of those the recording names
+            (which are otherwise found as `simreel.sim.user_code.resolve_task_imports` says).
         sim_backend: replay on this backend instead of the recorded one (e.g. "physx_cpu" for a GPU
             recording: a different engine, so expect `within_tolerance` or `diverged` in actions mode).
         command: the command line, kept in `output`'s metadata.

@@ -30,6 +30,7 @@ from simreel.replay.engine import EpisodeReplayer, ReplayedEpisode, ReplayerOpti
 from simreel.replay.output import output_pose_bodies
 from simreel.replay.report import EpisodeReport
 from simreel.replay.worklist import WorkItem
+from simreel.sim.user_code import resolve_task_imports
 
 __all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "run_pool"]
 
@@ -52,6 +53,7 @@ class ReplayJob:
     output: str | None = None
     """Where the replayed episodes go (`-o`): workers then return them, with the bodies' poses it needs."""
     imports: tuple[str, ...] = ()
+    """`--import` specs given now: used instead of the recorded ones (`resolve_task_imports`)."""
 
     def replayer_options(self, meta: RecordingMeta) -> ReplayerOptions:
         """How to build the env replaying the recording with `meta`."""
@@ -59,11 +61,11 @@ class ReplayJob:
         return ReplayerOptions(obs_mode=self.obs_mode, need_obs=need_obs, sim_backend=self.sim_backend,
                                pose_bodies=output_pose_bodies(meta, self.output))
 
-    def meta_for(self, meta: RecordingMeta) -> RecordingMeta:
-        """The recording's metadata with the job's `--import`s added to its own."""
-        if not self.imports:
-            return meta
-        return dataclasses.replace(meta, imports=list(dict.fromkeys([*meta.imports, *self.imports])))
+    def meta_for(self, meta: RecordingMeta, path: str) -> RecordingMeta:
+        """The metadata of the recording at `path` with its task's code found: the job's `--import`s, else the
+        recorded ones, looked for where `resolve_task_imports` looks."""
+        return dataclasses.replace(meta, imports=resolve_task_imports(meta.imports, explicit=self.imports,
+                                                                      recording=path))
 
 
 @dataclass
@@ -101,7 +103,7 @@ class ReplayWorker:
         """Replay and verify `item`; a `SimreelError` comes back in the result, never raised."""
         try:
             reader = self._reader(item.path)
-            replayer = self._replayer_for(item.key, reader.meta)
+            replayer = self._replayer_for(item, reader.meta)
             report, episode = self._replay(reader, replayer, item.index)
         except SimreelError as e:
             return EpisodeResult(item, error=e)
@@ -109,7 +111,7 @@ class ReplayWorker:
 
     def prepare(self, item: WorkItem) -> None:
         """Open `item`'s file and build its env now; raises the `SimreelError` that stops that."""
-        self._replayer_for(item.key, self._reader(item.path).meta)
+        self._replayer_for(item, self._reader(item.path).meta)
 
     def _reader(self, path: str) -> EpisodeReader:
         reader = self._readers.get(path)
@@ -120,13 +122,15 @@ class ReplayWorker:
         self._readers.move_to_end(path)
         return reader
 
-    def _replayer_for(self, key: str, meta: RecordingMeta) -> EpisodeReplayer:
+    def _replayer_for(self, item: WorkItem, meta: RecordingMeta) -> EpisodeReplayer:
+        key = item.key
         if key in self._failed:
             raise self._failed[key]
         if key != self._key or self._replayer is None:
             self._close_replayer()
             try:
-                self._replayer = EpisodeReplayer(self.job.meta_for(meta), self.job.replayer_options(meta))
+                meta = self.job.meta_for(meta, item.path)
+                self._replayer = EpisodeReplayer(meta, self.job.replayer_options(meta))
             except SimreelError as e:
                 self._failed[key] = e
                 raise

@@ -167,7 +167,8 @@ class RecordingMeta:
     """Names of the bodies whose world poses `Episode.body_poses` holds (empty: none recorded)."""
     versions: dict[str, str] = field(default_factory=dict)
     imports: list[str] = field(default_factory=list)
-    """`--import` specs that registered the task; replay and view import them again."""
+    """`--import` specs that registered the task (a file by its absolute path, a module by its name); replay and
+    view import them again, found as `simreel.sim.user_code.resolve_task_imports` says."""
     created_utc: str = ""
     command: str = ""
     format_version: int = FORMAT_VERSION

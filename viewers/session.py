@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,6 +21,7 @@ import numpy as np
 from simreel.compare import Tolerances
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import UsageError, ViewError
+from simreel.formats import EpisodeReader
 from simreel.sim.rebuild import GYM_MAKE_SEED, reset_to_episode
 from simreel.sim.state import check_rebuilt_layout, read_state
 from simreel.viewers.compare import DEFAULT_MODE, ViewComparison, compare_for_view, divergence_row
@@ -47,6 +49,7 @@ __all__ = [
     "build_session",
     "rebuild_env",
     "viewer_executable",
+    "web_viewer_url",
 ]
 
 APPLICATION_ID = "simreel"
@@ -67,6 +70,7 @@ class ViewOptions:
             defaults of `mode` (``actions``, ``states`` or ``step``), `atol` for every group, then per-group
             overrides such as ``{"pos": 1e-4}`` (see `simreel.compare.Tolerances.for_mode`).
         block_steps: steps per `send_columns` block (bounds the memory of derived data).
+        imports: ``--import`` specs that register the task, used instead of those the recording names.
     """
 
     episode: int | None = None
@@ -76,6 +80,7 @@ class ViewOptions:
     atol: float | None = None
     tolerances: dict[str, float] | None = None
     block_steps: int = 256
+    imports: tuple[str, ...] = ()
 
     def check(self) -> Tolerances:
         """The comparison's tolerances; `UsageError` for a bad geometry source, block size or tolerance."""
@@ -89,17 +94,22 @@ class ViewOptions:
             raise UsageError(str(e)) from None
 
 
-def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto") -> Any:
+def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto", imports: Sequence[str] = (),
+                recording: str | Path | None = None) -> Any:
     """The recorded env rebuilt for viewing: CPU sim, one sub-scene, state observations, no render mode.
 
     A render device is used when there is one (for visual meshes and colours) unless `geometry` is
-    ``"collision"``, which builds the env without rendering (faster).
+    ``"collision"``, which builds the env without rendering (faster). The task's code is imported first:
+    `imports` (``--import``) if given, else the recorded imports, found also beside `recording` (its path)
+    (`simreel.sim.user_code.resolve_task_imports`).
     """
     from simreel.sim.rebuild import env_from_meta
+    from simreel.sim.user_code import resolve_task_imports
 
+    found = resolve_task_imports(meta.imports, explicit=imports, recording=recording)
     env_kwargs = {k: v for k, v in meta.env_kwargs.items() if k not in ("render_mode", "num_envs")}
     return env_from_meta(
-        meta,
+        dataclasses.replace(meta, imports=found),
         num_envs=1,
         sim_backend="physx_cpu",
         obs_mode="state",
@@ -118,6 +128,19 @@ def viewer_executable() -> str | None:
         return found
     beside = Path(sys.executable).parent / "rerun"
     return str(beside) if beside.is_file() else None
+
+
+def web_viewer_url(web_port: int, grpc_url: str) -> str:
+    """The web viewer's address with the gRPC server to open (``?url=rerun%2Bhttp://...``: a ``+`` left as it is
+    would reach the viewer as a space)."""
+    from urllib.parse import quote
+
+    return f"http://localhost:{web_port}/?url={quote(grpc_url, safe=':/')}"
+
+
+def _first_line(error: Exception) -> str:
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
 
 
 def _joint_names(u: Any) -> dict[str, list[str]]:
@@ -166,6 +189,8 @@ class ViewSession:
     pose_source: str = ""
     """``recorded`` (body poses read from the file) or ``restored`` (states restored into the env), after logging."""
     timings: dict[str, float] = field(default_factory=dict)
+    served: Any = field(default=None, repr=False)
+    """The recording stream `serve` serves (its gRPC server stops with it), until `close`."""
 
     # ------------------------------------------------------------------ identity and layout
     @property
@@ -250,21 +275,31 @@ class ViewSession:
         try:
             rr.spawn(port=port, default_blueprint=self.blueprint(), recording=rec, executable_path=viewer_executable())
         except RuntimeError as e:
-            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-            raise ViewError(f"could not start the Rerun viewer ({first}); use --save OUT.rrd and open it elsewhere") from e
+            raise ViewError(f"could not start the Rerun viewer ({_first_line(e)}); use --save OUT.rrd and open it "
+                            "elsewhere") from e
         self.log_to(rec)
-        rec.flush()
+        try:
+            rec.flush()  # raises when the viewer never listened (it could not open its window)
+        except RuntimeError as e:
+            raise ViewError(f"the Rerun viewer did not take the session ({_first_line(e)}); its window may not have "
+                            "opened: use --save OUT.rrd and open it elsewhere, or --serve") from e
 
     def serve(self, *, web_port: int = 9090, grpc_port: int = 9876, open_browser: bool = False) -> str:
-        """Serve the session over gRPC and the web viewer; returns the URL to open. Keeps serving until exit."""
+        """Serve the session: a gRPC server holding it, and the web viewer (HTML + Wasm) that connects to it.
+
+        Returns the web viewer's URL, whose ``url`` parameter names the gRPC server. Both serve until this session
+        is closed (or the process ends): Rerun shuts a gRPC server down with its recording stream, so the session
+        keeps the stream. The server keeps everything logged, so viewers that connect later see the whole episode.
+        """
         import rerun as rr
 
         rec = self.new_stream()
         grpc_url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=self.blueprint())
+        self.served = rec
         rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=grpc_url)
         self.log_to(rec)
         rec.flush()
-        return f"http://localhost:{web_port}/?url={grpc_url}"
+        return web_viewer_url(web_port, grpc_url)
 
     # ------------------------------------------------------------------ logging
     def log_to(self, rec: rr.RecordingStream) -> None:
@@ -275,6 +310,10 @@ class ViewSession:
 
     # ------------------------------------------------------------------ lifetime
     def close(self) -> None:
+        """Stop serving (`serve`) and close the env if the session built it."""
+        if self.served is not None:
+            self.served.disconnect()
+            self.served = None
         if self.owns_env and self.env is not None:
             self.env.close()
             self.env = None
@@ -311,7 +350,8 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
     owns = env is None
     t1 = time.perf_counter()
     if env is None:
-        env = rebuild_env(rec_run.meta, geometry=opts.geometry)
+        path = source.path if isinstance(source, EpisodeReader) else source
+        env = rebuild_env(rec_run.meta, geometry=opts.geometry, imports=opts.imports, recording=path)
     timings["env_s"] = time.perf_counter() - t1
     try:
         session = _prepare(env, owns, opts, (rec_run, rep_run), timings)

@@ -28,7 +28,8 @@ def add_import_option(p: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="MODULE_OR_FILE",
-        help="import user code (a module or a .py file) that registers tasks or policies; repeatable",
+        help="import user code (a module or a .py file) that registers tasks or policies; repeatable. Given to a "
+             "command that reads a recording, it is imported instead of the code the recording names",
     )
 
 

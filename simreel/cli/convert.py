@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import progress_bar
+from simreel.cli.common import add_import_option, progress_bar
 
 __all__ = ["add_parser", "run"]
 
@@ -27,13 +29,26 @@ def add_parser(sub: Any) -> None:
                    "recorded state into the rebuilt env (needs the task; OUT then holds them, so MCAP's /tf "
                    "shows every link)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_import_option(p)
     p.set_defaults(run=run)
 
 
-def _link_poses(meta: Any) -> Any:
-    from simreel.sim.poses import LinkPoses
+def _link_poses(args: argparse.Namespace) -> Callable[[Any], Any]:
+    """`--poses`: what adds every body's pose to each episode, in the env rebuilt with the task's code (the
+    --import given now, else the recorded one, found here); None when IN has poses already."""
 
-    return None if meta.pose_bodies else LinkPoses(meta)
+    def transform(meta: Any) -> Any:
+        if meta.pose_bodies:
+            return None
+        from simreel.sim.poses import LinkPoses
+        from simreel.sim.user_code import resolve_task_imports
+
+        found = resolve_task_imports(meta.imports, explicit=args.imports, recording=args.input)
+        poses = LinkPoses(dataclasses.replace(meta, imports=found))
+        poses.meta.imports = list(meta.imports)  # OUT keeps what IN recorded, as a copy does
+        return poses
+
+    return transform
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from simreel.formats.copy import convert
 
     src = Path(args.input)
-    report = convert(src, args.output, overwrite=args.overwrite, transform=_link_poses if args.poses else None,
+    report = convert(src, args.output, overwrite=args.overwrite, transform=_link_poses(args) if args.poses else None,
                      progress=lambda eps: progress_bar(eps, quiet=args.quiet, unit="ep", desc=f"convert {src.name}"))
     for note in report.skipped:
         sys.stderr.write(f"simreel convert: warning: {src}: {note} was never committed and is not copied\n")

@@ -1,8 +1,8 @@
 """The `simreel` command: one subcommand module per verb, imported only as far as argparse needs.
 
 Exit status: 0 success, 1 a verdict that failed (replay diverged, audit findings), 2 bad input (one line on
-stderr), 3 an internal error (one line; `--debug` shows the traceback), 130 interrupted, 141 stdout closed
-(a pipe into `head`).
+stderr), 3 an internal error (one line), 130 interrupted, 141 stdout closed (a pipe into `head`). `--debug`
+prints the traceback before that line and changes nothing else: the exit status is the same with it as without.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import importlib
 import os
 import shlex
 import sys
+import traceback
 from collections.abc import Sequence
 
 from simreel import __version__
@@ -61,9 +62,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.run(args) or 0)
     except SimreelError as e:
-        if args.debug:
-            raise
-        sys.stderr.write(f"simreel {args.command}: error: {e}\n")
+        _fail(args, f"error: {e}")
         return 2
     except KeyboardInterrupt:
         sys.stderr.write(f"simreel {args.command}: interrupted\n")
@@ -72,11 +71,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except Exception as e:  # a bug, not bad input: still one line, and not 1 (which replay uses for "diverged")
-        if args.debug:
-            raise
-        sys.stderr.write(f"simreel {args.command}: internal error: {type(e).__name__}: {e} "
-                         "(rerun with --debug for the traceback, and please report it)\n")
+        how = "please report it" if args.debug else "rerun with --debug for the traceback, and please report it"
+        _fail(args, f"internal error: {type(e).__name__}: {e} ({how})")
         return 3
+
+
+def _fail(args: argparse.Namespace, message: str) -> None:
+    """The one line on stderr for the exception being handled; with --debug its traceback first."""
+    if args.debug:
+        traceback.print_exc()
+    sys.stderr.write(f"simreel {args.command}: {message}\n")
 
 
 if __name__ == "__main__":

@@ -4,16 +4,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import add_tolerance_options
+from simreel.cli.common import add_import_option, add_tolerance_options
 from simreel.errors import UsageError
 
-__all__ = ["add_parser", "run", "default_output", "viewer_available"]
+__all__ = ["add_parser", "run", "default_output", "has_display", "open_command", "viewer_available"]
 
 
 def add_parser(sub: Any) -> None:
@@ -37,7 +36,8 @@ def add_parser(sub: Any) -> None:
     sink.add_argument("--save", default=None, metavar="OUT.rrd",
                       help="write a .rrd file (the default when no viewer can be opened: <recording>.episode<I>.rrd)")
     sink.add_argument("--spawn", action="store_true", help="open the native Rerun viewer")
-    sink.add_argument("--serve", action="store_true", help="serve the web viewer (for a remote machine); Ctrl-C stops")
+    sink.add_argument("--serve", action="store_true",
+                      help="serve the episode to the web viewer (for a remote machine) until Ctrl-C or SIGTERM")
     p.add_argument("--web-port", type=int, default=9090, help="web viewer port for --serve (default 9090)")
     p.add_argument("--grpc-port", type=int, default=9876, help="gRPC port for --serve/--spawn (default 9876)")
     p.add_argument("--geometry", default="auto", choices=("auto", "visual", "collision"),
@@ -45,14 +45,56 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--block-steps", type=int, default=256, metavar="N",
                    help="steps logged per batch; bounds memory on long episodes (default 256)")
     p.add_argument("--overwrite", action="store_true", help="replace the .rrd file if it exists")
+    add_import_option(p)
     p.set_defaults(run=run)
+
+
+def has_display() -> bool:
+    """Whether a window can open here: macOS and Windows always; elsewhere an X11 or Wayland display is set."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return any(os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
 
 
 def viewer_available() -> bool:
     """Whether the native viewer could open a window here: a display and the `rerun` executable."""
-    has_display = sys.platform in ("darwin", "win32") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    exe = shutil.which("rerun") or (Path(sys.executable).parent / "rerun").is_file()
-    return has_display and bool(exe)
+    from simreel.viewers.session import viewer_executable
+
+    return has_display() and viewer_executable() is not None
+
+
+def _check_spawn() -> None:
+    """`--spawn` without a display or without the viewer is bad input, refused before any work."""
+    from simreel.viewers.session import viewer_executable
+
+    if not has_display():
+        raise UsageError("--spawn opens the Rerun viewer in a window, and there is no display here (DISPLAY and "
+                         "WAYLAND_DISPLAY are unset); write the session with --save OUT.rrd and open it where there "
+                         "is one, or serve it to a browser with --serve")
+    if viewer_executable() is None:
+        raise UsageError("--spawn: the Rerun viewer (`rerun`, installed with rerun-sdk) is neither on PATH nor "
+                         f"beside {sys.executable}; write the session with --save OUT.rrd, or use --serve")
+
+
+def open_command(rrd: str | Path) -> str:
+    """The shell command that opens `rrd` in the Rerun viewer simreel itself uses (`viewer_executable`).
+
+    ``rerun FILE`` where `rerun` on PATH is that viewer (an activated venv), else the viewer by its path, relative
+    to the current folder when it lies inside it: ``.venv/bin/rerun FILE`` in the repository root, where
+    ``make demo`` runs. Either way the command works in the shell simreel was started from.
+    """
+    import shlex
+    import shutil
+
+    from simreel.viewers.session import viewer_executable
+
+    viewer = viewer_executable()
+    if viewer is None or viewer == shutil.which("rerun"):
+        command = "rerun"
+    else:
+        relative = os.path.relpath(viewer)
+        command = viewer if relative.startswith("..") else relative if os.sep in relative else f"./{relative}"
+    return f"{shlex.quote(command)} {shlex.quote(str(rrd))}"
 
 
 def default_output(path: str | Path, episode: int) -> Path:
@@ -83,7 +125,29 @@ def _sink(args: argparse.Namespace, episode: int) -> tuple[str, str | None]:
             save = str(default_output(args.path, episode))
     if mode == "save":
         check_output(save, overwrite=args.overwrite, option="--save")
+    elif mode == "spawn":
+        _check_spawn()
+    else:
+        _check_ports(args)
     return mode, save
+
+
+def _check_ports(args: argparse.Namespace) -> None:
+    """`--serve`'s ports must be free: Rerun reports a busy gRPC port only in its log, and serves nothing."""
+    import socket
+
+    if args.web_port == args.grpc_port:
+        raise UsageError(f"--web-port and --grpc-port are both {args.web_port}; the two servers need two ports")
+    for option, port in (("--web-port", args.web_port), ("--grpc-port", args.grpc_port)):
+        if not 0 < port < 65536:
+            raise UsageError(f"{option} {port}: a port is a number from 1 to 65535")
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as servers bind: TIME_WAIT is no obstacle
+            try:
+                probe.bind(("0.0.0.0", port))  # Rerun's servers listen on every interface
+            except OSError as e:
+                raise UsageError(f"{option} {port}: the port is taken ({e.strerror}); choose a free one with "
+                                 f"{option} N") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -96,42 +160,58 @@ def run(args: argparse.Namespace) -> int:
     from simreel.viewers import ViewOptions, build_session
 
     options = ViewOptions(episode=episode, compare=args.compare, geometry=args.geometry, mode=args.mode,
-                          atol=args.atol, tolerances=dict(args.tol) or None, block_steps=args.block_steps)
+                          atol=args.atol, tolerances=dict(args.tol) or None, block_steps=args.block_steps,
+                          imports=tuple(args.imports))
     t0 = time.perf_counter()
     with build_session(args.path, options) as session:
         if args.geometry == "visual" and session.geometry_source != "visual":
-            print("warning: no render device, so no visual meshes: showing collision shapes "
-                  "(see `make setup` for the software Vulkan driver)", file=sys.stderr)
+            from simreel.sim.make import no_render_device_fix
+
+            print("warning: no render device, so no visual meshes: showing collision shapes (for the meshes, "
+                  f"{no_render_device_fix()})", file=sys.stderr)
         if mode == "save":
             out = session.save(save)
             size = out.stat().st_size / 1024
             print(f"wrote {out} ({size:.0f} KiB, {session.episode.length} steps, {session.geometry_source} geometry) "
-                  f"in {time.perf_counter() - t0:.1f} s; open it with: rerun {out}")
+                  f"in {time.perf_counter() - t0:.1f} s")
         elif mode == "spawn":
-            _spawn(session, args)
+            session.spawn(port=args.grpc_port)
+            print(f"sent {session.recording_id} to the Rerun viewer")
         else:
-            _serve(session, args)
+            url = session.serve(web_port=args.web_port, grpc_port=args.grpc_port)
+            print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)")
         for note in session.episode.meta.notes:
             print(f"note: {note}")
         _print_comparison(session.comparison)
+        if mode == "save":
+            print(f"open it with: {open_command(out)}")
+        elif mode == "serve":
+            sys.stdout.flush()
+            print(f"stopped serving ({_wait_for_stop()})")
     return 0
 
 
-def _spawn(session: Any, args: argparse.Namespace) -> None:
-    if not viewer_available():
-        print("warning: no display found; the viewer may not open (use --save OUT.rrd)", file=sys.stderr)
-    session.spawn(port=args.grpc_port)
-    print(f"sent {session.recording_id} to the Rerun viewer")
+class _Stop(Exception):
+    """Raised in the main thread by the SIGTERM handler `_wait_for_stop` installs."""
 
 
-def _serve(session: Any, args: argparse.Namespace) -> None:
-    url = session.serve(web_port=args.web_port, grpc_port=args.grpc_port)
-    print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)", flush=True)
+def _wait_for_stop() -> str:
+    """Block until Ctrl-C (SIGINT) or SIGTERM, and say which came."""
+    import signal
+
+    def stop(signum: int, frame: Any) -> None:
+        raise _Stop(signal.Signals(signum).name)
+
+    previous = signal.signal(signal.SIGTERM, stop)
     try:
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
-        pass
+        return "Ctrl-C"
+    except _Stop as e:
+        return str(e)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _print_comparison(c: Any) -> None:

@@ -36,6 +36,7 @@ __all__ = [
     "camera_use",
     "CAMERA_TEXTURES",
     "SIMREEL_TASK_PREFIX",
+    "no_render_device_fix",
 ]
 
 CAMERA_TEXTURES = frozenset(
@@ -188,7 +189,7 @@ def _registered(env_id: str) -> Any:
 
         spec = REGISTERED_ENVS.get(env_id)
     if spec is None:
-        raise EnvBuildError(_unknown_env_message(env_id, sorted(REGISTERED_ENVS)))
+        raise EnvBuildError(_unknown_env_message(env_id, REGISTERED_ENVS))
     missing = _missing_assets(spec)
     if missing:
         raise EnvBuildError(
@@ -198,14 +199,29 @@ def _registered(env_id: str) -> Any:
     return gymnasium
 
 
-def _unknown_env_message(env_id: str, known: list[str]) -> str:
-    by_lower = {name.lower(): name for name in known}
+def _unknown_env_message(env_id: str, registry: dict[str, Any]) -> str:
+    """Close matches of `env_id`, and what to do: import the task, or, when user code was imported, what that
+    code registers (it did not register `env_id`)."""
+    from simreel.sim.user_code import imported_user_code
+
+    by_lower = {name.lower(): name for name in registry}
     close = difflib.get_close_matches(env_id.lower(), list(by_lower), n=3, cutoff=0.6)
-    hint = f"did you mean {', '.join(by_lower[c] for c in close)}?" if close else f"{len(known)} are registered"
-    return (
-        f"unknown ManiSkill env id {env_id!r}: {hint} "
-        "(a custom task must be registered first: pass --import MODULE_OR_FILE.py)"
-    )
+    hint = f"did you mean {', '.join(by_lower[c] for c in close)}?" if close else f"{len(registry)} are registered"
+    imported = imported_user_code()
+    if not imported:
+        return (f"unknown ManiSkill env id {env_id!r}: {hint} "
+                "(a custom task must be registered first: pass --import MODULE_OR_FILE.py)")
+    registered = []
+    for spec, module in imported.items():
+        ids = [uid for uid, s in registry.items() if _defined_in(s, module)]
+        registered.append(f"{spec} registers {', '.join(ids) if ids else 'no env'}")
+    return f"unknown ManiSkill env id {env_id!r}: {hint} (the code imported does not register it: {'; '.join(registered)})"
+
+
+def _defined_in(spec: Any, module: str) -> bool:
+    """Whether the task class of a registry entry comes from `module` or one of its submodules."""
+    where = getattr(getattr(spec, "cls", None), "__module__", "") or ""
+    return where == module or where.startswith(module + ".")
 
 
 def _missing_assets(spec: Any) -> list[str]:
@@ -230,8 +246,8 @@ def _prepare_render(env_id: str, cfg: EnvConfig) -> str:
         needs = camera_use(cfg.obs_mode, cfg.env_kwargs.get("render_mode"))
         if needs is not None:
             raise RenderUnavailableError(
-                f"{env_id}: {needs}, but there is no render device ({why}). {_FETCH_LAVAPIPE} "
-                "or use a GPU machine; or use obs_mode='state' and no render_mode."
+                f"{env_id}: {needs}, but there is no render device ({why}). To render, {no_render_device_fix()}; "
+                "or use obs_mode='state' and no render_mode."
             )
         from simreel.sim import norender
 
@@ -267,15 +283,27 @@ def _gym_kwargs(cfg: EnvConfig, backend: str) -> dict[str, Any]:
     return kwargs
 
 
-_FETCH_LAVAPIPE = "Run `make setup` to fetch the software Vulkan driver (lavapipe)"
+def no_render_device_fix() -> str:
+    """How to get a render device, as one clause of an error message: fetch lavapipe the way `make setup` does
+    (spelled out for a pip install, which has no Makefile), or use a GPU machine."""
+    import shlex
+
+    from simreel.sim.render_device import lavapipe_icd_path
+
+    icd = lavapipe_icd_path()  # where simreel looks: $SIMREEL_VK_ICD, else <venv>/share/simreel/mesa/lvp_icd.json
+    fetch = f"tools/fetch_lavapipe.sh {shlex.quote(str(icd.parent))}"
+    if icd.name != "lvp_icd.json":  # the script writes DIR/lvp_icd.json
+        fetch += f" and set SIMREEL_VK_ICD={shlex.quote(str(icd.parent / 'lvp_icd.json'))}"
+    return ("fetch the software Vulkan driver (lavapipe): `make setup` does it in a simreel checkout; after a pip "
+            f"install run `{fetch}` from simreel's source (Debian/Ubuntu); or use a machine with a GPU")
 
 
 def _build_error(env_id: str, exc: Exception, *, backend: str, cfg: EnvConfig) -> Exception:
     message = " ".join(str(exc).split())  # one line
     if message == "failed to find a rendering device" or "ErrorIncompatibleDriver" in message:
         return RenderUnavailableError(
-            f"{env_id}: render_backend={backend!r} but there is no render device. {_FETCH_LAVAPIPE}, "
-            "or pass render_backend='auto' (or 'none' with obs_mode='state')."
+            f"{env_id}: render_backend={backend!r} but there is no render device. To render, "
+            f"{no_render_device_fix()}; or pass render_backend='auto' (or 'none' with obs_mode='state')."
         )
     if message == 'failed to find device "cuda"':
         if cfg.num_envs > 1 and cfg.sim_backend in ("auto", "gpu", "cuda", "physx_cuda"):
@@ -287,7 +315,7 @@ def _build_error(env_id: str, exc: Exception, *, backend: str, cfg: EnvConfig) -
     if isinstance(exc, AttributeError) and "render_shapes" in message:
         return RenderUnavailableError(
             f"{env_id} reads render shapes while building its scene, which needs a render device ({message}). "
-            f"{_FETCH_LAVAPIPE}, or use a GPU machine."
+            f"To build it, {no_render_device_fix()}."
         )
     return EnvBuildError(f"{env_id}: could not build the env: {type(exc).__name__}: {message}")
 

@@ -152,9 +152,10 @@ def check_task(env_id: str) -> None:
     """Raise `RenderUnavailableError` for a task that cannot be built without a render device."""
     reason = TASKS_NEEDING_RENDER.get(env_id)
     if reason is not None:
+        from simreel.sim.make import no_render_device_fix
+
         raise RenderUnavailableError(
-            f"{env_id} cannot be built without a render device: {reason}. Run `make setup` to fetch the "
-            "software Vulkan driver (lavapipe), or use a machine with a GPU."
+            f"{env_id} cannot be built without a render device: {reason}. To build it, {no_render_device_fix()}."
         )
 
 

@@ -42,7 +42,12 @@ _T = TypeVar("_T")
 
 
 def env_from_meta(meta: RecordingMeta, **overrides: Any) -> gym.Env:
-    """Import the recording's `--import` specs, then `make_env` the recorded env.
+    """Import ``meta.imports`` as they are, then `make_env` the recorded env.
+
+    A recording's imports may not be where it says any more (it was moved, or replayed on another machine):
+    callers find them first with `simreel.sim.user_code.resolve_task_imports` (the user's ``--import``, else
+    the recorded ones, looked for beside the recording too) and pass a copy of `meta` holding what was found,
+    ``dataclasses.replace(meta, imports=found)``; replay, view and ``convert --poses`` do.
 
     `overrides` replace arguments of `simreel.sim.make.EnvConfig.from_meta(meta)` (``num_envs=1``,
     ``obs_mode="state"``, ``render_backend="none"``, ...); an unknown name raises TypeError. Raises

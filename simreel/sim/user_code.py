@@ -1,4 +1,10 @@
-"""Import the user's own code (custom tasks, policies) for the CLI's ``--import``, and sapien quietly.
+"""Import the user's own code (custom tasks, policies) for the CLI's ``--import``, and sapien quietly; find a
+recording's imports again wherever it is replayed.
+
+A recording stores its ``--import`` specs (`recorded_spec`: a file by its absolute path, a module by its name).
+Rebuilding its env imports them again (`resolve_task_imports`): an ``--import`` given now wins; otherwise each
+recorded spec is looked for at its absolute path, beside the recording, in the current folder and as a module,
+and a spec found nowhere is one error line naming every place tried.
 
 mani_skill (~3 s to import) and sapien are imported inside the functions here, never at module level.
 """
@@ -11,14 +17,17 @@ import importlib.util
 import os
 import sys
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
 
 from simreel.errors import EnvBuildError
 from simreel.sim.render_device import configure_vulkan
 
-__all__ = ["import_user_code", "quiet_sapien_import"]
+__all__ = ["import_user_code", "imported_user_code", "quiet_sapien_import", "recorded_spec", "resolve_task_imports"]
+
+_IMPORTED: dict[str, str] = {}
+"""Every spec `import_user_code` imported in this process, in order, and the name of the module it gave."""
 
 
 @contextlib.contextmanager
@@ -40,16 +49,98 @@ def import_user_code(spec: str) -> ModuleType:
     """
     configure_vulkan()
     with quiet_sapien_import():
-        return _import_user_code(spec)
+        module = _import_user_code(spec)
+    _IMPORTED.setdefault(spec, module.__name__)
+    return module
+
+
+def imported_user_code() -> dict[str, str]:
+    """The user's code this process imported (`import_user_code` spec -> module name), simreel's own modules
+    left out; error messages name it (an env id none of it registers)."""
+    return {spec: name for spec, name in _IMPORTED.items() if name != "simreel" and not name.startswith("simreel.")}
+
+
+def recorded_spec(spec: str) -> str:
+    """An ``--import`` spec as a recording stores it: a file by its absolute path (a relative path would name
+    the file only from the folder it was recorded in), a module by its name."""
+    return str(Path(spec).expanduser().resolve()) if _is_path(spec) else spec
+
+
+def resolve_task_imports(recorded: Sequence[str], *, explicit: Sequence[str] = (),
+                         recording: str | Path | None = None) -> list[str]:
+    """The ``--import`` specs that register a recording's task here, each importable as it is.
+
+    `explicit` (``--import`` given now) wins: when there is any, the recorded specs are not used. Otherwise each
+    recorded spec is found: a file at its recorded path if absolute, else beside `recording` (the recording's
+    path), under its own name beside `recording`, in the current folder, or as the module named after it; a
+    module on ``sys.path``, in the current folder or beside `recording`. Raises `EnvBuildError` for a spec found
+    nowhere, naming every place tried and the ``--import`` that fixes it.
+    """
+    if explicit:
+        return [recorded_spec(spec) for spec in explicit]
+    folder = Path(recording).absolute().parent if recording is not None else None
+    return [_find_file(spec, folder) if _is_path(spec) else _find_module(spec, folder) for spec in recorded]
+
+
+def _is_path(spec: str) -> bool:
+    return spec.endswith(".py") or os.sep in spec or (os.altsep is not None and os.altsep in spec)
+
+
+def _find_file(spec: str, folder: Path | None) -> str:
+    path = Path(spec).expanduser()
+    beside = [] if folder is None else [folder / path.name]
+    if path.is_absolute():
+        candidates = [path, *beside]
+    else:  # recorded before paths were stored absolute: relative to the folder the recording was made in
+        candidates = [*([] if folder is None else [folder / path]), *beside, Path.cwd() / path]
+    tried = list(dict.fromkeys(os.path.normpath(c) for c in candidates))
+    found = next((c for c in tried if os.path.isfile(c)), None)
+    if found is not None:
+        return found
+    module = path.stem if path.stem.isidentifier() else None
+    if module is not None and _module_found(module):
+        return module
+    raise _not_found(spec, tried + ([f"module {module} on sys.path"] if module else []), path.name)
+
+
+def _find_module(spec: str, folder: Path | None) -> str:
+    if _module_found(spec):
+        return spec
+    top = spec.partition(".")[0]
+    beside = [folder / f"{top}.py", folder / top / "__init__.py"] if folder is not None else []
+    if any(p.is_file() for p in beside):
+        sys.path.append(str(folder))
+        return spec
+    raise _not_found(spec, [f"module {spec} on sys.path and in {os.getcwd()}", *map(str, beside[:1])],
+                     f"{top}.py")
+
+
+def _not_found(spec: str, tried: list[str], name: str) -> EnvBuildError:
+    return EnvBuildError(f"the recording's --import {spec} is not found here (tried {', '.join(tried)}); pass "
+                         f"--import with where it is now, e.g. --import PATH/TO/{name}")
+
+
+def _module_found(name: str) -> bool:
+    """Whether `name` can be imported (the current folder included, as `import_user_code` looks)."""
+    _cwd_on_sys_path()
+    try:
+        return importlib.util.find_spec(name) is not None
+    except ModuleNotFoundError:
+        return False
+    except Exception:  # noqa: BLE001 - a parent package that fails to import: import_user_code says how
+        return True
+
+
+def _cwd_on_sys_path() -> None:
+    if os.getcwd() not in sys.path and "" not in sys.path:
+        sys.path.append(os.getcwd())
 
 
 def _import_user_code(spec: str) -> ModuleType:
-    looks_like_path = spec.endswith(".py") or os.sep in spec or (os.altsep is not None and os.altsep in spec)
     try:
-        if looks_like_path:
+        if _is_path(spec):
             return _import_file(Path(spec))
-        if os.getcwd() not in sys.path and "" not in sys.path:
-            sys.path.append(os.getcwd())
+        _cwd_on_sys_path()
         return importlib.import_module(spec)
     except EnvBuildError:
         raise

@@ -29,6 +29,8 @@ BAD_INPUT = [
     # record
     ("record-unknown-env", ["record", "PickCub-v1", "-o", "{tmp}/x.h5"],
      "unknown ManiSkill env id 'PickCub-v1': did you mean PickCube-v1"),
+    ("record-unknown-env-imported", ["record", "PickCub-v1", "-o", "{tmp}/x.h5", "--import", "{tmp}/no_tasks.py"],
+     "{tmp}/no_tasks.py registers no env"),  # not "pass --import": it was passed
     ("record-unknown-body", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--contacts", "panda/nose:cube"],
      "unknown body 'panda/nose'"),
     ("record-bad-pair", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--contacts", "cube"], "bad contact pair 'cube'"),
@@ -113,6 +115,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, recs, argv, message)
     (tmp_path / "exists.h5").write_bytes(b"")
     (tmp_path / "broken.py").write_text("raise RuntimeError('oops')\n")
     (tmp_path / "empty").mkdir()
+    (tmp_path / "no_tasks.py").write_text("VALUE = 1\n")
     argv = [a.format(tmp=tmp_path, **recs) for a in argv]
     code, err = _run(capsys, [*argv, "-q"] if argv[0] in ("record", "replay", "convert") else argv)
     assert code == 2, err
@@ -191,3 +194,39 @@ def test_an_internal_error_is_one_line_and_exit_3(monkeypatch, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["simreel inspect: internal error: RuntimeError: boom (rerun with --debug for the traceback, "
                    "and please report it)"]
+
+
+_BROKEN_INSPECT = (
+    "import sys, simreel.cli.inspect as command\n"
+    "def run(args):\n"
+    "    raise RuntimeError('boom')\n"
+    "command.run = run\n"
+    "from simreel.cli.main import main\n"
+    "sys.exit(main(sys.argv[1:]))\n"
+)
+
+
+@pytest.mark.parametrize(
+    ("argv", "status", "last_line"),
+    [
+        (["-m", "simreel", "{debug}", "inspect", "no-such-file.h5"], 2,
+         "simreel inspect: error: no-such-file.h5: no such file"),
+        (["-c", _BROKEN_INSPECT, "{debug}", "inspect", "x.h5"], 3,
+         "simreel inspect: internal error: RuntimeError: boom ({how})"),
+    ],
+    ids=["bad-input", "internal-error"],
+)
+def test_debug_adds_the_traceback_and_keeps_the_exit_status(argv, status, last_line):
+    """What a shell sees: `--debug` prints the traceback before the same one line, with the same exit status."""
+    runs = {}
+    for debug in (False, True):
+        args = [a for a in argv if a != "{debug}" or debug]
+        runs[debug] = subprocess.run([sys.executable, *[a.replace("{debug}", "--debug") for a in args]],
+                                     capture_output=True, text=True, timeout=60)
+    plain, debug = runs[False], runs[True]
+    assert plain.returncode == debug.returncode == status, debug.stderr
+    assert plain.stderr.splitlines() == [last_line.format(how="rerun with --debug for the traceback, and please "
+                                                             "report it")]
+    lines = debug.stderr.splitlines()
+    assert lines[0] == "Traceback (most recent call last):" and len(lines) > 3
+    assert lines[-1] == last_line.format(how="please report it")

@@ -50,7 +50,7 @@ def test_a_user_error_with_workers_is_one_line_not_a_traceback(tmp_path, capsys,
     code, err = _run(capsys, ["replay", str(bad), "--workers", "2", "-q"])
     assert code == 2
     assert len(err.splitlines()) == 1, err
-    assert "no module named 'no_such_module_xyz'" in err
+    assert "the recording's --import no_such_module_xyz is not found here (tried module no_such_module_xyz" in err
 
 
 def test_a_gpu_recording_on_a_machine_without_cuda_says_replay_on_the_cpu(tmp_path, capsys, rec):

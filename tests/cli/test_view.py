@@ -1,8 +1,22 @@
-"""`simreel view`: saving a session, the default output, --compare, and recordings it cannot show."""
+"""`simreel view`: saving a session, the default output, --compare, --spawn, --serve, and recordings it cannot show."""
 
 from __future__ import annotations
 
+import os
+import shlex
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from urllib.parse import parse_qs, urlparse
+from urllib.request import urlopen
+
 import pytest
+from support.processes import DISPLAY_VARS, free_port, read_line, simreel_command, without_display
+from support.rrd import read_served
+from support.viewer_data import STEPS
 
 from simreel.cli.main import main
 
@@ -16,12 +30,64 @@ def test_view_save(pickcube_h5, tmp_path, capsys, rrd_reader):
 
 
 def test_view_defaults_to_saving_without_a_display(pickcube_h5, tmp_path, monkeypatch, capsys):
-    monkeypatch.delenv("DISPLAY", raising=False)
-    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    from simreel.cli.view import open_command
+
+    for name in DISPLAY_VARS:
+        monkeypatch.delenv(name, raising=False)
     monkeypatch.chdir(tmp_path)
     assert main(["view", str(pickcube_h5), "--geometry", "collision"]) == 0
-    assert (tmp_path / "pickcube.episode0.rrd").is_file()
-    assert "open it with: rerun" in capsys.readouterr().out
+    out = tmp_path / "pickcube.episode0.rrd"
+    assert out.is_file()
+    assert capsys.readouterr().out.splitlines()[-1] == f"open it with: {open_command(out)}"
+
+
+VENV_BIN = Path(sys.executable).parent
+"""The venv's bin/: simreel, python and rerun, as `make setup` installs them."""
+
+
+def _runs_here(command: str, cwd: Path, path_variable: str) -> str:
+    """Run the viewer of an `open it with:` command with --version, in the shell the hint was printed for."""
+    viewer, _ = shlex.split(command)
+    done = subprocess.run(["bash", "-c", f"{shlex.quote(viewer)} --version"], cwd=cwd, capture_output=True,
+                          text=True, env={**os.environ, "PATH": path_variable}, timeout=60)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+@pytest.mark.parametrize("where", ["activated", "venv-parent", "elsewhere"])
+def test_the_open_hint_works_in_the_shell_it_is_printed_in(tmp_path, monkeypatch, where):
+    """`rerun FILE` only where `rerun` on PATH is simreel's viewer (an activated venv); otherwise the viewer's
+    path, relative where it lies below the current folder (`.venv/bin/rerun` in the repository root)."""
+    from simreel.cli.view import open_command
+
+    bare_path = os.pathsep.join(p for p in os.environ["PATH"].split(os.pathsep) if Path(p) != VENV_BIN)
+    path_variable = f"{VENV_BIN}{os.pathsep}{bare_path}" if where == "activated" else bare_path
+    cwd = VENV_BIN.parents[1] if where == "venv-parent" else tmp_path
+    monkeypatch.setenv("PATH", path_variable)
+    monkeypatch.chdir(cwd)
+    command = open_command(tmp_path / "my session.rrd")
+    expected = {"activated": "rerun", "venv-parent": os.path.relpath(VENV_BIN / "rerun", cwd),
+                "elsewhere": str(VENV_BIN / "rerun")}[where]
+    assert command == f"{expected} '{tmp_path}/my session.rrd'"
+    assert _runs_here(command, cwd, path_variable).startswith("rerun-cli 0.41.0")
+
+
+def test_make_demo_prints_one_hint_that_works(pickcube_h5, tmp_path):
+    """What `make demo` runs: the venv's simreel from the repository root, the venv not activated. The last line
+    is the only hint, and its command works in that shell (before, it said `rerun ...`: not on that PATH)."""
+    repo = VENV_BIN.parents[1]
+    bare_path = os.pathsep.join(p for p in os.environ["PATH"].split(os.pathsep) if Path(p) != VENV_BIN)
+    out = tmp_path / "pickcube.rrd"
+    done = subprocess.run([os.path.relpath(VENV_BIN / "simreel", repo), "view", str(pickcube_h5), "--geometry",
+                           "collision", "--save", str(out)], cwd=repo, env={**os.environ, "PATH": bare_path},
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert [line for line in lines if "rerun" in line] == [lines[-1]]
+    assert lines[-1] == f"open it with: {os.path.relpath(VENV_BIN / 'rerun', repo)} {out}"
+    _runs_here(lines[-1].removeprefix("open it with: "), repo, bare_path)
+    makefile = (repo / "Makefile").read_text()
+    assert "rerun" not in makefile.split("\ndemo:")[1].split("\n\n")[0]  # the demo target prints no hint of its own
 
 
 def test_compare_with_another_env_is_refused(pickcube_h5, tmp_path, capsys):
@@ -138,3 +204,96 @@ def test_a_gpu_recording_is_viewed_on_the_cpu_sim(pickcube_h5, tmp_path):
     with open_writer(gpu, meta) as w:
         w.write_episode(ep)
     assert main(["view", str(gpu), "--geometry", "collision", "--save", str(tmp_path / "gpu.rrd")]) == 0
+
+
+def test_spawn_without_a_display_is_bad_input_at_once(pickcube_h5, tmp_path):
+    """What a shell sees: one line saying there is no display and what to use instead, exit 2, in about the
+    time Python takes to start (before, the viewer failed to open and an 'internal error' came ~20 s later)."""
+    started = time.perf_counter()
+    done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn"), env=without_display(),
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    seconds = time.perf_counter() - started
+    assert done.returncode == 2, done.stderr
+    [line] = done.stderr.splitlines()
+    assert line.startswith("simreel view: error: --spawn opens the Rerun viewer in a window, and there is no "
+                           "display here (DISPLAY and WAYLAND_DISPLAY are unset)")
+    assert "--save OUT.rrd" in line and "--serve" in line
+    assert seconds < 10 and not list(tmp_path.iterdir())
+
+
+def test_spawn_without_a_display_builds_no_env(pickcube_h5, monkeypatch, capsys):
+    import simreel.viewers.session as session
+
+    for name in DISPLAY_VARS:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(session, "rebuild_env", _no_env)
+    assert main(["view", str(pickcube_h5), "--spawn"]) == 2
+    assert "there is no display here" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_viewer_that_cannot_open_its_window_is_bad_input(pickcube_h5, tmp_path):
+    """A display is set but unusable (no X server there): the spawned viewer exits, and simreel says so in one
+    line, exit 2, instead of an internal error."""
+    env = {**without_display(), "DISPLAY": f":{free_port()}"}  # a display number no X server has
+    done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn", "--geometry", "collision",
+                                          "--grpc-port", str(free_port())),
+                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr
+    ours = [line for line in done.stderr.splitlines() if line.startswith("simreel view:")]
+    assert len(ours) == 1 and ours[0].startswith("simreel view: error: the Rerun viewer did not take the session")
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_serve_serves_the_episode_until_stopped(pickcube_h5, tmp_path, rrd_reader, stop):
+    """A real `simreel view --serve` on free ports: the page loads, the gRPC server named in the printed URL
+    serves the whole episode (read back with `rerun download`, the same data `--save` writes) until Ctrl-C or
+    SIGTERM, which end it with exit 0 and free both ports."""
+    web, grpc = free_port(), free_port()
+    child = subprocess.Popen(simreel_command("view", str(pickcube_h5), "--serve", "--geometry", "collision",
+                                             "--web-port", str(web), "--grpc-port", str(grpc)),
+                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = read_line(child, timeout=240)
+        assert line.startswith(f"serving pickcube.h5#episode-0 at http://localhost:{web}/?url=rerun%2Bhttp://")
+        assert line.endswith(" (Ctrl-C to stop)")
+        [grpc_url] = parse_qs(urlparse(line.split(" at ")[1].split(" ")[0]).query)["url"]
+        assert grpc_url == f"rerun+http://127.0.0.1:{grpc}/proxy"
+        with urlopen(f"http://localhost:{web}/", timeout=30) as page:
+            assert page.status == 200 and b"web viewer" in page.read()
+        served = read_served(grpc_url, tmp_path / "served",
+                             lambda c: c.steps("/world/cube", "Transform3D:translation") == list(range(-1, STEPS)))
+        assert child.poll() is None  # still serving
+        child.send_signal(stop)
+        out, err = child.communicate(timeout=60)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.communicate()
+    assert child.returncode == 0, err
+    assert out.splitlines() == [f"stopped serving ({'Ctrl-C' if stop == signal.SIGINT else 'SIGTERM'})"]
+    saved = tmp_path / "saved.rrd"
+    assert main(["view", str(pickcube_h5), "--geometry", "collision", "--save", str(saved)]) == 0
+    expected = rrd_reader(saved)
+    assert served.recording_ids == expected.recording_ids == ["pickcube.h5#episode-0"]
+    assert served.data == expected.data
+    assert sorted(served.blueprint_views) == sorted(expected.blueprint_views)
+    for port in (web, grpc):  # nothing listens any more
+        with socket.socket() as s:
+            assert s.connect_ex(("127.0.0.1", port)) != 0
+
+
+@pytest.mark.parametrize("option", ["--web-port", "--grpc-port"])
+def test_serve_on_a_taken_port_is_refused_before_building_the_env(pickcube_h5, monkeypatch, capsys, option):
+    """Rerun reports a taken gRPC port only in its log and then serves nothing; simreel checks both first."""
+    import simreel.viewers.session as session
+
+    monkeypatch.setattr(session, "rebuild_env", _no_env)
+    with socket.socket() as taken:
+        taken.bind(("0.0.0.0", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        other = "--grpc-port" if option == "--web-port" else "--web-port"
+        assert main(["view", str(pickcube_h5), "--serve", option, str(port), other, str(free_port())]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{option} {port}: the port is taken" in err and f"{option} N" in err

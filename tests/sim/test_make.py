@@ -11,11 +11,13 @@ import subprocess
 import sys
 import textwrap
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
 from simreel.sim.make import camera_use, env_versions
 
+REPO = Path(__file__).resolve().parents[2]
 STATE_ONLY_TASKS = ["PickCube-v1", "StackCube-v1", "PegInsertionSide-v1", "RotateValveLevel0-v1"]
 
 NO_DEVICE_SCRIPT = textwrap.dedent(
@@ -34,6 +36,7 @@ NO_DEVICE_SCRIPT = textwrap.dedent(
         return None
 
     out = {"backend": render_device.detect_render_backend(), "envs": {}}
+    out["unknown_no_import"] = error("PickCub-v1")
     user_module = import_user_code(sys.argv[1])
     for env_id in sys.argv[2:]:
         with warnings.catch_warnings(record=True) as caught:
@@ -110,10 +113,16 @@ def _answer(child: subprocess.Popen[str]) -> dict:
 
 
 @pytest.fixture(scope="module")
-def children(request, no_render_env, tmp_path_factory) -> Iterator[dict[str, subprocess.Popen[str] | str]]:
+def task_file(tmp_path_factory) -> Path:
+    """The user's task module that the no-device subprocess imports (registers SimreelTestPickCube-v1)."""
+    path = tmp_path_factory.mktemp("user_code") / "my_tasks.py"
+    path.write_text(CUSTOM_TASK)
+    return path
+
+
+@pytest.fixture(scope="module")
+def children(request, no_render_env, task_file) -> Iterator[dict[str, subprocess.Popen[str] | str]]:
     """Both render modes' subprocesses, started together so they overlap; a skip reason where one cannot run."""
-    task_file = tmp_path_factory.mktemp("user_code") / "my_tasks.py"
-    task_file.write_text(CUSTOM_TASK)
     started: dict[str, subprocess.Popen[str] | str] = {
         "no_device": _start(NO_DEVICE_SCRIPT, [str(task_file), *STATE_ONLY_TASKS, "SimreelTestPickCube-v1"],
                             no_render_env),
@@ -162,10 +171,19 @@ def test_peg_insertion_state_uses_merged_views(no_device):
     assert state["articulations/panda_wristcam"] == [1, 31]
 
 
-NO_DEVICE_HELP = (
-    "Run `make setup` to fetch the software Vulkan driver (lavapipe) or use a GPU machine; "
-    "or use obs_mode='state' and no render_mode."
-)
+def _no_device_help(no_render_env) -> str:
+    """What the refusals tell a user to do: fetch lavapipe where this process looks for it (the test's
+    SIMREEL_VK_ICD names a missing file of another name, so the message says to point SIMREEL_VK_ICD at it)."""
+    folder = Path(no_render_env["SIMREEL_VK_ICD"]).parent
+    return ("fetch the software Vulkan driver (lavapipe): `make setup` does it in a simreel checkout; after a pip "
+            f"install run `tools/fetch_lavapipe.sh {folder} and set SIMREEL_VK_ICD={folder}/lvp_icd.json` from "
+            "simreel's source (Debian/Ubuntu); or use a machine with a GPU")
+
+
+@pytest.fixture(scope="module")
+def placeholders(no_render_env, task_file) -> dict[str, str]:
+    """What the expected messages below leave open: the help clause and the user's task file."""
+    return {"help": _no_device_help(no_render_env), "user_file": str(task_file)}
 
 
 @pytest.mark.parametrize(
@@ -173,17 +191,19 @@ NO_DEVICE_HELP = (
     [
         ("rgb", "RenderUnavailableError",
          "PickCube-v1: obs_mode='rgb' needs camera images (rgb), but there is no render device "
-         f"(no Vulkan device SAPIEN can render with). {NO_DEVICE_HELP}"),
+         "(no Vulkan device SAPIEN can render with). To render, {help}; or use obs_mode='state' and no render_mode."),
         ("render_mode", "RenderUnavailableError",
          "PickCube-v1: render_mode='rgb_array' renders images, but there is no render device "
-         f"(no Vulkan device SAPIEN can render with). {NO_DEVICE_HELP}"),
+         "(no Vulkan device SAPIEN can render with). To render, {help}; or use obs_mode='state' and no render_mode."),
         ("push_t", "RenderUnavailableError",
          "PushT-v1 cannot be built without a render device: it un-textures the table by reading the render "
-         "shapes of its render body, which is never built without a render device. Run `make setup` to fetch "
-         "the software Vulkan driver (lavapipe), or use a machine with a GPU."),
-        ("unknown", "EnvBuildError",
+         "shapes of its render body, which is never built without a render device. To build it, {help}."),
+        ("unknown_no_import", "EnvBuildError",
          "unknown ManiSkill env id 'PickCub-v1': did you mean PickCube-v1, PickCubeSO100-v1, PokeCube-v1? "
          "(a custom task must be registered first: pass --import MODULE_OR_FILE.py)"),
+        ("unknown", "EnvBuildError",
+         "unknown ManiSkill env id 'PickCub-v1': did you mean PickCube-v1, PickCubeSO100-v1, PokeCube-v1? "
+         "(the code imported does not register it: {user_file} registers SimreelTestPickCube-v1)"),
         ("repeated_kwarg", "EnvBuildError",
          "PickCube-v1: env_kwargs repeats obs_mode; pass them as make_env keyword arguments instead"),
         ("num_envs", "EnvBuildError",
@@ -191,8 +211,20 @@ NO_DEVICE_HELP = (
          "num_envs=1 (CPU sim), or gymnasium's AsyncVectorEnv for several CPU envs"),
     ],
 )
-def test_errors_without_a_device(no_device, case, kind, message):
-    assert no_device[case] == [kind, message]
+def test_errors_without_a_device(no_device, placeholders, case, kind, message):
+    assert no_device[case] == [kind, message.format(**placeholders)]
+
+
+def test_the_fetch_command_a_refusal_names_exists_and_fills_the_folder_simreel_reads(no_device, no_render_env):
+    """The pip-install advice names this repository's script and the folder whose lvp_icd.json simreel reads."""
+    import shlex
+
+    message = no_device["rgb"][1]
+    command = message.split("run `", 1)[1].split("`", 1)[0]
+    script, folder, *rest = shlex.split(command)
+    assert (REPO / script).is_file() and "lvp_icd.json" in (REPO / script).read_text()
+    assert rest == ["and", "set", f"SIMREEL_VK_ICD={folder}/lvp_icd.json"]
+    assert folder == str(Path(no_render_env["SIMREEL_VK_ICD"]).parent)
 
 
 @pytest.mark.parametrize(

@@ -1,13 +1,15 @@
-"""`simreel.sim.user_code`: importing the user's tasks and policies (``--import``), and one-line errors."""
+"""`simreel.sim.user_code`: importing the user's tasks and policies (``--import``), one-line errors, and a
+recording's imports found again from another folder."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import pytest
 
 from simreel.errors import EnvBuildError
-from simreel.sim.user_code import import_user_code
+from simreel.sim.user_code import import_user_code, recorded_spec, resolve_task_imports
 
 
 def test_import_user_file(tmp_path: Path):
@@ -43,3 +45,73 @@ def test_import_user_code_errors(tmp_path: Path, make, message):
 def _write(path: Path, text: str) -> str:
     path.write_text(text)
     return str(path)
+
+
+# ------------------------------------------------------------------ a recording's imports, found again
+
+
+def test_a_recording_stores_a_file_by_its_absolute_path(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert recorded_spec("tasks/my_tasks.py") == str(tmp_path / "tasks" / "my_tasks.py")
+    assert recorded_spec("my_package.tasks") == "my_package.tasks"
+
+
+@pytest.fixture
+def layout(tmp_path, monkeypatch):
+    """rec/run.h5 beside rec/my_tasks.py, a second task file in lib/, the current folder elsewhere/."""
+    for folder in ("rec", "lib", "elsewhere"):
+        (tmp_path / folder).mkdir()
+    (tmp_path / "rec" / "run.h5").write_bytes(b"")
+    (tmp_path / "rec" / "my_tasks.py").write_text("")
+    (tmp_path / "lib" / "other_tasks.py").write_text("")
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    return tmp_path
+
+
+@pytest.mark.parametrize(
+    ("recorded", "found"),
+    [
+        ("{t}/lib/other_tasks.py", "{t}/lib/other_tasks.py"),  # an absolute path that is still there
+        ("{t}/gone/my_tasks.py", "{t}/rec/my_tasks.py"),  # moved along with the recording
+        ("my_tasks.py", "{t}/rec/my_tasks.py"),  # recorded relative, in the recording's folder
+        ("../lib/other_tasks.py", "{t}/lib/other_tasks.py"),  # recorded relative: from the recording's folder
+    ],
+    ids=["absolute", "beside-the-recording", "old-relative", "old-relative-up"],
+)
+def test_recorded_files_are_found_from_another_folder(layout, recorded, found):
+    spec = recorded.format(t=layout)
+    assert resolve_task_imports([spec], recording=layout / "rec" / "run.h5") == [found.format(t=layout)]
+
+
+def test_a_recorded_file_found_nowhere_may_be_a_module_on_sys_path(layout, monkeypatch):
+    monkeypatch.syspath_prepend(str(layout / "lib"))
+    assert resolve_task_imports([f"{layout}/gone/other_tasks.py"], recording=layout / "rec" / "run.h5") == [
+        "other_tasks"]
+
+
+def test_a_recorded_module_is_found_beside_the_recording(layout, monkeypatch):
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    assert resolve_task_imports(["my_tasks"], recording=layout / "rec" / "run.h5") == ["my_tasks"]
+    assert str(layout / "rec") in sys.path  # so that import_user_code("my_tasks") finds it
+
+
+def test_an_explicit_import_wins_over_the_recorded_ones(layout):
+    """Even where the recorded file exists: the user said which code registers the task."""
+    recorded = [str(layout / "rec" / "my_tasks.py"), "no_such_module_xyz"]
+    assert resolve_task_imports(recorded, explicit=["../lib/other_tasks.py"], recording=layout / "rec" / "run.h5") == [
+        str(layout / "lib" / "other_tasks.py")]
+
+
+def test_a_recorded_import_found_nowhere_names_every_place_tried(layout):
+    with pytest.raises(EnvBuildError) as caught:
+        resolve_task_imports([f"{layout}/gone/lost_tasks.py"], recording=layout / "rec" / "run.h5")
+    assert str(caught.value) == (
+        f"the recording's --import {layout}/gone/lost_tasks.py is not found here (tried {layout}/gone/lost_tasks.py, "
+        f"{layout}/rec/lost_tasks.py, module lost_tasks on sys.path); pass --import with where it is now, e.g. "
+        "--import PATH/TO/lost_tasks.py")
+    with pytest.raises(EnvBuildError) as caught:
+        resolve_task_imports(["lost_tasks_module"], recording=layout / "rec" / "run.h5")
+    assert str(caught.value) == (
+        f"the recording's --import lost_tasks_module is not found here (tried module lost_tasks_module on sys.path "
+        f"and in {layout}/elsewhere, {layout}/rec/lost_tasks_module.py); pass --import with where it is now, e.g. "
+        "--import PATH/TO/lost_tasks_module.py")

@@ -1,13 +1,15 @@
-"""Read a Rerun .rrd back with rerun-sdk's own reader (`rerun.chunk.RrdReader`)."""
+"""Read a Rerun .rrd back with rerun-sdk's own reader (`rerun.chunk.RrdReader`), and what a gRPC server serves
+with the `rerun` command's own client (`rerun download`)."""
 
 from __future__ import annotations
 
 import dataclasses
 from collections import defaultdict
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RrdContents", "read_rrd"]
+__all__ = ["RrdContents", "read_rrd", "read_served"]
 
 
 @dataclasses.dataclass
@@ -41,12 +43,29 @@ def _columns(batch: Any) -> dict[str, list]:
     return out
 
 
+def _chunks(reader: Any, entry: Any = None) -> Any:
+    """The chunks of one store: through the file's manifest, or by scanning a file written without one (what
+    `rerun download` writes)."""
+    import warnings
+
+    try:
+        return reader.store(store=entry).stream().to_chunks()
+    except RuntimeError:  # "Legacy RRD without footer"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return reader.stream(store=entry).to_chunks()
+
+
 def read_rrd(path: Path) -> RrdContents:
+    import warnings
+
     import rerun as rr
 
-    reader = rr.chunk.RrdReader(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "RRD file has no footer": read by scanning, below
+        reader = rr.chunk.RrdReader(path)
     data: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
-    for chunk in reader.store().stream().to_chunks():
+    for chunk in _chunks(reader):
         if chunk.entity_path.startswith("/__properties"):
             continue
         rows = _columns(chunk.to_record_batch())
@@ -57,9 +76,48 @@ def read_rrd(path: Path) -> RrdContents:
             data[chunk.entity_path][column].extend(zip(steps, values, strict=True))
     views, entities = [], []
     for entry in reader.blueprints():
-        for chunk in reader.store(store=entry).stream().to_chunks():
+        for chunk in _chunks(reader, entry):
             entities.append(chunk.entity_path)
             rows = _columns(chunk.to_record_batch())
             views += [v[0] if isinstance(v, list) else v for v in rows.get("ViewBlueprint:class_identifier", [])]
     return RrdContents({k: dict(v) for k, v in data.items()}, views, entities,
                        [e.recording_id for e in reader.recordings()])
+
+
+def read_served(grpc_url: str, folder: Path, done: Callable[[RrdContents], bool], timeout: float = 120) -> RrdContents:
+    """What the gRPC server at `grpc_url` serves, as `rerun download` receives it into `folder`: read again
+    and again until `done(contents)` holds (a live server never ends its stream); AssertionError at `timeout`."""
+    import contextlib
+    import os
+    import signal
+    import subprocess
+    import time
+
+    from simreel.viewers.session import viewer_executable
+
+    folder.mkdir(parents=True, exist_ok=True)
+    log = folder.parent / f"{folder.name}.log"
+    # its own process group: the `rerun` script runs the real binary as a child, and both must end
+    with log.open("wb") as err:
+        client = subprocess.Popen([viewer_executable(), "download", grpc_url, "-o", str(folder)],
+                                  stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
+    deadline = time.monotonic() + timeout
+    last: RrdContents | str = "nothing downloaded"
+    try:
+        while time.monotonic() < deadline:
+            time.sleep(1)
+            for path in folder.glob("*.rrd"):
+                try:
+                    last = read_rrd(path)
+                except Exception as e:  # noqa: BLE001 - a file still being written, read again
+                    last = f"{type(e).__name__}: {e}"
+                    continue
+                if done(last):
+                    return last
+            if client.poll() is not None:
+                raise AssertionError(f"rerun download ended with {client.returncode}: {log.read_text()[-2000:]}")
+        raise AssertionError(f"{grpc_url}: not served in {timeout} s; last read: {last}")
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(client.pid, signal.SIGKILL)
+        client.wait()

@@ -1,0 +1,50 @@
+"""Running simreel as a user's shell would, for the tests whose behaviour is a process's: exit status, the
+lines it prints, signals, ports it serves."""
+
+from __future__ import annotations
+
+import os
+import selectors
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Mapping
+
+__all__ = ["DISPLAY_VARS", "free_port", "read_line", "simreel_command", "without_display"]
+
+DISPLAY_VARS = ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")
+"""The variables through which a process finds an X11 or Wayland display."""
+
+
+def simreel_command(*args: str) -> list[str]:
+    """``python -m simreel ARGS`` with this venv's Python."""
+    return [sys.executable, "-m", "simreel", *args]
+
+
+def without_display(env: Mapping[str, str] | None = None) -> dict[str, str]:
+    """`env` (default os.environ) with no display: what a headless machine or an ssh session without -X has."""
+    return {k: v for k, v in (os.environ if env is None else env).items() if k not in DISPLAY_VARS}
+
+
+def free_port() -> int:
+    """A TCP port nothing listens on now (the OS picks it), for a server a test starts; never a fixed one."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def read_line(process: subprocess.Popen[str], timeout: float) -> str:
+    """The next line `process` writes to its stdout (a text pipe), without its newline; AssertionError if none
+    comes within `timeout` seconds or the process ends first (its stderr then says why)."""
+    deadline = time.monotonic() + timeout
+    with selectors.DefaultSelector() as selector:
+        selector.register(process.stdout, selectors.EVENT_READ)
+        while time.monotonic() < deadline:
+            if selector.select(timeout=0.5):
+                line = process.stdout.readline()
+                if line:
+                    return line.rstrip("\n")
+            if process.poll() is not None:
+                raise AssertionError(f"exited with {process.returncode}: {process.stderr.read()[-3000:]}")
+    raise AssertionError(f"no line on stdout in {timeout} s")
