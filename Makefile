@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml tools/install_torch.sh tools/fetch_lavapipe.sh
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip setuptools wheel
 	tools/install_torch.sh $(BIN)/pip
-	$(BIN)/pip install -q -e '.[test]'
+	$(BIN)/pip install -q -e '.[test,ray]'
 	@# Software Vulkan for SAPIEN where no GPU renders; without it simreel still runs state-only.
 	@if command -v nvidia-smi >/dev/null 2>&1; then echo "NVIDIA GPU: no software Vulkan needed"; \
 	 else tools/fetch_lavapipe.sh $(MESA) || echo "warning: no software Vulkan fetched; simreel will run state-only"; fi

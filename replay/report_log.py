@@ -8,8 +8,9 @@ interrupted. The lines, in order::
     {"type": "run", ...}      a run: simreel version, time, working folder, inputs, the options that decide the
                               verdicts, tolerances; a resumed run adds its own, with the same options
     {"type": "file", ...}     an input recording: absolute path, size, mtime_ns, env id, episodes, error, limits
-    {"type": "episode", ...}  one episode's verdict (`EpisodeReport.to_json`, with "file"), or why it could not be
-                              replayed (verdict "error")
+    {"type": "episode", ...}  one episode's verdict (`EpisodeReport.to_json`, with "file" and the "worker" that
+                              replayed it), or why it could not be replayed (verdict "error")
+    {"type": "note", ...}     what happened on the way ("text": a Ray worker died, its episodes were replayed again)
     {"type": "end"}           the run replayed every episode it had to
 
 An episode listed twice (a retried Ray task) counts once: the first line wins. ``REPORT.json`` is
@@ -84,8 +85,9 @@ class ReportLog:
             os.fsync(self._fh.fileno())
             self._synced = time.monotonic()
 
-    def episode(self, path: str, report: EpisodeReport, warnings: list[str]) -> None:
-        record = {"type": "episode", "file": path, **report.to_json()}
+    def episode(self, path: str, report: EpisodeReport, *, warnings: list[str], worker: str = "") -> None:
+        """An episode's line: its report, the file's fingerprint warnings first met with it, who replayed it."""
+        record = {"type": "episode", "file": path, **report.to_json(), "worker": worker}
         if warnings:
             record["warnings"] = warnings
         self.write(record)
@@ -164,6 +166,8 @@ def tally_of_log(path: str | Path) -> RunTally:
             tally.add_file(FileTally.from_json(record))
         elif kind == "episode":
             tally.add(record["file"], EpisodeReport.from_json(record), record.get("warnings", ()))
+        elif kind == "note":
+            tally.notes.append(record["text"])
     if tally is None:
         raise ReportFileError(path, "is empty: the run that made it wrote nothing")
     return tally

@@ -75,6 +75,8 @@ class RunTally:
         self.worst: dict[str, tuple[float, float]] = {}
         """Key → (largest error of any episode, its tolerance)."""
         self.checked: set[str] = set()
+        self.notes: list[str] = []
+        """What happened on the way (Ray workers that died and whose episodes were replayed again)."""
         self._seen: set[tuple[str, int]] = set()
         self._pruned = False
         self._listed = 0
@@ -149,7 +151,7 @@ class RunTally:
         totals.update(files=len(self.files), unreadable_files=len(self.unreadable), episodes=self.total,
                       planned=self.planned, steps=sum(f.steps for f in self.files.values()))
         return {"ok": self.ok, "complete": self.complete, "mode": self.mode, "resync": self.resync,
-                "tolerances": self.tolerances, "totals": totals,
+                "tolerances": self.tolerances, "totals": totals, "notes": list(self.notes),
                 "files": [f.to_json() for f in self.files.values()]}
 
     # ------------------------------------------------------------------ summary
@@ -160,6 +162,7 @@ class RunTally:
         if self.mode == "step" or self.resync:
             lines += self._per_key_table(top)
         lines += self._limit_lines()
+        lines += [f"note: {note}" for note in self.notes]
         lines.append(self._verdict_line())
         return "\n".join(lines)
 

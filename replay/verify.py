@@ -69,6 +69,8 @@ class ReplayOptions:
         resume: continue `report`: replay only the episodes it has no verdict for, with the options it was made with.
         ray: replay on a Ray cluster: "local" starts one on this machine, "auto" joins the one this machine belongs
             to, anything else is a cluster address (``ray://host:10001``, ``host:6379``); `workers` actors.
+        ship: with `ray`, send every episode from this machine instead of letting the actors read the files
+            (they read those they see as this machine does: same path, size and modification time).
     """
 
     mode: str = "actions"
@@ -86,6 +88,7 @@ class ReplayOptions:
     report: str | None = None
     resume: bool = False
     ray: str | None = None
+    ship: bool = False
 
     def __post_init__(self) -> None:
         if self.episodes is not None:
@@ -159,8 +162,8 @@ class ReplayRun:
     @classmethod
     def resume(cls, report: str | Path, **execution: Any) -> ReplayRun:
         """Continue the run that wrote `report`, with its inputs and verdict options; `execution` may change how it
-        runs (workers, ray, command), not what decides a verdict."""
-        allowed = {"workers", "ray", "command"}
+        runs (workers, ray, ship, command), not what decides a verdict."""
+        allowed = {"workers", "ray", "ship", "command"}
         if set(execution) - allowed:
             raise UsageError(f"a resumed run takes its options from the report; only {', '.join(sorted(allowed))} "
                              f"may change, not {', '.join(sorted(set(execution) - allowed))}")
@@ -238,10 +241,10 @@ class ReplayRun:
         a strict run meets; Ctrl-C stops it with every verdict reached so far in the report."""
         worker = ReplayWorker(self._job())
         try:
-            if self.strict and self.worklist.items:
+            if self.strict and self.worklist.items and self.options.ray is None:
                 worker.prepare(self.worklist.items[0])  # a bad env fails before anything is written
             with self._log() as log, self._sink() as sink:
-                self._dispatch(worker, self._collector(log, sink, progress))
+                self._dispatch(worker, self._collector(log, sink, progress), log)
                 if log is not None:
                     log.write({"type": "end"})
         finally:
@@ -292,7 +295,7 @@ class ReplayRun:
             if not self.tally.add(item.path, report, result.warnings):
                 return  # an episode replayed twice (a retried Ray task): its first verdict stands
             if log is not None:
-                log.episode(item.path, report, result.warnings)
+                log.episode(item.path, report, warnings=result.warnings, worker=result.worker)
             if sink is not None:
                 sink.put(item.index, result.episode)
             if progress is not None:
@@ -310,14 +313,20 @@ class ReplayRun:
         why = error.problem if isinstance(error, FileProblemError) else str(error)  # the file is named beside it
         return EpisodeReport.errored(result.item.index, result.item.steps, why)
 
-    def _dispatch(self, worker: ReplayWorker, collect: Callable[[EpisodeResult], None]) -> None:
+    def _dispatch(self, worker: ReplayWorker, collect: Callable[[EpisodeResult], None], log: ReportLog | None) -> None:
         items = self.worklist.items
-        if self.options.ray is not None:
-            from simreel.replay.ray_pool import run_ray
+        opts = self.options
+        if opts.ray is not None:
+            from simreel.replay.ray_pool import RayOptions, run_ray
 
-            run_ray(worker.job, items, self.options, collect)
+            notes = run_ray(worker.job, items, RayOptions(opts.ray, opts.workers, opts.ship), self.worklist.readable,
+                            collect)
+            for note in notes:
+                self.tally.notes.append(note)
+                if log is not None:
+                    log.write({"type": "note", "text": note})
             return
-        workers = min(self.options.workers, len(items))
+        workers = min(opts.workers, len(items))
         if workers <= 1:
             for item in items:
                 collect(worker.run(item))

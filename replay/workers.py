@@ -14,6 +14,7 @@ import dataclasses
 import multiprocessing
 import os
 import signal
+import socket
 import threading
 import time
 from collections import OrderedDict, deque
@@ -80,6 +81,8 @@ class EpisodeResult:
     """What differs between the recording's machine and this one (`simreel.replay.fingerprint`); given with the
     first result of each file a worker replays."""
     error: SimreelError | None = None
+    worker: str = ""
+    """Which process replayed it: host and pid (and Ray node)."""
 
     @property
     def env_error(self) -> bool:
@@ -87,33 +90,14 @@ class EpisodeResult:
         return self.error is not None and not isinstance(self.error, _EPISODE_DATA_ERRORS)
 
 
-class ReplayWorker:
-    """Replays work items of any file of a run: one process's readers and its one env (per env key)."""
+class ReaderCache:
+    """The recordings a process has open, the `_OPEN_READERS` last used: a work list ordered by env key meets each
+    file in runs, and thousands of files must not mean thousands of open handles."""
 
-    def __init__(self, job: ReplayJob) -> None:
-        self.job = job
+    def __init__(self) -> None:
         self._readers: OrderedDict[str, EpisodeReader] = OrderedDict()
-        self._key: str | None = None
-        self._replayer: EpisodeReplayer | None = None
-        self._failed: dict[str, SimreelError] = {}
-        """Env keys whose env could not be built, with why: their other episodes fail at once, the same way."""
-        self._warned: set[str] = set()
 
-    def run(self, item: WorkItem) -> EpisodeResult:
-        """Replay and verify `item`; a `SimreelError` comes back in the result, never raised."""
-        try:
-            reader = self._reader(item.path)
-            replayer = self._replayer_for(item, reader.meta)
-            report, episode = self._replay(reader, replayer, item.index)
-        except SimreelError as e:
-            return EpisodeResult(item, error=e)
-        return EpisodeResult(item, report, episode, self._warnings(item.path, reader.meta, replayer))
-
-    def prepare(self, item: WorkItem) -> None:
-        """Open `item`'s file and build its env now; raises the `SimreelError` that stops that."""
-        self._replayer_for(item, self._reader(item.path).meta)
-
-    def _reader(self, path: str) -> EpisodeReader:
+    def get(self, path: str) -> EpisodeReader:
         reader = self._readers.get(path)
         if reader is None:
             reader = self._readers[path] = open_reader(path)
@@ -121,6 +105,42 @@ class ReplayWorker:
                 self._readers.popitem(last=False)[1].close()
         self._readers.move_to_end(path)
         return reader
+
+    def __len__(self) -> int:
+        return len(self._readers)
+
+    def close(self) -> None:
+        while self._readers:
+            self._readers.popitem()[1].close()
+
+
+class ReplayWorker:
+    """Replays work items of any file of a run: one process's readers and its one env (per env key)."""
+
+    def __init__(self, job: ReplayJob) -> None:
+        self.job = job
+        self._readers = ReaderCache()
+        self._key: str | None = None
+        self._replayer: EpisodeReplayer | None = None
+        self._failed: dict[str, SimreelError] = {}
+        """Env keys whose env could not be built, with why: their other episodes fail at once, the same way."""
+        self._warned: set[str] = set()
+
+    def run(self, item: WorkItem, shipped: EpisodeReader | None = None) -> EpisodeResult:
+        """Replay and verify `item`, read from its file or from `shipped` (the episode, sent where the file is not);
+        a `SimreelError` comes back in the result, never raised."""
+        where = f"{socket.gethostname()} pid {os.getpid()}"
+        try:
+            reader = shipped if shipped is not None else self._readers.get(item.path)
+            replayer = self._replayer_for(item, reader.meta)
+            report, episode = self._replay(reader, replayer, item.index)
+        except SimreelError as e:
+            return EpisodeResult(item, error=e, worker=where)
+        return EpisodeResult(item, report, episode, self._warnings(item.path, reader.meta, replayer), worker=where)
+
+    def prepare(self, item: WorkItem) -> None:
+        """Open `item`'s file and build its env now; raises the `SimreelError` that stops that."""
+        self._replayer_for(item, self._readers.get(item.path).meta)
 
     def _replayer_for(self, item: WorkItem, meta: RecordingMeta) -> EpisodeReplayer:
         key = item.key
@@ -175,8 +195,7 @@ class ReplayWorker:
 
     def close(self) -> None:
         self._close_replayer()
-        while self._readers:
-            self._readers.popitem()[1].close()
+        self._readers.close()
 
 
 _WORKER: ReplayWorker | None = None

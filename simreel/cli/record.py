@@ -23,7 +23,8 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode; episode k uses seed+k")
     p.add_argument("--policy", default="random", help=f"{POLICY_HELP} (default random)")
     p.add_argument("--max-steps", type=int, default=None,
-                   help=f"steps per episode at most (default: the env's time limit, else {_DEFAULT_MAX_STEPS})")
+                   help="the episodes' time limit in steps, longer or shorter than the task's (default: the task's, "
+                        f"else {_DEFAULT_MAX_STEPS}); the replay rebuilds the env with it")
     p.add_argument("--contacts", default="auto", metavar="auto|none|A:B,...",
                    help="contact channels: auto (default), none, or pairs like panda/panda_leftfinger:cube")
     p.add_argument("--record-obs", action="store_true", help="also record observations")
@@ -76,7 +77,8 @@ def _recorder(args: argparse.Namespace) -> Any:
 
     config = EnvConfig(num_envs=args.num_envs, obs_mode=args.obs_mode, control_mode=args.control_mode,
                        reward_mode=args.reward_mode, sim_backend=args.sim_backend,
-                       render_backend=args.render_backend, env_kwargs=args.env_kwargs)
+                       render_backend=args.render_backend, env_kwargs=args.env_kwargs,
+                       max_episode_steps=args.max_steps)
     env = make_env(args.env_id, config)
     try:
         return RecordWrapper(env, args.output, contacts=args.contacts, record_obs=args.record_obs, poses=args.poses,

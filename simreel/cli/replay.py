@@ -55,6 +55,9 @@ def add_parser(sub: Any) -> None:
                    help="replay on a Ray cluster (pip install 'simreel[ray]'): alone, a cluster started on this "
                         "machine; 'auto', the cluster this machine belongs to; or its address (host:6379, "
                         "ray://host:10001)")
+    p.add_argument("--ship", action="store_true",
+                   help="with --ray: send every episode from this machine to the workers (by default they read the "
+                        "recordings they see as this machine does, on a shared filesystem, and get the rest sent)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     add_import_option(p)
     p.set_defaults(run=run, resumed_defaults={dest: p.get_default(dest) for dest in _VERDICT_FLAGS})
@@ -73,8 +76,9 @@ def _build_run(args: argparse.Namespace) -> Any:
         if args.paths or changed:
             what = "PATH" if args.paths else "--" + changed[0].replace("_", "-")
             raise UsageError(f"--resume takes the recordings and options from the report; drop {what} (only "
-                             "--workers, --ray and -q may change)")
-        return ReplayRun.resume(args.resume, workers=args.workers, ray=args.ray, command=args.command_line)
+                             "--workers, --ray, --ship and -q may change)")
+        return ReplayRun.resume(args.resume, workers=args.workers, ray=args.ray, ship=args.ship,
+                                command=args.command_line)
     if not args.paths:
         raise UsageError("name the recordings to replay (files, folders, patterns), or --resume REPORT.json")
     episodes = None if args.episodes is None else parse_index_ranges(args.episodes)
@@ -83,7 +87,8 @@ def _build_run(args: argparse.Namespace) -> Any:
     options = ReplayOptions(mode=args.mode, resync=args.resync, episodes=episodes, atol=args.atol,
                             group_tolerances=dict(args.tol), output=args.output, overwrite=args.overwrite,
                             obs_mode=args.obs_mode, workers=args.workers, imports=args.imports,
-                            sim_backend=args.sim_backend, command=args.command_line, report=args.report, ray=args.ray)
+                            sim_backend=args.sim_backend, command=args.command_line, report=args.report, ray=args.ray,
+                            ship=args.ship)
     return ReplayRun(args.paths, options)
 
 

@@ -33,7 +33,7 @@ def _log(path, *episodes: tuple[str, int, str]) -> None:
         for name in sorted({f for f, *_ in episodes}):
             log.write({"type": "file", **FileTally(name, "PickCube-v1", 3, size=1, mtime_ns=2).to_json()})
         for name, index, verdict in episodes:
-            log.episode(name, _episode(index, verdict), [])
+            log.episode(name, _episode(index, verdict), warnings=[])
 
 
 def test_report_paths_pair_the_document_and_its_lines(tmp_path):
@@ -50,7 +50,7 @@ def test_a_line_cut_by_a_kill_is_dropped_and_resuming_appends_after_the_last_who
     path.write_text(whole + '{"type":"episode","file":"/d/a.h5","ind')  # kill -9 mid-write
     assert load_log(path).done == {("/d/a.h5", 0), ("/d/a.h5", 1)}
     with ReportLog(path, resume=True) as log:
-        log.episode("/d/a.h5", _episode(2), [])
+        log.episode("/d/a.h5", _episode(2), warnings=[])
     assert path.read_text().startswith(whole) and len(list(read_log(path))) == 5
 
 

@@ -66,4 +66,4 @@ def test_a_worker_keeps_its_env_for_recordings_of_one_env_key_and_rebuilds_for_a
         assert results[1].warnings == []  # the same machine: nothing differs
     finally:
         worker.close()
-    assert worker._readers == {} and worker._replayer is None
+    assert len(worker._readers) == 0 and worker._replayer is None
