@@ -28,6 +28,17 @@ def test_record_then_inspect(tmp_path, capsys):
     assert "env_states/actors/cube" in text and "PickCube-v1" in text
 
 
+def test_max_steps_is_the_time_limit_even_past_the_tasks_and_the_replay_keeps_it(tmp_path, capsys):
+    out = tmp_path / "long.h5"
+    assert main(["record", "PickCube-v1", "-o", str(out), "--max-steps", "60", "-q"]) == 0  # PickCube's own: 50
+    assert "recorded 1 episode(s), 60 steps" in capsys.readouterr().out
+    assert main(["inspect", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["meta"]["max_episode_steps"] == 60
+    assert main(["replay", str(out), "-q"]) == 0
+    assert "1 of 1 episode(s) verified (1 exact" in capsys.readouterr().out
+
+
 def test_random_policy_is_reproducible_from_the_seed(tmp_path, capsys):
     from simreel.formats import open_reader
 
