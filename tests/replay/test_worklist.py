@@ -20,7 +20,7 @@ def dataset(record, tmp_path_factory):
     data.mkdir()
     shutil.copy(record("PickCube-v1", 2, 6), data / "a_pick.h5")
     shutil.copy(record("StackCube-v1", 1, 5), data / "b_stack.h5")
-    shutil.copy(record("PickCube-v1", 1, 7, "--seed", "9"), data / "c_pick.h5")
+    shutil.copy(record("PickCube-v1", 1, 6, "--seed", "9"), data / "c_pick.h5")
     (data / "d_junk.h5").write_text("not a recording")
     return data
 
@@ -31,7 +31,7 @@ def test_items_are_grouped_by_env_key_then_input_order(dataset):
     keys = [w.key for w in work.items]
     assert keys == sorted(keys) and len(set(keys)) == 2
     pick = [n for n in names if "pick" in n[0]]
-    assert pick == [("a_pick.h5", 0, 6), ("a_pick.h5", 1, 6), ("c_pick.h5", 0, 7)]  # one key, input order
+    assert pick == [("a_pick.h5", 0, 6), ("a_pick.h5", 1, 6), ("c_pick.h5", 0, 6)]  # one key, input order
     assert ("b_stack.h5", 0, 5) in names
     junk = [f for f in work.files if f.error is not None]
     assert [f.path.split("/")[-1] for f in junk] == ["d_junk.h5"] and "neither an HDF5 nor an MCAP" in junk[0].error
