@@ -22,6 +22,7 @@ import datetime
 import hashlib
 import json
 import os
+import shutil
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import groupby
@@ -340,38 +341,78 @@ def _check_outputs(outputs: Sequence[str | Path], inputs: Sequence[str | Path], 
         check_writable(path, overwrite=options.overwrite)
 
 
+@dataclass
+class _Output:
+    """One output while it is made: written under a staging name beside its final one, checked, then moved."""
+
+    final: Target
+    staged: Target
+    items: list[_Item] = field(default_factory=list)
+    """The episodes it receives, in order."""
+    digests: list[bytes] = field(default_factory=list)
+    """`episode_digest` of each episode as read from its source (renumbered, with its origin)."""
+
+    @classmethod
+    def of(cls, target: Target) -> _Output:
+        staged = target.path.with_name(f".{target.path.stem}.simreel-{os.getpid()}{target.path.suffix}")
+        return cls(target, dataclasses.replace(target, path=staged, overwrite=True))
+
+    def publish(self) -> None:
+        """Move the checked recording and its side files to their final names, the recording last (a reader that
+        finds it finds its sidecar). Files of an old recording there that the new one lacks (its `.partial/`
+        scratch folder) go: with `overwrite` only, as the output rule checked at the start."""
+        pairs = list(zip(recording_files(self.staged.path), recording_files(self.final.path), strict=True))
+        for src, dst in pairs[1:] + pairs[:1]:
+            if src.exists() and self.final.overwrite:
+                os.replace(src, dst)
+            elif src.exists():
+                os.link(src, dst)  # never replaces a file made since the start: FileExistsError
+                src.unlink()
+            elif self.final.overwrite and dst.is_dir():
+                shutil.rmtree(dst)
+            elif self.final.overwrite:
+                dst.unlink(missing_ok=True)
+
+
 def _run(sources: Sequence[_Source], targets: Sequence[Target], decide: Decide, options: DatasetOptions,
          what: str) -> tuple[list[OutputSummary], list[_Item]]:
-    """Plan, copy and check: the work both operations share. Every output is removed on any failure."""
+    """Plan, copy, check and publish: the work both operations share. The outputs are written under staging names
+    (an old OUT stays until the new one is checked) and removed on any failure or Ctrl-C."""
     items = _plan(sources, decide, len(targets))
     if not any(item.target == 0 for item in items):
         raise UsageError(f"no episode to write to {targets[0].path}: nothing matches; nothing written")
-    digests: list[list[bytes]] = [[] for _ in targets]
+    outputs = [_Output.of(t) for t in targets]
+    for item in items:
+        outputs[item.target].items.append(item)
     try:
-        steps = write_episodes(targets, _read(options.progress(items, what), sources, decide, digests))
-        for k, target in enumerate(targets):
-            _check(target, digests[k], [i for i in items if i.target == k], sources, options)
+        episodes = _read(options.progress(items, what), sources, decide, [o.digests for o in outputs])
+        steps = write_episodes([o.staged for o in outputs], episodes)
+        for output in outputs:
+            _check(output, sources, options)
+        for output in outputs:
+            output.publish()
     except BaseException:
-        for target in targets:
-            remove_recording(target.path)
+        for output in outputs:
+            remove_recording(output.staged.path)
         raise
-    return [OutputSummary(t.path, len(digests[k]), steps[k]) for k, t in enumerate(targets)], items
+    return [OutputSummary(o.final.path, len(o.items), n) for o, n in zip(outputs, steps, strict=True)], items
 
 
 # ---------------------------------------------------------------------------------------------------- the check
-def _check(target: Target, digests: list[bytes], items: list[_Item], sources: Sequence[_Source],
-           options: DatasetOptions) -> None:
-    """Read `target` back: its metadata as planned, episodes 0..N-1, each equal to its source (digests)."""
-    with open_reader(target.path) as reader:
-        if _canonical(reader.meta.to_json()) != _canonical(target.meta.to_json()):
-            raise OutputCheckError(f"{target.path}: the recording metadata read back is not the one written")
+def _check(output: _Output, sources: Sequence[_Source], options: DatasetOptions) -> None:
+    """Read the staged output back: its metadata as planned, episodes 0..N-1, each equal to its source (digests).
+    Messages name the output by its final name."""
+    name, digests = output.final.path, output.digests
+    with open_reader(output.staged.path) as reader:
+        if _canonical(reader.meta.to_json()) != _canonical(output.final.meta.to_json()):
+            raise OutputCheckError(f"{name}: the recording metadata read back is not the one written")
         indices = [m.index for m in reader.episodes]
         if indices != list(range(len(digests))):
-            raise OutputCheckError(f"{target.path}: holds episodes {indices[:10]}, expected 0..{len(digests) - 1}")
-        for m in options.progress(reader.episodes, f"check {target.path.name}"):
+            raise OutputCheckError(f"{name}: holds episodes {indices[:10]}, expected 0..{len(digests) - 1}")
+        for m in options.progress(reader.episodes, f"check {name.name}"):
             episode = reader.read_episode(m.index)
             if episode_digest(episode) != digests[m.index]:
-                raise OutputCheckError(f"{target.path}: episode {m.index} {_difference(episode, items[m.index], sources)}")
+                raise OutputCheckError(f"{name}: episode {m.index} {_difference(episode, output.items[m.index], sources)}")
 
 
 def _difference(got: Episode, item: _Item, sources: Sequence[_Source]) -> str:

@@ -84,18 +84,37 @@ def test_overwrite_replaces_out(inputs, tmp_path):
         assert len(r) == 5
 
 
-def test_ctrl_c_during_the_copy_leaves_no_output_and_the_inputs_as_they_were(inputs, tmp_path):
+@pytest.mark.parametrize("existing", [False, True], ids=["new-out", "overwrite"])
+def test_ctrl_c_during_the_copy_leaves_no_output_and_the_inputs_as_they_were(inputs, tmp_path, existing):
+    """OUT is written under a hidden staging name beside it and moved into place once checked: an interrupted
+    merge leaves neither a half-written OUT nor its staging files, and with --overwrite the old OUT stays."""
     out = tmp_path / "out.h5"
-    before = [p.read_bytes() for p in inputs]
-    child = subprocess.Popen([sys.executable, str(SUPPORT / "interrupted_merge.py"), *map(str, inputs), "-o", str(out)],
+    if existing:
+        out.write_bytes(b"the old OUT")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    child = subprocess.Popen([sys.executable, str(SUPPORT / "interrupted_merge.py"), *map(str, inputs), "-o", str(out),
+                              *(["--overwrite"] if existing else [])],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert child.stdout.readline().strip() == "copying"
-        assert out.exists()  # two episodes are in it by now
+        staged = [p.name for p in tmp_path.iterdir() if p.name.startswith(".out.simreel-")]
+        assert f".out.simreel-{child.pid}.h5" in staged  # two episodes are in it by now
         child.send_signal(signal.SIGINT)
         _, err = child.communicate(timeout=60)
     finally:
         child.kill()
     assert child.returncode == 130 and err == "simreel merge: interrupted\n"
-    assert [p for p in recording_files(out) if p.exists()] == []
-    assert [p.read_bytes() for p in inputs] == before
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    assert [p for p in recording_files(out) if p.exists()] == ([out] if existing else [])
+
+
+def test_overwrite_replaces_a_recording_and_every_file_beside_it(inputs, tmp_path):
+    out = tmp_path / "out.h5"
+    (tmp_path / "out.json").write_text("old sidecar")
+    (tmp_path / "out.h5.partial").mkdir()
+    (tmp_path / "out.h5.partial" / "traj_9.h5").write_bytes(b"scratch of a killed recording")
+    assert main(["merge", *map(str, inputs), "-o", str(out), "--overwrite", "-q"]) == 0
+    assert not (tmp_path / "out.h5.partial").exists() and "episode_id" in (tmp_path / "out.json").read_text()
+    with open_reader(out) as r:
+        assert len(r) == 5 and r.unfinished == []
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

@@ -240,7 +240,9 @@ def test_a_length_the_sidecar_misstates_is_an_error_not_a_silent_selection(ms_fi
 
 # ------------------------------------------------------------------------------------------ nothing half-written
 def _leftovers(folder: Path, *names: str) -> list[str]:
-    return sorted(p.name for name in names for p in recording_files(folder / name) if p.exists())
+    """The outputs' files, and the staging files they were written under, that exist in `folder`."""
+    staged = [p.name for p in folder.iterdir() if p.name.startswith(".")]
+    return sorted(staged + [p.name for name in names for p in recording_files(folder / name) if p.exists()])
 
 
 def test_an_interruption_removes_every_output_and_leaves_the_inputs(synthetic, tmp_path, monkeypatch):
