@@ -504,7 +504,7 @@ def _episode_meta(source: _Source, index: int) -> EpisodeMeta:
 def describe_provenance(provenance: Mapping[str, Any]) -> str:
     """One line saying what made a recording from others (`RecordingMeta.provenance`), for `simreel inspect`."""
     inputs = provenance.get("inputs") or []
-    names = ", ".join(f"{Path(i.get('path', '?')).name} ({i.get('episodes', '?')} episodes)" for i in inputs[:5])
+    names = ", ".join(f"{Path(i.get('path', '?')).name} ({i.get('episodes', '?')} episode(s))" for i in inputs[:5])
     names += f", ... ({len(inputs)} files)" if len(inputs) > 5 else ""
     line = f"{provenance.get('operation', '?')} of {names or 'nothing'}"
     criteria = provenance.get("criteria")

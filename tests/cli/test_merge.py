@@ -44,7 +44,7 @@ def test_inspect_shows_the_provenance_and_each_episodes_origin(inputs, tmp_path,
     capsys.readouterr()
     assert main(["inspect", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "  made by    merge of a.h5 (3 episodes), b.mcap (2 episodes)\n" in text
+    assert "  made by    merge of a.h5 (3 episode(s)), b.mcap (2 episode(s))\n" in text
     rows = [line.split() for line in text.splitlines() if line.strip().startswith(("0 ", "3 "))]
     assert rows[0][:6] == ["0", "0", "100", "4", "False", "a.h5#0"] and rows[1][5] == "b.mcap#0"
 
