@@ -468,8 +468,8 @@ def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCrit
     fields of `options` (`DatasetOptions`)."""
     opts = _options(options, overrides)
     if not criteria.given():
-        raise UsageError("no criterion: give --episodes, --success/--no-success, --min-steps, --max-steps, "
-                         "--verified or --diverged (to copy every episode, use `simreel convert`)")
+        raise UsageError("no criterion: give --episodes, --success/--no-success, --min-steps or --max-steps "
+                         "(to copy every episode, use `simreel convert`)")
     outputs = [output] if rest is None else [output, rest]
     _check_outputs(outputs, [path], opts)
     source = _Source.read(path)

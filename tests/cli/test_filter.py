@@ -59,7 +59,7 @@ def test_criteria_combine_with_and(src, tmp_path, options, kept):
 @pytest.mark.parametrize(
     ("options", "message"),
     [
-        ([], "no criterion: give --episodes, --success/--no-success, --min-steps, --max-steps"),
+        ([], "no criterion: give --episodes, --success/--no-success, --min-steps or --max-steps"),
         (["--success", "--no-success"], "argument --no-success: not allowed with argument --success"),
         (["--episodes", "0,x"], "bad episode list '0,x': expected e.g. 0,3-7"),
         (["--episodes", ","], "--episodes ',' names no episode"),
