@@ -168,6 +168,8 @@ class DatasetReport:
     """Episodes a verdict criterion's replay report does not cover (not kept)."""
     criteria: str = ""
     """`EpisodeCriteria.describe` of a filter."""
+    unfinished: list[str] = field(default_factory=list)
+    """``<input>: <episode>`` for each episode an input holds uncommitted (a killed recording): not copied."""
 
     def summary(self) -> str:
         """What was written, from where, and what was checked: the text the CLI prints."""
@@ -183,6 +185,7 @@ class DatasetReport:
             path, total, _ = self.inputs[0]
             lines = [f"filter {path.name} ({self.criteria}): kept {out.episodes} of {total}, {out.line()}"]
             lines += [f"rest: {o.line()}" for o in self.outputs[1:]]
+        lines += [f"note: {u} was never committed (a killed recording) and is not copied" for u in self.unfinished]
         if self.no_success:
             lines.append(f"note: {self.no_success} episode(s) hold no final success: neither --success nor "
                          "--no-success keeps them")
@@ -204,6 +207,8 @@ class _Source:
     meta: RecordingMeta
     episodes: list[EpisodeMeta]
     identity: dict[str, Any] = field(default_factory=dict)
+    unfinished: list[str] = field(default_factory=list)
+    """Episodes the file holds that were never committed (a killed recording): not listed, not copied."""
 
     @classmethod
     def read(cls, path: str | Path) -> _Source:
@@ -217,6 +222,7 @@ class _Source:
                 "kind": reader.kind, "episodes": len(reader.episodes), "versions": m.versions,
                 "created_utc": m.created_utc, "command": m.command, "source": m.source, "provenance": m.provenance,
             }
+            source.unfinished = list(getattr(reader, "unfinished", []))
         return source
 
     def reopen(self) -> Any:
@@ -457,7 +463,8 @@ def merge(inputs: Sequence[str | Path], output: str | Path, options: DatasetOpti
     target = Target(Path(output), _output_meta(sources, {"operation": "merge"}, opts.command), opts.overwrite)
     outputs, items = _run(sources, [target], lambda source, meta: 0, opts, "merge")
     taken = [sum(1 for i in items if i.source == k) for k in range(len(sources))]
-    return DatasetReport("merge", outputs, [(s.path, len(s.episodes), n) for s, n in zip(sources, taken, strict=True)], outputs[0].episodes)
+    return DatasetReport("merge", outputs, [(s.path, len(s.episodes), n) for s, n in zip(sources, taken, strict=True)],
+                         outputs[0].episodes, unfinished=_unfinished(sources))
 
 
 def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCriteria,
@@ -489,8 +496,12 @@ def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCrit
         no_success=sum(1 for m in source.episodes if m.success is None) if criteria.success is not None else 0,
         uncovered=sum(1 for m in source.episodes if m.index not in criteria.verdicts)
         if criteria.verdicts is not None else 0,
-        criteria=criteria.describe(),
+        criteria=criteria.describe(), unfinished=_unfinished([source]),
     )
+
+
+def _unfinished(sources: Sequence[_Source]) -> list[str]:
+    return [f"{s.label}: {u}" for s in sources for u in s.unfinished]
 
 
 def _episode_meta(source: _Source, index: int) -> EpisodeMeta:

@@ -118,3 +118,14 @@ def test_overwrite_replaces_a_recording_and_every_file_beside_it(inputs, tmp_pat
     with open_reader(out) as r:
         assert len(r) == 5 and r.unfinished == []
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_an_episode_a_killed_recording_left_uncommitted_is_named_and_not_copied(inputs, tmp_path, capsys):
+    """A killed HDF5 recording leaves its running episode's scratch file in NAME.h5.partial/: that episode was
+    never committed, so it is not in the merge, and the summary says so (as convert warns)."""
+    (tmp_path / "a.h5.partial").mkdir()
+    (tmp_path / "a.h5.partial" / "traj_3.h5").write_bytes(b"")
+    assert main(["merge", *map(str, inputs), "-o", str(tmp_path / "out.h5"), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert f"note: {inputs[0]}: traj_3.h5 was never committed (a killed recording) and is not copied\n" in out
+    assert "merged 2 file(s): 5 episode(s)" in out
