@@ -4,6 +4,7 @@ verdicts, losslessly, checked against the input after writing."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from simreel.cli.common import parse_index_ranges
@@ -32,6 +33,12 @@ def add_parser(sub: Any) -> None:
                          help="episodes whose final success is false")
     p.add_argument("--min-steps", type=int, default=None, metavar="N", help="episodes of at least N steps")
     p.add_argument("--max-steps", type=int, default=None, metavar="N", help="episodes of at most N steps")
+    verdict = p.add_mutually_exclusive_group()
+    verdict.add_argument("--verified", default=None, metavar="REPORT",
+                         help="episodes a replay report (simreel replay --report) says verified: exact or within "
+                              "tolerance; episodes it does not cover are not kept")
+    verdict.add_argument("--diverged", default=None, metavar="REPORT",
+                         help="episodes a replay report says diverged")
     p.add_argument("--overwrite", action="store_true", help="replace OUT and OTHER if they exist")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)
@@ -44,7 +51,20 @@ def _criteria(args: argparse.Namespace) -> Any:
     if episodes is not None and not episodes:
         raise UsageError(f"--episodes {args.episodes!r} names no episode")
     return EpisodeCriteria(episodes=None if episodes is None else tuple(episodes), success=args.success,
-                           min_steps=args.min_steps, max_steps=args.max_steps)
+                           min_steps=args.min_steps, max_steps=args.max_steps, **_verdicts(args))
+
+
+def _verdicts(args: argparse.Namespace) -> dict[str, Any]:
+    """The verdict criterion of --verified/--diverged REPORT: the report's verdicts of IN's episodes."""
+    report = args.verified or args.diverged
+    if report is None:
+        return {}
+    from simreel.formats.dataset import DIVERGED, VERIFIED, report_verdicts
+    from simreel.replay import read_verdicts
+
+    found = read_verdicts(report)
+    return {"verdicts": report_verdicts(args.input, found.verdicts, found.files, report),
+            "keep_verdicts": VERIFIED if args.verified else DIVERGED, "report": str(Path(report).resolve())}
 
 
 def run(args: argparse.Namespace) -> int:

@@ -40,7 +40,12 @@ from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.targets import check_distinct
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
-           "episode_digest", "describe_provenance", "describe_origin"]
+           "episode_digest", "describe_provenance", "describe_origin", "VERIFIED", "DIVERGED", "report_verdicts"]
+
+VERIFIED = ("exact", "within_tolerance")
+"""The verdicts `filter --verified` keeps: the episodes a replay verified."""
+DIVERGED = ("diverged",)
+"""The verdict `filter --diverged` keeps (an episode that could not be replayed, ``error``, is neither)."""
 
 _T = TypeVar("_T")
 Progress = Callable[[Sequence[_T], str], Iterable[_T]]
@@ -124,7 +129,7 @@ class EpisodeCriteria:
         if self.max_steps is not None:
             parts.append(f"<= {self.max_steps} steps")
         if self.verdicts is not None:
-            parts.append(f"{' or '.join(self.keep_verdicts)} in {self.report}")
+            parts.append(f"{' or '.join(self.keep_verdicts)} in {Path(self.report).name}")
         return "; ".join(parts)
 
     def to_json(self) -> dict[str, Any]:
@@ -475,8 +480,8 @@ def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCrit
     fields of `options` (`DatasetOptions`)."""
     opts = _options(options, overrides)
     if not criteria.given():
-        raise UsageError("no criterion: give --episodes, --success/--no-success, --min-steps or --max-steps "
-                         "(to copy every episode, use `simreel convert`)")
+        raise UsageError("no criterion: give --episodes, --success/--no-success, --min-steps, --max-steps, "
+                         "--verified or --diverged (to copy every episode, use `simreel convert`)")
     outputs = [output] if rest is None else [output, rest]
     _check_outputs(outputs, [path], opts)
     source = _Source.read(path)
@@ -529,3 +534,24 @@ def describe_provenance(provenance: Mapping[str, Any]) -> str:
 def describe_origin(origin: Mapping[str, Any]) -> str:
     """``file.h5#3``: where an episode was copied from (`EpisodeMeta.origin`); empty for a recorded one."""
     return f"{Path(origin['file']).name}#{origin['index']}" if origin.get("file") else ""
+
+
+def report_verdicts(path: str | Path, verdicts: Mapping[tuple[str, int], str],
+                    files: Mapping[str, tuple[int | None, int | None]], report: str | Path) -> dict[int, str]:
+    """The verdicts a replay report (`simreel.replay.read_verdicts`: (file, index) → verdict, and each file's
+    (size, mtime_ns) when it was replayed) gives the episodes of `path`, by index.
+
+    Raises `UsageError` when the report does not cover `path`, or when `path` changed since it was replayed (its
+    size or mtime differ): its verdicts would be about another file."""
+    p = Path(path)
+    if not p.is_file():
+        raise RecordingFileError(path, "no such file")
+    entry = next((f for f in files if Path(f).resolve() == p.resolve()), None)
+    if entry is None:
+        raise UsageError(f"{report} holds no verdict for {path}: replay it with --report first (simreel replay "
+                         f"{path} --report REPORT.json)")
+    st = p.stat()
+    if tuple(files[entry]) != (st.st_size, st.st_mtime_ns):
+        raise UsageError(f"{path} changed since {report} verified it (its size or modification time differ): the "
+                         "verdicts are about another file; replay it again")
+    return {index: verdict for (f, index), verdict in verdicts.items() if f == entry}

@@ -375,3 +375,21 @@ def test_maniskills_replay_trajectory_replays_a_merged_file_bit_exactly(record, 
             assert ep.meta.seed == [30, 3, 4][k]
             for key in ("actors/cube", "articulations/panda"):
                 np.testing.assert_array_equal(f[f"traj_{k}/env_states/{key}"][()], ep.env_states[key])
+
+
+def test_report_verdicts_find_the_file_by_its_real_path_and_only_its_episodes(synthetic, tmp_path, monkeypatch):
+    from simreel.formats.dataset import report_verdicts
+
+    a, b = synthetic
+    link = tmp_path / "link.h5"
+    link.symlink_to(a)
+    st = a.stat()
+    files = {str(a): (st.st_size, st.st_mtime_ns), str(b): (1, 2)}
+    verdicts = {(str(a), 0): "exact", (str(a), 2): "diverged", (str(b), 0): "exact"}
+    monkeypatch.chdir(tmp_path)
+    assert report_verdicts("a.h5", verdicts, files, "r.json") == {0: "exact", 2: "diverged"}  # relative, as typed
+    assert report_verdicts(link, verdicts, files, "r.json") == {0: "exact", 2: "diverged"}  # the file it names
+    with pytest.raises(UsageError, match="b.mcap changed since r.json verified it"):
+        report_verdicts(b, verdicts, files, "r.json")
+    with pytest.raises(RecordingFileError, match="gone.h5: no such file"):
+        report_verdicts("gone.h5", verdicts, files, "r.json")
