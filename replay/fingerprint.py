@@ -12,12 +12,10 @@ from collections.abc import Mapping
 from typing import Any
 
 from simreel.episode import RecordingMeta
+from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS
 from simreel.sim.describe import sim_config_json
 
 __all__ = ["fingerprint_differences"]
-
-_IGNORED_VERSIONS = ("simreel",)
-"""simreel's own version does not change the physics."""
 
 
 def _flat(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -61,7 +59,7 @@ def _version_differences(recorded: Mapping[str, Any], versions: Mapping[str, Any
     full: Mapping[str, Any] | None = versions
     diffs = []
     for key in sorted(set(recorded) | set(versions or {})):
-        if key in _IGNORED_VERSIONS:
+        if key in PHYSICS_NEUTRAL_VERSIONS:  # simreel's own version does not change the physics
             continue
         rec = recorded.get(key)
         now = _loaded_version(key) if versions is None else versions.get(key)

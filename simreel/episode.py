@@ -179,6 +179,11 @@ class RecordingMeta:
     """What the file does not hold, never invented: step fields (``rewards``, ``success``, ``fail``; left out
     of the field table) and facts a replay cannot check (``versions``, ``sim_config``, ``control_freq``,
     ``contacts``, ``scene_seeds``, ``body_poses``, ``info``, ``env_states``). Empty for simreel recordings."""
+    provenance: dict[str, Any] = field(default_factory=dict)
+    """What made this file from other recordings (empty for a recording made by recording): ``{"operation":
+    "merge" | "filter", "inputs": [{"path", "size", "mtime_ns", "meta_digest", "kind", "episodes", "versions",
+    "created_utc", "command", "source", "provenance"}, ...], "criteria": {...}, "part": "kept" | "rest"}``
+    (`simreel.formats.dataset`). Unlike `source`, which says where a file simreel did not record came from."""
 
     @property
     def control_period(self) -> float | None:
@@ -232,6 +237,9 @@ class EpisodeMeta:
     the state after step 0 there in its state modes): replays then do not compare row 0."""
     notes: list[str] = field(default_factory=list)
     """What the reader found about this episode in the file (quirks, mismatches), for reports."""
+    origin: dict[str, Any] = field(default_factory=dict)
+    """Where a merged or filtered episode was copied from: ``{"file": <absolute path>, "index": <its index
+    there>}``, and that episode's own ``"origin"`` when it had one (empty for a recorded episode)."""
 
     def to_json(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=json_default))

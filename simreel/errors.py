@@ -23,6 +23,8 @@ __all__ = [
     "HeterogeneousBuildError",
     "ReplayError",
     "ViewError",
+    "EnvMismatchError",
+    "OutputCheckError",
 ]
 
 
@@ -105,3 +107,13 @@ class ReplayError(SimreelError):
 
 class ViewError(SimreelError):
     """A recording cannot be shown: --compare does not fit it, or the Rerun viewer cannot start."""
+
+
+class EnvMismatchError(SimreelError):
+    """Recordings that would become one file (`simreel merge`) record different envs: the message names the first
+    field that differs (`simreel.formats.same_env`)."""
+
+
+class OutputCheckError(RuntimeError):
+    """A file simreel wrote does not read back as what it copied (`simreel merge`, `simreel filter`): a bug in
+    simreel, never bad input, hence not a `SimreelError` (the CLI exits 3 and removes the file)."""

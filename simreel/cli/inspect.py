@@ -46,6 +46,10 @@ def _print_header(reader: Any) -> None:
     print(f"{reader.path}  ({reader.kind})")
     if m.source:
         print("  source     " + ", ".join(f"{k} {v}" for k, v in m.source.items()))
+    if m.provenance:
+        from simreel.formats.dataset import describe_provenance
+
+        print(f"  made by    {describe_provenance(m.provenance)}")
     print(f"  env        {m.env_id}  obs={m.obs_mode} control={m.control_mode} reward={m.reward_mode}")
     print(f"  sim        {m.sim_backend}, num_envs={m.num_envs}, {_hz(m.sim_freq)} Hz sim / {_hz(m.control_freq)} Hz control,"
           f" render={m.render_backend}, max_episode_steps={m.max_episode_steps}")
@@ -62,15 +66,21 @@ def _print_header(reader: Any) -> None:
 
 
 def _print_episodes(reader: Any) -> None:
+    from simreel.formats.dataset import describe_origin
+
     eps = reader.episodes
     succ = sum(1 for e in eps if e.success)
+    origins = [describe_origin(e.origin) for e in eps]
+    width = max(map(len, origins), default=0)
+    origin_head = f" {'origin':<{width}}" if width else ""
     print(f"\nepisodes: {len(eps)}, steps: {sum(e.length for e in eps)}, successful at the end: {succ}")
-    print(f"  {'index':>5} {'env':>4} {'seed':>11} {'steps':>6} {'success':>8}  reset")
-    for e in eps:
+    print(f"  {'index':>5} {'env':>4} {'seed':>11} {'steps':>6} {'success':>8}{origin_head}  reset")
+    for e, origin in zip(eps, origins, strict=True):
         reset = "reconfigured" if e.reconfigured else ""
         if e.reset_options:
             reset += f" options={json.dumps(e.reset_options)}"
-        print(f"  {e.index:>5} {e.env_idx:>4} {e.seed!s:>11} {e.length:>6} {e.success!s:>8}  {reset.strip()}")
+        shown = f" {origin:<{width}}" if width else ""
+        print(f"  {e.index:>5} {e.env_idx:>4} {e.seed!s:>11} {e.length:>6} {e.success!s:>8}{shown}  {reset.strip()}")
         for note in e.notes:
             print(f"  {'':>5} note: {note}")
 

@@ -8,7 +8,8 @@ Both write a new file through `open_writer`, check their output with the one out
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
+from contextlib import ExitStack, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, TypeVar
@@ -16,7 +17,7 @@ from typing import Protocol, TypeVar
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta
 from simreel.errors import UsageError
 from simreel.formats import check_writable, format_of, open_reader, open_writer, remove_recording
-from simreel.formats.base import EpisodeReader
+from simreel.formats.base import EpisodeReader, EpisodeWriter
 
 __all__ = ["EpisodeTransform", "CopyReport", "RecoveryReport", "convert", "recover"]
 
@@ -72,7 +73,7 @@ def convert(
         change = transform(reader.meta) if transform is not None else None
         try:
             meta = change.meta if change is not None else reader.meta
-            steps = _copy(reader, progress(reader.episodes), _Target(dst_p, meta, overwrite), change)
+            steps = _copy(reader, progress(reader.episodes), Target(dst_p, meta, overwrite), change)
         finally:
             if change is not None:
                 change.close()
@@ -80,33 +81,57 @@ def convert(
 
 
 @dataclass(frozen=True)
-class _Target:
-    """The recording a copy writes: where, with what metadata, and whether it may replace a file."""
+class Target:
+    """A recording a copy writes: where, with what metadata, and whether it may replace a file."""
 
     path: Path
     meta: RecordingMeta
     overwrite: bool
 
 
-def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: _Target,
-          change: EpisodeTransform | None = None) -> int:
-    """Write `episodes` of `reader` to a new recording `target`; returns the steps copied. A failure removes it.
+def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, Episode]]) -> list[int]:
+    """Write each (target number, episode) of `episodes` to `targets[number]`, all of them new recordings; returns
+    the steps written to each. Every target is created before the first episode is read; any failure (Ctrl-C
+    included) removes every target.
 
-    The writer is built outside the try: a writer that refuses the target (it exists, another recording writes
-    it) has created nothing, and what is there is not this call's to delete."""
-    steps = 0
-    dst = target.path
-    writer = open_writer(dst, target.meta, overwrite=target.overwrite)
+    A writer that refuses its target (it exists, another recording writes it) has created nothing, and what is
+    there is not this call's to delete; the targets created before it are."""
+    writers: list[EpisodeWriter] = []
     try:
-        with writer:
-            for m in episodes:
-                episode = reader.read_episode(m.index)
-                writer.write_episode(change(episode) if change is not None else episode)
-                steps += episode.length
+        for target in targets:
+            writers.append(open_writer(target.path, target.meta, overwrite=target.overwrite))
     except BaseException:
-        remove_recording(dst)
+        _remove_all(writers, [w.path for w in writers])
+        raise
+    steps = [0] * len(targets)
+    try:
+        with ExitStack() as stack:
+            for writer in writers:
+                stack.enter_context(writer)
+            for k, episode in episodes:
+                writers[k].write_episode(episode)
+                steps[k] += episode.length
+    except BaseException:
+        _remove_all([], [t.path for t in targets])
         raise
     return steps
+
+
+def _remove_all(open_writers: list[EpisodeWriter], paths: list[Path]) -> None:
+    """Close `open_writers` (errors ignored: the files go anyway) and remove the recordings `paths`."""
+    for writer in open_writers:
+        with suppress(Exception):
+            writer.close()
+    for path in paths:
+        remove_recording(path)
+
+
+def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target,
+          change: EpisodeTransform | None = None) -> int:
+    """Write `episodes` of `reader` (through `change`, when given) to a new recording `target`; returns the steps
+    copied. A failure removes it."""
+    read = (reader.read_episode(m.index) for m in episodes)
+    return write_episodes([target], ((0, change(e) if change is not None else e) for e in read))[0]
 
 
 @dataclass
@@ -153,7 +178,7 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
         if report.complete and output is None:
             return report
         dst = _recovering_path(src) if in_place else Path(output)
-        _copy(reader, reader.episodes, _Target(dst, reader.meta, overwrite or in_place))
+        _copy(reader, reader.episodes, Target(dst, reader.meta, overwrite or in_place))
     if in_place:
         os.replace(dst, src)
         dst = src

@@ -99,6 +99,26 @@ BAD_INPUT = [
     # recover
     ("recover-h5", ["recover", "{rec}"], "only MCAP recordings need recovery"),
     ("recover-missing", ["recover", "{tmp}/missing.mcap"], "missing.mcap: no such file"),
+    # merge
+    ("merge-no-o", ["merge", "{rec}"], "the following arguments are required: -o/--output"),
+    ("merge-missing", ["merge", "{rec}", "{tmp}/missing.h5", "-o", "{tmp}/out.h5"], "missing.h5: no such file"),
+    ("merge-junk", ["merge", "{rec}", "{tmp}/junk.h5", "-o", "{tmp}/out.h5"], "neither an HDF5 nor an MCAP file"),
+    ("merge-o-is-input", ["merge", "{rec}", "{tmp}/junk.h5", "-o", "{rec}", "--overwrite"], "is input {rec}"),
+    ("merge-twice", ["merge", "{rec}", "{rec}", "-o", "{tmp}/out.h5"], "is given twice; each input is merged once"),
+    ("merge-other-env", ["merge", "{rec}", "{tmp}/other.h5", "-o", "{tmp}/out.h5"],
+     "{tmp}/other.h5 records another env than {rec}: env_id is 'Synthetic-v0' there, 'PickCube-v1' in {rec}"),
+    ("merge-suffix", ["merge", "{rec}", "-o", "{tmp}/out.txt"], "unknown recording suffix '.txt'"),
+    # filter
+    ("filter-no-criterion", ["filter", "{rec}", "-o", "{tmp}/out.h5"], "no criterion: give --episodes"),
+    ("filter-no-episode", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--episodes", "7"],
+     "no episode 7 (episodes: 0, 1)"),
+    ("filter-nothing-kept", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--min-steps", "21"], "nothing matches"),
+    ("filter-min-max", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--min-steps", "9", "--max-steps", "1"],
+     "--min-steps 9 is above --max-steps 1"),
+    ("filter-rest-is-o", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--success", "--rest", "{tmp}/out.h5"],
+     "--rest {tmp}/out.h5 is also written by -o"),
+    ("filter-missing", ["filter", "{tmp}/missing.mcap", "-o", "{tmp}/out.h5", "--success"],
+     "missing.mcap: no such file"),
 ]
 
 
@@ -116,11 +136,16 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, recs, argv, message)
     (tmp_path / "broken.py").write_text("raise RuntimeError('oops')\n")
     (tmp_path / "empty").mkdir()
     (tmp_path / "no_tasks.py").write_text("VALUE = 1\n")
+    if any("other.h5" in a for a in argv):
+        from support.mcap_samples import synthetic_episode, synthetic_meta, write
+
+        write(tmp_path / "other.h5", synthetic_meta(), [synthetic_episode(synthetic_meta(), 0, 3)])
     argv = [a.format(tmp=tmp_path, **recs) for a in argv]
-    code, err = _run(capsys, [*argv, "-q"] if argv[0] in ("record", "replay", "convert") else argv)
+    quiet = argv[0] in ("record", "replay", "convert", "merge", "filter")
+    code, err = _run(capsys, [*argv, "-q"] if quiet else argv)
     assert code == 2, err
     assert err.count("\n") == 1 and "Traceback" not in err, err
-    assert message.format(tmp=tmp_path) in err
+    assert message.format(tmp=tmp_path, **recs) in err
 
 
 # Every command that writes, and every file it would write: an existing one is refused without --overwrite,
@@ -139,6 +164,13 @@ EXISTING_OUTPUT = [
     ("recover-o", ["recover", "{cut}", "-o", "{tmp}/out.mcap"], "out.mcap"),
     ("view-save", ["view", "{rec}", "--save", "{tmp}/out.rrd", "--geometry", "collision"], "out.rrd"),
     ("audit-json", ["audit", "PickCube-v1", "--steps", "2", "--json", "{tmp}/audit.json"], "audit.json"),
+    ("merge", ["merge", "{rec}", "-o", "{tmp}/out.mcap"], "out.mcap"),
+    ("merge-sidecar", ["merge", "{rec}", "-o", "{tmp}/out.h5"], "out.json"),
+    ("filter", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--success"], "out.h5"),
+    ("filter-rest", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--episodes", "0", "--rest", "{tmp}/rest.mcap"],
+     "rest.mcap"),
+    ("filter-rest-partial", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--episodes", "0", "--rest", "{tmp}/rest.h5"],
+     "rest.h5.partial"),
 ]
 
 

@@ -1,0 +1,557 @@
+"""Dataset operations: `merge` recordings of one env into one file, `filter_recording` (and split) a recording's
+episodes by index, final success, length or a replay's verdicts.
+
+Both are lossless and proven. Episodes are read one at a time and written through `simreel.formats.copy`'s
+writer loop (a failure or Ctrl-C removes every output); the outputs are then read back and every episode is
+checked against what was read from its source: each array's name, dtype, shape and bytes, and the episode's
+metadata (BLAKE2b-256 digests of both, taken as the source was read). A difference is simreel's bug:
+`OutputCheckError`, and the outputs are removed.
+
+Inputs may be simreel HDF5 or MCAP recordings or ManiSkill trajectory files, mixed; the output's suffix picks
+its format. Output episodes are numbered 0..N-1 in input order (as ManiSkill's `merge_trajectory` and
+`clean_trajectories` number them), each with its `EpisodeMeta.origin` (input file and index there); the output's
+`RecordingMeta.provenance` names the operation, each input (path, size, mtime, a digest of its metadata, its own
+versions, command and provenance) and the criteria. What may differ between merged inputs, and why, is
+`simreel.formats.same_env`'s rule.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import hashlib
+import json
+import os
+import shutil
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from itertools import groupby
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from simreel import FORMAT_VERSION
+from simreel.episode import Episode, EpisodeMeta, RecordingMeta
+from simreel.errors import OutputCheckError, RecordingFileError, UsageError
+from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
+from simreel.formats.copy import Target, write_episodes
+from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS, check_same_env
+from simreel.formats.targets import check_distinct
+
+__all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
+           "episode_digest", "describe_provenance", "describe_origin", "VERIFIED", "DIVERGED", "report_verdicts"]
+
+VERIFIED = ("exact", "within_tolerance")
+"""The verdicts `filter --verified` keeps: the episodes a replay verified."""
+DIVERGED = ("diverged",)
+"""The verdict `filter --diverged` keeps (an episode that could not be replayed, ``error``, is neither)."""
+
+_T = TypeVar("_T")
+Progress = Callable[[Sequence[_T], str], Iterable[_T]]
+"""`progress(items, what)` wraps a list of work items ("merge", "filter", "check ...") in a progress bar."""
+
+
+def _no_bar(items: Sequence[_T], what: str) -> Iterable[_T]:
+    return items
+
+
+@dataclass(frozen=True)
+class DatasetOptions:
+    """How `merge` and `filter_recording` write.
+
+    Attributes:
+        overwrite: replace existing outputs (and their side files) instead of refusing.
+        command: the command line, stored in the outputs' metadata.
+        progress: wraps each pass's work list (a progress bar); see `Progress`.
+    """
+
+    overwrite: bool = False
+    command: str = ""
+    progress: Progress = _no_bar
+
+
+@dataclass(frozen=True)
+class EpisodeCriteria:
+    """Which episodes `filter_recording` keeps: those that meet every criterion given (None: not a criterion).
+
+    Attributes:
+        episodes: original indices to keep.
+        success: True keeps episodes whose final success is True, False those whose final success is False; an
+            episode whose file holds no success (None) meets neither.
+        min_steps, max_steps: bounds on the episode's length, inclusive.
+        verdicts: a replay's verdict of each episode of the file (index → ``exact``, ``within_tolerance``,
+            ``diverged``, ``error``); an episode it does not cover meets no verdict criterion.
+        keep_verdicts: the verdicts to keep (with `verdicts`).
+        report: where `verdicts` came from, for the provenance.
+    """
+
+    episodes: tuple[int, ...] | None = None
+    success: bool | None = None
+    min_steps: int | None = None
+    max_steps: int | None = None
+    verdicts: Mapping[int, str] | None = None
+    keep_verdicts: tuple[str, ...] = ()
+    report: str = ""
+
+    def __post_init__(self) -> None:
+        for name in ("min_steps", "max_steps"):
+            value = getattr(self, name)
+            if value is not None and value < 0:
+                raise UsageError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
+        if self.min_steps is not None and self.max_steps is not None and self.min_steps > self.max_steps:
+            raise UsageError(f"--min-steps {self.min_steps} is above --max-steps {self.max_steps}: no episode fits")
+
+    def given(self) -> bool:
+        return any(v is not None for v in (self.episodes, self.success, self.min_steps, self.max_steps,
+                                           self.verdicts))
+
+    def keeps(self, meta: EpisodeMeta) -> bool:
+        """Whether the episode of `meta` meets every criterion."""
+        return (
+            (self.episodes is None or meta.index in self.episodes)
+            and (self.success is None or meta.success is self.success)
+            and (self.min_steps is None or meta.length >= self.min_steps)
+            and (self.max_steps is None or meta.length <= self.max_steps)
+            and (self.verdicts is None or self.verdicts.get(meta.index) in self.keep_verdicts)
+        )
+
+    def describe(self) -> str:
+        """The criteria given, for people: ``episodes 0,3,4; success; >= 20 steps``."""
+        parts = []
+        if self.episodes is not None:
+            shown = ",".join(str(i) for i in self.episodes[:10])
+            parts.append(f"episodes {shown}{',...' if len(self.episodes) > 10 else ''}")
+        if self.success is not None:
+            parts.append("success" if self.success else "no success")
+        if self.min_steps is not None:
+            parts.append(f">= {self.min_steps} steps")
+        if self.max_steps is not None:
+            parts.append(f"<= {self.max_steps} steps")
+        if self.verdicts is not None:
+            parts.append(f"{' or '.join(self.keep_verdicts)} in {Path(self.report).name}")
+        return "; ".join(parts)
+
+    def to_json(self) -> dict[str, Any]:
+        """The criteria given, for the provenance (the verdicts as the report's path and the verdicts kept)."""
+        d: dict[str, Any] = {k: getattr(self, k) for k in ("episodes", "success", "min_steps", "max_steps")
+                             if getattr(self, k) is not None}
+        if "episodes" in d:
+            d["episodes"] = list(d["episodes"])
+        if self.verdicts is not None:
+            d.update(report=self.report, verdicts=list(self.keep_verdicts))
+        return d
+
+
+@dataclass
+class OutputSummary:
+    """One file an operation wrote."""
+
+    path: Path
+    episodes: int
+    steps: int
+
+    def line(self) -> str:
+        size = self.path.stat().st_size if self.path.exists() else 0
+        return f"{self.episodes} episode(s), {self.steps} steps → {self.path} ({size / 1024:.0f} KiB)"
+
+
+@dataclass
+class DatasetReport:
+    """What `merge` or `filter_recording` did."""
+
+    operation: str
+    outputs: list[OutputSummary]
+    """OUT, then (a split) the rest."""
+    inputs: list[tuple[Path, int, int]]
+    """Each input, how many episodes it holds, and how many of them went to OUT."""
+    checked: int
+    """Episodes read back from the outputs and found equal to their sources."""
+    no_success: int = 0
+    """Episodes whose file holds no final success (with a success criterion: neither kept nor meeting it)."""
+    uncovered: int = 0
+    """Episodes a verdict criterion's replay report does not cover (not kept)."""
+    criteria: str = ""
+    """`EpisodeCriteria.describe` of a filter."""
+    unfinished: list[str] = field(default_factory=list)
+    """``<input>: <episode>`` for each episode an input holds uncommitted (a killed recording): not copied."""
+
+    def summary(self) -> str:
+        """What was written, from where, and what was checked: the text the CLI prints."""
+        out = self.outputs[0]
+        if self.operation == "merge":
+            lines = [f"merged {len(self.inputs)} file(s): {out.line()}"]
+            first = 0
+            for path, _, n in self.inputs:
+                span = f"episodes {first}-{first + n - 1}" if n > 1 else (f"episode {first}" if n else "nothing")
+                lines.append(f"  {path.name:<24} {n:>6} episode(s) → {span}")
+                first += n
+        else:
+            path, total, _ = self.inputs[0]
+            lines = [f"filter {path.name} ({self.criteria}): kept {out.episodes} of {total}, {out.line()}"]
+            lines += [f"rest: {o.line()}" for o in self.outputs[1:]]
+        lines += [f"note: {u} was never committed (a killed recording) and is not copied" for u in self.unfinished]
+        if self.no_success:
+            lines.append(f"note: {self.no_success} episode(s) hold no final success: neither --success nor "
+                         "--no-success keeps them")
+        if self.uncovered:
+            lines.append(f"note: {self.uncovered} episode(s) are not in the replay report: not kept")
+        lines.append(f"checked: {self.checked} episodes, every array equal to its source")
+        return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------------- sources
+@dataclass
+class _Source:
+    """One input as planned: its episode list and what identifies the file."""
+
+    path: Path
+    """Absolute."""
+    label: str
+    """As given on the command line."""
+    meta: RecordingMeta
+    episodes: list[EpisodeMeta]
+    identity: dict[str, Any] = field(default_factory=dict)
+    unfinished: list[str] = field(default_factory=list)
+    """Episodes the file holds that were never committed (a killed recording): not listed, not copied."""
+
+    @classmethod
+    def read(cls, path: str | Path) -> _Source:
+        with open_reader(path) as reader:
+            source = cls(Path(path).resolve(), str(path), reader.meta, list(reader.episodes))
+            st = os.stat(path)
+            m = reader.meta
+            source.identity = {
+                "path": str(source.path), "size": st.st_size, "mtime_ns": st.st_mtime_ns,
+                "meta_digest": hashlib.blake2b(_canonical(m.to_json()), digest_size=16).hexdigest(),
+                "kind": reader.kind, "episodes": len(reader.episodes), "versions": m.versions,
+                "created_utc": m.created_utc, "command": m.command, "source": m.source, "provenance": m.provenance,
+            }
+            source.unfinished = list(getattr(reader, "unfinished", []))
+        return source
+
+    def reopen(self) -> Any:
+        """The input's reader again; `RecordingFileError` when the file changed since it was planned."""
+        reader = open_reader(self.path)
+        st = os.stat(self.path)
+        if (st.st_size, st.st_mtime_ns) != (self.identity["size"], self.identity["mtime_ns"]):
+            reader.close()
+            raise RecordingFileError(self.label, "changed while it was being copied (size or mtime differ from when "
+                                                "it was first read); run the command again")
+        return reader
+
+
+def _canonical(value: Any) -> bytes:
+    return json.dumps(value, sort_keys=True, separators=(",", ":")).encode()
+
+
+def episode_digest(episode: Episode) -> bytes:
+    """BLAKE2b-256 of an episode's metadata and of every array's name, dtype, shape and bytes: equal digests mean
+    equal episodes (but for a collision of a 256-bit hash)."""
+    h = hashlib.blake2b(digest_size=32)
+    h.update(_canonical(episode.meta.to_json()))
+    for name, array in sorted(episode.fields().items()):
+        a = np.ascontiguousarray(array)
+        h.update(f"\0{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(a.reshape(-1).view(np.uint8) if a.size else b"")
+    return h.digest()
+
+
+# ---------------------------------------------------------------------------------------------------- the plan
+@dataclass(frozen=True)
+class _Item:
+    """One episode to copy: from which source, its index there, to which output, its index there."""
+
+    source: int
+    index: int
+    target: int
+    new_index: int
+
+
+Decide = Callable[[_Source, EpisodeMeta], "int | None"]
+"""Which output an episode goes to (its number in the target list), or None: not copied."""
+
+
+def _plan(sources: Sequence[_Source], decide: Decide, n_targets: int) -> list[_Item]:
+    counts = [0] * n_targets
+    items = []
+    for k, source in enumerate(sources):
+        for m in source.episodes:
+            target = decide(source, m)
+            if target is not None:
+                items.append(_Item(k, m.index, target, counts[target]))
+                counts[target] += 1
+    return items
+
+
+def _origin(source: _Source, meta: EpisodeMeta) -> dict[str, Any]:
+    origin: dict[str, Any] = {"file": str(source.path), "index": meta.index}
+    if meta.origin:
+        origin["origin"] = meta.origin
+    return origin
+
+
+def _read(items: Sequence[_Item], sources: Sequence[_Source], decide: Decide,
+          digests: list[list[bytes]]) -> Iterator[tuple[int, Episode]]:
+    """Each item's episode, renumbered with its origin, source by source (one reader open at a time); its digest
+    goes to `digests[target]`. The decision is made again on the episode as read (a ManiSkill file's reader
+    corrects a length the sidecar misstates): a different one is an error, not a silent change."""
+    for k, group in groupby(items, key=lambda item: item.source):
+        source = sources[k]
+        with source.reopen() as reader:
+            for item in group:
+                episode = reader.read_episode(item.index)
+                if decide(source, episode.meta) != item.target:
+                    raise RecordingFileError(
+                        source.label, f"episode {item.index} is listed as {_episode_meta(source, item.index).length} "
+                        f"steps but holds {episode.length}: selected by a length its file misstates; select it by "
+                        "index or fix the file's listing")
+                meta = dataclasses.replace(episode.meta, index=item.new_index, origin=_origin(source, episode.meta))
+                out = dataclasses.replace(episode, meta=meta)
+                digests[item.target].append(episode_digest(out))
+                yield item.target, out
+
+
+# ---------------------------------------------------------------------------------------------------- outputs
+def _now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+def _common(dicts: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """The entries every dict of `dicts` holds with the same value."""
+    return {k: v for k, v in dicts[0].items() if all(k in d and d[k] == v for d in dicts[1:])}
+
+
+def _versions(sources: Sequence[_Source]) -> dict[str, str]:
+    """The inputs' versions (equal by the same-env rule but for simreel's own: its distinct values, joined)."""
+    versions = dict(sources[0].meta.versions)
+    for key in PHYSICS_NEUTRAL_VERSIONS:
+        seen = list(dict.fromkeys(s.meta.versions[key] for s in sources if key in s.meta.versions))
+        if seen:
+            versions[key] = ", ".join(seen)
+    return versions
+
+
+def _output_meta(sources: Sequence[_Source], provenance: dict[str, Any], command: str) -> RecordingMeta:
+    return dataclasses.replace(
+        sources[0].meta, created_utc=_now(), command=command, format_version=FORMAT_VERSION,
+        source=_common([s.meta.source for s in sources]), versions=_versions(sources),
+        provenance={**provenance, "inputs": [s.identity for s in sources]},
+    )
+
+
+def _check_outputs(outputs: Sequence[str | Path], inputs: Sequence[str | Path], options: DatasetOptions) -> None:
+    """The output rule, before any input is opened (only their names are needed): known suffixes, no output is an
+    input (or a file beside one) or another output, none replaces a file without `overwrite`."""
+    for path in outputs:
+        format_of(path)
+    files = {option: recording_files(p) for option, p in zip(("-o", "--rest"), outputs, strict=False)}
+    for path in inputs:
+        check_distinct(files, recording_files(path), input_label=f"input {path}")
+    for path in outputs:
+        check_writable(path, overwrite=options.overwrite)
+
+
+@dataclass
+class _Output:
+    """One output while it is made: written under a staging name beside its final one, checked, then moved."""
+
+    final: Target
+    staged: Target
+    items: list[_Item] = field(default_factory=list)
+    """The episodes it receives, in order."""
+    digests: list[bytes] = field(default_factory=list)
+    """`episode_digest` of each episode as read from its source (renumbered, with its origin)."""
+
+    @classmethod
+    def of(cls, target: Target) -> _Output:
+        staged = target.path.with_name(f".{target.path.stem}.simreel-{os.getpid()}{target.path.suffix}")
+        return cls(target, dataclasses.replace(target, path=staged, overwrite=True))
+
+    def publish(self) -> None:
+        """Move the checked recording and its side files to their final names, the recording last (a reader that
+        finds it finds its sidecar). Files of an old recording there that the new one lacks (its `.partial/`
+        scratch folder) go: with `overwrite` only, as the output rule checked at the start."""
+        pairs = list(zip(recording_files(self.staged.path), recording_files(self.final.path), strict=True))
+        for src, dst in pairs[1:] + pairs[:1]:
+            if src.exists() and self.final.overwrite:
+                os.replace(src, dst)
+            elif src.exists():
+                os.link(src, dst)  # never replaces a file made since the start: FileExistsError
+                src.unlink()
+            elif self.final.overwrite and dst.is_dir():
+                shutil.rmtree(dst)
+            elif self.final.overwrite:
+                dst.unlink(missing_ok=True)
+
+
+def _run(sources: Sequence[_Source], targets: Sequence[Target], decide: Decide, options: DatasetOptions,
+         what: str) -> tuple[list[OutputSummary], list[_Item]]:
+    """Plan, copy, check and publish: the work both operations share. The outputs are written under staging names
+    (an old OUT stays until the new one is checked) and removed on any failure or Ctrl-C."""
+    items = _plan(sources, decide, len(targets))
+    if not any(item.target == 0 for item in items):
+        raise UsageError(f"no episode to write to {targets[0].path}: nothing matches; nothing written")
+    outputs = [_Output.of(t) for t in targets]
+    for item in items:
+        outputs[item.target].items.append(item)
+    try:
+        episodes = _read(options.progress(items, what), sources, decide, [o.digests for o in outputs])
+        steps = write_episodes([o.staged for o in outputs], episodes)
+        for output in outputs:
+            _check(output, sources, options)
+        for output in outputs:
+            output.publish()
+    except BaseException:
+        for output in outputs:
+            remove_recording(output.staged.path)
+        raise
+    return [OutputSummary(o.final.path, len(o.items), n) for o, n in zip(outputs, steps, strict=True)], items
+
+
+# ---------------------------------------------------------------------------------------------------- the check
+def _check(output: _Output, sources: Sequence[_Source], options: DatasetOptions) -> None:
+    """Read the staged output back: its metadata as planned, episodes 0..N-1, each equal to its source (digests).
+    Messages name the output by its final name."""
+    name, digests = output.final.path, output.digests
+    with open_reader(output.staged.path) as reader:
+        if _canonical(reader.meta.to_json()) != _canonical(output.final.meta.to_json()):
+            raise OutputCheckError(f"{name}: the recording metadata read back is not the one written")
+        indices = [m.index for m in reader.episodes]
+        if indices != list(range(len(digests))):
+            raise OutputCheckError(f"{name}: holds episodes {indices[:10]}, expected 0..{len(digests) - 1}")
+        for m in options.progress(reader.episodes, f"check {name.name}"):
+            episode = reader.read_episode(m.index)
+            if episode_digest(episode) != digests[m.index]:
+                raise OutputCheckError(f"{name}: episode {m.index} {_difference(episode, output.items[m.index], sources)}")
+
+
+def _difference(got: Episode, item: _Item, sources: Sequence[_Source]) -> str:
+    """What differs between an output episode and its source, read again (the rare path of a failed check)."""
+    source = sources[item.source]
+    with source.reopen() as reader:
+        want = reader.read_episode(item.index)
+    where = f"does not read back as episode {item.index} of {source.label}"
+    ours = {k: v for k, v in got.meta.to_json().items() if k not in ("index", "origin")}
+    theirs = {k: v for k, v in want.meta.to_json().items() if k not in ("index", "origin")}
+    if ours != theirs:
+        return f"{where}: its metadata differs"
+    a, b = got.fields(), want.fields()
+    for name in sorted(set(a) | set(b)):
+        x, y = a.get(name), b.get(name)
+        if x is None or y is None:
+            return f"{where}: {name} is {'missing' if x is None else 'extra'}"
+        if x.dtype != y.dtype or x.shape != y.shape or x.tobytes() != y.tobytes():
+            return f"{where}: {name} is {x.dtype} {x.shape} here, {y.dtype} {y.shape} there, or its bytes differ"
+    return f"{where} (its digest differs)"
+
+
+# ---------------------------------------------------------------------------------------------------- operations
+def _options(options: DatasetOptions | None, overrides: dict[str, Any]) -> DatasetOptions:
+    return dataclasses.replace(options or DatasetOptions(), **overrides)
+
+
+def merge(inputs: Sequence[str | Path], output: str | Path, options: DatasetOptions | None = None,
+          **overrides: Any) -> DatasetReport:
+    """Copy every episode of `inputs` (recordings of one env, any format) into a new recording `output`, numbered
+    0..N-1 in input order. `overrides` replace fields of `options` (`DatasetOptions`)."""
+    opts = _options(options, overrides)
+    if not inputs:
+        raise UsageError("no input to merge")
+    resolved = [Path(p).resolve() for p in inputs]
+    twice = next((p for k, p in enumerate(inputs) if resolved[k] in resolved[:k]), None)
+    if twice is not None:
+        raise UsageError(f"{twice} is given twice; each input is merged once")
+    _check_outputs([output], inputs, opts)
+    sources = [_Source.read(p) for p in inputs]
+    check_same_env([(s.label, s.meta) for s in sources])
+    target = Target(Path(output), _output_meta(sources, {"operation": "merge"}, opts.command), opts.overwrite)
+    outputs, items = _run(sources, [target], lambda source, meta: 0, opts, "merge")
+    taken = [sum(1 for i in items if i.source == k) for k in range(len(sources))]
+    return DatasetReport("merge", outputs, [(s.path, len(s.episodes), n) for s, n in zip(sources, taken, strict=True)],
+                         outputs[0].episodes, unfinished=_unfinished(sources))
+
+
+def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCriteria,
+                     options: DatasetOptions | None = None, *, rest: str | Path | None = None,
+                     **overrides: Any) -> DatasetReport:
+    """Copy the episodes of `path` that meet `criteria` into a new recording `output` (numbered 0..N-1), and with
+    `rest` the others into a second one: a split, every episode in exactly one of them. `overrides` replace
+    fields of `options` (`DatasetOptions`)."""
+    opts = _options(options, overrides)
+    if not criteria.given():
+        raise UsageError("no criterion: give --episodes, --success/--no-success, --min-steps, --max-steps, "
+                         "--verified or --diverged (to copy every episode, use `simreel convert`)")
+    outputs = [output] if rest is None else [output, rest]
+    _check_outputs(outputs, [path], opts)
+    source = _Source.read(path)
+    for index in criteria.episodes or ():
+        _episode_meta(source, index)
+    provenance: dict[str, Any] = {"operation": "filter", "criteria": criteria.to_json()}
+    parts = ["kept", "rest"][: len(outputs)]
+    targets = [Target(Path(p), _output_meta([source], {**provenance, "part": part}, opts.command), opts.overwrite)
+               for p, part in zip(outputs, parts, strict=True)]
+
+    def decide(_: _Source, meta: EpisodeMeta) -> int | None:
+        return 0 if criteria.keeps(meta) else (1 if rest is not None else None)
+
+    written, _ = _run([source], targets, decide, opts, "filter")
+    return DatasetReport(
+        "filter", written, [(source.path, len(source.episodes), written[0].episodes)], sum(o.episodes for o in written),
+        no_success=sum(1 for m in source.episodes if m.success is None) if criteria.success is not None else 0,
+        uncovered=sum(1 for m in source.episodes if m.index not in criteria.verdicts)
+        if criteria.verdicts is not None else 0,
+        criteria=criteria.describe(), unfinished=_unfinished([source]),
+    )
+
+
+def _unfinished(sources: Sequence[_Source]) -> list[str]:
+    return [f"{s.label}: {u}" for s in sources for u in s.unfinished]
+
+
+def _episode_meta(source: _Source, index: int) -> EpisodeMeta:
+    for m in source.episodes:
+        if m.index == index:
+            return m
+    have = ", ".join(str(m.index) for m in source.episodes[:20]) or "none"
+    raise RecordingFileError(source.label, f"no episode {index} (episodes: {have}{', ...' if len(source.episodes) > 20 else ''})")
+
+
+def describe_provenance(provenance: Mapping[str, Any]) -> str:
+    """One line saying what made a recording from others (`RecordingMeta.provenance`), for `simreel inspect`."""
+    inputs = provenance.get("inputs") or []
+    names = ", ".join(f"{Path(i.get('path', '?')).name} ({i.get('episodes', '?')} episode(s))" for i in inputs[:5])
+    names += f", ... ({len(inputs)} files)" if len(inputs) > 5 else ""
+    line = f"{provenance.get('operation', '?')} of {names or 'nothing'}"
+    criteria = provenance.get("criteria")
+    if criteria:
+        line += "; criteria " + ", ".join(f"{k} {json.dumps(v)}" for k, v in criteria.items())
+    if provenance.get("part"):
+        line += f"; the episodes {'kept' if provenance['part'] == 'kept' else 'not kept'}"
+    return line
+
+
+def describe_origin(origin: Mapping[str, Any]) -> str:
+    """``file.h5#3``: where an episode was copied from (`EpisodeMeta.origin`); empty for a recorded one."""
+    return f"{Path(origin['file']).name}#{origin['index']}" if origin.get("file") else ""
+
+
+def report_verdicts(path: str | Path, verdicts: Mapping[tuple[str, int], str],
+                    files: Mapping[str, tuple[int | None, int | None]], report: str | Path) -> dict[int, str]:
+    """The verdicts a replay report (`simreel.replay.read_verdicts`: (file, index) → verdict, and each file's
+    (size, mtime_ns) when it was replayed) gives the episodes of `path`, by index.
+
+    Raises `UsageError` when the report does not cover `path`, or when `path` changed since it was replayed (its
+    size or mtime differ): its verdicts would be about another file."""
+    p = Path(path)
+    if not p.is_file():
+        raise RecordingFileError(path, "no such file")
+    entry = next((f for f in files if Path(f).resolve() == p.resolve()), None)
+    if entry is None:
+        raise UsageError(f"{report} holds no verdict for {path}: replay it with --report first (simreel replay "
+                         f"{path} --report REPORT.json)")
+    st = p.stat()
+    if tuple(files[entry]) != (st.st_size, st.st_mtime_ns):
+        raise UsageError(f"{path} changed since {report} verified it (its size or modification time differ): the "
+                         "verdicts are about another file; replay it again")
+    return {index: verdict for (f, index), verdict in verdicts.items() if f == entry}

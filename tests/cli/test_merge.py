@@ -1,0 +1,131 @@
+"""`simreel merge`: the summary (per input, what was checked), one-line refusals (exit 2), progress bars only on a
+terminal, and Ctrl-C leaving no half-written output (a real process and signal)."""
+
+from __future__ import annotations
+
+import io
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from support.mcap_samples import synthetic_episode, synthetic_meta, write
+
+from simreel.cli.main import main
+from simreel.formats import open_reader, recording_files
+
+SUPPORT = Path(__file__).resolve().parents[1] / "support"
+
+
+@pytest.fixture()
+def inputs(tmp_path) -> list[Path]:
+    meta = synthetic_meta()
+    a = write(tmp_path / "a.h5", meta, [synthetic_episode(meta, i, T) for i, T in enumerate((4, 70, 1))])
+    b = write(tmp_path / "b.mcap", meta, [synthetic_episode(meta, i, T, seed=5) for i, T in enumerate((6, 2))])
+    return [a, b]
+
+
+def test_merge_prints_where_each_input_went_and_what_was_checked(inputs, tmp_path, capsys):
+    out = tmp_path / "all.mcap"
+    assert main(["merge", *map(str, inputs), "-o", str(out), "-q"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith(f"merged 2 file(s): 5 episode(s), 83 steps → {out} (")
+    assert lines[1].split() == ["a.h5", "3", "episode(s)", "→", "episodes", "0-2"]
+    assert lines[2].split() == ["b.mcap", "2", "episode(s)", "→", "episodes", "3-4"]
+    assert lines[3] == "checked: 5 episodes, every array equal to its source"
+    with open_reader(out) as r:
+        assert r.meta.command == f"simreel merge {inputs[0]} {inputs[1]} -o {out} -q"
+
+
+def test_inspect_shows_the_provenance_and_each_episodes_origin(inputs, tmp_path, capsys):
+    out = tmp_path / "all.h5"
+    assert main(["merge", *map(str, inputs), "-o", str(out), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["inspect", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "  made by    merge of a.h5 (3 episode(s)), b.mcap (2 episode(s))\n" in text
+    rows = [line.split() for line in text.splitlines() if line.strip().startswith(("0 ", "3 "))]
+    assert rows[0][:6] == ["0", "0", "100", "4", "False", "a.h5#0"] and rows[1][5] == "b.mcap#0"
+
+
+def test_progress_bars_count_the_copy_and_the_check_on_a_terminal_only(inputs, tmp_path, capsys, monkeypatch):
+    assert main(["merge", *map(str, inputs), "-o", str(tmp_path / "piped.h5")]) == 0
+    assert capsys.readouterr().err == ""  # not a terminal: no bar
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    monkeypatch.setattr(sys, "stderr", Terminal())
+    assert main(["merge", *map(str, inputs), "-o", str(tmp_path / "shown.h5")]) == 0
+    bars = sys.stderr.getvalue()
+    assert "merge: 100%" in bars and "check shown.h5: 100%" in bars and "5/5" in bars
+
+
+def test_different_envs_are_one_line_and_exit_2(inputs, tmp_path, capsys):
+    import dataclasses
+
+    other = dataclasses.replace(synthetic_meta(), control_mode="pd_joint_pos")
+    c = write(tmp_path / "c.h5", other, [synthetic_episode(other, 0, 3)])
+    assert main(["merge", str(inputs[0]), str(c), "-o", str(tmp_path / "out.h5")]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"simreel merge: error: {c} records another env than {inputs[0]}: control_mode is 'pd_joint_pos' "
+                   f"there, None in {inputs[0]}; only recordings of one env (same settings, layouts and simulator "
+                   "versions) become one file\n")
+    assert not (tmp_path / "out.h5").exists()
+
+
+def test_overwrite_replaces_out(inputs, tmp_path):
+    out = tmp_path / "out.h5"
+    out.write_bytes(b"old")
+    assert main(["merge", *map(str, inputs), "-o", str(out), "--overwrite", "-q"]) == 0
+    with open_reader(out) as r:
+        assert len(r) == 5
+
+
+@pytest.mark.parametrize("existing", [False, True], ids=["new-out", "overwrite"])
+def test_ctrl_c_during_the_copy_leaves_no_output_and_the_inputs_as_they_were(inputs, tmp_path, existing):
+    """OUT is written under a hidden staging name beside it and moved into place once checked: an interrupted
+    merge leaves neither a half-written OUT nor its staging files, and with --overwrite the old OUT stays."""
+    out = tmp_path / "out.h5"
+    if existing:
+        out.write_bytes(b"the old OUT")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    child = subprocess.Popen([sys.executable, str(SUPPORT / "interrupted_merge.py"), *map(str, inputs), "-o", str(out),
+                              *(["--overwrite"] if existing else [])],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "copying"
+        staged = [p.name for p in tmp_path.iterdir() if p.name.startswith(".out.simreel-")]
+        assert f".out.simreel-{child.pid}.h5" in staged  # two episodes are in it by now
+        child.send_signal(signal.SIGINT)
+        _, err = child.communicate(timeout=60)
+    finally:
+        child.kill()
+    assert child.returncode == 130 and err == "simreel merge: interrupted\n"
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    assert [p for p in recording_files(out) if p.exists()] == ([out] if existing else [])
+
+
+def test_overwrite_replaces_a_recording_and_every_file_beside_it(inputs, tmp_path):
+    out = tmp_path / "out.h5"
+    (tmp_path / "out.json").write_text("old sidecar")
+    (tmp_path / "out.h5.partial").mkdir()
+    (tmp_path / "out.h5.partial" / "traj_9.h5").write_bytes(b"scratch of a killed recording")
+    assert main(["merge", *map(str, inputs), "-o", str(out), "--overwrite", "-q"]) == 0
+    assert not (tmp_path / "out.h5.partial").exists() and "episode_id" in (tmp_path / "out.json").read_text()
+    with open_reader(out) as r:
+        assert len(r) == 5 and r.unfinished == []
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_an_episode_a_killed_recording_left_uncommitted_is_named_and_not_copied(inputs, tmp_path, capsys):
+    """A killed HDF5 recording leaves its running episode's scratch file in NAME.h5.partial/: that episode was
+    never committed, so it is not in the merge, and the summary says so (as convert warns)."""
+    (tmp_path / "a.h5.partial").mkdir()
+    (tmp_path / "a.h5.partial" / "traj_3.h5").write_bytes(b"")
+    assert main(["merge", *map(str, inputs), "-o", str(tmp_path / "out.h5"), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert f"note: {inputs[0]}: traj_3.h5 was never committed (a killed recording) and is not copied\n" in out
+    assert "merged 2 file(s): 5 episode(s)" in out
