@@ -99,9 +99,10 @@ def _tolerance_groups() -> list[str]:
     return [g for g in GROUPS if g != "flag"]  # flags are always compared exactly
 
 
-def parse_group_tolerance(text: str) -> tuple[str, float]:
-    """`--tol GROUP=X`: `"contact=5"` → ("contact", 5.0), GROUP one of `simreel.compare.GROUPS` but "flag"."""
-    groups = _tolerance_groups()
+def parse_group_tolerance(text: str, groups: list[str] | tuple[str, ...] | None = None) -> tuple[str, float]:
+    """`--tol GROUP=X`: `"contact=5"` → ("contact", 5.0), GROUP one of `groups` (default: `simreel.compare.GROUPS`
+    but "flag")."""
+    groups = list(groups) if groups is not None else _tolerance_groups()
     group, sep, value = text.partition("=")
     if not sep or group not in groups:
         raise argparse.ArgumentTypeError(f"expected GROUP=NUMBER with GROUP one of {', '.join(groups)}, got {text!r}")
