@@ -178,9 +178,12 @@ def _rows(a: np.ndarray) -> np.ndarray:
 
 
 def _abs_diff(rec: np.ndarray, rep: np.ndarray) -> np.ndarray:
-    d = np.abs(rec - rep)
-    both_nan = np.isnan(rec) & np.isnan(rep)
-    d = np.where(both_nan, 0.0, d)
+    """|rec - rep|, 0 where both hold the same value (the same infinity included) or both NaN, inf where only one
+    is NaN or the infinities differ."""
+    with np.errstate(invalid="ignore"):
+        d = np.abs(rec - rep)
+    same = (rec == rep) | (np.isnan(rec) & np.isnan(rep))
+    d = np.where(same, 0.0, d)
     return np.where(np.isnan(d), np.inf, d)
 
 
