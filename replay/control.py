@@ -227,17 +227,32 @@ class EePoseFromJointPos(_Converter):
         self.pos_only = self.arm.config.frame == "root_translation"
 
     def __call__(self, action: np.ndarray) -> ConvertedAction:
-        import sapien
-        from mani_skill.trajectory.utils.actions.conversion import delta_pose_to_pd_ee_delta
-
         parts = self.source.to_action_dict(np.asarray(action))
         target = self._tool_pose(parts["arm"])
-        now = self.tcp.pose.sp
-        delta = sapien.Pose(target.p - now.p, (now * target.inv()).q)
-        arm = np.asarray(delta_pose_to_pd_ee_delta(self.arm, delta, pos_only=self.pos_only), np.float64)
+        arm = self._normalized(target)
         clipped = bool(np.abs(arm[:3]).max() > 1)
         arm[:3] = np.clip(arm[:3], -1.0, 1.0)
         if not self.pos_only and np.linalg.norm(arm[3:]) > 1:
             arm[3:] /= np.linalg.norm(arm[3:])
             clipped = True
         return ConvertedAction(self._join(parts, arm), clipped, np.r_[target.p, target.q])
+
+    def _normalized(self, target: Any) -> np.ndarray:
+        """The normalized action that moves the tool-centre link from where it is to `target`: ManiSkill's delta
+        (position difference; rotation ``now * target⁻¹``), its rotation given as the XYZ Euler angles the
+        controller turns back into a rotation. (ManiSkill's converter gives the axis-angle vector instead, equal
+        to first order only: 1e-3 rad off at 0.05 rad per step, measured.)"""
+        import torch
+        from mani_skill.utils.geometry.rotation_conversions import (
+            matrix_to_euler_angles,
+            quaternion_to_matrix,
+        )
+
+        now = self.tcp.pose.sp
+        delta = np.r_[target.p - now.p]
+        if not self.pos_only:
+            q = torch.as_tensor(np.asarray((now * target.inv()).q, np.float64))[None]
+            delta = np.r_[delta, matrix_to_euler_angles(quaternion_to_matrix(q), "XYZ")[0].numpy()]
+        low = self.arm.action_space_low.cpu().numpy().astype(np.float64)
+        high = self.arm.action_space_high.cpu().numpy().astype(np.float64)
+        return (delta - 0.5 * (high + low)) / (0.5 * (high - low))
