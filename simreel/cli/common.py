@@ -11,7 +11,7 @@ from typing import Any
 from simreel.errors import UsageError
 
 __all__ = ["add_env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
-           "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar"]
+           "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar"]
 
 
 def progress_bar(items: Iterable[Any] | None = None, *, quiet: bool, **options: Any) -> Any:
@@ -80,6 +80,14 @@ def parse_index_ranges(text: str) -> list[int]:
         except ValueError:
             raise UsageError(f"bad episode list {text!r}: expected e.g. 0,3-7") from None
     return out
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """`"256x128"` → (256, 128): an image's width and height (`--size`, `--camera-size`)."""
+    width, sep, height = text.lower().partition("x")
+    if not sep or not width.isdigit() or not height.isdigit() or int(width) < 1 or int(height) < 1:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 256x256, got {text!r}")
+    return int(width), int(height)
 
 
 def parse_tolerance(text: str) -> float:

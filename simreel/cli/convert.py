@@ -13,7 +13,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import add_import_option, parse_group_tolerance, parse_index_ranges, progress_bar
+from simreel.cli.common import (
+    add_import_option,
+    parse_group_tolerance,
+    parse_index_ranges,
+    parse_size,
+    progress_bar,
+)
 from simreel.errors import UsageError
 
 __all__ = ["add_parser", "run"]
@@ -40,7 +46,7 @@ def add_parser(sub: Any) -> None:
                    "pointcloud, sensor_data, ... (cameras render on a GPU or on lavapipe)")
     g.add_argument("--control-mode", default=None, help="convert the actions to this control mode: from pd_joint_pos "
                    "to pd_joint_delta_pos, pd_ee_delta_pos or pd_ee_delta_pose; from pd_joint_delta_pos to pd_joint_pos")
-    g.add_argument("--camera-size", type=_size, default=None, metavar="WxH", help="size of every sensor camera")
+    g.add_argument("--camera-size", type=parse_size, default=None, metavar="WxH", help="size of every sensor camera")
     g.add_argument("--shader", default=None, help="ManiSkill shader of every camera (default, rt, rt-fast, ...)")
     g.add_argument("--episodes", default=None, metavar="LIST", help="episodes to convert, e.g. 0,3-7 (default: all)")
     g.add_argument("--count", type=int, default=None, metavar="N", help="convert only the first N of those episodes")
@@ -56,13 +62,6 @@ def add_parser(sub: Any) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     add_import_option(p)
     p.set_defaults(run=run)
-
-
-def _size(text: str) -> tuple[int, int]:
-    width, sep, height = text.lower().partition("x")
-    if not sep or not width.isdigit() or not height.isdigit() or int(width) < 1 or int(height) < 1:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 128x128, got {text!r}")
-    return int(width), int(height)
 
 
 def _keep(text: str) -> tuple[str, ...]:
