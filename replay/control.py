@@ -238,10 +238,12 @@ class EePoseFromJointPos(_Converter):
         return ConvertedAction(self._join(parts, arm), clipped, np.r_[target.p, target.q])
 
     def _normalized(self, target: Any) -> np.ndarray:
-        """The normalized action that moves the tool-centre link from where it is to `target`: ManiSkill's delta
-        (position difference; rotation ``now * target⁻¹``), its rotation given as the XYZ Euler angles the
-        controller turns back into a rotation. (ManiSkill's converter gives the axis-angle vector instead, equal
-        to first order only: 1e-3 rad off at 0.05 rad per step, measured.)"""
+        """The normalized action whose target pose (the controller's ``compute_target_pose``) is `target`: the
+        position delta scaled into [-1, 1] by the position bounds; the rotation delta ``target * now⁻¹`` (applied
+        before the current orientation, in the root frame) as the XYZ Euler angles the controller turns back into
+        a rotation, divided by ``rot_lower`` as the controller multiplies by it (a negative bound: this is why
+        ManiSkill's converter, which gives the axis-angle vector of ``now * target⁻¹``, turns the right way; its
+        vector is right to first order only: 1e-3 rad off at 0.05 rad per step, measured)."""
         import torch
         from mani_skill.utils.geometry.rotation_conversions import (
             matrix_to_euler_angles,
@@ -249,10 +251,11 @@ class EePoseFromJointPos(_Converter):
         )
 
         now = self.tcp.pose.sp
-        delta = np.r_[target.p - now.p]
-        if not self.pos_only:
-            q = torch.as_tensor(np.asarray((now * target.inv()).q, np.float64))[None]
-            delta = np.r_[delta, matrix_to_euler_angles(quaternion_to_matrix(q), "XYZ")[0].numpy()]
-        low = self.arm.action_space_low.cpu().numpy().astype(np.float64)
-        high = self.arm.action_space_high.cpu().numpy().astype(np.float64)
-        return (delta - 0.5 * (high + low)) / (0.5 * (high - low))
+        low = self.arm.action_space_low.cpu().numpy()[:3].astype(np.float64)
+        high = self.arm.action_space_high.cpu().numpy()[:3].astype(np.float64)
+        position = (np.asarray(target.p - now.p, np.float64) - 0.5 * (high + low)) / (0.5 * (high - low))
+        if self.pos_only:
+            return position
+        q = torch.as_tensor(np.asarray((target * now.inv()).q, np.float64))[None]
+        euler = matrix_to_euler_angles(quaternion_to_matrix(q), "XYZ")[0].numpy()
+        return np.r_[position, euler / np.broadcast_to(np.asarray(self.arm.config.rot_lower, np.float64), 3)]

@@ -38,7 +38,7 @@ from simreel.replay.control import check_pair
 from simreel.replay.engine import GPU_SIM_BACKENDS, EpisodeReplayer, ReplayerOptions
 from simreel.replay.output import ReplayedWriter, ReplayOutput
 from simreel.replay.report import EpisodeReport, episode_lines, recording_limits
-from simreel.replay.tracking import EndEffector, track_episode, tracking_tolerances
+from simreel.replay.tracking import Commands, EndEffector, track_episode, tracking_tolerances
 from simreel.replay.workers import EpisodeResult, run_pool
 from simreel.replay.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports
@@ -199,7 +199,8 @@ class ConvertWorker:
 
     def _convert_actions(self, recorded: Episode) -> tuple[EpisodeReport, Episode]:
         run = self.replayer.replay_converted(recorded, self.converter)
-        cmp = track_episode(recorded, run.episode, EndEffector(self.replayer.u), self.job.tolerances, run.commands)
+        commands = None if run.commands is None else Commands(run.commands, tuple(run.clipped))
+        cmp = track_episode(recorded, run.episode, EndEffector(self.replayer.u), self.job.tolerances, commands)
         report = EpisodeReport.from_comparison(recorded, cmp, notes=run.notes, limits=run.limits, seconds=run.seconds)
         report.checked = _tracked(list(cmp.errors))
         report.per_step = {k: [float(x) for x in e] for k, e in cmp.errors.items()}
@@ -286,10 +287,12 @@ class ConversionReport:
         lines = [f"conversion of {self.path} -> {self.output}: {self.env_id}, {describe(self.conversion)}, "
                  f"{len(self.episodes)} episode(s), {steps} steps"]
         if tracked:
-            lines.append("  largest tracking error per episode: tool-centre pose (m, rad), objects (m, rad), success "
-                         "(steps); tolerances " + ", ".join(f"{k} {format_number(v)}" for k, v in self.tolerances.items()))
+            lines.append("  largest error per episode: commanded and reached tool-centre pose (m, rad), objects (m, "
+                         "rad), success timing (steps); tolerances "
+                         + ", ".join(f"{k} {format_number(v)}" for k, v in self.tolerances.items()))
         head = f"  {'episode':>7} {'steps':>6}  {'verdict':<17}"
-        lines.append(head + (f" {'ee m':>8} {'ee rad':>8} {'obj m':>8} {'obj rad':>8} {'succ':>4}" if tracked else "")
+        columns = ("cmd m", "cmd rad", "ee m", "ee rad", "obj m", "obj rad")
+        lines.append(head + ("".join(f" {c:>8}" for c in columns) + f" {'succ':>4}" if tracked else "")
                      + " first step out of tolerance")
         for e in self.episodes:
             rows = episode_lines(e)
@@ -323,7 +326,8 @@ def _tracked_row(e: EpisodeReport) -> str:
         return format_number(max(values)) if values else "-"
 
     success = e.max_abs_error.get("success")
-    cells = [worst("ee/", "[p]"), worst("ee/", "[q]"), worst("env_states/", "p]"), worst("env_states/", "q]")]
+    cells = [worst("command/", "[p]"), worst("command/", "[q]"), worst("ee/", "[p]"), worst("ee/", "[q]"),
+             worst("env_states/", "p]"), worst("env_states/", "q]")]
     first = e.first_divergence.describe() if e.first_divergence else ""
     return (f"  {e.index:>7} {e.length:>6}  {e.verdict:<17} " + " ".join(f"{c:>8}" for c in cells)
             + f" {'-' if success is None else format_number(success):>4} {first}").rstrip()
@@ -344,7 +348,7 @@ class ConversionRun:
         try:
             self._check_input(self.reader.meta)
             self.indices = self._indices()
-            self.tolerances = (tracking_tolerances(opts.control_mode, opts.group_tolerances) if opts.control_mode
+            self.tolerances = (tracking_tolerances(opts.group_tolerances) if opts.control_mode
                                else _states_tolerances())
         except BaseException:
             self.reader.close()
@@ -412,8 +416,8 @@ class ConversionRun:
             changed["obs_mode"] = [meta.obs_mode, opts.obs_mode]
         if opts.control_mode is not None:
             changed["control_mode"] = [meta.control_mode, opts.control_mode]
-        checked = ("per step, the converted run against the recorded states: end-effector pose, object poses, success "
-                   "timing" if opts.control_mode else "per step, each restored state read back within the 'states' "
+        checked = ("per step, the converted run against the recorded one: commanded and reached tool-centre pose, "
+                   "object poses, success timing" if opts.control_mode else "per step, each restored state read back within the 'states' "
                    "tolerances, recomputed rewards and flags; the output's states and actions equal the input's")
         return {**changed, **opts.env_kwargs(), "checked": checked}
 

@@ -280,7 +280,8 @@ class EpisodeReplayer:
         notes = [*done.notes, *episode.meta.notes, *done.limits]
         if clipped:
             notes.append(f"the {converter.target_mode} action was clipped to its limits at {len(clipped)} step(s) "
-                         f"(first: step {clipped[0]}): the recorded target was out of one step's reach")
+                         f"(first: step {clipped[0]}): the recorded target was out of one step's reach; their commands "
+                         "are not compared, the trajectory is")
         out = ReplayedEpisode(buf.episode(), notes, limits=[*episode.meta.notes, *done.limits], clipped=clipped,
                               commands=commands)
         out.compare_contacts = self._contacts is not None

@@ -36,13 +36,13 @@ def joint_targets(q0: np.ndarray, low: np.ndarray, high: np.ndarray, steps: int,
 
 
 def smooth_targets(q0: np.ndarray, low: np.ndarray, high: np.ndarray, steps: int, seed: int) -> np.ndarray:
-    """(steps, A) joint-position targets: from the reset pose through random waypoints within ±20% of each
+    """(steps, A) joint-position targets: from the reset pose through random waypoints within ±15% of each
     joint's range, eased in and out between them, no joint faster than `MAX_JOINT_STEP`."""
     rng = np.random.default_rng(seed)
     span = (high - low).astype(np.float64)
     out, here = [], q0.astype(np.float64)
     while len(out) < steps:
-        goal = np.clip(q0 + rng.uniform(-0.2, 0.2, len(q0)) * span, low, high)
+        goal = np.clip(q0 + rng.uniform(-0.15, 0.15, len(q0)) * span, low, high)
         goal[-1] = here[-1]  # the gripper stays as it is
         out += list(_eased(here, goal))
         here = goal
@@ -109,7 +109,8 @@ def record_maniskill(folder: Path, env_id: str, *, name: str = "demos", episodes
 
     `options`: ``obs_mode`` (default "none", as published demos), ``control_mode`` (default "pd_joint_pos"),
     ``record_env_state`` / ``record_reward`` (default True), ``source_type``/``source_desc``, ``path``
-    ("walk" default, "smooth" or "pick": see the module docstring), ``env_kwargs``.
+    ("walk" default, "smooth" or "pick": see the module docstring), ``path_seed`` (of the first episode's path,
+    default 100; episode k uses path_seed + k), ``env_kwargs``.
     """
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401
@@ -126,7 +127,7 @@ def record_maniskill(folder: Path, env_id: str, *, name: str = "demos", episodes
     path = options.get("path", "walk")
     for k in range(episodes):
         env.reset(seed=k)
-        for action in _path(env, path, steps, seed=100 + k):
+        for action in _path(env, path, steps, seed=options.get("path_seed", 100) + k):
             env.step(action)
     env.close()
     return Path(folder) / f"{name}.h5"
