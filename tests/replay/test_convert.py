@@ -140,6 +140,10 @@ def test_keep_verified_writes_only_the_episodes_that_pass(demos, tmp_path, capsy
     with open_reader(tmp_path / "kept.h5") as r:
         assert [m.index for m in r.episodes] == [1]
         assert r.meta.provenance["filters"]["keep"] == ["verified"]
+    capsys.readouterr()
+    assert main(["inspect", str(tmp_path / "kept.h5")]) == 0
+    assert (f"derived    from {src.resolve()} (episodes 0, 1): control_mode pd_joint_pos -> pd_joint_delta_pos; "
+            "kept: verified") in capsys.readouterr().out
 
 
 class _BadEpisode:
