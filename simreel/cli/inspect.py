@@ -63,18 +63,6 @@ def _print_header(reader: Any) -> None:
         print(f"  recorded   {m.created_utc}  {m.command}".rstrip())
     if m.unknown:
         print(f"  unknown    not in the file: {', '.join(m.unknown)}")
-    if m.provenance:
-        print(f"  derived    {_derivation(m.provenance)}")
-
-
-def _derivation(provenance: dict[str, Any]) -> str:
-    """``from demos.h5 (episodes 0, 1): control_mode pd_joint_pos -> pd_ee_delta_pose; kept: verified``."""
-    conversion = provenance.get("conversion", {})
-    changed = [f"{k} {v[0]} -> {v[1]}" for k, v in conversion.items() if isinstance(v, list) and len(v) == 2]
-    episodes = ", ".join(str(i) for i in provenance.get("source_episodes", []))
-    keep = (provenance.get("filters") or {}).get("keep")
-    return (f"from {provenance.get('source')} (episodes {episodes}): {'; '.join(changed)}"
-            + (f"; kept: {', '.join(keep)}" if keep else ""))
 
 
 def _print_episodes(reader: Any) -> None:

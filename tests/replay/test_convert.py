@@ -142,7 +142,7 @@ def test_keep_verified_writes_only_the_episodes_that_pass(demos, tmp_path, capsy
         assert r.meta.provenance["filters"]["keep"] == ["verified"]
     capsys.readouterr()
     assert main(["inspect", str(tmp_path / "kept.h5")]) == 0
-    assert (f"derived    from {src.resolve()} (episodes 0, 1): control_mode pd_joint_pos -> pd_joint_delta_pos; "
+    assert (f"made by    convert of {src.resolve()} (episodes 0, 1): control_mode pd_joint_pos -> pd_joint_delta_pos; "
             "kept: verified") in capsys.readouterr().out
 
 
@@ -196,6 +196,7 @@ def test_filters_and_exit_status_on_the_command_line(demos, tmp_path, capsys):
 )
 def test_bad_conversions_are_one_line_exit_2(demos, tmp_path, capsys, args, message):
     src = demos("PickCube-v1")
+    capsys.readouterr()  # what recording the demos printed (ManiSkill's render-device warning)
     try:
         code = main(["convert", str(src), str(tmp_path / "out.h5"), "-q", *args])
     except SystemExit as e:  # argparse's own refusal of a bad value
