@@ -51,6 +51,8 @@ bench: setup
 	$(BIN)/python benchmarks/bench_formats.py
 	$(BIN)/python benchmarks/bench_replay.py
 	$(BIN)/python benchmarks/bench_view.py
+	$(BIN)/python benchmarks/bench_convert.py
+	$(BIN)/python benchmarks/bench_convert.py --what rgb
 
 clean:
 	rm -rf $(DEMO) .pytest_cache .ruff_cache

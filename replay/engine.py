@@ -55,6 +55,8 @@ class ReplayerOptions:
         pose_bodies: also sample the world pose of these bodies after reset and every step (for ``-o``).
         render_backend: None: ``"none"`` unless the observation mode needs cameras, then ``"auto"``.
         sim_backend: None: the recorded one.
+        control_mode: None: the recorded one (another one to replay converted actions: `replay_converted`).
+        env_kwargs: ``gym.make`` arguments added to the recorded ones (camera size, shader).
     """
 
     obs_mode: str | None = None
@@ -62,6 +64,8 @@ class ReplayerOptions:
     pose_bodies: tuple[str, ...] = ()
     render_backend: str | None = None
     sim_backend: str | None = None
+    control_mode: str | None = None
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -75,6 +79,11 @@ class ReplayedEpisode:
     compare_contacts: bool = True
     limits: list[str] = field(default_factory=list)
     """What was not checked or not reproduced ("contacts not compared: ...", "... has no seed ...")."""
+    clipped: list[int] = field(default_factory=list)
+    """Steps whose converted action the target mode's limits clipped (`EpisodeReplayer.replay_converted`)."""
+    commands: np.ndarray | None = None
+    """(T, 2, 7) per step: the tool-centre pose the recorded action commanded, and the one the converted action
+    commanded (`EpisodeReplayer.replay_converted`; NaN where unknown)."""
 
 
 def _scalar(x: Any) -> Any:
@@ -91,7 +100,8 @@ def _flag(info: dict[str, Any], key: str) -> bool:
     return bool(_scalar(info[key])) if key in info else False
 
 
-_GPU_SIM_BACKENDS = ("physx_cuda", "gpu", "cuda")
+GPU_SIM_BACKENDS = ("physx_cuda", "gpu", "cuda")
+"""Names of ManiSkill's GPU sim backend as recordings give it."""
 
 
 def _has_cuda() -> bool:
@@ -120,6 +130,8 @@ class EpisodeReplayer:
         self.obs_mode = opts.obs_mode or (meta.obs_mode if self.need_obs else "none")
         self._render_backend = opts.render_backend
         self._sim_backend = opts.sim_backend
+        self._control_mode = opts.control_mode
+        self._env_kwargs = dict(opts.env_kwargs)
         self.env: Any = None
         self._build()
 
@@ -147,9 +159,12 @@ class EpisodeReplayer:
 
         # render_mode only matters to env.render() (videos), which a replay never calls
         env_kwargs = {k: v for k, v in self.meta.env_kwargs.items() if k != "render_mode"}
-        overrides: dict[str, Any] = {"num_envs": 1, "obs_mode": self.obs_mode, "env_kwargs": env_kwargs}
+        overrides: dict[str, Any] = {"num_envs": 1, "obs_mode": self.obs_mode,
+                                     "env_kwargs": {**env_kwargs, **self._env_kwargs}}
         if self._sim_backend is not None:
             overrides["sim_backend"] = self._sim_backend
+        if self._control_mode is not None:
+            overrides["control_mode"] = self._control_mode
 
         def build(render: str) -> Any:
             return env_from_meta(self.meta, render_backend=render, **overrides)
@@ -160,7 +175,7 @@ class EpisodeReplayer:
             default = "none" if camera_use(self.obs_mode) is None else "auto"
             return build_with_render_fallback(build, default)[0]
         except EnvBuildError as exc:
-            if self._sim_backend is None and self.meta.sim_backend in _GPU_SIM_BACKENDS and not _has_cuda():
+            if self._sim_backend is None and self.meta.sim_backend in GPU_SIM_BACKENDS and not _has_cuda():
                 raise ReplayError(
                     f"{self.meta.env_id} was recorded on the GPU sim ({self.meta.sim_backend}) and this machine has "
                     "no CUDA device; replay it on the CPU sim with --sim-backend physx_cpu (sim_backend='physx_cpu'). "
@@ -233,6 +248,42 @@ class EpisodeReplayer:
             out = self._replay(episode, mode, resync)
             out.notes.insert(0, f"replayed with obs_mode={self.obs_mode!r}: the task failed without observations "
                                 f"({type(exc).__name__}: {exc})")
+        out.compare_contacts = self._contacts is not None
+        out.seconds = time.perf_counter() - start
+        return out
+
+    def replay_converted(self, episode: Episode, converter: Any) -> ReplayedEpisode:
+        """Reproduce `episode`'s reset, then step, for each recorded action, the action `converter` turns it into
+        (`simreel.replay.control`: bound to this env after the reset, called with each recorded action, returning
+        the target mode's action and whether it was clipped). The replayed episode holds the converted actions;
+        its notes say at which steps the target mode's limits clipped them."""
+        import torch
+
+        start = time.perf_counter()
+        done = self.reset_for(episode.meta)
+        self._check_layout()
+        converter.bind(self.u)
+        buf = self._new(episode)
+        buf.actions = np.zeros((episode.length, *self.u.single_action_space.shape), np.float32)
+        self._initial(buf)
+        clipped = []
+        commands = np.full((episode.length, 2, 7), np.nan)
+        commanded = getattr(converter, "commanded", lambda: None)  # optional for converters of one's own
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for t in range(episode.length):
+                converted = converter(episode.actions[t])
+                buf.actions[t] = converted.action
+                clipped += [t] if converted.clipped else []
+                self._after_step(buf, t, self._step(torch.from_numpy(buf.actions[t]).to(self.u.device)))
+                _put(commands[t], getattr(converted, "wanted", None), commanded())
+        notes = [*done.notes, *episode.meta.notes, *done.limits]
+        if clipped:
+            notes.append(f"the {converter.target_mode} action was clipped to its limits at {len(clipped)} step(s) "
+                         f"(first: step {clipped[0]}): the recorded target was out of one step's reach; their commands "
+                         "are not compared, the trajectory is")
+        out = ReplayedEpisode(buf.episode(), notes, limits=[*episode.meta.notes, *done.limits], clipped=clipped,
+                              commands=commands)
         out.compare_contacts = self._contacts is not None
         out.seconds = time.perf_counter() - start
         return out
@@ -365,6 +416,12 @@ class EpisodeReplayer:
             if self.need_obs:
                 buf.set_obs(t + 1, self._obs(u._flatten_raw_obs(obs) if obs else u.get_obs(info)))
         return ReplayedEpisode(buf.episode())
+
+
+def _put(rows: np.ndarray, *values: np.ndarray | None) -> None:
+    for row, value in zip(rows, values, strict=True):
+        if value is not None:
+            row[:] = value
 
 
 class _Buffers:

@@ -31,6 +31,8 @@ class ReplayOutput:
     obs_mode: str | None = None
     pose_bodies: tuple[str, ...] = ()
     command: str = ""
+    changes: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """`RecordingMeta` fields to set in the output (a conversion: control mode, action space, provenance)."""
 
 
 def output_pose_bodies(meta: RecordingMeta, output: str | Path | None) -> tuple[str, ...]:
@@ -71,17 +73,17 @@ class ReplayedWriter:
     def _output_meta(self, episode: Episode) -> RecordingMeta:
         from simreel.sim.make import env_versions
 
-        return dataclasses.replace(
-            self.meta,
-            obs_mode=self.spec.obs_mode or self.meta.obs_mode,
-            obs_layout=layout_of(episode.obs, batched=True) if episode.obs else {},
-            contact_channels=list(self.meta.contact_channels) if episode.contact_forces is not None else [],
-            pose_bodies=list(self.spec.pose_bodies) if episode.body_poses is not None else [],
-            versions={k: v for k, v in env_versions().items() if v is not None},
-            created_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            command=self.spec.command,
-            unknown=[u for u in self.meta.unknown if u not in _PRODUCED],
-        )
+        fields = {
+            "obs_mode": self.spec.obs_mode or self.meta.obs_mode,
+            "obs_layout": layout_of(episode.obs, batched=True) if episode.obs else {},
+            "contact_channels": list(self.meta.contact_channels) if episode.contact_forces is not None else [],
+            "pose_bodies": list(self.spec.pose_bodies) if episode.body_poses is not None else [],
+            "versions": {k: v for k, v in env_versions().items() if v is not None},
+            "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "command": self.spec.command,
+            "unknown": [u for u in self.meta.unknown if u not in _PRODUCED],
+        }
+        return dataclasses.replace(self.meta, **{**fields, **self.spec.changes})
 
     def _write(self, episode: Episode) -> None:
         from simreel.formats import open_writer

@@ -71,6 +71,8 @@ class EpisodeReport:
     keys_compared: int = 0
     error: str | None = None
     """Why the episode could not be replayed (verdict ``error``)."""
+    per_step: dict[str, list[float]] = field(default_factory=dict)
+    """Key -> its error at every compared row, where a report carries them (a conversion's tracking errors)."""
 
     @classmethod
     def from_comparison(cls, recorded: Episode, cmp: EpisodeComparison, *, notes: list[str], limits: list[str],
@@ -125,6 +127,7 @@ class EpisodeReport:
             "limits": list(self.limits),
             "checked": list(self.checked),
             "seconds": round(self.seconds, 4),
+            **({"per_step": {k: [json_number(x) for x in v] for k, v in self.per_step.items()}} if self.per_step else {}),
         }
         if self.error is not None:
             out["error"] = self.error
@@ -142,6 +145,7 @@ class EpisodeReport:
             diverged_keys=dict(d.get("diverged_keys", {})), notes=list(d.get("notes", [])),
             seconds=float(d.get("seconds", 0.0)), limits=list(d.get("limits", [])), checked=list(d.get("checked", [])),
             keys_compared=int(d.get("keys_compared", 0)), error=d.get("error"),
+            per_step={k: [float(x) for x in v] for k, v in d.get("per_step", {}).items()},
         )
 
 

@@ -68,6 +68,10 @@ class ReplayJob:
         return dataclasses.replace(meta, imports=resolve_task_imports(meta.imports, explicit=self.imports,
                                                                       recording=path))
 
+    def open_worker(self) -> ReplayWorker:
+        """The worker a pool process runs this job in (`run_pool` calls it in each process)."""
+        return ReplayWorker(self)
+
 
 @dataclass
 class EpisodeResult:
@@ -198,15 +202,20 @@ class ReplayWorker:
         self._readers.close()
 
 
-_WORKER: ReplayWorker | None = None
-"""A worker process's worker."""
+_WORKER: Any = None
+"""A worker process's worker, or the user error that building it raised (given back with each item)."""
 
 
-def _worker_init(job: ReplayJob) -> None:
+def _worker_init(job: Any) -> None:
+    """Build this process's worker: ``job.open_worker()`` (a `ReplayJob`, or another picklable job, such as a
+    conversion's)."""
     global _WORKER
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
-    _WORKER = ReplayWorker(job)
+    try:
+        _WORKER = job.open_worker()
+    except SimreelError as e:  # an initializer that raises breaks the whole pool (BrokenProcessPool)
+        _WORKER = e
 
 
 def _exit_with_parent(parent: int) -> None:
@@ -220,13 +229,15 @@ def _exit_with_parent(parent: int) -> None:
 def _worker_run(item: WorkItem) -> EpisodeResult:
     if _WORKER is None:
         raise RuntimeError("_worker_run called in a process that _worker_init did not set up")
+    if isinstance(_WORKER, SimreelError):
+        return EpisodeResult(item, error=_WORKER)
     return _WORKER.run(item)
 
 
-def run_pool(worker: ReplayWorker, items: Iterable[WorkItem], workers: int,
-             collect: Callable[[EpisodeResult], Any]) -> None:
+def run_pool(worker: Any, items: Iterable[WorkItem], workers: int, collect: Callable[[EpisodeResult], Any]) -> None:
     """Replay `items` in `worker` (this process) and `workers - 1` worker processes; `collect` each result here,
-    as it arrives. When `collect` raises (a strict run meeting an error, Ctrl-C), the queued items are dropped
+    as it arrives. `worker` is a `ReplayWorker`, or another with ``job`` (whose ``open_worker()`` builds one in
+    each process) and ``run(item) -> EpisodeResult``. When `collect` raises (a strict run meeting an error, Ctrl-C), the queued items are dropped
     and the pool is shut down."""
     queue = deque(items)
     ahead = 2 * (workers - 1)  # items handed to the workers at a time; the rest stay for this process

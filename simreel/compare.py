@@ -46,6 +46,7 @@ __all__ = [
     "Divergence",
     "EpisodeComparison",
     "CompareScope",
+    "ErrorTable",
     "compare_episode",
     "VERDICTS",
     "worst_keys",
@@ -177,9 +178,12 @@ def _rows(a: np.ndarray) -> np.ndarray:
 
 
 def _abs_diff(rec: np.ndarray, rep: np.ndarray) -> np.ndarray:
-    d = np.abs(rec - rep)
-    both_nan = np.isnan(rec) & np.isnan(rep)
-    d = np.where(both_nan, 0.0, d)
+    """|rec - rep|, 0 where both hold the same value (the same infinity included) or both NaN, inf where only one
+    is NaN or the infinities differ."""
+    with np.errstate(invalid="ignore"):
+        d = np.abs(rec - rep)
+    same = (rec == rep) | (np.isnan(rec) & np.isnan(rep))
+    d = np.where(same, 0.0, d)
     return np.where(np.isnan(d), np.inf, d)
 
 
@@ -298,16 +302,20 @@ class CompareScope:
 
 
 @dataclass
-class _Errors:
-    """Per-row errors of every compared key, with its tolerance and whether its rows are states (T+1)."""
+class ErrorTable:
+    """Per-row errors of every compared key, with its tolerance and whether its rows are states (T+1): what
+    `compare_episode` fills from two episodes, and what other per-step checks (a control-mode conversion's
+    tracking errors) fill with their own keys and groups, to be judged by the same rules (`comparison`)."""
 
     tolerances: Tolerances
-    scope: CompareScope
+    scope: CompareScope = CompareScope()
     errors: dict[str, np.ndarray] = field(default_factory=dict)
     tol: dict[str, float] = field(default_factory=dict)
     per_state: dict[str, bool] = field(default_factory=dict)
 
     def add(self, key: str, err: np.ndarray, group: str, *, per_state: bool) -> None:
+        """Per-row errors `err` of `key`, judged by the tolerance of `group`; `per_state`: T+1 rows (row 0 after
+        reset), else T rows (one per step)."""
         if per_state and not self.scope.initial:
             err = err.copy()
             err[0] = 0.0
@@ -371,6 +379,21 @@ class _Errors:
         return {k: float(e[start if self.per_state[k] else 0 :].max()) if e.size else 0.0
                 for k, e in self.errors.items()}
 
+    def comparison(self) -> EpisodeComparison:
+        """The verdict on every key added: ``diverged`` when one leaves its tolerance (the first divergence is
+        the earliest such step, see `compare_episode`), ``exact`` when every error is 0, else
+        ``within_tolerance``."""
+        max_err = self.max_errors()
+        first, diverged = self.first_divergence()
+        if first is not None:
+            verdict = "diverged"
+        elif all(v == 0.0 for v in max_err.values()):
+            verdict = "exact"
+        else:
+            verdict = "within_tolerance"
+        return EpisodeComparison(verdict=verdict, first_divergence=first, max_abs_error=max_err, tolerance=self.tol,
+                                 diverged_keys=diverged, errors=self.errors)
+
     def first_divergence(self) -> tuple[Divergence | None, dict[str, int]]:
         """The earliest value out of tolerance (see `compare_episode`), and each diverged key's first step."""
         diverged: dict[str, int] = {}
@@ -411,7 +434,7 @@ def compare_episode(
     T = recorded.length
     if replayed.length != T:
         raise ValueError(f"episode {recorded.meta.index}: replay has {replayed.length} steps, recording {T}")
-    errs = _Errors(tolerances, scope)
+    errs = ErrorTable(tolerances, scope)
     errs.states(recorded.env_states, replayed.env_states)
     if scope.obs:
         errs.observations(recorded.obs, replayed.obs)
@@ -420,16 +443,7 @@ def compare_episode(
         errs.contacts(rec_f, rep_f, list(channels))
     errs.info(recorded.info, replayed.info, T)
     errs.step_fields(recorded, replayed)
-    max_err = errs.max_errors()
-    first, diverged = errs.first_divergence()
-    if first is not None:
-        verdict = "diverged"
-    elif all(v == 0.0 for v in max_err.values()):
-        verdict = "exact"
-    else:
-        verdict = "within_tolerance"
-    return EpisodeComparison(verdict=verdict, first_divergence=first, max_abs_error=max_err, tolerance=errs.tol,
-                             diverged_keys=diverged, errors=errs.errors)
+    return errs.comparison()
 
 
 def json_number(x: float) -> float | str:

@@ -180,10 +180,13 @@ class RecordingMeta:
     of the field table) and facts a replay cannot check (``versions``, ``sim_config``, ``control_freq``,
     ``contacts``, ``scene_seeds``, ``body_poses``, ``info``, ``env_states``). Empty for simreel recordings."""
     provenance: dict[str, Any] = field(default_factory=dict)
-    """What made this file from other recordings (empty for a recording made by recording): ``{"operation":
-    "merge" | "filter", "inputs": [{"path", "size", "mtime_ns", "meta_digest", "kind", "episodes", "versions",
-    "created_utc", "command", "source", "provenance"}, ...], "criteria": {...}, "part": "kept" | "rest"}``
-    (`simreel.formats.dataset`). Unlike `source`, which says where a file simreel did not record came from."""
+    """What made this file from other recordings (empty for a recording made by recording), by ``"operation"``:
+    ``"merge"`` / ``"filter"``: ``{"operation", "inputs": [{"path", "size", "mtime_ns", "meta_digest", "kind",
+    "episodes", "versions", "created_utc", "command", "source", "provenance"}, ...], "criteria": {...}, "part": "kept"
+    | "rest"}`` (`simreel.formats.dataset`); ``"convert"`` (``simreel convert`` to a new observation or control
+    mode): ``{"operation", "source": path, "source_kind", "source_episodes", "conversion": {what changed, how it
+    was checked}, "tolerances", "filters"}``, each episode's own verdict in `EpisodeMeta.provenance`. Unlike
+    `source`, which says where a file simreel did not record came from."""
 
     @property
     def control_period(self) -> float | None:
@@ -240,6 +243,9 @@ class EpisodeMeta:
     origin: dict[str, Any] = field(default_factory=dict)
     """Where a merged or filtered episode was copied from: ``{"file": <absolute path>, "index": <its index
     there>}``, and that episode's own ``"origin"`` when it had one (empty for a recorded episode)."""
+    provenance: dict[str, Any] = field(default_factory=dict)
+    """For an episode of a converted recording: ``{"source_episode": index in the source, "verdict", "checked",
+    "first_exceeded", "max_error"}`` as the conversion judged it (see `RecordingMeta.provenance`)."""
 
     def to_json(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=json_default))

@@ -11,7 +11,7 @@ from typing import Any
 from simreel.errors import UsageError
 
 __all__ = ["add_env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
-           "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar"]
+           "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar"]
 
 
 def progress_bar(items: Iterable[Any] | None = None, *, quiet: bool, **options: Any) -> Any:
@@ -82,6 +82,14 @@ def parse_index_ranges(text: str) -> list[int]:
     return out
 
 
+def parse_size(text: str) -> tuple[int, int]:
+    """`"256x128"` → (256, 128): an image's width and height (`--size`, `--camera-size`)."""
+    width, sep, height = text.lower().partition("x")
+    if not sep or not width.isdigit() or not height.isdigit() or int(width) < 1 or int(height) < 1:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 256x256, got {text!r}")
+    return int(width), int(height)
+
+
 def parse_tolerance(text: str) -> float:
     """`--atol X`: a finite number >= 0."""
     try:
@@ -99,9 +107,10 @@ def _tolerance_groups() -> list[str]:
     return [g for g in GROUPS if g != "flag"]  # flags are always compared exactly
 
 
-def parse_group_tolerance(text: str) -> tuple[str, float]:
-    """`--tol GROUP=X`: `"contact=5"` → ("contact", 5.0), GROUP one of `simreel.compare.GROUPS` but "flag"."""
-    groups = _tolerance_groups()
+def parse_group_tolerance(text: str, groups: list[str] | tuple[str, ...] | None = None) -> tuple[str, float]:
+    """`--tol GROUP=X`: `"contact=5"` → ("contact", 5.0), GROUP one of `groups` (default: `simreel.compare.GROUPS`
+    but "flag")."""
+    groups = list(groups) if groups is not None else _tolerance_groups()
     group, sep, value = text.partition("=")
     if not sep or group not in groups:
         raise argparse.ArgumentTypeError(f"expected GROUP=NUMBER with GROUP one of {', '.join(groups)}, got {text!r}")

@@ -1,15 +1,26 @@
-"""`simreel convert`: copy a recording between HDF5 (.h5) and MCAP (.mcap), losslessly, episode by episode."""
+"""`simreel convert`: copy a recording between HDF5 (.h5) and MCAP (.mcap), losslessly; or, with --obs-mode and/or
+--control-mode, convert it (re-render observations from the recorded states, convert actions to another control
+mode) and verify every episode step by step (`simreel.replay.convert`). Exit 0 when every written episode
+verifies, 1 when one does not (or nothing was written), 2 on bad input."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import add_import_option, progress_bar
+from simreel.cli.common import (
+    add_import_option,
+    parse_group_tolerance,
+    parse_index_ranges,
+    parse_size,
+    progress_bar,
+)
+from simreel.errors import UsageError
 
 __all__ = ["add_parser", "run"]
 
@@ -17,22 +28,79 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "convert",
-        help="convert a recording between .h5 and .mcap",
-        description="Copy every episode of IN to OUT; the suffix of OUT picks the format (.h5 or .mcap). "
-        "Arrays are copied bit-exactly both ways.",
+        help="convert a recording between .h5 and .mcap, or to another obs/control mode (verified)",
+        description="Copy every episode of IN to OUT; the suffix of OUT picks the format (.h5 or .mcap). Arrays are "
+        "copied bit-exactly both ways. With --obs-mode and/or --control-mode, convert instead: observations are "
+        "re-rendered from the recorded states, actions converted to the control mode and replayed from each reset, "
+        "and every episode is checked step by step against IN (exit 1 when one is not verified).",
     )
-    p.add_argument("input", metavar="IN", help="recording to read (.h5 or .mcap)")
+    p.add_argument("input", metavar="IN", help="recording to read (.h5 or .mcap; simreel's or ManiSkill's)")
     p.add_argument("output", metavar="OUT", help="file to write: .h5/.hdf5 or .mcap")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    p.add_argument("--overwrite", action="store_true", help="replace OUT (and --report) if they exist")
     p.add_argument("--poses", action="store_true",
                    help="when IN has no body poses, compute every actor's and link's world pose by restoring each "
                    "recorded state into the rebuilt env (needs the task; OUT then holds them, so MCAP's /tf "
                    "shows every link)")
+    g = p.add_argument_group("conversion (verified)")
+    g.add_argument("--obs-mode", default=None, help="observation mode of OUT: state, state_dict, rgb, rgbd, depth, "
+                   "pointcloud, sensor_data, ... (cameras render on a GPU or on lavapipe)")
+    g.add_argument("--control-mode", default=None, help="convert the actions to this control mode: from pd_joint_pos "
+                   "to pd_joint_delta_pos, pd_ee_delta_pos or pd_ee_delta_pose; from pd_joint_delta_pos to pd_joint_pos")
+    g.add_argument("--camera-size", type=parse_size, default=None, metavar="WxH", help="size of every sensor camera")
+    g.add_argument("--shader", default=None, help="ManiSkill shader of every camera (default, rt, rt-fast, ...)")
+    g.add_argument("--episodes", default=None, metavar="LIST", help="episodes to convert, e.g. 0,3-7 (default: all)")
+    g.add_argument("--count", type=int, default=None, metavar="N", help="convert only the first N of those episodes")
+    g.add_argument("--keep", type=_keep, default=(), metavar="WHAT",
+                   help="write only episodes that are all of (comma-separated): verified (their check passed), "
+                   "success (at their last step), not_truncated (they did not end at the time limit)")
+    g.add_argument("--tol", type=_tracking_tolerance, action="append", default=[], metavar="GROUP=X",
+                   help="tracking tolerance of a control-mode conversion, repeatable; groups: ee_pos, ee_rot (rad), "
+                   "obj_pos, obj_rot, obj_qpos, success (steps)")
+    g.add_argument("--report", default=None, metavar="REPORT.json", help="write the JSON report here (per-step errors)")
+    g.add_argument("--workers", type=int, default=1, metavar="N", help="parallel processes (default 1)")
+    g.add_argument("--sim-backend", default=None, help="convert on this sim backend (physx_cpu for a GPU recording)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     add_import_option(p)
     p.set_defaults(run=run)
 
 
+def _keep(text: str) -> tuple[str, ...]:
+    from simreel.replay.convert import KEEP
+
+    wanted = tuple(w.strip().replace("-", "_") for w in text.split(",") if w.strip())
+    unknown = [w for w in wanted if w not in KEEP]
+    if unknown or not wanted:
+        raise argparse.ArgumentTypeError(f"expected any of {', '.join(KEEP)}, got {text!r}")
+    return wanted
+
+
+def _tracking_tolerance(text: str) -> tuple[str, float]:
+    from simreel.replay.tracking import TRACKING_GROUPS
+
+    return parse_group_tolerance(text, TRACKING_GROUPS)
+
+
+def _converting(args: argparse.Namespace) -> bool:
+    """Whether this is a verified conversion (else a lossless copy, which takes none of its options)."""
+    if args.obs_mode is not None or args.control_mode is not None:
+        return True
+    given = [name for name, value in (("--camera-size", args.camera_size), ("--shader", args.shader),
+                                      ("--episodes", args.episodes), ("--count", args.count), ("--keep", args.keep),
+                                      ("--tol", args.tol), ("--report", args.report), ("--sim-backend", args.sim_backend))
+             if value]
+    if given:
+        raise UsageError(f"{', '.join(given)} apply to a conversion: add --obs-mode and/or --control-mode "
+                         "(without them, convert copies IN to another format as it is)")
+    return False
+
+
+def run(args: argparse.Namespace) -> int:
+    if _converting(args):
+        return _convert(args)
+    return _copy(args)
+
+
+# --------------------------------------------------------------------------------------- a lossless copy
 def _link_poses(args: argparse.Namespace) -> Callable[[Any], Any]:
     """`--poses`: what adds every body's pose to each episode, in the env rebuilt with the task's code (the
     --import given now, else the recorded one, found here); None when IN has poses already."""
@@ -51,7 +119,7 @@ def _link_poses(args: argparse.Namespace) -> Callable[[Any], Any]:
     return transform
 
 
-def run(args: argparse.Namespace) -> int:
+def _copy(args: argparse.Namespace) -> int:
     from simreel.formats import format_of
     from simreel.formats.copy import convert
 
@@ -67,3 +135,48 @@ def run(args: argparse.Namespace) -> int:
         print("note: IN has no body poses, so the MCAP transform channel (/tf) shows the actors and articulation "
               "roots of the state dict only; convert with --poses (or record with --poses) for every link")
     return 0
+
+
+# --------------------------------------------------------------------------------------- a verified conversion
+def _options(args: argparse.Namespace) -> Any:
+    from simreel.replay.convert import ConvertOptions
+
+    if args.poses:
+        raise UsageError("--poses applies to a copy between formats, not to a conversion")
+    episodes = None if args.episodes is None else parse_index_ranges(args.episodes)
+    if episodes is not None and not episodes:
+        raise UsageError(f"--episodes {args.episodes!r} names no episode")
+    if args.tol and args.control_mode is None:
+        raise UsageError("--tol sets the tracking tolerances of a control-mode conversion: add --control-mode")
+    return ConvertOptions(obs_mode=args.obs_mode, control_mode=args.control_mode, camera_size=args.camera_size,
+                          shader=args.shader, episodes=episodes, count=args.count, keep=args.keep,
+                          group_tolerances=dict(args.tol), workers=args.workers, imports=args.imports,
+                          sim_backend=args.sim_backend, overwrite=args.overwrite, command=args.command_line)
+
+
+def _convert(args: argparse.Namespace) -> int:
+    from simreel.formats import recording_files
+    from simreel.formats.targets import check_distinct, check_output, write_text_atomic
+    from simreel.replay.convert import ConversionRun
+
+    options = _options(args)
+    if args.report is not None:
+        check_distinct({"OUT": recording_files(args.output), "--report": [args.report]}, recording_files(args.input),
+                       input_label="IN")
+        check_output(args.report, overwrite=args.overwrite, option="--report")
+    with ConversionRun(args.input, args.output, options) as conversion:  # bad files and options fail here
+        bar = progress_bar(quiet=args.quiet, total=conversion.total, unit="ep",
+                           desc=f"convert {conversion.reader.meta.env_id}")
+
+        def progress(ep: Any) -> None:
+            bar.set_postfix_str(f"{ep.index}: {ep.verdict}")
+            bar.update()
+
+        with bar:
+            report = conversion.execute(progress)
+    for line in report.warnings:
+        sys.stderr.write(f"simreel convert: warning: {line}\n")
+    print(report.summary())
+    if args.report:
+        write_text_atomic(args.report, json.dumps(report.to_json(), indent=2) + "\n")
+    return 0 if report.ok else 1

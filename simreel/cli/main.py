@@ -20,7 +20,7 @@ from simreel.errors import SimreelError
 
 __all__ = ["main", "COMMANDS"]
 
-COMMANDS = ("record", "inspect", "replay", "audit", "convert", "recover", "merge", "filter", "view")
+COMMANDS = ("record", "inspect", "replay", "audit", "convert", "recover", "merge", "filter", "view", "video")
 """Subcommand modules under simreel.cli; each has `add_parser(subparsers)` and `run(args) -> int`."""
 
 

@@ -519,6 +519,8 @@ def _episode_meta(source: _Source, index: int) -> EpisodeMeta:
 
 def describe_provenance(provenance: Mapping[str, Any]) -> str:
     """One line saying what made a recording from others (`RecordingMeta.provenance`), for `simreel inspect`."""
+    if provenance.get("operation") == "convert":
+        return _describe_conversion(provenance)
     inputs = provenance.get("inputs") or []
     names = ", ".join(f"{Path(i.get('path', '?')).name} ({i.get('episodes', '?')} episode(s))" for i in inputs[:5])
     names += f", ... ({len(inputs)} files)" if len(inputs) > 5 else ""
@@ -529,6 +531,16 @@ def describe_provenance(provenance: Mapping[str, Any]) -> str:
     if provenance.get("part"):
         line += f"; the episodes {'kept' if provenance['part'] == 'kept' else 'not kept'}"
     return line
+
+
+def _describe_conversion(provenance: Mapping[str, Any]) -> str:
+    """``convert of /data/demos.h5 (episodes 0, 1): control_mode pd_joint_pos -> pd_ee_delta_pose; kept: verified``."""
+    conversion = provenance.get("conversion") or {}
+    changed = [f"{k} {v[0]} -> {v[1]}" for k, v in conversion.items() if isinstance(v, list) and len(v) == 2]
+    episodes = ", ".join(str(i) for i in provenance.get("source_episodes", []))
+    keep = (provenance.get("filters") or {}).get("keep")
+    return (f"convert of {provenance.get('source')} (episodes {episodes}): {'; '.join(changed)}"
+            + (f"; kept: {', '.join(keep)}" if keep else ""))
 
 
 def describe_origin(origin: Mapping[str, Any]) -> str:

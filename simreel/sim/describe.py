@@ -20,6 +20,7 @@ from simreel.state_tree import flatten, layout_of
 
 __all__ = [
     "recording_meta",
+    "action_space_json",
     "max_episode_steps_of",
     "flatten_obs",
     "sim_config_json",
@@ -77,7 +78,7 @@ def recording_meta(env: Any, **recorder_fields: Any) -> RecordingMeta:
         control_freq=float(u.control_freq),
         sim_freq=float(u.sim_freq),
         sim_config=sim_config_json(u.sim_config),
-        action_space=_action_space(env_id, u.single_action_space),
+        action_space=action_space_json(env_id, u.single_action_space),
         state_layout=layout_of(flatten(u.get_state_dict()), batched=True),
         scene=describe_scene(u),
         versions=env_versions(),
@@ -86,7 +87,8 @@ def recording_meta(env: Any, **recorder_fields: Any) -> RecordingMeta:
     )
 
 
-def _action_space(env_id: str, space: Any) -> dict[str, Any]:
+def action_space_json(env_id: str, space: Any) -> dict[str, Any]:
+    """One env's Box action space as `RecordingMeta.action_space` holds it; `UsageError` for any other space."""
     if space.shape is None:
         raise UsageError(
             f"{env_id} has a {type(space).__name__} action space (a multi-agent task); simreel records "

@@ -1,8 +1,10 @@
 """ManiSkill trajectory files made with ManiSkill's own tools, the way its users' datasets are made.
 
 - `record_maniskill`: `mani_skill.utils.wrappers.RecordEpisode` around a plain ``gym.make`` env, driven in
-  ``pd_joint_pos`` (the control mode of ManiSkill's published demos) along a smooth random path of joint
-  targets, like a motion-planned demo; obs mode, env states and rewards as asked.
+  ``pd_joint_pos`` (the control mode of ManiSkill's published demos) along a path of joint targets: a random
+  walk (``path="walk"``), a smooth path through random waypoints at the joint speeds of a motion-planned demo
+  (``"smooth"``), or, for PickCube, a scripted grasp-and-lift planned with inverse kinematics (``"pick"``,
+  what ManiSkill's motion-planning demos do); obs mode, env states and rewards as asked.
 - `replay_maniskill`: `python -m mani_skill.trajectory.replay_trajectory` on such a file in a child process
   (it needs a render device: pass an environment with lavapipe), returning the file it wrote.
 """
@@ -16,7 +18,11 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["record_maniskill", "replay_maniskill", "joint_targets"]
+__all__ = ["record_maniskill", "replay_maniskill", "joint_targets", "smooth_targets", "pick_targets"]
+
+MAX_JOINT_STEP = 0.02
+"""rad per step (0.4 rad/s at 20 Hz) of the smooth and planned paths: about the joint speed of ManiSkill's
+motion-planned demos."""
 
 
 def joint_targets(q0: np.ndarray, low: np.ndarray, high: np.ndarray, steps: int, seed: int) -> np.ndarray:
@@ -27,6 +33,68 @@ def joint_targets(q0: np.ndarray, low: np.ndarray, high: np.ndarray, steps: int,
     walk = np.cumsum(rng.normal(0.0, 0.02, (steps, len(q0))), axis=0)
     walk = np.clip(walk, -0.15, 0.15) * span
     return np.clip(q0 + walk, low, high).astype(np.float32)
+
+
+def smooth_targets(q0: np.ndarray, low: np.ndarray, high: np.ndarray, steps: int, seed: int) -> np.ndarray:
+    """(steps, A) joint-position targets: from the reset pose through random waypoints within ±15% of each
+    joint's range, eased in and out between them, no joint faster than `MAX_JOINT_STEP`."""
+    rng = np.random.default_rng(seed)
+    span = (high - low).astype(np.float64)
+    out, here = [], q0.astype(np.float64)
+    while len(out) < steps:
+        goal = np.clip(q0 + rng.uniform(-0.15, 0.15, len(q0)) * span, low, high)
+        goal[-1] = here[-1]  # the gripper stays as it is
+        out += list(_eased(here, goal))
+        here = goal
+    return np.asarray(out[:steps], np.float32)
+
+
+def _eased(start: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    """Joint targets from `start` to `goal` (excluded start, included goal) along a cosine ease, the fastest
+    joint at `MAX_JOINT_STEP` per step at mid-way."""
+    n = max(2, int(np.ceil(np.abs(goal - start).max() * np.pi / 2 / MAX_JOINT_STEP)))
+    s = (1 - np.cos(np.linspace(0, np.pi, n + 1)[1:])) / 2
+    return start + s[:, None] * (goal - start)
+
+
+def pick_targets(env: Any, steps: int) -> np.ndarray:
+    """(steps, 8) pd_joint_pos targets that pick PickCube's cube and carry it to the goal: joint paths between
+    IK solutions (the robot's pinocchio model) above the cube, at it, (close), at the goal; then hold."""
+    import sapien
+
+    u = env.unwrapped
+    robot = u.agent.robot
+    model = robot.create_pinocchio_model()
+    tcp = u.agent.tcp
+    q = robot.get_qpos().cpu().numpy()[0].astype(np.float64)
+    grasp = _grasp_pose(u.cube.pose.sp, tcp.pose.sp)
+    root = robot.pose.sp
+    plan, arm_dof = [], env.action_space.shape[0] - 1
+    open_, closed = 1.0, -1.0
+    for p, gripper in ((grasp.p + [0, 0, 0.08], open_), (grasp.p, open_), (grasp.p, closed),
+                       (u.goal_site.pose.sp.p, closed)):
+        goal_q, ok, _ = model.compute_inverse_kinematics(
+            tcp.index.item(), root.inv() * sapien.Pose(p, grasp.q), initial_qpos=q, max_iterations=200)
+        goal_q = goal_q if ok else q
+        arm = _eased(q[:arm_dof], goal_q[:arm_dof]) if not np.allclose(goal_q, q) else np.repeat(q[None, :arm_dof], 6, 0)
+        plan += [np.r_[a, gripper] for a in arm]
+        q = goal_q
+    plan += [plan[-1]] * max(0, steps - len(plan))
+    return np.asarray(plan[:steps], np.float32)
+
+
+def _grasp_pose(cube: Any, tcp: Any) -> Any:
+    """The tcp pose that grasps `cube` from above: the tcp's own orientation turned about z to the cube's
+    nearest face (a cube looks the same every 90 degrees)."""
+    import sapien
+
+    def heading(pose: Any) -> float:  # direction of the body's x axis in the world's xy plane
+        x_axis = pose.to_transformation_matrix()[:3, 0]
+        return float(np.arctan2(x_axis[1], x_axis[0]))
+
+    yaw = (heading(cube) - heading(tcp) + np.pi / 4) % (np.pi / 2) - np.pi / 4
+    turn = sapien.Pose(q=[np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)])
+    return sapien.Pose(cube.p, (turn * sapien.Pose(q=tcp.q)).q)
 
 
 def _start_targets(env: Any) -> np.ndarray:
@@ -40,7 +108,9 @@ def record_maniskill(folder: Path, env_id: str, *, name: str = "demos", episodes
     """Record `episodes` episodes of `steps` steps (seeds 0, 1, ...) with RecordEpisode into folder/name.h5.
 
     `options`: ``obs_mode`` (default "none", as published demos), ``control_mode`` (default "pd_joint_pos"),
-    ``record_env_state`` / ``record_reward`` (default True), ``source_type``/``source_desc``.
+    ``record_env_state`` / ``record_reward`` (default True), ``source_type``/``source_desc``, ``path``
+    ("walk" default, "smooth" or "pick": see the module docstring), ``path_seed`` (of the first episode's path,
+    default 100; episode k uses path_seed + k), ``env_kwargs``.
     """
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401
@@ -49,18 +119,26 @@ def record_maniskill(folder: Path, env_id: str, *, name: str = "demos", episodes
     import simreel  # noqa: F401  (points SAPIEN at the software Vulkan driver on a CPU machine)
 
     env = gym.make(env_id, obs_mode=options.get("obs_mode", "none"),
-                   control_mode=options.get("control_mode", "pd_joint_pos"))
+                   control_mode=options.get("control_mode", "pd_joint_pos"), **options.get("env_kwargs", {}))
     env = RecordEpisode(env, str(folder), trajectory_name=name, save_video=False,
                         record_env_state=options.get("record_env_state", True),
                         record_reward=options.get("record_reward", True),
                         source_type=options.get("source_type"), source_desc=options.get("source_desc"))
-    space = env.action_space
+    path = options.get("path", "walk")
     for k in range(episodes):
         env.reset(seed=k)
-        for action in joint_targets(_start_targets(env), space.low, space.high, steps, seed=100 + k):
+        for action in _path(env, path, steps, seed=options.get("path_seed", 100) + k):
             env.step(action)
     env.close()
     return Path(folder) / f"{name}.h5"
+
+
+def _path(env: Any, path: str, steps: int, seed: int) -> np.ndarray:
+    if path == "pick":
+        return pick_targets(env, steps)
+    space = env.action_space
+    make = {"walk": joint_targets, "smooth": smooth_targets}[path]
+    return make(_start_targets(env), space.low, space.high, steps, seed=seed)
 
 
 def replay_maniskill(path: Path, env: dict[str, str], *args: str) -> Path:

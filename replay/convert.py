@@ -1,0 +1,555 @@
+"""Convert a recording to another observation mode and/or control mode, and prove each episode is still the
+same trajectory: what `simreel convert IN OUT --obs-mode ... --control-mode ...` runs.
+
+- **Observation mode** only (re-rendering, e.g. ``rgb``, ``pointcloud``): every recorded state is restored and the
+  observations are computed from it (`EpisodeReplayer`, mode ``states``). The output keeps the input's states,
+  actions, rewards and flags as they are (it adds only what the input lacks: rewards, success, fail recomputed
+  from the states); the check: each restored state reads back within the ``states`` tolerances (a restore
+  changes a state by <= 1.5e-8) and the recomputed rewards and flags agree; after writing, the output's states
+  and actions are read back and must equal the input's exactly.
+- **Control mode** (with or without a new observation mode): each recorded action is converted one step for
+  one (`simreel.replay.control`) and the converted actions are stepped from the episode's reset; the resulting
+  trajectory is compared with the recorded one at every step (`simreel.replay.tracking`: tool-centre pose,
+  object poses, success timing), each episode getting its largest tracking errors, the first step one leaves
+  its tolerance, and a verdict.
+
+Filters: `episodes`, `count` (the first N of those), `keep` (``verified``, ``success``, ``not_truncated``: which
+episodes are written). The output's metadata says where it came from (`RecordingMeta.provenance`: source file,
+episodes, the conversion, the tolerances) and each episode's verdict (`EpisodeMeta.provenance`). Episodes run in
+this process and ``workers - 1`` more (`simreel.replay.workers.run_pool`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simreel.compare import CompareScope, Tolerances, compare_episode, format_number
+from simreel.episode import Episode, RecordingMeta
+from simreel.errors import SimreelError, UsageError
+from simreel.formats import EpisodeReader, check_writable, format_of, open_reader, recording_files
+from simreel.formats.targets import check_distinct
+from simreel.replay.control import check_pair
+from simreel.replay.engine import GPU_SIM_BACKENDS, EpisodeReplayer, ReplayerOptions
+from simreel.replay.output import ReplayedWriter, ReplayOutput
+from simreel.replay.report import EpisodeReport, episode_lines, recording_limits
+from simreel.replay.tracking import Commands, EndEffector, track_episode, tracking_tolerances
+from simreel.replay.workers import EpisodeResult, run_pool
+from simreel.replay.worklist import WorkItem
+from simreel.sim.user_code import resolve_task_imports
+
+__all__ = ["KEEP", "ConvertOptions", "ConvertJob", "ConvertWorker", "ConversionReport", "ConversionRun",
+           "convert_recording"]
+
+KEEP = ("verified", "success", "not_truncated")
+"""What `ConvertOptions.keep` may ask of an episode for it to be written."""
+_TRACKING_LIMITS = ("versions", "sim_config", "scene_seeds", "reset_options", "env_idx", "success")
+"""What a file may not hold that limits a control-mode conversion's check (`RecordingMeta.unknown`)."""
+
+
+@dataclass(frozen=True)
+class ConvertOptions:
+    """What `convert_recording` converts, how it judges and what it writes.
+
+    Attributes:
+        obs_mode: the output's observation mode (None: the input's; with a control mode, computed in the
+            converted run; without, re-rendered from the recorded states).
+        control_mode: convert the actions to this control mode (`simreel.replay.control.SUPPORTED`).
+        camera_size: (width, height) of every sensor camera (ManiSkill's ``sensor_configs``).
+        shader: ManiSkill's ``shader_dir`` for every camera (``"default"``, ``"rt"``, ...).
+        episodes: episode indices to convert (None: all, in file order); `count`: only the first N of them.
+        keep: write only episodes that are ``verified``, ended in ``success``, and/or ``not_truncated``.
+        group_tolerances: tracking tolerances overriding the defaults (`simreel.replay.tracking`), e.g.
+            ``{"ee_pos": 1e-3}``.
+        workers: processes converting episodes in parallel (this one and workers - 1 more).
+        imports: `--import` specs (besides those the recording names); sim_backend: convert on this backend.
+        overwrite: replace an existing output; command: the command line, kept in the output's metadata.
+        converter: the factory of the action converter, called as `simreel.replay.control.converter_for` is
+            (``(source_mode, target_mode, unwrapped, source_controller) -> ActionConverter``): bring your own for a
+            robot or mode pair simreel does not convert, and it is verified the same way. Picklable for workers.
+    """
+
+    obs_mode: str | None = None
+    control_mode: str | None = None
+    camera_size: tuple[int, int] | None = None
+    shader: str | None = None
+    episodes: tuple[int, ...] | None = None
+    count: int | None = None
+    keep: tuple[str, ...] = ()
+    group_tolerances: Mapping[str, float] = field(default_factory=dict)
+    workers: int = 1
+    imports: tuple[str, ...] = ()
+    sim_backend: str | None = None
+    overwrite: bool = False
+    command: str = ""
+    converter: Callable[..., Any] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("episodes", "keep", "imports", "camera_size"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, tuple(value))
+
+    def check(self) -> None:
+        """`UsageError` for options that cannot work whatever the file: nothing to convert, bad numbers."""
+        if self.obs_mode is None and self.control_mode is None:
+            raise UsageError("nothing to convert: give an observation mode (--obs-mode) and/or a control mode "
+                             "(--control-mode); `simreel convert IN OUT` alone copies a recording between formats")
+        unknown = sorted(set(self.keep) - set(KEEP))
+        if unknown:
+            raise UsageError(f"--keep {','.join(unknown)}: expected any of {', '.join(KEEP)}")
+        if self.workers < 1 or (self.count is not None and self.count < 1):
+            raise UsageError(f"--workers and --count must be >= 1 (got {self.workers}, {self.count})")
+        if self.camera_size is not None and (len(self.camera_size) != 2 or min(self.camera_size) < 1):
+            raise UsageError(f"--camera-size must be WIDTHxHEIGHT, got {self.camera_size}")
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """The ``gym.make`` arguments the camera options add."""
+        out: dict[str, Any] = {}
+        if self.camera_size is not None:
+            out["sensor_configs"] = {"width": int(self.camera_size[0]), "height": int(self.camera_size[1])}
+        if self.shader is not None:
+            out["shader_dir"] = self.shader
+        return out
+
+
+@dataclass(frozen=True)
+class ConvertJob:
+    """What every worker of one conversion does (picklable: worker processes build their own workers)."""
+
+    path: str
+    obs_mode: str | None
+    control_mode: str | None
+    env_kwargs: dict[str, Any]
+    tolerances: Tolerances
+    sim_backend: str | None = None
+    imports: tuple[str, ...] = ()
+    converter: Callable[..., Any] | None = None
+
+    def open_worker(self) -> ConvertWorker:
+        """The worker a pool process converts episodes in (`run_pool` calls it in each process)."""
+        return ConvertWorker(self)
+
+
+def _states_tolerances() -> Tolerances:
+    return Tolerances.for_mode("states")
+
+
+class ConvertWorker:
+    """One reader and the envs that convert its episodes: the replayer (target modes) and, for a control-mode
+    conversion, a state-only env in the recorded control mode whose controller splits recorded actions."""
+
+    def __init__(self, job: ConvertJob, reader: EpisodeReader | None = None) -> None:
+        self.job = job
+        self.reader = reader if reader is not None else open_reader(job.path)
+        self.source_env: Any = None
+        try:
+            meta = self.reader.meta
+            self.meta = dataclasses.replace(meta, imports=resolve_task_imports(meta.imports, explicit=job.imports,
+                                                                               recording=job.path))
+            self.replayer = EpisodeReplayer(meta, self._replayer_options())
+            self.converter = self._converter() if job.control_mode else None
+        except BaseException:
+            self.close()
+            raise
+
+    def _replayer_options(self) -> ReplayerOptions:
+        job = self.job
+        need_obs = job.obs_mode is not None or bool(self.meta.obs_layout)
+        return ReplayerOptions(obs_mode=job.obs_mode or (self.meta.obs_mode if need_obs else None), need_obs=need_obs,
+                               control_mode=job.control_mode, env_kwargs=dict(job.env_kwargs),
+                               sim_backend=job.sim_backend)
+
+    def _converter(self) -> Any:
+        from simreel.replay.control import converter_for
+        from simreel.sim.rebuild import build_with_render_fallback, env_from_meta
+
+        def build(render: str) -> Any:
+            return env_from_meta(self.meta, num_envs=1, obs_mode="none", render_backend=render,
+                                 **({"sim_backend": self.job.sim_backend} if self.job.sim_backend else {}))
+
+        self.source_env = build_with_render_fallback(build, "none")[0]
+        make = self.job.converter or converter_for
+        return make(self.meta.control_mode, self.job.control_mode, self.replayer.u, self.source_env.unwrapped.agent.controller)
+
+    def output_changes(self) -> dict[str, Any]:
+        """The output's metadata fields that this conversion changes."""
+        from simreel.sim.describe import action_space_json
+
+        u = self.replayer.u
+        return {"obs_mode": self.replayer.obs_mode if self.replayer.need_obs else self.meta.obs_mode,
+                "control_mode": u.control_mode,
+                "action_space": action_space_json(self.meta.env_id, u.single_action_space),
+                "env_kwargs": {**self.meta.env_kwargs, **self.job.env_kwargs}}
+
+    def run(self, item: WorkItem) -> EpisodeResult:
+        """Convert and check episode `item.index` of this worker's file; a `SimreelError` comes back in the result."""
+        try:
+            recorded = self.reader.read_episode(item.index)
+            convert = self._convert_actions if self.converter is not None else self._render
+            report, episode = convert(recorded)
+        except SimreelError as e:
+            return EpisodeResult(item, error=e)
+        return EpisodeResult(item, report, episode)
+
+    def _convert_actions(self, recorded: Episode) -> tuple[EpisodeReport, Episode]:
+        run = self.replayer.replay_converted(recorded, self.converter)
+        commands = None if run.commands is None else Commands(run.commands, tuple(run.clipped))
+        cmp = track_episode(recorded, run.episode, EndEffector(self.replayer.u), self.job.tolerances, commands)
+        report = EpisodeReport.from_comparison(recorded, cmp, notes=run.notes, limits=run.limits, seconds=run.seconds)
+        report.checked = _tracked(list(cmp.errors))
+        report.per_step = {k: [float(x) for x in e] for k, e in cmp.errors.items()}
+        converted = dataclasses.replace(run.episode, meta=dataclasses.replace(run.episode.meta, initial_state_known=True))
+        return report, _with_provenance(converted, report, clipped=len(run.clipped))
+
+    def _render(self, recorded: Episode) -> tuple[EpisodeReport, Episode]:
+        run = self.replayer.replay(recorded, mode="states")
+        scope = CompareScope(initial=recorded.meta.initial_state_known, obs=False, contacts=run.compare_contacts)
+        cmp = compare_episode(recorded, run.episode, _states_tolerances(), channels=self.meta.contact_channels,
+                              scope=scope)
+        report = EpisodeReport.from_comparison(recorded, cmp, notes=run.notes, limits=run.limits, seconds=run.seconds)
+        return report, _with_provenance(_rendered(recorded, run.episode), report)
+
+    def close(self) -> None:
+        for closing in (getattr(self, "replayer", None), self.source_env, self.reader):
+            if closing is not None:
+                closing.close()
+
+
+def _tracked(keys: list[str]) -> list[str]:
+    groups = {"command": "commanded pose", "ee": "end-effector pose", "env_states": "object poses",
+              "success": "success"}
+    return [name for prefix, name in groups.items() if any(k.split("/", 1)[0].split("[", 1)[0] == prefix for k in keys)]
+
+
+def _rendered(recorded: Episode, replayed: Episode) -> Episode:
+    """The output of a re-render: the recorded episode as it is, with the new observations, and the rewards and
+    flags the recording lacks taken from the replay (recomputed from the restored states)."""
+    fill = {name: getattr(replayed, name) for name in ("rewards", "success", "fail") if getattr(recorded, name) is None}
+    return dataclasses.replace(recorded, obs=replayed.obs, meta=dataclasses.replace(recorded.meta), **fill)
+
+
+def _with_provenance(episode: Episode, report: EpisodeReport, *, clipped: int | None = None) -> Episode:
+    meta = dataclasses.replace(episode.meta, notes=[])
+    meta.provenance = {
+        "source_episode": report.index,
+        "verdict": report.verdict,
+        "checked": list(report.checked),
+        "first_exceeded": None if report.first_divergence is None else report.first_divergence.to_json(),
+        "max_error": {k: float(v) if np.isfinite(v) else str(v) for k, v in report.max_abs_error.items()},
+        **({"clipped_steps": clipped} if clipped is not None else {}),
+    }
+    return dataclasses.replace(episode, meta=meta)
+
+
+# ------------------------------------------------------------------------------------------------ the report
+@dataclass
+class ConversionReport:
+    """Every episode of one conversion: its verdict, whether it was written, and the check of the written file."""
+
+    path: str
+    output: str
+    env_id: str
+    conversion: dict[str, Any]
+    tolerances: dict[str, float]
+    episodes: list[EpisodeReport] = field(default_factory=list)
+    written: list[int] = field(default_factory=list)
+    dropped: dict[int, str] = field(default_factory=dict)
+    """Episode -> why a `keep` filter left it out."""
+    written_check: str = ""
+    written_mismatch: list[int] = field(default_factory=list)
+    """Written episodes whose states or actions read back from the output differ from what they must be."""
+    warnings: list[str] = field(default_factory=list)
+    limits: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """Every written episode verified, something written, and the written file checked."""
+        bad = {e.index for e in self.episodes if not e.ok}
+        return bool(self.written) and not bad & set(self.written) and not self.written_mismatch
+
+    def to_json(self) -> dict[str, Any]:
+        return {"ok": self.ok, "path": self.path, "output": self.output, "env_id": self.env_id,
+                "conversion": self.conversion, "tolerances": self.tolerances, "warnings": self.warnings,
+                "limits": self.limits, "written": self.written, "dropped": {str(k): v for k, v in self.dropped.items()},
+                "written_check": self.written_check, "written_mismatch": self.written_mismatch,
+                "episodes": [e.to_json() for e in self.episodes]}
+
+    def summary(self) -> str:
+        """The table `simreel convert` prints."""
+        steps = sum(e.length for e in self.episodes)
+        tracked = bool(self.conversion.get("control_mode"))
+        lines = [f"conversion of {self.path} -> {self.output}: {self.env_id}, {describe(self.conversion)}, "
+                 f"{len(self.episodes)} episode(s), {steps} steps"]
+        if tracked:
+            lines.append("  largest error per episode: commanded and reached tool-centre pose (m, rad), objects (m, "
+                         "rad), success timing (steps); tolerances "
+                         + ", ".join(f"{k} {format_number(v)}" for k, v in self.tolerances.items()))
+        head = f"  {'episode':>7} {'steps':>6}  {'verdict':<17}"
+        columns = ("cmd m", "cmd rad", "ee m", "ee rad", "obj m", "obj rad")
+        lines.append(head + ("".join(f" {c:>8}" for c in columns) + f" {'succ':>4}" if tracked else "")
+                     + " first step out of tolerance")
+        for e in self.episodes:
+            rows = episode_lines(e)
+            if tracked:
+                rows[0] = _tracked_row(e)
+            lines += rows
+            if e.index in self.dropped:
+                lines.append(f"  {'':>7} {'':>6}  {'':<17} not written: {self.dropped[e.index]}")
+        lines += [f"limit: {limit}" for limit in self.limits]
+        lines.append(f"checked: {self.conversion['checked']}")
+        if self.written_check:
+            lines.append(f"written: {self.written_check}")
+        n_ok = sum(e.ok for e in self.episodes)
+        dropped = f"; {len(self.dropped)} left out by --keep" if self.dropped else ""
+        lines.append(f"{n_ok} of {len(self.episodes)} episode(s) verified; {len(self.written)} written to {self.output}"
+                     + dropped)
+        return "\n".join(lines)
+
+
+def describe(conversion: Mapping[str, Any]) -> str:
+    """``obs none -> rgb, control pd_joint_pos -> pd_ee_delta_pose``."""
+    parts = [f"{what.split('_')[0]} {pair[0]} -> {pair[1]}" for what in ("obs_mode", "control_mode")
+             if (pair := conversion.get(what))]
+    return ", ".join(parts)
+
+
+def _tracked_row(e: EpisodeReport) -> str:
+    """An episode's row with its largest tracking error per group."""
+    def worst(prefix: str, suffix: str) -> str:
+        values = [v for k, v in e.max_abs_error.items() if k.startswith(prefix) and k.endswith(suffix)]
+        return format_number(max(values)) if values else "-"
+
+    success = e.max_abs_error.get("success")
+    cells = [worst("command/", "[p]"), worst("command/", "[q]"), worst("ee/", "[p]"), worst("ee/", "[q]"),
+             worst("env_states/", "p]"), worst("env_states/", "q]")]
+    first = e.first_divergence.describe() if e.first_divergence else ""
+    return (f"  {e.index:>7} {e.length:>6}  {e.verdict:<17} " + " ".join(f"{c:>8}" for c in cells)
+            + f" {'-' if success is None else format_number(success):>4} {first}").rstrip()
+
+
+# ------------------------------------------------------------------------------------------------ the run
+class ConversionRun:
+    """One conversion: checked and ready when built (options, output, input, episodes), done by `execute`."""
+
+    def __init__(self, src: str | Path, dst: str | Path, options: ConvertOptions | None = None, **overrides: Any) -> None:
+        opts = dataclasses.replace(options or ConvertOptions(), **overrides)
+        opts.check()
+        self.path, self.output, self.options = str(src), str(dst), opts
+        format_of(dst)
+        check_distinct({"OUT": recording_files(dst)}, recording_files(src), input_label="IN")
+        check_writable(dst, overwrite=opts.overwrite)
+        self.reader = open_reader(src)
+        try:
+            self._check_input(self.reader.meta)
+            self.indices = self._indices()
+            self.tolerances = (tracking_tolerances(opts.group_tolerances) if opts.control_mode
+                               else _states_tolerances())
+        except BaseException:
+            self.reader.close()
+            raise
+
+    def _check_input(self, meta: RecordingMeta) -> None:
+        opts = self.options
+        if not meta.state_layout:
+            raise UsageError(f"{self.path} holds no env_states: a conversion restores or is checked against the "
+                             "recorded states; record with them (RecordEpisode(record_env_state=True), simreel record), "
+                             "or let ManiSkill's replay_trajectory --save-traj write a copy that has them")
+        if opts.control_mode is not None:
+            if opts.converter is None:
+                check_pair(meta.control_mode, opts.control_mode)
+            backend = opts.sim_backend or meta.sim_backend
+            if backend in GPU_SIM_BACKENDS or (meta.num_envs > 1 and opts.sim_backend is None):
+                raise UsageError(f"{self.path} was recorded on the GPU sim ({meta.sim_backend}, {meta.num_envs} envs); "
+                                 "control-mode conversion runs on the CPU sim only (as ManiSkill's): add --sim-backend "
+                                 "physx_cpu (another engine: the tracking check says how far the result is)")
+
+    def _indices(self) -> list[int]:
+        episodes = self.options.episodes
+        if episodes is None:
+            indices = [m.index for m in self.reader.episodes]
+        else:
+            for i in episodes:
+                self.reader.episode_meta(i)  # raises RecordingFileError naming the episodes the file has
+            indices = list(dict.fromkeys(episodes))
+        indices = indices[: self.options.count]
+        if not indices:
+            raise UsageError(f"{self.path}: the recording has no episodes to convert")
+        return indices
+
+    @property
+    def total(self) -> int:
+        return len(self.indices)
+
+    def close(self) -> None:
+        self.reader.close()
+
+    def __enter__(self) -> ConversionRun:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _limits(self, meta: RecordingMeta) -> list[str]:
+        """What the check cannot cover because the input does not hold it (a re-render checks what a replay in
+        mode 'states' checks; tracking needs only states and success)."""
+        unknown = [u for u in meta.unknown if u != "env_states"]
+        if self.options.control_mode:
+            unknown = [u for u in unknown if u in _TRACKING_LIMITS]
+        return recording_limits(unknown)
+
+    def _job(self) -> ConvertJob:
+        opts = self.options
+        return ConvertJob(path=self.path, obs_mode=opts.obs_mode, control_mode=opts.control_mode,
+                          env_kwargs=opts.env_kwargs(), tolerances=self.tolerances, sim_backend=opts.sim_backend,
+                          imports=tuple(opts.imports), converter=opts.converter)
+
+    def _conversion(self) -> dict[str, Any]:
+        opts, meta = self.options, self.reader.meta
+        changed = {}
+        if opts.obs_mode is not None:
+            changed["obs_mode"] = [meta.obs_mode, opts.obs_mode]
+        if opts.control_mode is not None:
+            changed["control_mode"] = [meta.control_mode, opts.control_mode]
+        checked = ("per step, the converted run against the recorded one: commanded and reached tool-centre pose, "
+                   "object poses, success timing" if opts.control_mode else "per step, each restored state read back within the 'states' "
+                   "tolerances, recomputed rewards and flags; the output's states and actions equal the input's")
+        return {**changed, **opts.env_kwargs(), "checked": checked}
+
+    def _provenance(self) -> dict[str, Any]:
+        opts = self.options
+        return {"operation": "convert", "source": str(Path(self.path).resolve()), "source_kind": self.reader.kind,
+                "source_episodes": list(self.indices), "conversion": self._conversion(),
+                "tolerances": self.tolerances.to_json(), "filters": {"episodes": opts.episodes, "count": opts.count,
+                                                                     "keep": list(opts.keep)}}
+
+    def execute(self, progress: Callable[[EpisodeReport], None] | None = None) -> ConversionReport:
+        """Convert every episode, calling `progress` with each one's report as it finishes; closes the input."""
+        meta = self.reader.meta
+        report = ConversionReport(path=self.path, output=self.output, env_id=meta.env_id,
+                                  conversion=self._conversion(), tolerances=self.tolerances.to_json(),
+                                  limits=self._limits(meta))
+        worker = ConvertWorker(self._job(), self.reader)  # closes the reader
+        writer = None
+        try:
+            report.warnings = _fingerprint_warnings(worker)
+            poses = () if self.options.control_mode else tuple(meta.pose_bodies)  # a re-render keeps them
+            spec = ReplayOutput(self.output, self.options.overwrite, pose_bodies=poses, command=self.options.command,
+                                changes={**worker.output_changes(), "provenance": self._provenance()})
+            writer = ReplayedWriter(spec, meta, list(self.indices))
+            collector = _Collector(report, writer, self.options.keep, progress)
+            self._run(worker, collector)
+        finally:
+            if writer is not None:
+                writer.close()
+            worker.close()
+        order = {i: k for k, i in enumerate(self.indices)}
+        report.episodes.sort(key=lambda e: order[e.index])
+        _check_written(self.path, report, collector.digests, states_too=self.options.control_mode is None)
+        return report
+
+    def _run(self, worker: ConvertWorker, collect: Callable[[EpisodeResult], None]) -> None:
+        workers = min(self.options.workers, len(self.indices))
+        items = [WorkItem(key=self.reader.meta.env_id, path=self.path, index=i) for i in self.indices]
+        if workers == 1:
+            for item in items:
+                collect(worker.run(item))
+        else:
+            run_pool(worker, items, workers, collect)
+
+
+def _fingerprint_warnings(worker: ConvertWorker) -> list[str]:
+    from simreel.replay.fingerprint import fingerprint_differences
+
+    return fingerprint_differences(worker.meta, worker.replayer.u)
+
+
+class _Collector:
+    """Takes each episode's result: its report into the run's report, the episode to the writer unless a `keep`
+    filter leaves it out."""
+
+    def __init__(self, report: ConversionReport, writer: ReplayedWriter, keep: tuple[str, ...],
+                 progress: Callable[[EpisodeReport], None] | None) -> None:
+        self.report, self.writer, self.keep, self.progress = report, writer, keep, progress
+        self.digests: dict[int, dict[str, str]] = {}
+        """Episode -> its arrays' digests as handed to the writer (checked when read back)."""
+
+    def __call__(self, result: EpisodeResult) -> None:
+        if result.error is not None:  # an episode that cannot be read, an env that does not build here
+            raise result.error
+        episode_report, episode = result.report, result.episode
+        self.report.episodes.append(episode_report)
+        why = _left_out(episode_report, episode, self.keep)
+        if why:
+            self.report.dropped[episode_report.index] = why
+            self.writer.put(episode_report.index, None)
+        else:
+            self.report.written.append(episode_report.index)
+            self.digests[episode_report.index] = _digest(episode)
+            self.writer.put(episode_report.index, episode)
+        if self.progress is not None:
+            self.progress(episode_report)
+
+
+def _left_out(report: EpisodeReport, episode: Episode | None, keep: tuple[str, ...]) -> str:
+    """Why `keep` leaves the episode out ("" to write it)."""
+    if "verified" in keep and not report.ok:
+        return f"not verified ({report.verdict})"
+    last = episode.length - 1 if episode is not None else -1
+    if "success" in keep and (last < 0 or episode.success is None or not episode.success[last]):
+        return "no success at its last step"
+    if "not_truncated" in keep and last >= 0 and episode.truncated[last]:
+        return "truncated (time limit)"
+    return ""
+
+
+def _digest(episode: Episode) -> dict[str, str]:
+    """Field name -> sha256 of its dtype, shape and bytes."""
+    import hashlib
+
+    out = {}
+    for name, array in episode.fields().items():
+        a = np.ascontiguousarray(array)
+        out[name] = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode() + a.tobytes()).hexdigest()
+    return out
+
+
+def _check_written(src: str, report: ConversionReport, digests: Mapping[int, dict[str, str]], *,
+                   states_too: bool) -> None:
+    """Read every written episode back: its arrays must be byte for byte those that were written (`digests`), and
+    for a re-render its states and actions those of the input."""
+    if not report.written:
+        report.written_check = "nothing written"
+        return
+    with open_reader(src) as source, open_reader(report.output) as out:
+        for index in sorted(report.written):
+            written = out.read_episode(index)
+            same = _digest(written) == digests[index]
+            if same and states_too:
+                same = _same_states_and_actions(source.read_episode(index), written)
+            if not same:
+                report.written_mismatch.append(index)
+    report.written_check = (f"every written episode read back byte-identical to the {'re-rendered' if states_too else 'converted'} "
+                            "one" + ("; its states and actions equal the input's exactly" if states_too else ""))
+    if report.written_mismatch:
+        report.written_check = f"episodes {report.written_mismatch} read back differ from what was written"
+
+
+def _same_states_and_actions(source: Episode, written: Episode) -> bool:
+    return (source.env_states.keys() == written.env_states.keys()
+            and all(np.array_equal(a, written.env_states[k]) for k, a in source.env_states.items())
+            and np.array_equal(source.actions, written.actions))
+
+
+def convert_recording(src: str | Path, dst: str | Path, options: ConvertOptions | None = None, *,
+                      progress: Callable[[EpisodeReport], None] | None = None, **overrides: Any) -> ConversionReport:
+    """Convert the recording `src` into a new recording `dst`: `ConversionRun(src, dst, options,
+    **overrides).execute(progress)`; `overrides` are `ConvertOptions` fields, e.g.
+    ``convert_recording("demos.h5", "ee.h5", control_mode="pd_ee_delta_pose", keep=["verified"])``."""
+    with ConversionRun(src, dst, options, **overrides) as run:
+        return run.execute(progress)

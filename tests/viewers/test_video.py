@@ -1,0 +1,96 @@
+"""Videos of episodes (`simreel.viewers.video`, `simreel video`): files that play, with steps + 1 frames of the size
+asked, read back with imageio's ffmpeg; side by side with a replay or a conversion; one-line errors."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from support.mcap_samples import synthetic_episode, synthetic_meta, write
+
+from simreel.cli.main import main
+from simreel.state_tree import LeafSpec
+from simreel.viewers.video import VideoRun, video_path
+
+
+def _read(path):
+    import imageio.v2 as imageio
+
+    reader = imageio.get_reader(path)
+    try:
+        return reader.count_frames(), reader.get_meta_data()["size"], reader.get_data(0)
+    finally:
+        reader.close()
+
+
+@pytest.fixture
+def camera_recording(tmp_path):
+    """A recording whose observations hold a 40 x 30 camera: a block that moves one pixel a step."""
+    meta = dataclasses.replace(synthetic_meta(), obs_layout={"sensor_data/cam/rgb": LeafSpec((30, 40, 3), "uint8")})
+    episodes = []
+    for index, T in enumerate((7, 12)):
+        ep = synthetic_episode(meta, index, T)
+        frames = np.zeros((T + 1, 30, 40, 3), np.uint8)
+        for row in range(T + 1):
+            frames[row, 10:20, row : row + 8] = 255
+        episodes.append(dataclasses.replace(ep, obs={"sensor_data/cam/rgb": frames}))
+    return write(tmp_path / "cam.h5", meta, episodes)
+
+
+def test_a_video_per_episode_has_a_frame_per_state_at_the_size_asked(camera_recording, tmp_path):
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    written = VideoRun(camera_recording, folder, camera="cam", size=(80, 60)).execute()
+    assert [(v.index, v.frames) for v in written] == [(0, 8), (1, 13)]
+    for v, steps in zip(written, (7, 12), strict=True):
+        assert v.path == str(video_path(folder, camera_recording, v.index))
+        frames, size, first = _read(v.path)
+        assert (frames, size) == (steps + 1, (80, 60)) and first.shape == (60, 80, 3)
+
+
+def test_side_by_side_with_a_replay_draws_the_verdict(camera_recording, tmp_path):
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    [video] = VideoRun(camera_recording, folder, camera="cam", size=(160, 60), compare=str(camera_recording),
+                       episodes=(1,)).execute()
+    assert video.verdict == "replay exact" and video.frames == 13
+    frames, size, first = _read(video.path)
+    assert (frames, size) == (13, (160, 60))
+    assert first[20:50, :80].mean() > 5 and first[20:50, 80:].mean() > 5  # both halves show the camera
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--size", "81x60"], "width and height must be even numbers"),
+        (["--camera", "wrist"], "holds no rgb observations of camera 'wrist' (cameras: cam)"),
+        (["-o", "missing-folder"], "not a folder (create it first)"),
+        (["--episodes", "5"], "no episode 5"),
+    ],
+    ids=["odd-size", "unknown-camera", "no-folder", "no-episode"],
+)
+def test_bad_arguments_are_one_line_exit_2(camera_recording, tmp_path, capsys, args, message):
+    args = [str(tmp_path / a) if a == "missing-folder" else a for a in args]
+    assert main(["video", str(camera_recording), "-q", "-o", str(tmp_path), "--camera", "cam", *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+
+
+def test_an_existing_video_is_not_replaced_without_overwrite(camera_recording, tmp_path, capsys):
+    args = ["video", str(camera_recording), "-o", str(tmp_path), "--camera", "cam", "--episodes", "0", "-q"]
+    assert main(args) == 0 and "episode 0: " in capsys.readouterr().out
+    assert main(args) == 2 and "already exists; pass --overwrite" in capsys.readouterr().err
+    assert main([*args, "--overwrite"]) == 0
+
+
+def test_rendered_from_states_beside_a_conversion(record, lavapipe_env, tmp_path):
+    """No camera in the recording: each recorded state is restored and rendered (lavapipe, a child process)."""
+    src = record("PickCube-v1", 1, 5)
+    done = subprocess.run([sys.executable, "-m", "simreel", "video", str(src), "-o", str(tmp_path), "--size", "96x64",
+                           "-q"], env=lavapipe_env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    frames, size, first = _read(video_path(tmp_path, src, 0))
+    assert (frames, size) == (6, (96, 64)) and first.std() > 5  # a scene, not a blank frame

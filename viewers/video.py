@@ -1,0 +1,303 @@
+"""An mp4 per episode of any recording, optionally side by side with its replay or conversion, the step and the
+verdict drawn in: what `simreel video` runs.
+
+Frames: one per state row (row 0 after the reset, row t+1 after step t), so a video has steps + 1 frames. They
+come from a camera the recording holds as observations (``camera="base_camera"``: its ``rgb``), else from
+ManiSkill's render camera (``render_mode="rgb_array"``) after restoring each recorded state into the rebuilt env
+(a render device is needed: a GPU or lavapipe). With ``compare``, the other recording's episode of the same index
+is drawn on the right, and the verdict is that of its conversion (`EpisodeMeta.provenance`, written by
+``simreel convert``) or, for a replay, of comparing the two (`simreel.compare`, ``simreel replay``'s rules).
+Encoding: H.264 (yuv420p) through imageio's ffmpeg.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simreel.compare import Tolerances
+from simreel.episode import Episode, RecordingMeta
+from simreel.errors import UsageError, ViewError
+from simreel.formats import open_reader
+from simreel.formats.targets import check_output
+from simreel.viewers.compare import DEFAULT_MODE, compare_for_view
+
+__all__ = ["VideoOptions", "VideoRun", "EpisodeVideo", "video_path"]
+
+
+@dataclass(frozen=True)
+class VideoOptions:
+    """What `VideoRun` writes.
+
+    Attributes:
+        episodes: episode indices (None: all).
+        compare: another recording of the same task (a replay, a conversion) shown on the right.
+        size: (width, height) of the video frame (both even: H.264 in yuv420p); side by side, each half is one
+            recording.
+        camera: a camera whose ``rgb`` observations the recording holds (None: render each restored state).
+        fps: frames per second (None: the recording's control frequency, else 20).
+        mode: whose default tolerances judge a replay shown with `compare` (as ``simreel view --compare``).
+        overwrite: replace existing videos.
+        imports: ``--import`` specs registering the task, used instead of the recorded ones (else those are found
+            where `simreel.sim.user_code.resolve_task_imports` looks, beside the recording too).
+    """
+
+    episodes: tuple[int, ...] | None = None
+    compare: str | None = None
+    size: tuple[int, int] = (512, 256)
+    camera: str | None = None
+    fps: float | None = None
+    mode: str = DEFAULT_MODE
+    overwrite: bool = False
+    imports: tuple[str, ...] = ()
+
+    def check(self) -> None:
+        width, height = self.size
+        if width < 2 or height < 2 or width % 2 or height % 2:
+            raise UsageError(f"--size {width}x{height}: width and height must be even numbers >= 2 (H.264, yuv420p)")
+        if self.compare is not None and width % 4:
+            raise UsageError(f"--size {width}x{height}: side by side, the width must be a multiple of 4")
+
+
+@dataclass
+class EpisodeVideo:
+    """One written video."""
+
+    index: int
+    path: str
+    frames: int
+    verdict: str = ""
+
+
+def video_path(folder: str | Path, recording: str | Path, index: int) -> Path:
+    """Where the video of episode `index` of `recording` goes: ``<folder>/<recording stem>_ep<index>.mp4``."""
+    return Path(folder) / f"{Path(recording).stem}_ep{index}.mp4"
+
+
+class VideoRun:
+    """Videos of a recording's episodes: checked when built (options, targets, files), written by `execute`."""
+
+    def __init__(self, path: str | Path, folder: str | Path, options: VideoOptions | None = None, **overrides: Any):
+        opts = dataclasses.replace(options or VideoOptions(), **overrides)
+        opts.check()
+        self.path, self.folder, self.options = str(path), Path(folder), opts
+        if not self.folder.is_dir():
+            raise UsageError(f"-o {folder}: not a folder (create it first)")
+        with open_reader(path) as r:
+            self.meta = r.meta
+            self.indices = list(opts.episodes) if opts.episodes is not None else [m.index for m in r.episodes]
+            self.lengths = {i: r.episode_meta(i).length for i in self.indices}
+        if opts.compare is not None:
+            with open_reader(opts.compare) as other:
+                for i in self.indices:
+                    _compare_meta(other, i)
+        if opts.camera is not None and not any(k.startswith(f"sensor_data/{opts.camera}/rgb") for k in self.meta.obs_layout):
+            have = sorted({k.split("/")[1] for k in self.meta.obs_layout if k.startswith("sensor_data/")})
+            raise UsageError(f"{path} holds no rgb observations of camera {opts.camera!r} (cameras: "
+                             f"{', '.join(have) or 'none'}); leave --camera out to render the recorded states")
+        for i in self.indices:
+            check_output(video_path(folder, path, i), overwrite=opts.overwrite)
+
+    @property
+    def frames(self) -> int:
+        """Frames this run writes (steps + 1 per episode)."""
+        return sum(n + 1 for n in self.lengths.values())
+
+    def execute(self, progress: Callable[[int], None] | None = None) -> list[EpisodeVideo]:
+        """Write every video; `progress(frames)` after each frame written."""
+        frames = _FrameSource(self.meta, self.options, self.path)
+        try:
+            return [self._episode(frames, i, progress) for i in self.indices]
+        finally:
+            frames.close()
+
+    def _episode(self, frames: _FrameSource, index: int, progress: Callable[[int], None] | None) -> EpisodeVideo:
+        with open_reader(self.path) as r:
+            left = r.read_episode(index)
+        right = None
+        if self.options.compare is not None:
+            with open_reader(self.options.compare) as other:
+                right = other.read_episode(_compare_meta(other, index).index)
+        labels = _labels(left, right, self.meta, self.options)
+        out = video_path(self.folder, self.path, index)
+        count = _encode(out, self._frames(frames, left, right, labels, progress), self._fps())
+        return EpisodeVideo(index, str(out), count, labels.verdict)
+
+    def _frames(self, frames: _FrameSource, left: Episode, right: Episode | None, labels: _Labels,
+                progress: Callable[[int], None] | None) -> Iterator[np.ndarray]:
+        width, height = self.options.size
+        half = (width // 2, height) if right is not None else (width, height)
+        lefts = frames.of(left, half)
+        rights = frames.of(right, half) if right is not None else None
+        last_right = None
+        for row, image in enumerate(lefts):
+            if rights is not None:
+                last_right = next(rights, last_right)
+                image = np.concatenate([image, last_right], axis=1)
+            yield _draw(image, labels.text(row))
+            if progress is not None:
+                progress(1)
+
+    def _fps(self) -> float:
+        return float(self.options.fps or self.meta.control_freq or 20.0)
+
+
+def _compare_meta(reader: Any, index: int) -> Any:
+    """The compared recording's episode for `index`: the same index, or the file's only episode."""
+    for m in reader.episodes:
+        if m.index == index:
+            return m
+    if len(reader.episodes) == 1:
+        return reader.episodes[0]
+    raise UsageError(f"{reader.path} has no episode {index} to show beside it")
+
+
+# ------------------------------------------------------------------------------------------------ frames
+class _FrameSource:
+    """RGB frames of an episode's state rows: recorded camera observations, or renders of restored states."""
+
+    def __init__(self, meta: RecordingMeta, options: VideoOptions, path: str) -> None:
+        self.meta, self.options, self.path = meta, options, path
+        self.env: Any = None
+        self.size: tuple[int, int] | None = None
+        self.scene_seed: Any = None
+
+    def of(self, episode: Episode, size: tuple[int, int]) -> Iterator[np.ndarray]:
+        if self.options.camera is not None:
+            return (_resize(a, size) for a in episode.obs[f"sensor_data/{self.options.camera}/rgb"])
+        return self._rendered(episode, size)
+
+    def _rendered(self, episode: Episode, size: tuple[int, int]) -> Iterator[np.ndarray]:
+        from simreel.sim.rebuild import reset_to_episode
+        from simreel.sim.state import restore_state, state_row
+
+        if not episode.env_states:
+            raise ViewError("the episode holds no env_states to render: give --camera NAME for recorded images")
+        env = self._env(size)
+        done = reset_to_episode(env, episode.meta, scene_seed=self.scene_seed)
+        self.scene_seed = done.scene_seed
+        for row in range(episode.length + 1):
+            restore_state(env.unwrapped, state_row(episode.env_states, row), elapsed_steps=row)
+            yield _to_image(env.render(), size)
+
+    def _env(self, size: tuple[int, int]) -> Any:
+        from simreel.sim.rebuild import GYM_MAKE_SEED, env_from_meta
+        from simreel.sim.user_code import resolve_task_imports
+
+        if self.env is not None and self.size == size:
+            return self.env
+        self.close()
+        kwargs = {k: v for k, v in self.meta.env_kwargs.items() if k not in ("render_mode", "num_envs")}
+        kwargs.update(render_mode="rgb_array", human_render_camera_configs={"width": size[0], "height": size[1]})
+        found = resolve_task_imports(self.meta.imports, explicit=self.options.imports, recording=self.path)
+        self.env = env_from_meta(dataclasses.replace(self.meta, imports=found), num_envs=1, sim_backend="physx_cpu",
+                                 obs_mode="none", render_backend="auto", env_kwargs=kwargs)
+        self.size, self.scene_seed = size, GYM_MAKE_SEED
+        return self.env
+
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
+            self.env = None
+
+
+def _to_image(rendered: Any, size: tuple[int, int]) -> np.ndarray:
+    image = rendered.cpu().numpy() if hasattr(rendered, "cpu") else np.asarray(rendered)
+    return _resize(image.reshape(image.shape[-3:]), size)
+
+
+def _resize(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """`image` (H, W, 3) uint8 at `size` (width, height)."""
+    image = np.asarray(image)[..., :3].astype(np.uint8, copy=False)
+    if image.shape[1] == size[0] and image.shape[0] == size[1]:
+        return image
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(image).resize(size, Image.BILINEAR))
+
+
+# ------------------------------------------------------------------------------------------------ labels
+@dataclass
+class _Labels:
+    """What each frame says: the step, and (side by side) the verdict with the step it changes at."""
+
+    steps: int
+    verdict: str = ""
+    out_at: int | None = None
+    """State row from which the right-hand run is out of tolerance."""
+    detail: str = ""
+    success: np.ndarray | None = None
+
+    def text(self, row: int) -> list[str]:
+        step = "reset" if row == 0 else f"step {row - 1}"
+        lines = [f"{step} of {self.steps}" + (", success" if self._success(row) else "")]
+        if self.verdict and self.out_at is None:
+            lines.append(self.verdict)
+        elif self.verdict:
+            lines.append(f"{self.verdict}: {self.detail}" if row >= self.out_at else f"{self.verdict}: in tolerance so far")
+        return lines
+
+    def _success(self, row: int) -> bool:
+        return self.success is not None and row >= 1 and bool(self.success[row - 1])
+
+
+def _labels(left: Episode, right: Episode | None, meta: RecordingMeta, options: VideoOptions) -> _Labels:
+    labels = _Labels(left.length, success=left.success)
+    if right is None:
+        return labels
+    judged = right.meta.provenance or {}
+    if judged.get("verdict"):  # a conversion: its own per-step verdict
+        first = judged.get("first_exceeded")
+        labels.verdict = f"conversion {judged['verdict']}"
+        if first:
+            labels.out_at = int(first["step"]) + (0 if first.get("at") == "reset" else 1)
+            labels.detail = f"{first['key']} off by {first['error']:.3g} at step {first['step']}"
+        return labels
+    cmp = compare_for_view(left, right, channels=meta.contact_channels, tolerances=Tolerances.for_mode(options.mode))
+    labels.verdict = f"replay {cmp.comparison.verdict}"
+    if cmp.divergence is not None:
+        d = cmp.divergence
+        labels.out_at = 0 if d.at == "reset" else d.step + 1
+        labels.detail = f"{d.key} off by {d.error:.3g} at step {d.step}"
+    return labels
+
+
+def _draw(image: np.ndarray, lines: list[str]) -> np.ndarray:
+    """`lines` in the frame's top-left corner, white on a dark box."""
+    from PIL import Image, ImageDraw
+
+    canvas = Image.fromarray(np.ascontiguousarray(image))
+    draw = ImageDraw.Draw(canvas, "RGBA")
+    height = max(8, min(16, image.shape[0] // 16))
+    y = 2
+    for line in lines:
+        box = draw.textbbox((4, y), line, font_size=height)
+        draw.rectangle((box[0] - 2, box[1] - 1, box[2] + 2, box[3] + 1), fill=(0, 0, 0, 160))
+        draw.text((4, y), line, fill=(255, 255, 255, 255), font_size=height)
+        y = box[3] + 3
+    return np.asarray(canvas)
+
+
+# ------------------------------------------------------------------------------------------------ encoding
+def _encode(path: Path, frames: Iterator[np.ndarray], fps: float) -> int:
+    """Write `frames` to the mp4 `path` (through a temporary file: an interrupted run leaves no half video)."""
+    import imageio.v2 as imageio
+
+    tmp = path.with_name(f".{path.name}.partial.mp4")
+    count = 0
+    try:
+        writer = imageio.get_writer(tmp, fps=fps, codec="libx264", pixelformat="yuv420p", macro_block_size=1,
+                                    ffmpeg_log_level="error")
+        with writer:
+            for frame in frames:
+                writer.append_data(frame)
+                count += 1
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return count
