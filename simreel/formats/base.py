@@ -4,7 +4,10 @@ Writing streams: `EpisodeWriter.begin_episode` opens an `EpisodeSink` per runnin
 parallel env) with the episode's reset row, the recorder appends `StepBlock`s of a few hundred steps, and
 `commit` makes the episode durable — after `commit` returns, a `kill -9` of the process must not lose it.
 Every block is checked against the recording's field table (`simreel.episode.episode_fields`) on its way
-in. Reading is per episode, so a large file never has to fit in memory.
+in. A writer holds its file's lock for its whole life and writes where `simreel.formats.staging` says (a
+recording that replaces another is moved over it only by `close`); `abort` drops what it wrote instead.
+Reading is per episode, so a large file never has to fit in memory; a reader names what it could not read
+(`damaged`), what never finished (`unfinished`) and anything else a user should know about the file (`notes`).
 """
 
 from __future__ import annotations
@@ -17,7 +20,8 @@ from types import TracebackType
 from typing import ClassVar
 
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock, episode_fields
-from simreel.errors import RecordingFileError
+from simreel.errors import RecordingFileError, UsageError
+from simreel.formats.lock import being_written
 from simreel.formats.targets import check_output
 
 __all__ = ["EpisodeSink", "EpisodeWriter", "EpisodeReader"]
@@ -61,8 +65,11 @@ class EpisodeWriter(ABC):
     @classmethod
     def check_target(cls, path: Path, *, overwrite: bool) -> None:
         """Raise `UsageError` if a new recording cannot go to `path` (`simreel.formats.targets.check_output`,
-        with this format's side paths). Cheap: touches nothing."""
+        with this format's side paths, or another writer holds it). Cheap: touches nothing."""
         check_output(path, overwrite=overwrite, side_paths=cls.side_paths(path))
+        if being_written(path):
+            raise UsageError(f"{path} is being written by another recording; choose another file, or wait until "
+                             "that recording has finished")
 
     @classmethod
     def remove(cls, path: Path) -> None:
@@ -88,7 +95,13 @@ class EpisodeWriter(ABC):
         sink.commit(episode.meta)
 
     @abstractmethod
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Finish the file (a staged recording replaces the old one now) and give up its lock."""
+
+    @abstractmethod
+    def abort(self) -> None:
+        """Drop the whole recording instead of finishing it: a new file is removed, a staged one too (an old
+        recording it was to replace stays as it was). For a copy that failed half way."""
 
     def __enter__(self) -> EpisodeWriter:
         return self
@@ -105,6 +118,14 @@ class EpisodeReader(ABC):
     path: Path
     meta: RecordingMeta
     episodes: list[EpisodeMeta]
+    """The episodes that can be read, by index."""
+    unfinished: list[str] = []  # noqa: RUF012 - read-only default, readers set their own
+    """Episodes that began but were never committed (the recording process stopped first): lost."""
+    damaged: list[str] = []  # noqa: RUF012
+    """Episodes the file holds but that cannot be read (corrupt or half written), each with what is wrong."""
+    notes: list[str] = []  # noqa: RUF012
+    """Anything else a user should know about the file (a side file that lags, a staged replacement left
+    by a killed writer)."""
     kind: str = "recording"
     """What the file is, for people: "simreel HDF5 recording (format 1)", "ManiSkill trajectory file", ..."""
 
