@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import shutil
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock, episode_fields
-from simreel.errors import RecordingFileError, UsageError
+from simreel.errors import RecordingFileError, StorageError, UsageError
+from simreel.formats.durable import is_storage_error, storage_error
 from simreel.formats.lock import being_written
 from simreel.formats.targets import check_output
 
@@ -93,6 +94,40 @@ class EpisodeWriter(ABC):
         if episode.length:
             sink.append(episode.steps_block())
         sink.commit(episode.meta)
+
+    committed: list[EpisodeMeta]
+    _failed: StorageError | None = None
+    """The storage error that stopped the writer (every later write raises it again)."""
+    _closed = False
+
+    def guard(self, write: Callable[[], Any], lost: str = "") -> Any:
+        """Run `write` (a write of this recording); a write the storage refuses (full, read-only, ...) stops the
+        writer with the one-line `StorageError` (`lost`: what that write lost)."""
+        self._check_usable()
+        try:
+            return write()
+        except OSError as e:
+            if not is_storage_error(e):
+                raise
+            raise self._stop(e, lost) from None
+
+    def _check_usable(self) -> None:
+        if self._failed is not None:
+            raise self._failed
+        if self._closed:
+            raise UsageError(f"{self.path} is closed")
+
+    def _stop(self, e: OSError, lost: str = "") -> StorageError:
+        """Stop the writer after the storage refused a write; returns the error to raise. A format extends it to
+        keep what it still holds in memory from reaching the file."""
+        self._failed = storage_error(self.path, e, committed=len(self.committed), lost=lost,
+                                     readable=self._where_readable)
+        return self._failed
+
+    @property
+    def _where_readable(self) -> str:
+        """How the episodes committed before a failed write stay readable, for its error ("" when as they are)."""
+        return ""
 
     @abstractmethod
     def close(self) -> None:

@@ -256,33 +256,17 @@ class Hdf5Writer(EpisodeWriter):
         return h5py
 
     # ---------------------------------------------------------------- failures
-    def guard(self, write: Callable[[], Any], lost: str = "") -> Any:
-        """Run `write` (a write outside the main file: a marker, a scratch file), turning a storage error into
-        the one-line error that stops the recording (`lost`: what it lost)."""
-        self._check_usable()
-        try:
-            return write()
-        except OSError as e:
-            if not is_storage_error(e):
-                raise
-            raise self._fail(e, lost=lost) from None
-
-    def _check_usable(self) -> None:
-        if self._failed is not None:
-            raise self._failed
-        if self._closed:
-            raise UsageError(f"{self.path} is closed")
-
     def _fail(self, e: BaseException, meta: EpisodeMeta | None = None, lost: str = "") -> BaseException:
         """Stop the writer after a failed write: nothing more reaches the file (a half-written commit must never
         be flushed), so it keeps exactly the episodes committed before. Returns the error to raise."""
         self._neutralize()
         if isinstance(e, OSError):
-            lost = f"episode {meta.index} was not committed" if meta is not None else lost
-            self._failed = storage_error(self.path, e, committed=len(self.committed), lost=lost,
-                                         readable=self._where_readable)
-            return self._failed
+            return self._stop(e, f"episode {meta.index} was not committed" if meta is not None else lost)
         return e
+
+    def _stop(self, e: OSError, lost: str = "") -> StorageError:
+        self._neutralize()
+        return super()._stop(e, lost)
 
     def _neutralize(self) -> None:
         """Point the HDF5 library's descriptor of the file at /dev/null, so whatever it still holds in memory of

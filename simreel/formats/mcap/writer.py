@@ -3,7 +3,6 @@ safety: `simreel.formats.mcap`). The messages themselves are `simreel.formats.mc
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -57,7 +56,8 @@ class _McapSink(EpisodeSink):
         self._check_open()
         if len(block):
             arrays = block.conform(self._writer.fields, episode=self._lane.index)
-            self._writer.guard(lambda: self._channels.steps(self._lane, arrays, len(block)), self._lane.index)
+            self._writer.guard(lambda: self._channels.steps(self._lane, arrays, len(block)),
+                               f"episode {self._lane.index} was not committed")
 
     def commit(self, meta: EpisodeMeta) -> None:
         self._check_open()
@@ -65,14 +65,16 @@ class _McapSink(EpisodeSink):
             raise UsageError(f"commit of episode {meta.index} on the sink of episode {self._lane.index}")
         self._open = False
         with deferred_signals():
-            end = self._writer.guard(lambda: self._channels.commit(self._lane, meta), meta.index)
+            end = self._writer.guard(lambda: self._channels.commit(self._lane, meta),
+                                     f"episode {meta.index} was not committed")
         self._writer.lane_ended(self._lane, end)
         self._writer.committed.append(meta)
 
     def discard(self) -> None:
         if self._open:
             self._open = False
-            end = self._writer.guard(lambda: self._channels.discard(self._lane), self._lane.index)
+            end = self._writer.guard(lambda: self._channels.discard(self._lane),
+                                     f"episode {self._lane.index} was not committed")
             self._writer.lane_ended(self._lane, end)
 
 
@@ -146,32 +148,12 @@ class McapWriter(EpisodeWriter):
         lane = EpisodeLane(meta.index, meta.env_idx, self._lane_next.get(meta.env_idx, 0))
         self._begun.add(meta.index)
         self._lane_next[meta.env_idx] = lane.start_ns + self._channels.step_ns  # a lane holds one running episode
-        self.guard(lambda: self._channels.begin(lane, meta, arrays), meta.index)
+        self.guard(lambda: self._channels.begin(lane, meta, arrays), f"episode {meta.index} was not committed")
         return _McapSink(self, self._channels, lane)
 
     def lane_ended(self, lane: EpisodeLane, end_ns: int) -> None:
         """An episode of env `lane.env` ended at `end_ns`: that env's next episode starts one period later."""
         self._lane_next[lane.env] = end_ns + self._channels.step_ns
-
-    def guard(self, write: Callable[[], Any], episode: int | None = None) -> Any:
-        """Run `write`; a write the storage refuses stops the writer with a one-line error (the file keeps every
-        episode committed before, without a footer)."""
-        self._check_usable()
-        try:
-            return write()
-        except OSError as e:
-            if not is_storage_error(e):
-                raise
-            lost = f"episode {episode} was not committed" if episode is not None else ""
-            self._failed = storage_error(self.path, e, committed=len(self.committed), lost=lost,
-                                         readable=self._recover_hint)
-            raise self._failed from None
-
-    def _check_usable(self) -> None:
-        if self._failed is not None:
-            raise self._failed
-        if self._closed:
-            raise UsageError(f"{self.path} is closed")
 
     def close(self) -> None:
         """Write the summary and footer, close the file, and move a staged recording over the old one. After a
@@ -197,11 +179,11 @@ class McapWriter(EpisodeWriter):
             if not is_storage_error(e):
                 raise
             self._failed = storage_error(self.path, e, committed=len(self.committed), lost="the file has no footer",
-                                         readable=self._recover_hint)
+                                         readable=self._where_readable)
             raise self._failed from None
 
     @property
-    def _recover_hint(self) -> str:
+    def _where_readable(self) -> str:
         where = self._target.write_path
         kept = " (the recording it was to replace is unchanged)" if self._target.staged else ""
         return f" through `simreel recover {where}`{kept}"
@@ -224,5 +206,5 @@ class McapWriter(EpisodeWriter):
         except OSError as e:  # its buffer could not be written out: after a failed write, expected
             if self._failed is None:
                 self._failed = storage_error(self.path, e, committed=len(self.committed),
-                                             lost="the file has no footer", readable=self._recover_hint)
+                                             lost="the file has no footer", readable=self._where_readable)
                 raise self._failed from None
