@@ -12,24 +12,22 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from support.children import RecordingChild
+from support.children import SUPPORT, RecordingChild, simreel
 from support.damage import stored_bytes, write_format1
-from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
+from support.mcap_samples import (
+    assert_same_episode,
+    only_this_episode_fails,
+    sample,
+    synthetic_episode,
+    synthetic_meta,
+)
 
 from simreel.errors import RecordingFileError
 from simreel.formats import open_reader
 
-SUPPORT = Path(__file__).parents[1] / "support"
-
-
-def simreel(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "simreel", *args], capture_output=True, text=True, timeout=timeout)
-
 
 def _sample(tmp_path: Path, name: str = "rec.h5", n: int = 3) -> tuple[Path, list]:
-    meta = synthetic_meta(poses=False)
-    episodes = [synthetic_episode(meta, i, 6) for i in range(n)]
-    return write(tmp_path / name, meta, episodes), episodes
+    return sample(tmp_path / name, n)
 
 
 # ----------------------------------------------------------------------------------- reading while recording
@@ -85,12 +83,8 @@ def test_a_damaged_chunk_is_reported_as_corrupt_and_the_other_episodes_read(tmp_
     data = bytearray(path.read_bytes())
     data[offset + size // 2] ^= 0x01
     path.write_bytes(data)
-    with open_reader(path) as r:
-        assert_same_episode(r.read_episode(0), episodes[0])
-        assert_same_episode(r.read_episode(2), episodes[2])
-        with pytest.raises(RecordingFileError) as err:
-            r.read_episode(1)
-    assert str(err.value).startswith(f"{path}: traj_1/env_states/actors/cube is corrupt: its data fails its checksum")
+    err = only_this_episode_fails(path, episodes, 1)
+    assert str(err).startswith(f"{path}: traj_1/env_states/actors/cube is corrupt: its data fails its checksum")
 
 
 def test_replay_calls_a_corrupt_episode_corrupt_never_verified(record, tmp_path):
@@ -123,6 +117,7 @@ def _sweep(path: Path, how: str, step: int, timeout: float) -> list[str]:
     return lines[:-1]
 
 
+@pytest.mark.slow  # minutes: thousands of damaged copies
 @pytest.mark.parametrize("how", ["flip", "zero64"])
 def test_no_damage_is_read_as_good_data_and_no_reader_hangs(tmp_path, how):
     """Damage a small recording at every 5th byte (one byte inverted, or 64 bytes zeroed): each time the reader

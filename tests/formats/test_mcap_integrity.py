@@ -9,23 +9,20 @@ import sys
 from pathlib import Path
 
 import pytest
-from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
+from support.children import SUPPORT, simreel
+from support.mcap_samples import (
+    assert_same_episode,
+    only_this_episode_fails,
+    sample,
+)
 
 from simreel.errors import RecordingFileError
 from simreel.formats import open_reader
 from simreel.formats.mcap.blocks import HEADER
 
-SUPPORT = Path(__file__).parents[1] / "support"
-
-
-def simreel(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "simreel", *args], capture_output=True, text=True, timeout=300)
-
 
 def _sample(tmp_path: Path, n: int = 3, **options) -> tuple[Path, list]:
-    meta = synthetic_meta(poses=False)
-    episodes = [synthetic_episode(meta, i, 6) for i in range(n)]
-    return write(tmp_path / "rec.mcap", meta, episodes, **options), episodes
+    return sample(tmp_path / "rec.mcap", n, **options)
 
 
 def _footer(data: bytes) -> tuple[int, int]:
@@ -43,12 +40,8 @@ def test_a_damaged_chunk_fails_its_crc_and_the_other_episodes_read(tmp_path):
     block = data.index(HEADER.pack(1, 0, 6))  # episode 1's block of 6 steps
     data[block + 40] ^= 0x04
     path.write_bytes(data)
-    with open_reader(path) as r:
-        assert_same_episode(r.read_episode(0), episodes[0])
-        assert_same_episode(r.read_episode(2), episodes[2])
-        with pytest.raises(RecordingFileError) as err:
-            r.read_episode(1)
-    assert "episode 1: the chunk at byte" in str(err.value) and "CRC" in str(err.value)
+    err = only_this_episode_fails(path, episodes, 1)
+    assert "episode 1: the chunk at byte" in str(err) and "CRC" in str(err)
 
 
 def test_the_data_section_crc_is_written_and_checked(tmp_path):
@@ -98,6 +91,7 @@ def test_a_damaged_episode_record_is_named_and_the_others_read(tmp_path):
         assert_same_episode(r.read_episode(2), episodes[2])
 
 
+@pytest.mark.slow  # minutes: thousands of damaged copies
 @pytest.mark.parametrize("how", ["flip", "zero64"])
 def test_no_damage_is_read_as_good_data_and_no_reader_hangs(tmp_path, how):
     path, _ = _sample(tmp_path, n=2)

@@ -13,6 +13,11 @@ from pathlib import Path
 SUPPORT = Path(__file__).parent
 
 
+def simreel(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    """`simreel ARGS` in its own process, its output captured as text."""
+    return subprocess.run([sys.executable, "-m", "simreel", *args], capture_output=True, text=True, timeout=timeout)
+
+
 class RecordingChild:
     """`record_child.py` (or `simreel` itself, with `cli=True`) running in its own process."""
 
