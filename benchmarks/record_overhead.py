@@ -1,12 +1,18 @@
-"""Recording overhead: RecordWrapper.step vs bare env.step, measured in one run, and bytes per step.
+"""Recording overhead and file size, both measured in one run: RecordWrapper vs the bare env, and simreel's files vs
+ManiSkill's own RecordEpisode on the same content.
 
-Usage: python benchmarks/record_overhead.py [--env PickCube-v1] [--episodes 100] [--contacts auto|none]
-                                           [--poses] [--format h5|mcap]
+Usage: python benchmarks/record_overhead.py [--env PickCube-v1] [--episodes 100] [--steps 50]
+                                           [--contacts auto|none] [--poses] [--format h5|mcap] [--no-storage]
 
-A bare env and a recorded one step the same actions from the same seeds, interleaved episode by
-episode so machine noise hits both alike. The step() ratio times step() alone; the end-to-end ratio
-adds the resets, where the recorder commits each finished episode to the file.
-Target (issue 2): ≤ 1.10× for PickCube-v1, state obs, contacts on.
+Overhead: a bare env and a recorded one step the same actions from the same seeds, interleaved episode by
+episode so machine noise hits both alike. The step() ratio times step() alone; the end-to-end ratio adds the
+resets, where the recorder commits each finished episode to the file (the commit's own mean time is printed).
+Target (issue 17): end to end ≤ 1.05× for PickCube-v1, state obs, contacts on.
+
+Storage: 10 episodes of `--steps` steps recorded with the same seeds and actions by ManiSkill's RecordEpisode
+(record_env_state=True, state observations) and by RecordWrapper into .h5 and .mcap with the same content
+(state, observations, no contacts, no poses); bytes per step of each and the ratio to RecordEpisode's.
+Target (issue 17): ≤ 0.7× for both formats.
 """
 
 from __future__ import annotations
@@ -22,40 +28,54 @@ import numpy as np
 from simreel.recorders import RecordWrapper
 from simreel.sim.make import make_env
 
+_STORAGE_EPISODES = 10
 
-def _episode(env, seed, actions) -> tuple[float, float, float]:
-    """(wall seconds in step(), CPU seconds in step(), wall seconds of the reset that starts it)."""
-    t = time.perf_counter()
+
+def _episode(env, seed, actions) -> tuple[float, float, float, float]:
+    """(wall and CPU seconds in step(), wall and CPU seconds of the reset that starts it)."""
+    t, tc = time.perf_counter(), time.process_time()
     env.reset(seed=seed)  # for the recorder this also commits the previous episode
-    reset = time.perf_counter() - t
+    reset, reset_cpu = time.perf_counter() - t, time.process_time() - tc
     w, c = time.perf_counter(), time.process_time()
     for a in actions:
         env.step(a)
-    return time.perf_counter() - w, time.process_time() - c, reset
+    return time.perf_counter() - w, time.process_time() - c, reset, reset_cpu
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--env", default="PickCube-v1")
-    ap.add_argument("--episodes", type=int, default=100)
-    ap.add_argument("--steps", type=int, default=50)
-    ap.add_argument("--contacts", default="auto")
-    ap.add_argument("--poses", action="store_true")
-    ap.add_argument("--format", default="h5", choices=["h5", "mcap"])
-    args = ap.parse_args()
+class _CommitClock:
+    """Wall time spent in the writer's commits (wrapping its sinks' `commit`)."""
 
-    import torch
+    def __init__(self, rec: RecordWrapper) -> None:
+        self.seconds: list[float] = []
+        writer = rec._writer
+        begin = writer.begin_episode
 
-    torch.set_num_threads(1)
+        def timed_begin(meta, reset):
+            sink = begin(meta, reset)
+            commit = sink.commit
+
+            def timed_commit(m):
+                t = time.perf_counter()
+                commit(m)
+                self.seconds.append(time.perf_counter() - t)
+
+            sink.commit = timed_commit
+            return sink
+
+        writer.begin_episode = timed_begin
+
+
+def overhead(args: argparse.Namespace, folder: Path) -> None:
     bare = make_env(args.env, obs_mode="state", max_episode_steps=args.steps)
     shape = bare.action_space.shape
     actions = np.random.default_rng(0).uniform(-1, 1, size=(args.episodes, args.steps, *shape)).astype(np.float32)
-    path = Path(tempfile.mkdtemp()) / f"r.{args.format}"
+    path = folder / f"overhead.{args.format}"
     rec = RecordWrapper(make_env(args.env, obs_mode="state", max_episode_steps=args.steps), path,
                         contacts=args.contacts, poses=args.poses)
     for env in (bare, rec):  # warm-up: first steps build caches, the first commit creates the file's layout
         _episode(env, 10_000, actions[0])
-    totals = np.zeros((2, 3))
+    clock = _CommitClock(rec)
+    totals = np.zeros((2, 4))
     per_episode = []
     for k in range(args.episodes):  # interleaved episode by episode, so machine noise hits both alike
         b = _episode(bare, k, actions[k])
@@ -66,17 +86,66 @@ def main() -> None:
     rec.close()
     close = time.perf_counter() - t
     steps = args.episodes * args.steps
-    (bw, bc, br), (rw, rc, rr) = totals
-    size = path.stat().st_size
+    (bw, bc, br, brc), (rw, rc, rr, rrc) = totals
     print(f"{args.env}, state obs, contacts={args.contacts}, poses={args.poses}, format={args.format}: "
           f"{args.episodes} episodes × {args.steps} steps, bare and recorded interleaved per episode")
     print(f"  bare env.step        {bw / steps * 1e6:8.1f} µs/step wall, {bc / steps * 1e6:8.1f} µs/step CPU")
     print(f"  recorded step        {rw / steps * 1e6:8.1f} µs/step wall, {rc / steps * 1e6:8.1f} µs/step CPU")
     print(f"  step() ratio         {rw / bw:8.3f}× wall, {rc / bc:.3f}× CPU "
           f"(per-episode wall ratios: median {statistics.median(per_episode):.3f})")
-    print(f"  end-to-end ratio     {(rw + rr) / (bw + br):8.3f}× wall (resets, which commit episodes, included)")
-    print(f"  file size            {size / ((args.episodes + 1) * args.steps):8.1f} bytes/step "
-          f"({size} bytes; close {close * 1e3:.0f} ms incl. env.close)")
+    print(f"  end-to-end ratio     {(rw + rr) / (bw + br):8.3f}× wall, {(rc + rrc) / (bc + brc):.3f}× CPU (resets, which "
+          "commit episodes, included; target ≤ 1.05×)")
+    print(f"  commit               {statistics.mean(clock.seconds) * 1e3:8.2f} ms/episode mean "
+          f"(median {statistics.median(clock.seconds) * 1e3:.2f}); close {close * 1e3:.0f} ms incl. env.close")
+    print(f"  file size            {path.stat().st_size / ((args.episodes + 1) * args.steps):8.1f} bytes/step")
+
+
+def _record_storage(env, steps: int) -> None:
+    rng = np.random.default_rng(0)
+    for k in range(_STORAGE_EPISODES):
+        env.reset(seed=k)
+        for _ in range(steps):
+            env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+    env.close()
+
+
+def storage(args: argparse.Namespace, folder: Path) -> None:
+    from mani_skill.utils.wrappers.record import RecordEpisode
+
+    steps = _STORAGE_EPISODES * args.steps
+    env = RecordEpisode(make_env(args.env, max_episode_steps=args.steps), str(folder), trajectory_name="maniskill",
+                        save_video=False, record_env_state=True)
+    _record_storage(env, args.steps)
+    base = (folder / "maniskill.h5").stat().st_size
+    print(f"{args.env}: {_STORAGE_EPISODES} episodes × {args.steps} steps, same seeds and actions, state + state obs, "
+          "no contacts (target ≤ 0.70×)")
+    print(f"  {'ManiSkill RecordEpisode .h5':<34} {base / steps:8.1f} bytes/step   1.000×")
+    for suffix in ("h5", "mcap"):
+        path = folder / f"simreel.{suffix}"
+        _record_storage(RecordWrapper(make_env(args.env, max_episode_steps=args.steps), path, contacts="none",
+                                      record_obs=True, poses=False), args.steps)
+        size = path.stat().st_size
+        print(f"  {'simreel .' + suffix:<34} {size / steps:8.1f} bytes/step   {size / base:.3f}×")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--env", default="PickCube-v1")
+    ap.add_argument("--episodes", type=int, default=100)
+    ap.add_argument("--steps", type=int, default=50)
+    ap.add_argument("--contacts", default="auto")
+    ap.add_argument("--poses", action="store_true")
+    ap.add_argument("--format", default="h5", choices=["h5", "mcap"])
+    ap.add_argument("--no-storage", action="store_true", help="skip the file-size comparison with RecordEpisode")
+    args = ap.parse_args()
+
+    import torch
+
+    torch.set_num_threads(1)
+    with tempfile.TemporaryDirectory(prefix="simreel-bench-") as tmp:
+        overhead(args, Path(tmp))
+        if not args.no_storage:
+            storage(args, Path(tmp))
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ import gymnasium as gym
 import numpy as np
 
 from simreel.episode import EpisodeMeta, StepBlock, json_default
-from simreel.errors import UsageError
+from simreel.errors import ActionError, UsageError
 from simreel.formats import open_writer, records_poses_by_default
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.sim.contacts import ContactSampler, contact_channels
@@ -179,8 +179,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def step(self, action: Any) -> Any:
         if self._open < self._n:
             raise UsageError("RecordWrapper.step() before reset(): reset the env first so the episode has a start")
+        actions = self._actions(action)
         obs, reward, terminated, truncated, info = self.env.step(action)
-        fields = self._step_rows(action, reward, terminated, truncated, info)
+        fields = self._step_rows(actions, reward, terminated, truncated, info)
         fields.update(self._per_state_rows(self._state(), obs))
         if self._sampler.channels:
             fields["contact_forces"] = self._sampler.sample()
@@ -194,12 +195,29 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._buffer.rewind()
         return obs, reward, terminated, truncated, info
 
-    def _step_rows(self, action: Any, reward: Any, terminated: Any, truncated: Any, info: Any) -> dict[str, np.ndarray]:
+    def _actions(self, action: Any) -> np.ndarray:
+        """`action` as a (num_envs, A) float32 array, once it is checked to fit the action space and be finite;
+        `ActionError` (before the env steps) otherwise, since the recording could not hold it or replay it."""
+        single = tuple(self._u.single_action_space.shape)
+        a = None if action is None else to_numpy(action)
+        if a is None or a.dtype.kind not in "biuf":
+            raise ActionError(f"an action of type {type(action).__name__}; {self.meta.env_id} takes a numeric array "
+                              f"of shape {single}")
+        if a.shape != (self._n, *single) and not (self._n == 1 and a.shape == single):
+            raise ActionError(f"an action of shape {a.shape}; {self.meta.env_id} takes shape "
+                              f"{(self._n, *single) if self._n > 1 else single}")
+        if not np.isfinite(a).all():
+            raise ActionError(f"an action holding NaN or infinity ({a.reshape(-1)[~np.isfinite(a.reshape(-1))][:3]}); "
+                              "ManiSkill refuses them")
+        return a.astype(np.float32, copy=False).reshape(self._n, -1)
+
+    def _step_rows(self, actions: np.ndarray, reward: Any, terminated: Any, truncated: Any,
+                   info: Any) -> dict[str, np.ndarray]:
         """This step's per-step fields for every env: action, reward, flags and scalar info."""
         n = self._n
         scalars = _scalar_info(info, n)
         fields: dict[str, np.ndarray] = {
-            "actions": to_numpy(action).astype(np.float32, copy=False).reshape(n, -1),
+            "actions": actions,
             "rewards": to_numpy(reward).astype(np.float32, copy=False).reshape(n),
             "terminated": to_numpy(terminated).reshape(n),
             "truncated": to_numpy(truncated).reshape(n),

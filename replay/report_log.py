@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import IO, Any
 
 from simreel.errors import ReportFileError, UsageError
-from simreel.formats.mcap.lock import lock_file
+from simreel.formats.lock import lock_file
 from simreel.formats.targets import open_text_atomic
 from simreel.replay.report import EpisodeReport
 from simreel.replay.tally import FileTally, RunTally

@@ -247,8 +247,11 @@ class RunTally:
     def _verdict_line(self) -> str:
         exact, within, diverged, errors = (self.count(v) for v in _OUTCOMES)
         verified = exact + within
-        verdict = "all verified" if diverged == 0 else f"{diverged} diverged"
         extra = [f"{errors} could not be replayed"] if errors else []
+        # "all verified" only when nothing was left unchecked: an episode that could not be replayed (a corrupt
+        # one, say) is not verified
+        whole = not errors and not self.unreadable and self.complete
+        verdict = f"{diverged} diverged" if diverged else ("all verified" if whole else "none diverged")
         if self.unreadable:
             extra.append(f"{len(self.unreadable)} file(s) unreadable")
         if not self.complete:

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from simreel.episode import RecordingMeta, json_default
-from simreel.errors import FileProblemError, SimreelError, UsageError
+from simreel.errors import FileProblemError, RecordingFileError, SimreelError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.inputs import expand_inputs
 
@@ -82,6 +82,10 @@ def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None)
         if restores is not None and not reader.meta.state_layout:
             raise UsageError(f"{path}: holds no env_states (recorded without them), and {restores} restores recorded "
                              "states; replay it with --mode actions")
+        if wanted is None and reader.damaged:
+            # a damaged episode is never left out silently: it can be neither replayed nor called verified
+            raise RecordingFileError(path, f"damaged, cannot be replayed: {'; '.join(reader.damaged)}; replay the "
+                                           "others with --episodes, or `simreel recover` the file")
         steps = {m.index: m.length for m in reader.episodes}
         if wanted is not None:
             for i in wanted:

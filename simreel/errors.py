@@ -9,9 +9,12 @@ from __future__ import annotations
 __all__ = [
     "SimreelError",
     "UsageError",
+    "ActionError",
     "FileProblemError",
     "RecordingFileError",
     "ReportFileError",
+    "StorageError",
+    "Terminated",
     "RenderUnavailableError",
     "EnvBuildError",
     "ContactSpecError",
@@ -36,6 +39,10 @@ class UsageError(SimreelError):
     """A bad option or argument value."""
 
 
+class ActionError(UsageError):
+    """An action a recorder cannot pass on: not an array, another shape than the action space's, NaN or infinity."""
+
+
 class FileProblemError(SimreelError):
     """A file simreel reads is missing or unusable: `path` and the `problem`, joined as ``path: problem``."""
 
@@ -57,6 +64,24 @@ class RecordingFileError(FileProblemError):
 class ReportFileError(FileProblemError):
     """A replay report (`--report`, `--resume`) is missing, damaged, of another run, or being written by another
     process."""
+
+
+class StorageError(RecordingFileError):
+    """The storage refused a write (a full disk, a read-only file system, no permission): bad input for the user to
+    fix, never an internal error. `reason` says what happened, `fix` what to do."""
+
+    def __init__(self, path: object, reason: str, fix: str, detail: str = "") -> None:
+        self.reason = reason
+        self.fix = fix
+        self.detail = detail
+        super().__init__(path, f"{reason}{detail}; {fix}")
+
+    def __reduce__(self) -> tuple[type, tuple[str, str, str, str]]:
+        return type(self), (self.path, self.reason, self.fix, self.detail)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C's KeyboardInterrupt so that the same clean-up runs (the CLI installs it)."""
 
 
 class RenderUnavailableError(SimreelError):

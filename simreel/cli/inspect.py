@@ -1,5 +1,6 @@
-"""`simreel inspect`: what a recording holds — episodes, state layout, contacts, metadata, versions — and, for
-files simreel did not write (ManiSkill's own), what they do not hold."""
+"""`simreel inspect`: what a recording holds — episodes, state layout, contacts, metadata, versions — what is
+wrong with it (damaged episodes, episodes a killed recording left unfinished, side files that lag) and, for files
+simreel did not write (ManiSkill's own), what they do not hold."""
 
 from __future__ import annotations
 
@@ -13,9 +14,9 @@ __all__ = ["add_parser", "run", "summarize"]
 def add_parser(sub: Any) -> None:
     p = sub.add_parser("inspect", help="summarize recordings (.h5 or .mcap, simreel's or ManiSkill's)",
                        description="Print episodes, lengths, success, state layout, contact channels and metadata, "
-                                   "and what the file does not hold. Several recordings (files, folders, glob "
-                                   "patterns): one line per file and the totals. Exit status 2 when one cannot be "
-                                   "read.")
+                                   "what the file does not hold and what is wrong with it. Several recordings (files, "
+                                   "folders, glob patterns): one line per file and the totals. Exit status 2 when one "
+                                   "cannot be read, 1 when part of one is damaged.")
     p.add_argument("paths", nargs="+", metavar="PATH", help="recordings, folders of recordings, or glob patterns")
     p.add_argument("--json", action="store_true",
                    help="print the summary as JSON (several recordings: a list, with an error entry for each "
@@ -23,7 +24,19 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(run=run)
 
 
-def summarize(reader: Any) -> dict[str, Any]:
+def problems(reader: Any) -> dict[str, list[str]]:
+    """What is wrong with the recording or worth knowing: `damaged` episodes (and, for MCAP, a data section that
+    fails its CRC: the whole file is read for it), `unfinished` ones, `notes`."""
+    damaged = list(reader.damaged)
+    check = getattr(reader, "check_data_crc", None)
+    if check is not None and not damaged:
+        wrong = check()
+        if wrong:
+            damaged.append(wrong)
+    return {"damaged": damaged, "unfinished": list(reader.unfinished), "notes": list(reader.notes)}
+
+
+def summarize(reader: Any, found: dict[str, list[str]] | None = None) -> dict[str, Any]:
     """The JSON-able summary `inspect --json` prints."""
     m = reader.meta
     return {
@@ -32,8 +45,7 @@ def summarize(reader: Any) -> dict[str, Any]:
         "meta": m.to_json(),
         "episodes": [e.to_json() for e in reader.episodes],
         "total_steps": sum(e.length for e in reader.episodes),
-        "unfinished": list(getattr(reader, "unfinished", [])),
-        "notes": list(getattr(reader, "notes", [])),
+        **(found if found is not None else problems(reader)),
     }
 
 
@@ -109,17 +121,18 @@ def _print_tools(reader: Any) -> None:
     print("ManiSkill tools: " + "; ".join(maniskill_tools(reader.meta, hdf5=not isinstance(reader, McapReader))))
 
 
-def _print_text(reader: Any) -> None:
+def _print_text(reader: Any, found: dict[str, list[str]]) -> None:
     _print_header(reader)
     _print_episodes(reader)
     _print_layouts(reader.meta)
     _print_tools(reader)
-    for note in getattr(reader, "notes", []):
+    for note in found["notes"]:
         print(f"note: {note}")
-    unfinished = getattr(reader, "unfinished", [])
-    if unfinished:
-        print(f"\nwarning: {len(unfinished)} episode(s) were still running when the recording process stopped and "
-              f"were not committed: {', '.join(unfinished)}")
+    if found["unfinished"]:
+        print(f"\nwarning: {len(found['unfinished'])} episode(s) were still running when the recording process stopped "
+              f"and were not committed: {', '.join(found['unfinished'])}")
+    if found["damaged"]:
+        print(f"\nwarning: damaged, not readable: {'; '.join(found['damaged'])}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -129,16 +142,18 @@ def run(args: argparse.Namespace) -> int:
     files = expand_inputs(args.paths)
     if len(files) == 1 and files[0][1]:
         with open_reader(args.paths[0]) as reader:
+            found = problems(reader)
             if args.json:
-                print(json.dumps(summarize(reader), indent=2))
+                print(json.dumps(summarize(reader, found), indent=2))
             else:
-                _print_text(reader)
-        return 0
+                _print_text(reader, found)
+        return 1 if found["damaged"] else 0
     return _inspect_many([path for path, _ in files], as_json=args.json)
 
 
 def _inspect_many(paths: list[Any], *, as_json: bool) -> int:
-    """One line per recording (or a JSON list of summaries), the totals; 2 when one could not be read."""
+    """One line per recording (or a JSON list of summaries), the totals; 2 when one could not be read, 1 when one
+    is damaged."""
     from simreel.errors import FileProblemError, SimreelError
     from simreel.formats import open_reader
     from simreel.formats.inputs import shown_path
@@ -154,7 +169,9 @@ def _inspect_many(paths: list[Any], *, as_json: bool) -> int:
         print(json.dumps(entries, indent=2))
     else:
         _print_table(entries, shown_path)
-    return 2 if any("error" in e for e in entries) else 0
+    if any("error" in e for e in entries):
+        return 2
+    return 1 if any(e["damaged"] for e in entries) else 0
 
 
 def _print_table(entries: list[dict[str, Any]], shown: Any) -> None:
@@ -167,7 +184,9 @@ def _print_table(entries: list[dict[str, Any]], shown: Any) -> None:
             continue
         eps = e["episodes"]
         success = sum(1 for m in eps if m["success"])
-        print(f"{name:<{width}}  {e['meta']['env_id']:<28} {len(eps):>8} {e['total_steps']:>8} {success:>8}  {e['kind']}")
+        damaged = f"  damaged: {'; '.join(e['damaged'])}" if e["damaged"] else ""
+        print(f"{name:<{width}}  {e['meta']['env_id']:<28} {len(eps):>8} {e['total_steps']:>8} {success:>8}  {e['kind']}"
+              + damaged)
     good = [e for e in entries if "error" not in e]
     print(f"{len(entries)} recordings ({len(entries) - len(good)} unreadable): "
           f"{sum(len(e['episodes']) for e in good)} episodes, {sum(e['total_steps'] for e in good)} steps")

@@ -1,8 +1,10 @@
 """The `simreel` command: one subcommand module per verb, imported only as far as argparse needs.
 
 Exit status: 0 success, 1 a verdict that failed (replay diverged, audit findings), 2 bad input (one line on
-stderr), 3 an internal error (one line), 130 interrupted, 141 stdout closed (a pipe into `head`). `--debug`
-prints the traceback before that line and changes nothing else: the exit status is the same with it as without.
+stderr), 3 an internal error (one line), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 141 stdout closed (a
+pipe into `head`). `--debug` prints the traceback before that line and changes nothing else: the exit status is the
+same with it as without. SIGTERM is handled like Ctrl-C: the command stops where it is and cleans up (a recording
+closes its file with every committed episode); a commit in progress finishes first (`simreel.formats.durable`).
 """
 
 from __future__ import annotations
@@ -11,12 +13,14 @@ import argparse
 import importlib
 import os
 import shlex
+import signal
 import sys
+import threading
 import traceback
 from collections.abc import Sequence
 
 from simreel import __version__
-from simreel.errors import SimreelError
+from simreel.errors import SimreelError, Terminated
 
 __all__ = ["main", "COMMANDS"]
 
@@ -51,6 +55,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated()
+
+
+def _handle_sigterm() -> object:
+    """Make SIGTERM raise `Terminated` (in the main thread; elsewhere signals are not ours to handle); returns the
+    handler to put back."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _terminate)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -59,11 +75,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.command:
         parser.print_help()
         return 2
+    previous = _handle_sigterm()
+    try:
+        return _run(args)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """Run the command; its exceptions become the exit status and one line on stderr."""
     try:
         return int(args.run(args) or 0)
     except SimreelError as e:
         _fail(args, f"error: {e}")
         return 2
+    except Terminated:
+        sys.stderr.write(f"simreel {args.command}: terminated (SIGTERM)\n")
+        return 143
     except KeyboardInterrupt:
         sys.stderr.write(f"simreel {args.command}: interrupted\n")
         return 130

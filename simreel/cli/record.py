@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from typing import Any
 
 from simreel.cli.common import add_env_options, apply_imports, progress_bar
 from simreel.cli.policy_option import POLICY_HELP
-from simreel.errors import UsageError
+from simreel.errors import ActionError, SimreelError, UsageError
 
 __all__ = ["add_parser", "run"]
 
 _DEFAULT_MAX_STEPS = 200
+_SEED_LIMIT = 2**32
+"""ManiSkill's seeds are unsigned 32-bit numbers."""
 
 
 def add_parser(sub: Any) -> None:
@@ -24,7 +27,8 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--policy", default="random", help=f"{POLICY_HELP} (default random)")
     p.add_argument("--max-steps", type=int, default=None,
                    help="the episodes' time limit in steps, longer or shorter than the task's (default: the task's, "
-                        f"else {_DEFAULT_MAX_STEPS}); the replay rebuilds the env with it")
+                        f"else {_DEFAULT_MAX_STEPS}); the replay rebuilds the env with it. `max_episode_steps` in "
+                        "--env-kwargs does the same")
     p.add_argument("--contacts", default="auto", metavar="auto|none|A:B,...",
                    help="contact channels: auto (default), none, or pairs like panda/panda_leftfinger:cube")
     p.add_argument("--record-obs", action="store_true", help="also record observations")
@@ -42,43 +46,106 @@ def _done(terminated: Any, truncated: Any) -> Any:
     return to_numpy(terminated).reshape(-1) | to_numpy(truncated).reshape(-1)
 
 
-def run(args: argparse.Namespace) -> int:
+def _check_counts(args: argparse.Namespace) -> None:
     if args.episodes < 1:
         raise UsageError(f"--episodes must be ≥ 1, got {args.episodes}")
     if args.max_steps is not None and args.max_steps < 1:
         raise UsageError(f"--max-steps must be ≥ 1, got {args.max_steps}")
     if args.num_envs < 1:
         raise UsageError(f"--num-envs must be ≥ 1, got {args.num_envs}")
+    last = args.seed + args.episodes + args.num_envs - 2  # the largest seed a run can use
+    if args.seed < 0 or last >= _SEED_LIMIT:
+        raise UsageError(f"--seed {args.seed}: this run would use seeds {args.seed} to {last}, but ManiSkill takes "
+                         f"seeds from 0 to {_SEED_LIMIT - 1}; choose a seed in that range")
+
+
+@dataclass(frozen=True)
+class _Limits:
+    """How long episodes run: `steps` at most, the env built with time limit `time_limit` (None: the task's own)."""
+
+    steps: int
+    time_limit: int | None
+    note: str
+
+
+def _limits(args: argparse.Namespace) -> _Limits:
+    """The time limit the options ask for (--max-steps, or `max_episode_steps` in --env-kwargs, a gym.make argument
+    rather than the task's), and the line that says which limit applies."""
+    from simreel.sim.make import time_limit
+
+    registered = time_limit(args.env_id)
+    asked = args.env_kwargs.pop("max_episode_steps", None)
+    if asked is not None and (not isinstance(asked, int) or isinstance(asked, bool) or asked < 1):
+        raise UsageError(f"--env-kwargs max_episode_steps must be a whole number ≥ 1, got {asked!r}")
+    if asked is not None and args.max_steps is not None and asked != args.max_steps:
+        raise UsageError(f"--max-steps {args.max_steps} and --env-kwargs max_episode_steps {asked} disagree; give one")
+    chosen = args.max_steps or asked
+    if chosen is None:
+        if registered is None:
+            return _Limits(_DEFAULT_MAX_STEPS, None, f"{args.env_id} has no time limit; episodes end after "
+                                                     f"{_DEFAULT_MAX_STEPS} steps (--max-steps), or when the task ends them")
+        return _Limits(registered, None, f"episodes end at {args.env_id}'s time limit of {registered} steps, or "
+                                         "earlier when the task ends them")
+    if registered is not None and chosen != registered:
+        return _Limits(chosen, chosen, f"{args.env_id}'s time limit is {registered} steps; this recording sets it to "
+                                       f"{chosen} (the recording keeps it, so replay uses it too)")
+    return _Limits(chosen, chosen, f"episodes end at the time limit of {chosen} steps, or earlier when the task "
+                                   "ends them")
+
+
+def run(args: argparse.Namespace) -> int:
+    _check_counts(args)
     from simreel.formats import check_writable
 
     check_writable(args.output, overwrite=args.overwrite)  # reject what cannot be written before paying for the env
     apply_imports(args.imports)
     from simreel.cli.policy_option import load_policy
 
-    policy = load_policy(args.policy, args.env_id)
-    rec = _recorder(args)
+    policy = _Policy(args.policy, load_policy(args.policy, args.env_id))
+    limits = _limits(args)
+    print(limits.note)
+    rec = _recorder(args, limits.time_limit)
     rec.action_space.seed(args.seed)  # `--policy random` is then reproducible from --seed
-    max_steps = args.max_steps or rec.meta.max_episode_steps or _DEFAULT_MAX_STEPS
     try:
         if rec.meta.num_envs == 1:
-            _record_single(rec, policy, args, max_steps)
+            _record_single(rec, policy, args, limits.steps)
         else:
-            _record_batched(rec, policy, args, max_steps)
+            _record_batched(rec, policy, args, limits.steps)
     finally:
         rec.close()
     _summary(rec)
     return 0
 
 
-def _recorder(args: argparse.Namespace) -> Any:
+class _Policy:
+    """The --policy callable, its failures and unusable actions turned into one-line errors naming it and when."""
+
+    def __init__(self, spec: str, policy: Any) -> None:
+        self.spec = spec
+        self._policy = policy
+
+    def step(self, rec: Any, obs: Any, where: str) -> Any:
+        """Ask the policy for an action and step the recorder with it."""
+        try:
+            action = self._policy(rec, obs)
+        except (SimreelError, KeyboardInterrupt):
+            raise
+        except Exception as e:  # the policy's own bug: bad input to simreel, not simreel's
+            raise UsageError(f"--policy {self.spec} raised {type(e).__name__}: {e} ({where}); fix the policy") from None
+        try:
+            return rec.step(action)
+        except ActionError as e:
+            raise UsageError(f"--policy {self.spec} returned {e} ({where})") from None
+
+
+def _recorder(args: argparse.Namespace, time_limit: int | None) -> Any:
     """The env the options ask for, wrapped in the recorder (the env is closed if the recorder refuses)."""
     from simreel.recorders import RecordWrapper
     from simreel.sim.make import EnvConfig, make_env
 
     config = EnvConfig(num_envs=args.num_envs, obs_mode=args.obs_mode, control_mode=args.control_mode,
                        reward_mode=args.reward_mode, sim_backend=args.sim_backend,
-                       render_backend=args.render_backend, env_kwargs=args.env_kwargs,
-                       max_episode_steps=args.max_steps)
+                       render_backend=args.render_backend, env_kwargs=args.env_kwargs, max_episode_steps=time_limit)
     env = make_env(args.env_id, config)
     try:
         return RecordWrapper(env, args.output, contacts=args.contacts, record_obs=args.record_obs, poses=args.poses,
@@ -92,18 +159,18 @@ def _progress(args: argparse.Namespace) -> Any:
     return progress_bar(quiet=args.quiet, total=args.episodes, unit="ep", desc=f"record {args.env_id}")
 
 
-def _record_single(rec: Any, policy: Any, args: argparse.Namespace, max_steps: int) -> None:
+def _record_single(rec: Any, policy: _Policy, args: argparse.Namespace, max_steps: int) -> None:
     with _progress(args) as bar:
         for k in range(args.episodes):
             obs, _ = rec.reset(seed=args.seed + k)
-            for _ in range(max_steps):
-                obs, _, terminated, truncated, _ = rec.step(policy(rec, obs))
+            for t in range(max_steps):
+                obs, _, terminated, truncated, _ = policy.step(rec, obs, f"episode {k}, step {t}")
                 if _done(terminated, truncated).any():
                     break
             bar.update()
 
 
-def _record_batched(rec: Any, policy: Any, args: argparse.Namespace, max_steps: int) -> None:
+def _record_batched(rec: Any, policy: _Policy, args: argparse.Namespace, max_steps: int) -> None:
     """N parallel envs; a finished env is reset alone (partial reset) with the next unused seed."""
     import numpy as np
 
@@ -113,7 +180,7 @@ def _record_batched(rec: Any, policy: Any, args: argparse.Namespace, max_steps: 
     steps = np.zeros(n, dtype=np.int64)
     with _progress(args) as bar:
         while len(rec.episodes_committed) < args.episodes:
-            obs, _, terminated, truncated, _ = rec.step(policy(rec, obs))
+            obs, _, terminated, truncated, _ = policy.step(rec, obs, f"after {len(rec.episodes_committed)} episodes")
             steps += 1
             done = _done(terminated, truncated) | (steps >= max_steps)
             if done.any():

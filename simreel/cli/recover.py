@@ -1,10 +1,13 @@
-"""`simreel recover`: rescue the committed episodes of an MCAP recording whose process was killed.
+"""`simreel recover`: rescue the intact committed episodes of a recording whose process was killed or whose file
+is damaged.
 
 A recording process that dies (kill -9, crash, power cut) leaves an MCAP file without summary and
-footer, which `inspect`/`replay`/`view` refuse. `recover` reads it front to back, writes every
-committed episode into a complete file (in place unless `-o` is given) and reports what was lost: the
-episodes still running at the time and any record cut in the middle. HDF5 recordings need no recovery
-(their committed episodes stay readable); `recover` says so.
+footer, which `inspect`/`replay`/`view` refuse, and an HDF5 file whose committed episodes stay readable
+but whose JSON sidecar may lag and whose side folder names the episodes that were running. `recover`
+reads what it can (an MCAP file front to back, skipping a damaged record and going on from the next
+whole one), writes every intact committed episode into a complete file (in place, replacing the old one
+only once the new one is complete, unless `-o` is given) and names what was lost: episodes still running
+at the time, damaged episodes, records and bytes.
 """
 
 from __future__ import annotations
@@ -18,11 +21,11 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "recover",
-        help="rescue the committed episodes of an interrupted .mcap recording",
-        description="Rewrite an MCAP recording whose process was killed into a complete file with every "
-        "committed episode, and report what was lost.",
+        help="rescue the committed episodes of an interrupted or damaged recording",
+        description="Rewrite a recording whose process was killed, or whose file is damaged, into a complete file "
+        "with every intact committed episode, and report what was lost.",
     )
-    p.add_argument("path", metavar="PATH", help="the interrupted .mcap recording")
+    p.add_argument("path", metavar="PATH", help="the interrupted or damaged recording (.mcap or .h5)")
     p.add_argument("-o", "--output", metavar="OUT", default=None,
                    help="write the recovered recording here instead of replacing PATH (.mcap; .h5 writes HDF5)")
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
@@ -42,6 +45,10 @@ def run(args: argparse.Namespace) -> int:
         lost.append(f"{r.lost_bytes} byte(s) of a record cut short at the end of the file")
     if lost:
         print("lost (never committed): " + "; ".join(lost))
-    else:
+    if r.damaged:
+        print("lost (damaged): " + "; ".join(r.damaged))
+    if not lost and not r.damaged:
         print("lost: nothing (every episode that began was committed)")
+    for note in r.notes:
+        print(f"found: {note}")
     return 0

@@ -4,20 +4,25 @@ Writing streams: `EpisodeWriter.begin_episode` opens an `EpisodeSink` per runnin
 parallel env) with the episode's reset row, the recorder appends `StepBlock`s of a few hundred steps, and
 `commit` makes the episode durable — after `commit` returns, a `kill -9` of the process must not lose it.
 Every block is checked against the recording's field table (`simreel.episode.episode_fields`) on its way
-in. Reading is per episode, so a large file never has to fit in memory.
+in. A writer holds its file's lock for its whole life and writes where `simreel.formats.staging` says (a
+recording that replaces another is moved over it only by `close`); `abort` drops what it wrote instead.
+Reading is per episode, so a large file never has to fit in memory; a reader names what it could not read
+(`damaged`), what never finished (`unfinished`) and anything else a user should know about the file (`notes`).
 """
 
 from __future__ import annotations
 
 import shutil
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock, episode_fields
-from simreel.errors import RecordingFileError
+from simreel.errors import RecordingFileError, StorageError, UsageError
+from simreel.formats.durable import is_storage_error, storage_error
+from simreel.formats.lock import being_written
 from simreel.formats.targets import check_output
 
 __all__ = ["EpisodeSink", "EpisodeWriter", "EpisodeReader"]
@@ -61,8 +66,11 @@ class EpisodeWriter(ABC):
     @classmethod
     def check_target(cls, path: Path, *, overwrite: bool) -> None:
         """Raise `UsageError` if a new recording cannot go to `path` (`simreel.formats.targets.check_output`,
-        with this format's side paths). Cheap: touches nothing."""
+        with this format's side paths, or another writer holds it). Cheap: touches nothing."""
         check_output(path, overwrite=overwrite, side_paths=cls.side_paths(path))
+        if being_written(path):
+            raise UsageError(f"{path} is being written by another recording; choose another file, or wait until "
+                             "that recording has finished")
 
     @classmethod
     def remove(cls, path: Path) -> None:
@@ -87,8 +95,48 @@ class EpisodeWriter(ABC):
             sink.append(episode.steps_block())
         sink.commit(episode.meta)
 
+    committed: list[EpisodeMeta]
+    _failed: StorageError | None = None
+    """The storage error that stopped the writer (every later write raises it again)."""
+    _closed = False
+
+    def guard(self, write: Callable[[], Any], lost: str = "") -> Any:
+        """Run `write` (a write of this recording); a write the storage refuses (full, read-only, ...) stops the
+        writer with the one-line `StorageError` (`lost`: what that write lost)."""
+        self._check_usable()
+        try:
+            return write()
+        except OSError as e:
+            if not is_storage_error(e):
+                raise
+            raise self._stop(e, lost) from None
+
+    def _check_usable(self) -> None:
+        if self._failed is not None:
+            raise self._failed
+        if self._closed:
+            raise UsageError(f"{self.path} is closed")
+
+    def _stop(self, e: OSError, lost: str = "") -> StorageError:
+        """Stop the writer after the storage refused a write; returns the error to raise. A format extends it to
+        keep what it still holds in memory from reaching the file."""
+        self._failed = storage_error(self.path, e, committed=len(self.committed), lost=lost,
+                                     readable=self._where_readable)
+        return self._failed
+
+    @property
+    def _where_readable(self) -> str:
+        """How the episodes committed before a failed write stay readable, for its error ("" when as they are)."""
+        return ""
+
     @abstractmethod
-    def close(self) -> None: ...
+    def close(self) -> None:
+        """Finish the file (a staged recording replaces the old one now) and give up its lock."""
+
+    @abstractmethod
+    def abort(self) -> None:
+        """Drop the whole recording instead of finishing it: a new file is removed, a staged one too (an old
+        recording it was to replace stays as it was). For a copy that failed half way."""
 
     def __enter__(self) -> EpisodeWriter:
         return self
@@ -105,6 +153,14 @@ class EpisodeReader(ABC):
     path: Path
     meta: RecordingMeta
     episodes: list[EpisodeMeta]
+    """The episodes that can be read, by index."""
+    unfinished: list[str] = []  # noqa: RUF012 - read-only default, readers set their own
+    """Episodes that began but were never committed (the recording process stopped first): lost."""
+    damaged: list[str] = []  # noqa: RUF012
+    """Episodes the file holds but that cannot be read (corrupt or half written), each with what is wrong."""
+    notes: list[str] = []  # noqa: RUF012
+    """Anything else a user should know about the file (a side file that lags, a staged replacement left
+    by a killed writer)."""
     kind: str = "recording"
     """What the file is, for people: "simreel HDF5 recording (format 1)", "ManiSkill trajectory file", ..."""
 

@@ -1,23 +1,23 @@
-"""Copy recordings episode by episode: `convert` between formats (losslessly) and `recover` the committed
-episodes of an MCAP recording whose process was killed.
+"""Copy recordings episode by episode: `convert` between formats (losslessly, or not at all) and `recover` what
+can be read of a recording whose process was killed or whose file is damaged.
 
 Both write a new file through `open_writer`, check their output with the one output rule first
-(`simreel.formats.targets`), and leave no half-written output behind when they fail.
+(`simreel.formats.targets`), and leave no half-written output behind when they fail: a copy that fails is
+dropped, and an output it was to replace stays as it was (`simreel.formats.staging`).
 """
 
 from __future__ import annotations
 
-import os
-from collections.abc import Callable, Iterable, Sequence
-from contextlib import ExitStack, suppress
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, TypeVar
 
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta
-from simreel.errors import UsageError
-from simreel.formats import check_writable, format_of, open_reader, open_writer, remove_recording
+from simreel.errors import RecordingFileError, StorageError, UsageError
+from simreel.formats import check_writable, format_of, open_reader, open_writer
 from simreel.formats.base import EpisodeReader, EpisodeWriter
+from simreel.formats.staging import replacement_note
 
 __all__ = ["EpisodeTransform", "CopyReport", "RecoveryReport", "convert", "recover"]
 
@@ -62,7 +62,8 @@ def convert(
     """Copy every committed episode of `src` into a new file `dst` (its suffix picks the format).
 
     `transform(meta)`, when given, builds an `EpisodeTransform` for `src`'s metadata that every episode goes
-    through (``simreel convert --poses``). `progress` wraps the episode list (a progress bar).
+    through (``simreel convert --poses``). `progress` wraps the episode list (a progress bar). A damaged
+    episode makes the whole copy fail (naming it): `recover` copies the intact ones.
     """
     src_p, dst_p = Path(src), Path(dst)
     format_of(dst_p)  # a bad suffix fails before anything is read
@@ -70,14 +71,17 @@ def convert(
         raise UsageError(f"{dst}: IN and OUT are the same file; write to another file")
     check_writable(dst_p, overwrite=overwrite)  # before the reader and a transform's env cost anything
     with open_reader(src_p) as reader:
+        if reader.damaged:
+            raise RecordingFileError(src_p, f"{len(reader.damaged)} damaged episode(s) ({'; '.join(reader.damaged)}); "
+                                            f"`simreel recover {src} -o {dst}` copies the intact ones")
         change = transform(reader.meta) if transform is not None else None
         try:
             meta = change.meta if change is not None else reader.meta
-            steps = _copy(reader, progress(reader.episodes), Target(dst_p, meta, overwrite), change)
+            copied = _copy(reader, progress(reader.episodes), Target(dst_p, meta, overwrite), change)
         finally:
             if change is not None:
                 change.close()
-        return CopyReport(len(reader.episodes), steps, meta, list(getattr(reader, "unfinished", [])))
+        return CopyReport(len(reader.episodes), copied.steps, meta, list(reader.unfinished))
 
 
 @dataclass(frozen=True)
@@ -92,46 +96,64 @@ class Target:
 def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, Episode]]) -> list[int]:
     """Write each (target number, episode) of `episodes` to `targets[number]`, all of them new recordings; returns
     the steps written to each. Every target is created before the first episode is read; any failure (Ctrl-C
-    included) removes every target.
+    included) drops every target (`EpisodeWriter.abort`: a recording a target was to replace stays as it was).
 
     A writer that refuses its target (it exists, another recording writes it) has created nothing, and what is
-    there is not this call's to delete; the targets created before it are."""
+    there is not this call's to delete; the targets created before it are dropped."""
     writers: list[EpisodeWriter] = []
     try:
         for target in targets:
             writers.append(open_writer(target.path, target.meta, overwrite=target.overwrite))
+        steps = [0] * len(targets)
+        for k, episode in episodes:
+            writers[k].write_episode(episode)
+            steps[k] += episode.length
+        for writer in writers:
+            writer.close()
     except BaseException:
-        _remove_all(writers, [w.path for w in writers])
-        raise
-    steps = [0] * len(targets)
-    try:
-        with ExitStack() as stack:
-            for writer in writers:
-                stack.enter_context(writer)
-            for k, episode in episodes:
-                writers[k].write_episode(episode)
-                steps[k] += episode.length
-    except BaseException:
-        _remove_all([], [t.path for t in targets])
+        for writer in writers:
+            writer.abort()
         raise
     return steps
 
 
-def _remove_all(open_writers: list[EpisodeWriter], paths: list[Path]) -> None:
-    """Close `open_writers` (errors ignored: the files go anyway) and remove the recordings `paths`."""
-    for writer in open_writers:
-        with suppress(Exception):
-            writer.close()
-    for path in paths:
-        remove_recording(path)
+@dataclass
+class _Copied:
+    episodes: int = 0
+    steps: int = 0
+    lost: list[str] = field(default_factory=list)
+    """Episodes that could not be read (`salvage` only), each with why."""
 
 
 def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target,
-          change: EpisodeTransform | None = None) -> int:
-    """Write `episodes` of `reader` (through `change`, when given) to a new recording `target`; returns the steps
-    copied. A failure removes it."""
-    read = (reader.read_episode(m.index) for m in episodes)
-    return write_episodes([target], ((0, change(e) if change is not None else e) for e in read))[0]
+          change: EpisodeTransform | None = None, *, salvage: bool = False) -> _Copied:
+    """Write `episodes` of `reader` (through `change`, when given) to a new recording `target`. A failure drops the
+    new recording (an output it was to replace stays); with `salvage`, an episode that cannot be read is named in
+    `lost` and the copy goes on."""
+    copied = _Copied()
+
+    def read() -> Iterator[tuple[int, Episode]]:
+        for m in episodes:
+            try:
+                episode = reader.read_episode(m.index)
+            except RecordingFileError as e:
+                if not salvage:
+                    raise
+                copied.lost.append(f"episode {m.index} ({e.problem})")
+                continue
+            copied.episodes += 1
+            yield 0, change(episode) if change is not None else episode
+
+    try:
+        copied.steps = write_episodes([target], read())[0]
+    except StorageError as e:
+        raise _nothing_written(e, target, reader) from None
+    return copied
+
+
+def _nothing_written(e: StorageError, target: Target, reader: EpisodeReader) -> StorageError:
+    """A copy's storage failure: it wrote nothing (a failed copy is dropped) and its input is as it was."""
+    return StorageError(target.path, e.reason, e.fix, f"; nothing was written and {reader.path} is unchanged")
 
 
 @dataclass
@@ -139,7 +161,7 @@ class RecoveryReport:
     """What `recover` found and did."""
 
     complete: bool
-    """The file was complete (a footer, nothing unfinished): nothing to recover."""
+    """The file was complete (nothing unfinished, damaged or lagging): nothing to recover."""
     episodes: int
     steps: int
     unfinished: list[str]
@@ -148,39 +170,46 @@ class RecoveryReport:
     """Bytes at the end of the file that do not form a whole record (cut mid-write): lost."""
     output: str | None = None
     """The recovered file (None when nothing was written)."""
+    damaged: list[str] = field(default_factory=list)
+    """Committed episodes (or records, or stretches of bytes) found damaged and not copied: lost."""
+    notes: list[str] = field(default_factory=list)
+    """What else the reader noticed (a sidecar that lagged, a staged replacement left behind)."""
 
 
-def _recovering_path(src: Path) -> Path:
-    return src.with_name(src.stem + ".recovering.mcap")
+def _open_for_recovery(src: Path) -> EpisodeReader:
+    if format_of(src) == "mcap":
+        from simreel.formats.mcap.reader import McapReader
+
+        return McapReader(src, recover=True)
+    return open_reader(src)
 
 
 def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bool = False) -> RecoveryReport:
-    """Rewrite the committed episodes of the MCAP recording `path` into `output` (default: `path` itself,
-    atomically through a temporary file beside it) and report what was lost."""
-    from simreel.formats.mcap.reader import McapReader
-
+    """Rewrite every intact committed episode of the recording `path` into `output` (default: `path` itself, which
+    is replaced only once the new file is complete) and report what was lost: episodes that never finished,
+    damaged ones, damaged records and bytes. A recording with nothing to repair is left as it is."""
     src = Path(path)
-    if format_of(src) != "mcap":
-        raise UsageError(f"{src}: only MCAP recordings need recovery; an HDF5 recording keeps its committed "
-                         "episodes readable (inspect lists the unfinished ones)")
+    format_of(src)
     in_place = output is None or Path(output).resolve() == src.resolve()
+    note = replacement_note(src)
+    if in_place and note is not None:
+        raise UsageError(f"{src}: {note}; recover that one with -o, or remove it, before recovering {src} in place")
     if not in_place:
         format_of(output)
         check_writable(output, overwrite=overwrite)  # refuse OUT before reading PATH front to back
-    with McapReader(src, recover=True) as reader:
+    with _open_for_recovery(src) as reader:
+        damaged = [*reader.damaged, *getattr(reader, "skipped", [])]
         report = RecoveryReport(
-            complete=not reader.recovered and not reader.unfinished,
-            episodes=len(reader.episodes),
-            steps=sum(e.length for e in reader.episodes),
-            unfinished=list(reader.unfinished),
-            lost_bytes=reader.lost_bytes,
+            complete=not (getattr(reader, "recovered", False) or reader.unfinished or damaged or reader.notes),
+            episodes=0, steps=0, unfinished=list(reader.unfinished), lost_bytes=getattr(reader, "lost_bytes", 0),
+            damaged=damaged, notes=list(reader.notes),
         )
         if report.complete and output is None:
+            report.episodes, report.steps = len(reader.episodes), sum(e.length for e in reader.episodes)
             return report
-        dst = _recovering_path(src) if in_place else Path(output)
-        _copy(reader, reader.episodes, Target(dst, reader.meta, overwrite or in_place))
-    if in_place:
-        os.replace(dst, src)
-        dst = src
+        dst = src if in_place else Path(output)
+        copied = _copy(reader, reader.episodes, Target(dst, reader.meta, overwrite or in_place), salvage=True)
+    report.episodes, report.steps = copied.episodes, copied.steps
+    report.damaged += copied.lost
     report.output = str(dst)
     return report

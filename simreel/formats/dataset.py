@@ -218,6 +218,9 @@ class _Source:
     @classmethod
     def read(cls, path: str | Path) -> _Source:
         with open_reader(path) as reader:
+            if reader.damaged:  # never left out silently: the output would lack them without a word
+                raise RecordingFileError(path, f"{len(reader.damaged)} damaged episode(s) ({'; '.join(reader.damaged)})"
+                                               f"; `simreel recover {path} -o OUT` copies the intact ones")
             source = cls(Path(path).resolve(), str(path), reader.meta, list(reader.episodes))
             st = os.stat(path)
             m = reader.meta

@@ -32,6 +32,7 @@ __all__ = [
     "EnvConfig",
     "make_env",
     "prepare_plain_gym_make",
+    "time_limit",
     "env_versions",
     "camera_use",
     "CAMERA_TEXTURES",
@@ -154,6 +155,15 @@ def make_env(env_id: str, config: EnvConfig | None = None, **overrides: Any) -> 
         raise EnvBuildError(f"{env_id}: ManiSkill exited while building the env ({exc.code})") from exc
     except Exception as exc:
         raise _build_error(env_id, exc, backend=backend, cfg=cfg) from exc
+
+
+def time_limit(env_id: str) -> int | None:
+    """The time limit (``max_episode_steps``) `env_id` is registered with, None when it has none; raises
+    `EnvBuildError` for an unknown id. Custom tasks must be registered first, as for `make_env`."""
+    _registered(env_id)
+    from mani_skill.utils.registration import REGISTERED_ENVS
+
+    return REGISTERED_ENVS[env_id].max_episode_steps
 
 
 def prepare_plain_gym_make() -> None:

@@ -92,6 +92,7 @@ def test_an_episode_that_does_not_fit_the_layout_is_one_line_and_leaves_no_outpu
         f["traj_1/contact_forces"] = forces[:, :1]
     assert main(["convert", str(src), str(tmp_path / "out.mcap"), "-q"]) == 2
     err = capsys.readouterr().err
-    assert err == ("simreel convert: error: episode 1: contact_forces has shape (4, 1, 3), expected (4, 2, 3) "
-                   "from the layout\n")
+    # the reader checks every episode against the file's own layout before a writer sees it
+    assert err == (f"simreel convert: error: {src}: traj_1/contact_forces is float32 (4, 1, 3), the layout says "
+                   "float32 (4, 2, 3)\n")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["src.h5", "src.json"]

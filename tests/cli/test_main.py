@@ -3,8 +3,10 @@ no command replaces a file without --overwrite, an internal error is exit 3, and
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -47,6 +49,21 @@ BAD_INPUT = [
      "broken.py"),
     ("record-multi-agent", ["record", "TwoRobotPickCube-v1", "-o", "{tmp}/x.h5"],
      "Dict action space (a multi-agent task)"),
+    # record: seeds ManiSkill refuses, policies that fail or return what no env takes (issue 17, item 8)
+    ("record-negative-seed", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--seed", "-1"],
+     "--seed -1: this run would use seeds -1 to -1, but ManiSkill takes seeds from 0 to 4294967295"),
+    ("record-seed-past-2**32", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--seed", "4294967295", "-n", "2"],
+     "this run would use seeds 4294967295 to 4294967296"),
+    ("record-policy-raises", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/policies.py:boom"],
+     "policies.py:boom raised RuntimeError: policy bug (episode 0, step 0); fix the policy"),
+    ("record-policy-shape", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/policies.py:short"],
+     "policies.py:short returned an action of shape (3,); PickCube-v1 takes shape (8,) (episode 0, step 0)"),
+    ("record-policy-nan", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/policies.py:nan"],
+     "policies.py:nan returned an action holding NaN or infinity"),
+    ("record-policy-none", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/policies.py:none"],
+     "policies.py:none returned an action of type NoneType; PickCube-v1 takes a numeric array of shape (8,)"),
+    ("record-time-limit-kwarg", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--env-kwargs", '{{"max_episode_steps": 0}}'],
+     "--env-kwargs max_episode_steps must be a whole number ≥ 1, got 0"),
     # inspect
     ("inspect-missing", ["inspect", "{tmp}/missing.h5"], "missing.h5: no such file"),
     ("inspect-junk", ["inspect", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
@@ -97,7 +114,7 @@ BAD_INPUT = [
     ("convert-missing", ["convert", "{tmp}/missing.h5", "{tmp}/out.mcap"], "missing.h5: no such file"),
     ("convert-same", ["convert", "{rec}", "{rec}"], "IN and OUT are the same file"),
     # recover
-    ("recover-h5", ["recover", "{rec}"], "only MCAP recordings need recovery"),
+    ("recover-junk", ["recover", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
     ("recover-missing", ["recover", "{tmp}/missing.mcap"], "missing.mcap: no such file"),
     # merge
     ("merge-no-o", ["merge", "{rec}"], "the following arguments are required: -o/--output"),
@@ -128,6 +145,14 @@ def recs(rec, record) -> dict[str, Path]:
     return {"rec": rec, "rec2": record("PickCube-v1", 1, 10)}
 
 
+POLICIES = """import numpy as np
+def boom(env, obs): raise RuntimeError("policy bug")
+def short(env, obs): return np.zeros(3, np.float32)
+def nan(env, obs): return np.full(env.action_space.shape, np.nan, np.float32)
+def none(env, obs): return None
+"""
+
+
 @pytest.mark.parametrize(("argv", "message"), [case[1:] for case in BAD_INPUT], ids=[case[0] for case in BAD_INPUT])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, recs, argv, message):
     (tmp_path / "junk.h5").write_text("not a recording")
@@ -136,6 +161,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, recs, argv, message)
     (tmp_path / "broken.py").write_text("raise RuntimeError('oops')\n")
     (tmp_path / "empty").mkdir()
     (tmp_path / "no_tasks.py").write_text("VALUE = 1\n")
+    (tmp_path / "policies.py").write_text(POLICIES)
     if any("other.h5" in a for a in argv):
         from support.mcap_samples import synthetic_episode, synthetic_meta, write
 
@@ -262,3 +288,26 @@ def test_debug_adds_the_traceback_and_keeps_the_exit_status(argv, status, last_l
     lines = debug.stderr.splitlines()
     assert lines[0] == "Traceback (most recent call last):" and len(lines) > 3
     assert lines[-1] == last_line.format(how="please report it")
+
+
+@pytest.mark.parametrize(("sig", "status", "line"), [(signal.SIGTERM, 143, "terminated (SIGTERM)"),
+                                                      (signal.SIGINT, 130, "interrupted")], ids=["SIGTERM", "SIGINT"])
+def test_sigterm_stops_a_recording_as_cleanly_as_ctrl_c(tmp_path, sig, status, line):
+    """Regression: SIGTERM killed the recorder with no clean-up, so its MCAP file needed `recover`."""
+    from support.children import RecordingChild
+
+    from simreel.formats import open_reader
+
+    out = tmp_path / "rec.mcap"
+    with RecordingChild("record", "PickCube-v1", "-o", str(out), "-n", "1000", "--max-steps", "10", "-q",
+                        cli=True) as child:
+        deadline = time.monotonic() + 180
+        while not (out.exists() and b"simreel.episode.1" in out.read_bytes()):  # two episodes committed
+            assert child.proc.poll() is None and time.monotonic() < deadline, child.proc.stderr.read()
+            time.sleep(0.05)
+        assert child.signal(sig) == status
+    assert child.stderr.splitlines()[-1] == f"simreel record: {line}"
+    with open_reader(out) as r:  # a complete file: summary and footer written
+        assert len(r.episodes) >= 2 and r.unfinished == []
+        for m in r.episodes:
+            assert 1 <= r.read_episode(m.index).length <= 10

@@ -59,3 +59,30 @@ def test_policy_from_a_file(tmp_path, capsys):
 
     with open_reader(out) as r:
         assert not r.read_episode(0).actions.any()
+
+
+def test_episodes_longer_than_the_time_limit_are_recorded_and_the_limit_is_said(tmp_path, capsys):
+    """Regression: `--max-steps 5000` was silently capped at the env's time limit (50 for PickCube-v1), and
+    `max_episode_steps` in --env-kwargs was refused; which limit applies was never said."""
+    from simreel.formats import open_reader
+
+    out = tmp_path / "long.h5"
+    assert main(["record", "PickCube-v1", "-o", str(out), "--max-steps", "120", "-q"]) == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith("PickCube-v1's time limit is 50 steps; this recording sets it to 120 (the recording "
+                              "keeps it, so replay uses it too)\n")
+    with open_reader(out) as r:
+        assert r.meta.max_episode_steps == 120 and r.episodes[0].length == 120
+        assert r.read_episode(0).truncated.tolist() == [False] * 119 + [True]  # the raised limit ends it
+    out = tmp_path / "kwargs.h5"
+    assert main(["record", "PickCube-v1", "-o", str(out), "--env-kwargs", '{"max_episode_steps": 70}', "-q"]) == 0
+    assert capsys.readouterr().out.startswith("PickCube-v1's time limit is 50 steps; this recording sets it to 70 ")
+    with open_reader(out) as r:
+        assert r.meta.max_episode_steps == 70 and r.episodes[0].length == 70 and "max_episode_steps" not in r.meta.env_kwargs
+    assert main(["replay", str(out), "-q"]) == 0  # rebuilt with the recorded limit: bit-exact
+    assert "1 of 1 episode(s) verified (1 exact" in capsys.readouterr().out
+    assert main(["record", "PickCube-v1", "-o", str(tmp_path / "short.h5"), "--max-steps", "7", "-q"]) == 0
+    assert capsys.readouterr().out.startswith("PickCube-v1's time limit is 50 steps; this recording sets it to 7 ")
+    assert main(["record", "PickCube-v1", "-o", str(tmp_path / "own.h5"), "-q"]) == 0
+    assert capsys.readouterr().out.startswith("episodes end at PickCube-v1's time limit of 50 steps, or earlier when "
+                                              "the task ends them\n")

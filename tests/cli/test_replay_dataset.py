@@ -53,7 +53,7 @@ def test_a_dataset_is_one_run_with_a_line_per_file_and_every_episode_once(datase
     assert " ".join(rows["data/more/junk.mcap"]) == "cannot be replayed: neither an HDF5 nor an MCAP file"
     text = "\n".join(lines)
     assert "data/altered.h5\n        1      8  diverged          step 4: " in text
-    assert "data/damaged.h5\n        0      8  error             traj_0 lacks a dataset: 'actions'" in text
+    assert "data/damaged.h5\n        0      8  error             traj_0 lacks actions, which the recording's layout lists" in text
     assert "limit: contact forces not compared: the file holds none (1 of 7 files)" in text
     assert lines[-2] == ("8 of 10 episode(s) verified (8 exact, 0 within tolerance); 1 diverged; "
                          "1 could not be replayed; 1 file(s) unreadable")

@@ -393,3 +393,16 @@ def test_report_verdicts_find_the_file_by_its_real_path_and_only_its_episodes(sy
         report_verdicts(b, verdicts, files, "r.json")
     with pytest.raises(RecordingFileError, match="gone.h5: no such file"):
         report_verdicts("gone.h5", verdicts, files, "r.json")
+
+
+def test_an_input_with_a_damaged_episode_is_refused_naming_it(tmp_path):
+    """Issue 17: an episode the reader cannot read must never vanish silently, from a merge either."""
+    meta = synthetic_meta(poses=False)
+    a = write(tmp_path / "a.h5", meta, [synthetic_episode(meta, i, 4) for i in range(2)])
+    with h5py.File(a, "r+") as f:
+        del f["traj_1"].attrs["simreel_episode"]  # a half-written or damaged group
+    with pytest.raises(RecordingFileError) as err:
+        merge([a], tmp_path / "out.h5", command="simreel merge a.h5")
+    assert str(err.value).startswith(f"{a}: 1 damaged episode(s) (traj_1: no simreel_episode attribute")
+    assert f"`simreel recover {a} -o OUT` copies the intact ones" in str(err.value)
+    assert not (tmp_path / "out.h5").exists()

@@ -131,12 +131,12 @@ def test_existing_side_files_are_not_replaced_unless_asked(tmp_path, make_side, 
 
 
 def test_a_failing_writer_constructor_removes_what_it_created(tmp_path, monkeypatch):
-    from simreel.formats.hdf5 import Hdf5Writer
+    import simreel.formats.hdf5.writer as hdf5_writer
 
-    def boom(self):
+    def boom(path, meta):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(Hdf5Writer, "_write_sidecar", boom)
+    monkeypatch.setattr(hdf5_writer, "SidecarFile", boom)
     with pytest.raises(RuntimeError, match="boom"):
         open_writer(tmp_path / "r.h5", _meta())
     assert sorted(tmp_path.iterdir()) == []

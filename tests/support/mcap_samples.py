@@ -84,3 +84,27 @@ def write(path: Path, meta: RecordingMeta, episodes: list[Episode], **options) -
         for ep in episodes:
             w.write_episode(ep)
     return path
+
+
+def sample(path: Path, n: int = 3, **options) -> tuple[Path, list[Episode]]:
+    """`n` synthetic episodes of 6 steps, no poses, written to `path` (its suffix picks the format)."""
+    meta = synthetic_meta(poses=False)
+    episodes = [synthetic_episode(meta, i, 6) for i in range(n)]
+    return write(path, meta, episodes, **options), episodes
+
+
+def only_this_episode_fails(path: Path, episodes: list[Episode], bad: int) -> Exception:
+    """Read every episode of `path`: each but `bad` must equal what was written, `bad` must raise
+    `RecordingFileError`, which is returned."""
+    import pytest
+
+    from simreel.errors import RecordingFileError
+    from simreel.formats import open_reader
+
+    with open_reader(path) as r:
+        for ep in episodes:
+            if ep.meta.index != bad:
+                assert_same_episode(r.read_episode(ep.meta.index), ep)
+        with pytest.raises(RecordingFileError) as err:
+            r.read_episode(bad)
+    return err.value

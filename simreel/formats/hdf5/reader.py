@@ -1,13 +1,30 @@
-"""`Hdf5Reader`: reads a simreel HDF5 recording (layout: `simreel.formats.hdf5.layout`), episode by episode."""
+"""`Hdf5Reader`: reads a simreel HDF5 recording (layout: `simreel.formats.hdf5.layout`), episode by episode, checking
+every episode against the recording's own layout, and naming what it cannot read rather than skipping it.
+
+- A file still being written is read under the writer's commit lock (`simreel.formats.lock`): the reader sees
+  the episodes committed when it opened it, never a commit half done, and keeps a handle of each episode's
+  group so it never walks the parts of the file a later commit changes.
+- An episode whose group or metadata is corrupt or half written (a crash in a commit, a damaged disk) is listed
+  in `damaged` with what is wrong; the others stay readable. An episode's data that fails its checksum, or
+  that does not fit the layout (a field missing, another dtype or shape, a dataset the layout does not list)
+  raises `RecordingFileError` naming the episode and the field when it is read.
+- Files of earlier simreel versions keep their attributes in HDF5 global heaps, where some corruptions make
+  libhdf5 loop forever; those heaps are checked before libhdf5 reads them (`_check_global_heaps`).
+"""
 
 from __future__ import annotations
 
 import json
+import mmap
+import struct
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from simreel import FORMAT_VERSION
-from simreel.episode import Episode, EpisodeMeta, RecordingMeta, episode_fields
+from simreel.episode import Episode, EpisodeMeta, FieldSpec, RecordingMeta, episode_fields
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader
 from simreel.formats.hdf5.layout import (
@@ -15,12 +32,22 @@ from simreel.formats.hdf5.layout import (
     HDF5_MAGIC,
     META_ATTR,
     VERSION_ATTR,
+    decode_text,
     group_name,
+    marker_path,
     partial_dir,
+    scratch_path,
 )
-from simreel.formats.maniskill.layout import dataset_name
+from simreel.formats.lock import CommitLock, being_written
+from simreel.formats.maniskill.layout import dataset_name, group_index
+from simreel.formats.maniskill.sidecar import sidecar_episodes
+from simreel.formats.staging import replacement_note
 
 __all__ = ["Hdf5Reader", "open_hdf5", "holds_simreel_metadata"]
+
+
+_H5PY_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError)
+"""What h5py raises for a corrupt file (libhdf5's errors surface as any of these)."""
 
 
 def open_hdf5(path: Path) -> Any:
@@ -32,15 +59,18 @@ def open_hdf5(path: Path) -> Any:
         return h5py.File(path, "r", locking=False)
     except OSError as e:
         raise RecordingFileError(path, _open_problem(e)) from None
+    except _H5PY_ERRORS as e:
+        raise RecordingFileError(path, f"corrupt HDF5 file ({type(e).__name__}: {e})") from None
 
 
 def holds_simreel_metadata(path: Path) -> bool:
-    """Whether the HDF5 file `path` carries simreel's metadata (True also when it cannot be opened: the simreel
-    reader then says why)."""
+    """Whether the HDF5 file `path` carries simreel's metadata (True also when it cannot be read: the simreel
+    reader then says why). A file being recorded is read under its writer's commit lock, as `Hdf5Reader` reads it."""
     try:
-        with open_hdf5(path) as f:
+        with CommitLock.reading(partial_dir(path), path) if being_written(path) else nullcontext(), \
+                open_hdf5(path) as f:
             return META_ATTR in f.attrs
-    except RecordingFileError:
+    except (RecordingFileError, *_H5PY_ERRORS):
         return True
 
 
@@ -62,6 +92,26 @@ def _open_problem(e: OSError) -> str:
     return f"truncated or corrupt HDF5 file ({text})"
 
 
+def _check_global_heaps(path: Path) -> None:
+    """Refuse a file with a global heap collection that would make libhdf5 loop forever (an object of size 0
+    where it expects the heap's free space; seen after 64 zeroed bytes). Walks each collection's objects the way
+    libhdf5 does and requires every step to advance."""
+    with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        at = data.find(b"GCOL\x01")
+        while at >= 0:
+            (size,) = struct.unpack_from("<Q", data, at + 8)
+            end = min(at + size, len(data))
+            pos = at + 16
+            while pos + 16 <= end:
+                index, _, _, length = struct.unpack_from("<HHIQ", data, pos)
+                step = length if index == 0 else 16 + (length + 7) // 8 * 8
+                if step <= 0:
+                    raise RecordingFileError(path, f"corrupt HDF5 file (a global heap object at byte {pos} is empty, "
+                                                   "which would make libhdf5 loop)")
+                pos += step
+            at = data.find(b"GCOL\x01", at + 4)
+
+
 class Hdf5Reader(EpisodeReader):
     """Reads a simreel HDF5 recording. Raises `RecordingFileError` for anything else."""
 
@@ -72,53 +122,123 @@ class Hdf5Reader(EpisodeReader):
         with open(self.path, "rb") as fh:
             if fh.read(len(HDF5_MAGIC)) != HDF5_MAGIC:
                 raise RecordingFileError(self.path, "not an HDF5 file")
-        self._file = open_hdf5(self.path)
-        try:
-            self.meta = self._read_meta()
-        except BaseException:
-            self._file.close()
-            raise
-        self.fields = episode_fields(self.meta)
-        self.kind = f"simreel HDF5 recording (format {self.meta.format_version})"
-        self.episodes = self._read_episode_metas()
-        scratch = partial_dir(self.path)
-        self.unfinished = sorted(p.name for p in scratch.glob("traj_*.h5")) if scratch.is_dir() else []
-        """Scratch files of episodes that were running when a recording process died."""
+        self.live = being_written(self.path)
+        """A writer (in any process) is still writing the file: it holds the episodes committed so far."""
+        with CommitLock.reading(partial_dir(self.path), self.path) if self.live else nullcontext():
+            self._file = open_hdf5(self.path)
+            try:
+                self.meta = self._read_meta()
+                self.fields = episode_fields(self.meta)
+                self.kind = f"simreel HDF5 recording (format {self.meta.format_version})"
+                self._groups: dict[int, Any] = {}
+                self.episodes, self.damaged = self._scan()
+            except BaseException:
+                self._file.close()
+                raise
+        self.unfinished, self.notes = self._leftovers()
 
     def _read_meta(self) -> RecordingMeta:
-        attrs = self._file.attrs
-        if META_ATTR not in attrs:
-            raise RecordingFileError(self.path, "an HDF5 file without simreel metadata (not a simreel recording)")
-        version = int(attrs.get(VERSION_ATTR, 0))
+        import h5py
+
+        try:
+            attrs = self._file.attrs
+            if META_ATTR not in attrs:
+                raise RecordingFileError(self.path, "an HDF5 file without simreel metadata (not a simreel recording)")
+            if h5py.check_string_dtype(attrs.get_id(META_ATTR).dtype).length is None:
+                _check_global_heaps(self.path)  # written by an earlier simreel: attributes in global heaps
+            version = int(attrs.get(VERSION_ATTR, 0))
+            text = decode_text(attrs[META_ATTR])
+        except RecordingFileError:
+            raise
+        except _H5PY_ERRORS as e:
+            raise RecordingFileError(self.path, f"corrupt HDF5 file: its metadata cannot be read ({e})") from None
         if version > FORMAT_VERSION:
             raise RecordingFileError(
                 self.path,
                 f"format version {version} is newer than this simreel reads ({FORMAT_VERSION}); upgrade simreel",
             )
         try:
-            return RecordingMeta.from_json(json.loads(attrs[META_ATTR]))
+            return RecordingMeta.from_json(json.loads(text))
         except (ValueError, TypeError) as e:  # MetadataError and JSONDecodeError are ValueErrors
             raise RecordingFileError(self.path, f"bad simreel metadata ({e})") from None
 
-    def _read_episode_metas(self) -> list[EpisodeMeta]:
-        metas = []
-        for name in self._file:
-            if not (name.startswith("traj_") and EPISODE_ATTR in self._file[name].attrs):
-                continue
+    def _scan(self) -> tuple[list[EpisodeMeta], list[str]]:
+        """Every episode group at the root: the readable ones (their groups kept open in `_groups`), and what is
+        wrong with the others."""
+        try:
+            names = list(self._file)
+        except _H5PY_ERRORS as e:
+            raise RecordingFileError(self.path, f"corrupt HDF5 file: its list of episodes cannot be read ({e})") from None
+        metas, damaged = [], []
+        for name in names:
             try:
-                metas.append(EpisodeMeta.from_json(json.loads(self._file[name].attrs[EPISODE_ATTR])))
-            except (ValueError, TypeError) as e:
-                raise RecordingFileError(self.path, f"{name}: bad episode metadata ({e})") from None
-        return sorted(metas, key=lambda m: m.index)
+                meta = self._episode(name)
+            except ValueError as e:
+                damaged.append(f"{name}: {e}")
+                continue
+            if meta is not None:
+                metas.append(meta)
+        return sorted(metas, key=lambda m: m.index), damaged
 
+    def _episode(self, name: str) -> EpisodeMeta | None:
+        """The metadata of group `name` (its group kept in `_groups`); None for an object that is no episode;
+        ValueError saying what is wrong with a damaged one."""
+        import h5py
+
+        index = group_index(name)
+        try:
+            group = self._file[name]
+            if not isinstance(group, h5py.Group):
+                return None
+            attrs = group.attrs
+            if EPISODE_ATTR not in attrs and index is None:
+                return None  # a group some other tool added: not an episode
+            if EPISODE_ATTR not in attrs:
+                found = ", ".join(sorted(attrs)) or "none"
+                raise ValueError(f"no {EPISODE_ATTR} attribute (attributes found: {found}); half written or damaged")
+            meta = EpisodeMeta.from_json(json.loads(decode_text(attrs[EPISODE_ATTR])))
+        except (RecordingFileError, ValueError):
+            raise
+        except _H5PY_ERRORS as e:
+            raise ValueError(f"cannot be read ({type(e).__name__}: {e})") from None
+        if index is None or meta.index != index:
+            raise ValueError(f"its metadata says episode {meta.index}, its name says otherwise")
+        self._groups[index] = group
+        return meta
+
+    def _leftovers(self) -> tuple[list[str], list[str]]:
+        """Episodes a killed writer left running, and notes on the files beside this one."""
+        note = replacement_note(self.path)
+        if note is not None:
+            return [], [note]
+        if self.live:
+            return [], ["being written by a running recording: these are the episodes committed so far"]
+        folder = partial_dir(self.path)
+        unfinished = [_describe_marker(m) for m in sorted(folder.glob("traj_*.running"), key=_marker_index)]
+        unfinished += [f"episode {_marker_index(s)} (a scratch file, {_scratch_steps(s)} step(s))"
+                       for s in sorted(folder.glob("traj_*.h5")) if not marker_path(folder, _marker_index(s)).exists()]
+        notes = []
+        listed = sidecar_episodes(self.path)
+        if listed is not None and listed < len(self.episodes):
+            notes.append(f"its JSON sidecar (for ManiSkill's tools) lists {listed} of the {len(self.episodes)} "
+                         f"episodes; `simreel recover {self.path}` rewrites it")
+        return unfinished, notes
+
+    # ---------------------------------------------------------------- data
     def read_episode(self, index: int) -> Episode:
         meta = self.episode_meta(index)
-        group = self._file[group_name(index)]
-        names = {f.name: self._dataset(group, f.name) for f in self.fields}
-        missing = [d for d in names.values() if d not in group]
-        if missing:
-            raise RecordingFileError(self.path, f"{group_name(index)} lacks a dataset: {missing[0]!r}")
-        return Episode.from_fields(meta, {f: group[d][()] for f, d in names.items()})
+        group = self._groups[index]
+        where = group_name(index)
+        try:
+            names = {f.name: self._dataset(group, f.name) for f in self.fields}
+            arrays = {f.name: self._field(group, where, f, names[f.name], meta.length) for f in self.fields}
+            extra = sorted(set(_datasets(group)) - set(names.values()))
+        except _H5PY_ERRORS as e:
+            raise RecordingFileError(self.path, f"{where} is corrupt: its structure cannot be read ({e})") from None
+        if extra:
+            raise RecordingFileError(self.path, f"{where} holds {', '.join(extra[:3])}, which the recording's layout "
+                                                "does not list (a damaged or altered file)")
+        return Episode.from_fields(meta, arrays)
 
     def _dataset(self, group: Any, field: str) -> str:
         """Where `field` is in `group`: ManiSkill's layout, or simreel's format-1 name (a bare-array observation
@@ -126,5 +246,62 @@ class Hdf5Reader(EpisodeReader):
         name = dataset_name(field, self.meta)
         return name if name in group or field not in group else field
 
+    def _field(self, group: Any, where: str, spec: FieldSpec, name: str, steps: int) -> np.ndarray:
+        """Field `spec` of episode group `group` (its dataset `name`), checked against the layout and its checksum."""
+        import h5py
+
+        ds = group.get(name)
+        if not isinstance(ds, h5py.Dataset):
+            raise RecordingFileError(self.path, f"{where} lacks {name}, which the recording's layout lists")
+        want = (spec.row_count(steps), *spec.shape)
+        if ds.dtype != np.dtype(spec.dtype) or ds.shape != want:
+            raise RecordingFileError(
+                self.path, f"{where}/{name} is {ds.dtype} {ds.shape}, the layout says {spec.dtype} {want}"
+            )
+        try:
+            return ds[()]
+        except _H5PY_ERRORS as e:
+            raise RecordingFileError(
+                self.path, f"{where}/{name} is corrupt: its data fails its checksum or cannot be decompressed ({e})"
+            ) from None
+
     def close(self) -> None:
+        self._groups.clear()
         self._file.close()
+
+
+def _datasets(group: Any) -> list[str]:
+    """The paths of every dataset below `group`."""
+    import h5py
+
+    found: list[str] = []
+    group.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) else None)
+    return found
+
+
+def _marker_index(path: Path) -> int:
+    return group_index(path.name.split(".", 1)[0]) or 0
+
+
+def _describe_marker(marker: Path) -> str:
+    """What a killed writer's marker says about the episode it was running."""
+    index = _marker_index(marker)
+    try:
+        doc = json.loads(marker.read_text())
+        what = f"env {doc.get('env_idx', 0)}, seed {doc.get('seed')}"
+    except (OSError, ValueError, AttributeError):
+        what = "its marker is unreadable"
+    scratch = scratch_path(marker.parent, index)
+    steps = f"{_scratch_steps(scratch)} step(s) in a scratch file" if scratch.exists() else "its steps were in memory"
+    return f"episode {index} ({what}; {steps})"
+
+
+def _scratch_steps(scratch: Path) -> str:
+    """How many steps a killed writer's scratch file holds ("?" when it cannot be read)."""
+    import h5py
+
+    try:
+        with h5py.File(scratch, "r", locking=False) as f:
+            return str(f["traj/rewards"].shape[0]) if "traj/rewards" in f else "0"
+    except _H5PY_ERRORS:
+        return "?"

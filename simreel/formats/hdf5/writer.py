@@ -1,18 +1,28 @@
-"""`Hdf5Writer`: streams episodes into an HDF5 recording (layout: `simreel.formats.hdf5.layout`), safe against
-`kill -9`.
+"""`Hdf5Writer`: streams episodes into an HDF5 recording (layout and format: `simreel.formats.hdf5.layout`),
+safe against `kill -9`, full disks, signals and concurrent readers.
 
-Crash safety: h5py leaves a file that is being written unreadable when the process dies. So a running
-episode stays in memory (up to 8 MiB) or streams into its own scratch file under `<name>.h5.partial/`,
-and the main file is opened only for the few milliseconds in which a finished episode is written in
-(then closed). A killed recording therefore leaves every committed episode readable and loses only the
-episodes still running. The JSON sidecar, which only ManiSkill's tools need, is rewritten at most once
-a second while recording and at close.
+The writer keeps the file open for the whole recording but changes it only in commits. A running episode
+stays in memory (up to 8 MiB) or streams into its own scratch file `<name>.h5.partial/traj_N.h5`, and a
+marker `traj_N.running` there names it while it runs. A commit writes the finished episode in one go and
+ends with a flush, after which the file on disk is whole again; between commits nothing is written. So a
+`kill -9` loses only the episodes still running (the markers name them). A commit
+
+- first reserves the disk space it may need, so a full disk refuses it before the file is touched (the
+  recording then stops with one line, every episode committed before readable);
+- holds SIGINT/SIGTERM until it has ended (`simreel.formats.durable`);
+- holds the commit lock, so a reader in another process never reads the file half way through a commit
+  (`simreel.formats.lock`);
+- then adds the episode to the JSON sidecar (`simreel.formats.maniskill.sidecar`).
+
+A recording that replaces an existing one (`overwrite`) is written in the side folder and moved over the old
+one by `close` (`simreel.formats.staging`); a second writer of the same name is refused.
 """
 
 from __future__ import annotations
 
 import json
-import time
+import os
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,129 +31,76 @@ import numpy as np
 
 from simreel import FORMAT_VERSION
 from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock
-from simreel.errors import UsageError
+from simreel.errors import StorageError, UsageError
 from simreel.formats.base import EpisodeSink, EpisodeWriter
+from simreel.formats.durable import deferred_signals, is_storage_error, reserve_space, storage_error
+from simreel.formats.hdf5.datasets import DatasetWriter, image_storage
 from simreel.formats.hdf5.layout import (
     EPISODE_ATTR,
+    LIBVER,
     META_ATTR,
     VERSION_ATTR,
+    encode_text,
     group_name,
+    marker_path,
     partial_dir,
+    scratch_path,
     sidecar_path,
 )
+from simreel.formats.lock import CommitLock
 from simreel.formats.maniskill.layout import OBS, dataset_name
-from simreel.formats.maniskill.sidecar import write_sidecar
+from simreel.formats.maniskill.sidecar import SidecarFile
+from simreel.formats.staging import RecordingTarget
 
 __all__ = ["Hdf5Writer", "image_storage"]
 
-_CHUNK_BYTES = 1 << 20
-_CONTIGUOUS_MAX_BYTES = 256 << 10
 _SPILL_BYTES = 8 << 20
 """A running episode is held in memory up to this size, then streamed to its scratch file."""
-_SIDECAR_PERIOD_S = 1.0
-"""The JSON sidecar is rewritten at most this often while recording (and always at close)."""
-_LOCK_WAIT_S = 30.0
-
-
-def _chunk_rows(row_shape: tuple[int, ...], itemsize: int) -> int:
-    row_bytes = max(1, int(np.prod(row_shape, dtype=np.int64)) * itemsize)
-    return int(max(1, min(256, _CHUNK_BYTES // row_bytes)))
-
-
-_IMAGE_MIN_ELEMENTS = 1024
-"""An observation whose row has at least 2 dims and this many elements is image-like (camera images, depth,
-segmentation, point clouds) and stored by `image_storage`."""
-_IMAGE_CHUNK_FRAMES = 32
-_IMAGE_TILE = 32
-_POINT_TILE = 1024
-
-
-def image_storage(name: str, row_shape: tuple[int, ...], rows: int) -> dict[str, Any] | None:
-    """How to store an image-like observation dataset (h5py ``create_dataset`` options), or None for any other.
-
-    Chunks span 32 frames and tile the image (32 x 32 pixels, all channels; a point list: 1024 points), gzip
-    level 6 (a compressor every h5py build reads). Measured on re-rendered PickCube episodes (128 x 128 rgb, 61
-    frames): 3.1 KB/frame against 5.4 KB for ManiSkill's RecordEpisode (gzip 5 in h5py's automatic chunks of 16
-    frames x 32 x 32 x 2); one chunk per frame would be 31.8 KB/frame: a frame alone loses the redundancy between
-    frames. Point clouds: 16.5 KB/frame against ManiSkill's 302 KB (it stores xyzw and segmentation raw).
-    Reading one frame costs ~10 ms (ManiSkill's layout ~9 ms).
-    """
-    if not name.startswith("obs/") or len(row_shape) < 2 or int(np.prod(row_shape)) < _IMAGE_MIN_ELEMENTS:
-        return None
-    tile = _IMAGE_TILE if len(row_shape) >= 3 else _POINT_TILE
-    chunks = (max(1, min(rows, _IMAGE_CHUNK_FRAMES)), *(min(n, tile) for n in row_shape[:-1]), row_shape[-1])
-    return {"chunks": chunks, "compression": "gzip", "compression_opts": 6}
-
-
-def _append(group: Any, name: str, rows: np.ndarray, compression: str | None) -> None:
-    """Append rows to dataset `name` of `group`, creating it resizable on first use."""
-    ds = group.get(name)
-    if ds is None:
-        shape = rows.shape[1:]
-        group.create_dataset(
-            name,
-            data=rows,
-            maxshape=(None, *shape),
-            chunks=(_chunk_rows(shape, rows.dtype.itemsize), *shape),
-            compression=compression,
-        )
-        return
-    n = ds.shape[0]
-    ds.resize(n + rows.shape[0], axis=0)
-    ds[n:] = rows
-
-
-def _write_final(group: Any, name: str, data: Any, compression: str | None) -> None:
-    """Write a finished dataset laid out for its size: contiguous when small, chunked + compressed when large.
-
-    Contiguous datasets need no chunk index, which would otherwise be most of a short episode's bytes.
-    `data` is an array or an h5py dataset (copied in slices, so a large one never sits in memory whole).
-    """
-    nbytes = data.size * data.dtype.itemsize
-    image = image_storage(name, data.shape[1:], data.shape[0]) if data.shape[0] else None
-    if image is None and (nbytes <= _CONTIGUOUS_MAX_BYTES or data.shape[0] == 0):
-        group.create_dataset(name, data=data[()])
-        return
-    shape = data.shape[1:]
-    rows = min(_chunk_rows(shape, data.dtype.itemsize), data.shape[0])  # a chunk no longer than the data
-    options = image or {"chunks": (rows, *shape), "compression": compression}
-    out = group.create_dataset(name, shape=data.shape, dtype=data.dtype, **options)
-    step = rows * 16
-    for start in range(0, data.shape[0], step):
-        out[start : start + step] = data[start : start + step]
+_RESERVE_SLACK = 64 << 10
+_RESERVE_PER_DATASET = 4 << 10
+"""Disk reserved per commit beyond the raw bytes of its arrays: object headers, group indexes, compression
+that fails to shrink a chunk."""
 
 
 class _Hdf5Sink(EpisodeSink):
     """Holds an episode in memory up to `_SPILL_BYTES`, then streams it to a scratch file.
 
-    A short episode never touches the disk until its commit writes it into the main file in one go;
-    a long one streams to `<name>.h5.partial/traj_N.h5` so memory stays bounded.
+    A short episode never touches the disk (but for its marker) until its commit writes it into the file in
+    one go; a long one streams to `<name>.h5.partial/traj_N.h5` so memory stays bounded.
     """
 
     def __init__(self, writer: Hdf5Writer, meta: EpisodeMeta, reset: StepBlock) -> None:
         self._writer = writer
         self._index = meta.index
-        self._scratch_path = writer.partial / f"{group_name(meta.index)}.h5"
+        self._scratch_path = scratch_path(writer.partial, meta.index)
         self._file: Any = None
         self._pending: dict[str, list[np.ndarray]] = {}
         self._pending_bytes = 0
         self._hold(reset.conform(writer.reset_fields, episode=meta.index))
+        writer.episode_began(meta)
 
     def _hold(self, arrays: dict[str, np.ndarray]) -> None:
         for name, rows in arrays.items():
             self._pending.setdefault(name, []).append(np.array(rows, copy=True))
             self._pending_bytes += rows.nbytes
         if self._pending_bytes > _SPILL_BYTES:
-            self._spill()
+            self._writer.guard(self._spill, f"episode {self._index} was not committed")
 
     def _spill(self) -> None:
         import h5py
 
         if self._file is None:
-            self._file = h5py.File(self._scratch_path, "w")
+            self._file = h5py.File(self._scratch_path, "w", locking=False)
         traj = self._file.require_group("traj")
         for name, parts in self._pending.items():
-            _append(traj, name, np.concatenate(parts), self._writer.compression)
+            rows = np.concatenate(parts)
+            ds = traj.get(name)
+            if ds is None:
+                traj.create_dataset(name, data=rows, maxshape=(None, *rows.shape[1:]), chunks=True)
+            else:
+                n = ds.shape[0]
+                ds.resize(n + rows.shape[0], axis=0)
+                ds[n:] = rows
         self._pending.clear()
         self._pending_bytes = 0
 
@@ -154,125 +111,250 @@ class _Hdf5Sink(EpisodeSink):
         if self._file is None:
             arrays = {name: np.concatenate(parts) for name, parts in self._pending.items()}
             arrays.update({f.name: np.zeros((0, *f.shape), f.dtype) for f in self._writer.fields if f.name not in arrays})
-            compression, rec = self._writer.compression, self._writer.meta
-            self._writer.commit_group(meta, lambda group: [
-                _write_final(group, dataset_name(name, rec), a, compression) for name, a in arrays.items()
-            ])
+            self._pending.clear()
+            self._writer.commit_arrays(meta, arrays)
             return
-        self._spill()
-        self._commit_scratch(meta)
-        self._scratch_path.unlink()
-
-    def _commit_scratch(self, meta: EpisodeMeta) -> None:
-        """Copy the scratch file's datasets (a long episode) into the main file, slice by slice."""
-        import h5py
-
-        traj = self._file["traj"]
-        for f in self._writer.fields:
-            if f.name not in traj:
-                traj.create_dataset(f.name, data=np.zeros((0, *f.shape), f.dtype))
+        self._writer.guard(self._spill, f"episode {meta.index} was not committed")
         self._file.close()
-        compression, rec = self._writer.compression, self._writer.meta
-        with h5py.File(self._scratch_path, "r") as src:
-            def copy(group: Any) -> None:
-                src["traj"].visititems(
-                    lambda name, obj: _write_final(group, dataset_name(name, rec), obj, compression)
-                    if isinstance(obj, h5py.Dataset) else None
-                )
-
-            self._writer.commit_group(meta, copy)
+        self._file = None
+        self._writer.commit_scratch(meta, self._scratch_path)
 
     def discard(self) -> None:
         self._pending.clear()
         if self._file is not None:
             self._file.close()
-            self._scratch_path.unlink(missing_ok=True)
+            self._file = None
+        self._scratch_path.unlink(missing_ok=True)
+        self._writer.episode_ended(self._index)
 
 
 class Hdf5Writer(EpisodeWriter):
-    """Streams episodes into an HDF5 recording; see `simreel.formats.hdf5.layout` for the layout.
+    """Streams episodes into an HDF5 recording; see the module docstring and `simreel.formats.hdf5.layout`.
 
     Without `overwrite` it refuses a path whose file, JSON sidecar or `.partial/` folder exists (a user's
-    own `NAME.json` is never replaced silently); with it, all three are replaced.
+    own `NAME.json` is never replaced silently); with it, all three are replaced, the file only once the new
+    recording is complete (`close`).
 
     Args:
         path: the .h5 file to write.
         meta: the recording's metadata; its field table decides the datasets of every episode.
         overwrite: replace an existing recording (and its side files) instead of refusing.
-        compression: h5py compression of large datasets ("lzf" default, "gzip", or None).
+        compression: "gzip" (default), "lzf" or None; every dataset also gets the Fletcher-32 checksum.
     """
 
     def __init__(self, path: str | Path, meta: RecordingMeta, *, overwrite: bool = False,
-                 compression: str | None = "lzf") -> None:
+                 compression: str | None = "gzip") -> None:
         super().__init__(path, meta)
+        self._datasets = DatasetWriter(compression)
         self.compression = compression
-        self.partial = partial_dir(self.path)
         self.committed: list[EpisodeMeta] = []
-        self._sidecar_written = 0.0
-        self.check_target(self.path, overwrite=overwrite)
-        self.remove(self.path)  # with overwrite: the old recording; without, check_target saw none of it
-        self._create()
-
-    def _create(self) -> None:
-        import h5py
-
+        self._indices: set[int] = set()
+        """Indices of the episodes begun so far (they must be unique)."""
+        self._running: set[int] = set()
+        self._failed: StorageError | None = None
+        self._closed = self._aborted = False
+        self._target = RecordingTarget.claim(self.path, self.side_paths(self.path), overwrite=overwrite)
+        self.partial = self._target.folder
         try:
-            f = h5py.File(self.path, "x")  # "x": never replaces a file created since the check
-        except FileExistsError:
-            raise UsageError(f"{self.path} already exists; pass --overwrite to replace it") from None
+            self.partial.mkdir(exist_ok=True)
+            self._commit_lock = CommitLock(self.partial)
+            with self._commit_lock.held():
+                self._file = _create_file(self._target.write_path, meta)
+            self._sidecar = SidecarFile(self._target.beside(sidecar_path(self.path).name), meta)
         except OSError as e:
-            raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
-        try:
-            with f:
-                f.attrs[VERSION_ATTR] = FORMAT_VERSION
-                f.attrs[META_ATTR] = json.dumps(self.meta.to_json())
-            self.partial.mkdir()
-            self._write_sidecar()
-        except OSError as e:
-            self.remove(self.path)  # all of it was created above
-            raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
+            self.abort()
+            raise storage_error(self.path, e) if is_storage_error(e) else UsageError(
+                f"cannot write {self.path}: {e.strerror or e}") from None
         except BaseException:
-            self.remove(self.path)
+            self.abort()
             raise
 
     @classmethod
     def side_paths(cls, path: Path) -> list[Path]:
         return [sidecar_path(path), partial_dir(path)]
 
+    @property
+    def _fd(self) -> int:
+        """A descriptor of the file being written (the writer's lock on it)."""
+        return self._target.locks[-1].fd
+
+    # ---------------------------------------------------------------- episodes
     def begin_episode(self, meta: EpisodeMeta, reset: StepBlock) -> EpisodeSink:
+        self._check_usable()
+        if meta.index in self._indices:
+            raise UsageError(f"{self.path}: episode {meta.index} was already written; episode indices must be unique")
         return _Hdf5Sink(self, meta, reset)
 
-    def commit_group(self, meta: EpisodeMeta, fill: Callable[[Any], Any]) -> None:
-        """Create the episode's group in the main file, let `fill(group)` write its datasets, close the file:
-        the episode is then committed (what a sink calls once its episode is complete)."""
-        with self._open_main() as dst:
-            group = dst.create_group(group_name(meta.index))
-            fill(group)
-            if OBS not in group:  # ManiSkill's loader needs the group; its own obs_mode="none" files have it empty
-                group.create_group(OBS)
-            group.attrs[EPISODE_ATTR] = json.dumps(meta.to_json())
-        self.committed.append(meta)
-        if time.monotonic() - self._sidecar_written >= _SIDECAR_PERIOD_S:
-            self._write_sidecar()
+    def episode_began(self, meta: EpisodeMeta) -> None:
+        """Leave the marker that names episode `meta.index` as running, for whoever finds the folder after a crash."""
+        doc = {"index": meta.index, "env_idx": meta.env_idx, "seed": meta.seed}
+        self.guard(lambda: marker_path(self.partial, meta.index).write_text(json.dumps(doc)),
+                   f"episode {meta.index} could not begin")
+        self._indices.add(meta.index)
+        self._running.add(meta.index)
 
-    def _open_main(self) -> Any:
-        """The main file for appending; waits while a reader that locks files (HDF5's default) has it open."""
+    def episode_ended(self, index: int) -> None:
+        self._running.discard(index)
+        marker_path(self.partial, index).unlink(missing_ok=True)
+
+    def commit_arrays(self, meta: EpisodeMeta, arrays: dict[str, np.ndarray]) -> None:
+        """Commit an episode held in memory: one dataset per field of `arrays`."""
+        datasets, rec = self._datasets, self.meta
+
+        def fill(group: Any) -> None:
+            for name, a in arrays.items():
+                datasets.write(group, dataset_name(name, rec), a)
+
+        self._commit(meta, fill, sum(a.nbytes for a in arrays.values()))
+
+    def commit_scratch(self, meta: EpisodeMeta, scratch: Path) -> None:
+        """Commit a long episode from its scratch file, a few chunks at a time, then remove the scratch file."""
         import h5py
 
-        deadline = time.monotonic() + _LOCK_WAIT_S
-        while True:
+        with h5py.File(scratch, "r", locking=False) as src:
+            traj = src["traj"]
+            sources = {f.name: traj[f.name] for f in self.fields if f.name in traj}
+            empty = {f.name: np.zeros((0, *f.shape), f.dtype) for f in self.fields if f.name not in traj}
+
+            def fill(group: Any) -> None:
+                for name, ds in sources.items():
+                    self._datasets.copy(group, dataset_name(name, self.meta), ds)
+                for name, a in empty.items():
+                    self._datasets.write(group, dataset_name(name, self.meta), a)
+
+            self._commit(meta, fill, sum(ds.size * ds.dtype.itemsize for ds in sources.values()))
+        scratch.unlink()
+
+    def _commit(self, meta: EpisodeMeta, fill: Callable[[Any], None], nbytes: int) -> None:
+        """Write episode `meta.index` as group `traj_N` (`fill(group id)` writes its datasets), flush, add it to
+        the sidecar. A failure leaves the file as it was after the previous commit and stops the writer."""
+        self._check_usable()
+        with deferred_signals():
             try:
-                return h5py.File(self.path, "a")
-            except (BlockingIOError, OSError) as e:
-                if "lock" not in str(e).lower() or time.monotonic() > deadline:
-                    raise
-                time.sleep(0.05)
+                reserve_space(self._fd, nbytes + _RESERVE_SLACK + _RESERVE_PER_DATASET * len(self.fields))
+                self._sidecar.reserve(meta)
+            except OSError as e:
+                raise self._fail(e, meta) from None
+            try:
+                with self._commit_lock.held():
+                    group = self._datasets.group(self._file.id, group_name(meta.index))
+                    fill(group)
+                    if OBS not in self._h5py.Group(group):  # ManiSkill's loader needs it; its obs_mode="none" files
+                        self._datasets.group(group, OBS)  # have it empty
+                    self._h5py.Group(group).attrs[EPISODE_ATTR] = encode_text(json.dumps(meta.to_json()))
+                    self._file.flush()
+                self._sidecar.append(meta)
+            except BaseException as e:
+                raise self._fail(e, meta) from None
+        self.committed.append(meta)
+        self.episode_ended(meta.index)
 
-    def _write_sidecar(self) -> None:
-        write_sidecar(self.path, self.meta, self.committed)
-        self._sidecar_written = time.monotonic()
+    @property
+    def _h5py(self) -> Any:
+        import h5py
 
+        return h5py
+
+    # ---------------------------------------------------------------- failures
+    def _fail(self, e: BaseException, meta: EpisodeMeta | None = None, lost: str = "") -> BaseException:
+        """Stop the writer after a failed write: nothing more reaches the file (a half-written commit must never
+        be flushed), so it keeps exactly the episodes committed before. Returns the error to raise."""
+        self._neutralize()
+        if isinstance(e, OSError):
+            return self._stop(e, f"episode {meta.index} was not committed" if meta is not None else lost)
+        return e
+
+    def _stop(self, e: OSError, lost: str = "") -> StorageError:
+        self._neutralize()
+        return super()._stop(e, lost)
+
+    def _neutralize(self) -> None:
+        """Point the HDF5 library's descriptor of the file at /dev/null, so whatever it still holds in memory of
+        a commit that failed half way is never written (closing, or the end of the process, would flush it)."""
+        file = getattr(self, "_file", None)
+        if file is None or not file.id.valid:
+            return
+        try:
+            fd = file.id.get_vfd_handle()
+            null = os.open(os.devnull, os.O_RDWR)
+            os.dup2(null, fd)
+            os.close(null)
+        except (OSError, ValueError, TypeError):
+            pass
+        try:
+            file.close()
+        except Exception:  # noqa: BLE001 - it writes nowhere now; a failure to close loses nothing
+            pass
+        self._file = None
+
+    # ---------------------------------------------------------------- close
     def close(self) -> None:
-        self._write_sidecar()
-        if self.partial.is_dir() and not any(self.partial.iterdir()):
-            self.partial.rmdir()
+        """Close the file, remove what the running episodes left in the side folder (they are not committed), and
+        move a staged recording over the old one. After a failed write nothing replaces the old recording: the
+        episodes committed before stay where they were written (the error said where)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            with deferred_signals():
+                if self._file is not None:
+                    with self._commit_lock.held():
+                        self._file.close()
+                    self._file = None
+                self._sidecar.close()
+        except OSError as e:
+            self._failed = self._failed or storage_error(self.path, e, committed=len(self.committed),
+                                                         readable=self._where_readable)
+            raise self._failed from None
+        finally:
+            self._commit_lock.close()
+            self._clear_running()
+            if self._failed is None:
+                self._target.publish([sidecar_path(self.path).name])
+            else:
+                self._target.release()
+
+    @property
+    def _where_readable(self) -> str:
+        if self._target.staged:
+            return f" in {self._target.write_path} (the recording it was to replace is unchanged)"
+        return ""
+
+    def abort(self) -> None:
+        """Drop the recording: a new file is removed, a staged one too (the old recording stays)."""
+        if self._aborted:
+            return
+        self._aborted = self._closed = True
+        self._neutralize()
+        for closing in (getattr(self, "_sidecar", None), getattr(self, "_commit_lock", None)):
+            if closing is not None:
+                closing.close()
+        self._clear_running()
+        self._target.abandon([sidecar_path(self.path).name])
+
+    def _clear_running(self) -> None:
+        for index in list(self._running):
+            scratch_path(self.partial, index).unlink(missing_ok=True)
+            self.episode_ended(index)
+        if not self._target.staged and self.partial.is_dir() and not any(self.partial.iterdir()):
+            shutil.rmtree(self.partial, ignore_errors=True)
+
+
+def _create_file(path: Path, meta: RecordingMeta) -> Any:
+    """Create the recording (version-0 superblock, root group in the 1.10 format) and reopen it for the objects
+    to come; returns the open `h5py.File`."""
+    import h5py
+
+    # earliest: the version-0 superblock, which has no "open for writing" flag; track_order: a root group in the
+    # new format (checksummed, no local heap), also listing episodes in the order they were committed
+    with h5py.File(path, "w", libver=("earliest", LIBVER[1]), track_order=True, locking=False):
+        pass
+    f = h5py.File(path, "r+", libver=LIBVER, locking=False)
+    try:
+        f.attrs[VERSION_ATTR] = FORMAT_VERSION
+        f.attrs[META_ATTR] = encode_text(json.dumps(meta.to_json()))
+        f.flush()
+    except BaseException:
+        f.close()
+        raise
+    return f

@@ -9,11 +9,19 @@ Its document, as ManiSkill 3.0.1's RecordEpisode writes it::
 
 simreel writes it beside its HDF5 recordings so ManiSkill's tools (`replay_trajectory`, its dataset loaders)
 read them; simreel itself needs it only for ManiSkill's own files (`simreel.formats.maniskill.reader`).
+
+`SidecarFile` keeps it current while simreel records: it is written whole when the recording starts, and each
+committed episode is added in place by one write that also rewrites the closing brackets, so the file is
+valid JSON after every commit, costs the same for the 10th episode as for the 10,000th, and lags the `.h5`
+by at most the commit in flight (the `.h5` is flushed first). The file carries spaces after its closing
+brace (JSON allows them), reserved before each commit, so adding an entry never needs new disk space and a
+full disk refuses the commit before the `.h5` is touched; `close` cuts them off.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +32,11 @@ from simreel.errors import RecordingFileError
 from simreel.formats.maniskill.layout import sidecar_path
 from simreel.formats.targets import write_text_atomic
 
-__all__ = ["Sidecar", "sidecar_document", "write_sidecar"]
+__all__ = ["Sidecar", "SidecarFile", "sidecar_document", "sidecar_episodes", "write_sidecar"]
+
+_TAIL = b"\n  ]\n}\n"
+_PAD = 4096
+"""Spaces reserved after the closing brace at a time."""
 
 
 # ------------------------------------------------------------------------------------------------ writing
@@ -66,6 +78,61 @@ def write_sidecar(path: Path, meta: RecordingMeta, episodes: list[EpisodeMeta]) 
     """(Re)write the sidecar of the recording `path` atomically."""
     doc = sidecar_document(meta, episodes)
     write_text_atomic(sidecar_path(path), json.dumps(doc, indent=2, default=json_default))
+
+
+def sidecar_episodes(path: Path) -> int | None:
+    """How many episodes the sidecar of the recording `path` lists (None: no sidecar, or not readable JSON)."""
+    try:
+        doc = json.loads(sidecar_path(path).read_text())
+        return len(doc["episodes"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+class SidecarFile:
+    """The sidecar at `path`, kept open and extended by one in-place write per committed episode."""
+
+    def __init__(self, path: Path, meta: RecordingMeta) -> None:
+        self.meta = meta
+        head = json.dumps({k: v for k, v in sidecar_document(meta, []).items() if k != "episodes"}, indent=2,
+                          default=json_default)
+        head_bytes = (head[: head.rindex("\n}")] + ',\n  "episodes": [').encode()
+        write_text_atomic(path, (head_bytes + _TAIL).decode())
+        self._fd = os.open(path, os.O_RDWR)
+        self._end = len(head_bytes)
+        """Where the next entry goes (the closing brackets follow it)."""
+        self._size = self._end + len(_TAIL)
+        """The file's size: the document, then reserved spaces."""
+        self._count = 0
+
+    def _entry(self, episode: EpisodeMeta) -> bytes:
+        entry = json.dumps(_episode_entry(self.meta, episode), default=json_default)
+        return ((",\n    " if self._count else "\n    ") + entry).encode()
+
+    def reserve(self, episode: EpisodeMeta) -> None:
+        """Make sure adding `episode` needs no new disk space (`OSError` when the disk has none left)."""
+        need = self._end + len(self._entry(episode)) + len(_TAIL)
+        if need > self._size:
+            grow = need - self._size + _PAD
+            os.pwrite(self._fd, b" " * grow, self._size)
+            self._size += grow
+
+    def append(self, episode: EpisodeMeta) -> None:
+        """Add `episode` to the list: one write of the entry and the closing brackets after it."""
+        self.reserve(episode)
+        data = self._entry(episode)
+        os.pwrite(self._fd, data + _TAIL, self._end)
+        self._end += len(data)
+        self._count += 1
+
+    def close(self) -> None:
+        """Cut off the reserved spaces and close the file."""
+        if self._fd >= 0:
+            try:
+                os.ftruncate(self._fd, self._end + len(_TAIL))
+            finally:
+                os.close(self._fd)
+                self._fd = -1
 
 
 # ------------------------------------------------------------------------------------------------ reading

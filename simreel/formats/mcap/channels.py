@@ -41,6 +41,7 @@ from simreel.formats.mcap.records import (
     EpisodeRecord,
     RecordingRecord,
     record_name,
+    seal,
     step_ns_of,
 )
 
@@ -76,13 +77,30 @@ def _view_frames(meta: RecordingMeta) -> tuple[list[str], list[str] | None]:
     return names, sources
 
 
+def _short_float32(a: np.ndarray) -> np.ndarray:
+    """float32 values as the float64 of a decimal with 8 significant digits (9 where 8 do not read back as
+    the same float32; the widened value itself where neither does): `0.100000001` rather than the
+    `0.10000000149011612` of its float64 widening. JSON then holds the same float32 numbers in fewer bytes."""
+    x = a.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        magnitude = np.floor(np.log10(np.abs(x)))
+    magnitude[~np.isfinite(magnitude)] = 0
+    out = x
+    for digits in (9, 8):
+        scale = 10.0 ** (digits - 1 - magnitude)
+        with np.errstate(over="ignore", invalid="ignore"):
+            rounded = np.round(x * scale) / scale
+        out = np.where(rounded.astype(np.float32) == a, rounded, out)
+    return out
+
+
 def _json_column(a: Any) -> list[Any]:
     """Rows of `a` as JSON values; NaN/inf become null (JSON has no such numbers; the exact values are in
-    `/simreel/steps`)."""
+    `/simreel/steps`), float32 values are written short (`_short_float32`)."""
     a = np.asarray(a)
     if a.dtype.kind == "f":
         finite = np.isfinite(a)
-        a = a.astype(np.float64)
+        a = _short_float32(a) if a.dtype == np.float32 else a.astype(np.float64)
         if not finite.all():
             a = a.astype(object)
             a[~finite] = None
@@ -143,7 +161,7 @@ class McapChannels:
         return {"title": "simreel.StepScalars", "type": "object", "properties": props}
 
     def _record(self, record: Any) -> None:
-        self._mcap.add_metadata(record_name(record), record.to_metadata())
+        self._mcap.add_metadata(record_name(record), seal(record.to_metadata()))
 
     def _log(self, time_ns: int, level: int, text: str) -> None:
         self._mcap.add_message(self._ids["log"], time_ns, encode_log(time_ns, level, text, "simreel"), time_ns)

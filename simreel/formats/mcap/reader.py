@@ -1,7 +1,13 @@
-"""`McapReader`: reads simreel's MCAP recordings, complete ones through their summary, killed ones front to back.
+"""`McapReader`: reads simreel's MCAP recordings, complete ones through their summary, killed or damaged ones front
+to back.
 
 Only the chunks inside an episode's time span are read and decompressed; the exact arrays come from the
-data channels (`simreel.formats.mcap.blocks`), never from the viewable ones.
+data channels (`simreel.formats.mcap.blocks`), never from the viewable ones. Every check MCAP offers is made:
+the summary's CRC when the file is opened, each chunk's CRC when it is read (a chunk that fails it makes its
+episode's read fail, naming it), each simreel record's own CRC (`simreel.formats.mcap.records.unseal`), and the
+data section's CRC on request (`check_data_crc`, which reads the whole file). A damaged simreel record is
+listed in `damaged`, the other episodes stay readable. Reading front to back (`recover=True`) skips a damaged
+record, finds the next whole one and keeps going (`skipped` says which bytes were lost).
 """
 
 from __future__ import annotations
@@ -9,6 +15,7 @@ from __future__ import annotations
 import io
 import os
 import struct
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,8 +27,15 @@ from simreel import FORMAT_VERSION
 from simreel.episode import Episode, EpisodeMeta
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader
-from simreel.formats.mcap.blocks import WireField, fields_from_schema, unpack_block, unpack_header
-from simreel.formats.mcap.lock import lock_file
+from simreel.formats.lock import lock_file
+from simreel.formats.mcap.blocks import (
+    WireField,
+    fields_from_schema,
+    reset_fields,
+    step_fields,
+    unpack_block,
+    unpack_header,
+)
 from simreel.formats.mcap.records import (
     MCAP_MAGIC,
     EpisodeBeginRecord,
@@ -29,11 +43,18 @@ from simreel.formats.mcap.records import (
     EpisodeRecord,
     RecordingRecord,
     record_kind,
+    unseal,
 )
+from simreel.formats.staging import replacement_note
 
 __all__ = ["McapReader"]
 
-_OP_CHUNK, _OP_METADATA, _OP_DATA_END, _OP_FOOTER = 0x06, 0x0C, 0x0F, 0x02
+_OP_CHUNK, _OP_MESSAGE_INDEX, _OP_METADATA, _OP_DATA_END, _OP_FOOTER = 0x06, 0x07, 0x0C, 0x0F, 0x02
+_RECORD_HEADER = struct.Struct("<BQ")
+_FOOTER_BYTES = 1 + 8 + 8 + 8 + 4
+"""A footer record: opcode, length, summary start, summary offset start, summary CRC."""
+_RESYNC_WINDOW = 64 << 20
+"""How far past a damaged record the front-to-back reader looks for the next whole one."""
 
 
 @dataclass(frozen=True)
@@ -58,13 +79,33 @@ def _has_footer(fh: IO[bytes], size: int) -> bool:
     return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
 
 
+def _read_chunk(fh: IO[bytes], offset: int) -> Any:
+    """The chunk record at `offset`, its CRC checked (`McapError` / `ValueError` ... when it is damaged)."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Chunk
+    from mcap.stream_reader import get_chunk_data_stream
+
+    fh.seek(offset + 9)
+    chunk = Chunk.read(ReadDataStream(fh))
+    get_chunk_data_stream(chunk, validate_crc=True)  # decompresses and checks the CRC
+    return chunk
+
+
+def _read_metadata(data: bytes) -> Any:
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Metadata
+
+    return Metadata.read(ReadDataStream(io.BytesIO(data)))
+
+
 class McapReader(EpisodeReader):
     """Reads a simreel MCAP recording. Raises `RecordingFileError` for anything else.
 
     Args:
         path: the .mcap file.
-        recover: read a file without summary/footer (a killed recording) front to back instead of
-            refusing it; `recovered` then says so, and `unfinished` / `lost_bytes` what was lost.
+        recover: read a file without summary/footer (a killed recording), or whose summary is damaged, front to
+            back instead of refusing it; `recovered` then says so, and `unfinished`, `skipped`, `lost_bytes` what
+            was lost.
     """
 
     def __init__(self, path: str | Path, *, recover: bool = False) -> None:
@@ -84,11 +125,22 @@ class McapReader(EpisodeReader):
         if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             raise RecordingFileError(self.path, "not an MCAP file")
         self.recovered = False
-        """True when the file had no footer and was read front to back (`recover=True`)."""
+        """True when the file was read front to back (`recover=True`: no footer, or a damaged summary)."""
         self.lost_bytes = 0
         """Bytes at the end of a recovered file that do not form a whole record (cut mid-write)."""
+        self.skipped: list[str] = []
+        """Damaged stretches of a recovered file that were skipped (a chunk or record failing its check)."""
+        self.damaged: list[str] = []
+        note = replacement_note(self.path)
+        self.notes = [note] if note else []
         if _has_footer(fh, size):
-            chunks, records = self._read_summary()
+            try:
+                chunks, records = self._read_summary(size)
+            except RecordingFileError:
+                if not recover:
+                    raise
+                chunks, records, self.lost_bytes = self._scan(size)
+                self.recovered = True
         elif not lock_file(fh, exclusive=False):
             raise RecordingFileError(
                 self.path, "still being written by a running recording (no footer yet); read it once that process ends"
@@ -105,53 +157,155 @@ class McapReader(EpisodeReader):
         self._chunks = sorted(chunks, key=lambda c: c.offset)
         self._parse_records(records)
 
-    def _read_summary(self) -> tuple[list[_ChunkRef], list[Any]]:
+    # ---------------------------------------------------------------- complete files: the summary
+    def _read_summary(self, size: int) -> tuple[list[_ChunkRef], list[Any]]:
+        """Chunk references and metadata records through the summary, whose CRC is checked first."""
         from mcap.exceptions import McapError
         from mcap.reader import SeekingReader
 
+        self._check_summary_crc(size)
         try:
             self._fh.seek(0)
-            reader = SeekingReader(self._fh)
-            summary = reader.get_summary()
-            records = list(reader.iter_metadata())
+            summary = SeekingReader(self._fh).get_summary()
         except (McapError, ValueError, EOFError, struct.error, KeyError) as e:
-            raise RecordingFileError(self.path, f"corrupt MCAP file ({type(e).__name__}: {e})") from None
+            raise self._corrupt(f"{type(e).__name__}: {e}") from None
         if summary is None:
-            chunks: list[_ChunkRef] = []
-        else:
-            chunks = [_ChunkRef(c.chunk_start_offset, c.message_start_time, c.message_end_time)
-                      for c in summary.chunk_indexes]
+            return [], []
+        chunks = [_ChunkRef(c.chunk_start_offset, c.message_start_time, c.message_end_time)
+                  for c in summary.chunk_indexes]
+        records = []
+        for index in summary.metadata_indexes:
+            try:
+                records.append(self._indexed_metadata(index))
+            except (McapError, ValueError, EOFError, struct.error, UnicodeDecodeError) as e:
+                self.damaged.append(f"record {index.name} at byte {index.offset} cannot be read "
+                                    f"({str(e) or type(e).__name__})")
         return chunks, records
 
-    def _scan(self, size: int) -> tuple[list[_ChunkRef], list[Any], int]:
-        """Walk the records of a file without footer; stop at the first one cut short."""
-        from mcap.data_stream import ReadDataStream
-        from mcap.records import Metadata
+    def _indexed_metadata(self, index: Any) -> Any:
+        """The metadata record a summary's index points at, checked to be the one it names."""
+        opcode, length = _RECORD_HEADER.unpack(self._read_at(index.offset, 9))
+        if opcode != _OP_METADATA or 9 + length != index.length:
+            raise ValueError("no metadata record where the summary's index points")
+        record = _read_metadata(self._read_at(index.offset + 9, length))
+        if record.name != index.name:
+            raise ValueError(f"the record there is named {record.name!r}")
+        return record
 
-        fh = self._fh
+    def _check_summary_crc(self, size: int) -> None:
+        footer_at = size - len(MCAP_MAGIC) - _FOOTER_BYTES
+        if footer_at < len(MCAP_MAGIC):
+            raise self._corrupt("too short for its footer")
+        opcode, _, summary_start, _, crc = struct.unpack("<BQQQI", self._read_at(footer_at, _FOOTER_BYTES))
+        if opcode != _OP_FOOTER or summary_start > footer_at:
+            raise self._corrupt("its footer is damaged")
+        if crc == 0 or summary_start == 0:
+            return
+        self._fh.seek(summary_start)
+        covered = self._fh.read(footer_at - summary_start + _FOOTER_BYTES - 4)
+        if zlib.crc32(covered) != crc:
+            raise self._corrupt("its summary does not match its CRC")
+
+    def _corrupt(self, problem: str) -> RecordingFileError:
+        return RecordingFileError(self.path, f"corrupt MCAP file ({problem}); `simreel recover {self.path} -o OUT` "
+                                             "copies the episodes that are intact")
+
+    def check_data_crc(self) -> str | None:
+        """Check the data section against the CRC the writer put in its DataEnd record (reads the whole file).
+        Returns what is wrong, or None when it matches or the file has none (written by an earlier simreel)."""
+        size = os.fstat(self._fh.fileno()).st_size
+        footer_at = size - len(MCAP_MAGIC) - _FOOTER_BYTES
+        _, _, summary_start, _, _ = struct.unpack("<BQQQI", self._read_at(footer_at, _FOOTER_BYTES))
+        end = (summary_start or footer_at) - 13  # the DataEnd record
+        header = self._read_at(end, 13) if len(MCAP_MAGIC) <= end else b""
+        if len(header) != 13 or header[0] != _OP_DATA_END:
+            return "its data section has no end record"
+        _, _, stored = struct.unpack("<BQI", header)
+        if stored == 0:
+            return None
+        self._fh.seek(0)
+        crc, left = 0, end
+        while left:
+            block = self._fh.read(min(left, 1 << 20))
+            crc, left = zlib.crc32(block, crc), left - len(block)
+        return None if crc == stored else "its data section does not match its CRC: some bytes are damaged"
+
+    # ---------------------------------------------------------------- killed or damaged files: front to back
+    def _scan(self, size: int) -> tuple[list[_ChunkRef], list[Any], int]:
+        """Walk the records from the start; skip a damaged one (naming the bytes) and go on from the next whole
+        record; stop at the end of the data section or at a record cut short by the end of the file."""
         pos = len(MCAP_MAGIC)
         chunks: list[_ChunkRef] = []
         records: list[Any] = []
         while pos + 9 <= size:
-            fh.seek(pos)
-            opcode, length = struct.unpack("<BQ", fh.read(9))
-            if pos + 9 + length > size:
-                break
-            if opcode == _OP_CHUNK:
-                start, end = struct.unpack("<QQ", fh.read(16))
-                chunks.append(_ChunkRef(pos, start, end))
-            elif opcode == _OP_METADATA:
-                try:
-                    records.append(Metadata.read(ReadDataStream(io.BytesIO(fh.read(length)))))
-                except (ValueError, EOFError, struct.error, UnicodeDecodeError):
-                    break
-            elif opcode in (_OP_DATA_END, _OP_FOOTER):
+            opcode, length = _RECORD_HEADER.unpack(self._read_at(pos, 9))
+            if opcode in (_OP_DATA_END, _OP_FOOTER) and self._whole(pos, size):
                 return chunks, records, 0
-            pos += 9 + length
+            end = pos + 9 + length
+            item = self._record_at(pos, opcode, length) if end <= size else None
+            if item is not None:
+                if isinstance(item, _ChunkRef):
+                    chunks.append(item)
+                elif item is not True:
+                    records.append(item)
+                pos = end
+                continue
+            following = self._resync(pos + 1, size)
+            if following is None:
+                return chunks, records, size - pos  # a record cut short by the end of the file
+            self.skipped.append(f"bytes {pos}–{following - 1} (a damaged record)")
+            pos = following
         return chunks, records, size - pos
+
+    def _read_at(self, pos: int, n: int) -> bytes:
+        self._fh.seek(pos)
+        return self._fh.read(n)
+
+    def _whole(self, pos: int, size: int) -> bool:
+        _, length = _RECORD_HEADER.unpack(self._read_at(pos, 9))
+        return pos + 9 + length <= size
+
+    def _record_at(self, pos: int, opcode: int, length: int) -> Any:
+        """The record at `pos` when it is whole and passes its checks: a `_ChunkRef`, a metadata record, or True
+        for a record this reader does not need; None when it is damaged."""
+        from mcap.exceptions import McapError
+
+        try:
+            if opcode == _OP_CHUNK:
+                chunk = _read_chunk(self._fh, pos)
+                return _ChunkRef(pos, chunk.message_start_time, chunk.message_end_time)
+            if opcode == _OP_METADATA:
+                record = _read_metadata(self._read_at(pos + 9, length))
+                unseal(record.metadata)
+                return record
+        except (McapError, Exception):  # noqa: BLE001 - zstd/lz4/CRC/struct errors: any of them means a damaged record
+            return None
+        return True if opcode in (0x01, 0x03, 0x04, _OP_MESSAGE_INDEX) else None
+
+    def _resync(self, start: int, size: int) -> int | None:
+        """The offset of the next whole record after a damaged one (one that passes its checks and is followed
+        by another record or the end of the data), or None when none follows."""
+        window = self._read_at(start, min(size - start, _RESYNC_WINDOW))
+        for k, byte in enumerate(window):
+            if byte not in (_OP_CHUNK, _OP_METADATA, _OP_DATA_END) or k + 9 > len(window):
+                continue
+            pos = start + k
+            opcode, length = _RECORD_HEADER.unpack_from(window, k)
+            if pos + 9 + length > size:
+                continue
+            if opcode == _OP_DATA_END:
+                if length == 4:
+                    return pos
+                continue
+            if self._record_at(pos, opcode, length) not in (None, True):
+                return pos
+        return None
 
     def _parse_records(self, records: list[Any]) -> None:
         heads = [r for r in records if r.name == RecordingRecord.NAME]
+        lost_head = [d for d in self.damaged if d.startswith(f"record {RecordingRecord.NAME} ")]
+        if not heads and lost_head:
+            raise self._corrupt(f"its simreel metadata: {lost_head[0]}")
         if not heads:
             raise RecordingFileError(
                 self.path,
@@ -159,12 +313,12 @@ class McapReader(EpisodeReader):
                 + (" or cut before it" if self.recovered else ""),
             )
         try:
-            self._read_head(heads[0].metadata)
-            begun, discarded = self._read_episode_records(records)
+            self._read_head(unseal(heads[0].metadata))
         except RecordingFileError:
             raise
         except (KeyError, ValueError, TypeError) as e:
             raise RecordingFileError(self.path, f"bad simreel metadata in the MCAP file ({type(e).__name__}: {e})") from None
+        begun, discarded = self._read_episode_records(records)
         self.episodes.sort(key=lambda m: m.index)
         running = sorted(set(begun) - set(self._spans) - discarded)
         self.unfinished = [self._describe_running(begun[i]) for i in running]
@@ -182,27 +336,39 @@ class McapReader(EpisodeReader):
         self._channel_ids = head.channels
         self._reset_fields = fields_from_schema(head.reset_schema)
         self._step_fields = fields_from_schema(head.step_schema)
+        if self._step_fields != step_fields(self.meta) or self._reset_fields != reset_fields(self.meta):
+            raise RecordingFileError(self.path, "its data channels' field tables do not match the recording's layout "
+                                                "(a damaged or altered file)")
 
     def _read_episode_records(self, records: list[Any]) -> tuple[dict[int, EpisodeBeginRecord], set[int]]:
+        """The episode records; a damaged one is named in `damaged` and the others are read."""
         begun: dict[int, EpisodeBeginRecord] = {}
         discarded: set[int] = set()
         self._spans: dict[int, _Span] = {}
         self.episodes: list[EpisodeMeta] = []
         for r in records:
             kind = record_kind(r.name)
-            if kind == EpisodeBeginRecord.NAME:
-                b = EpisodeBeginRecord.from_metadata(r.metadata)
-                begun[b.index] = b
-            elif kind == EpisodeDiscardRecord.NAME:
-                discarded.add(EpisodeDiscardRecord.from_metadata(r.metadata).index)
-            elif kind == EpisodeRecord.NAME:
-                e = EpisodeRecord.from_metadata(r.metadata)
-                self.episodes.append(e.meta)
-                self._spans[e.meta.index] = _Span(e.start_ns, e.end_ns, e.steps)
+            try:
+                d = unseal(r.metadata) if kind != RecordingRecord.NAME else {}
+                if kind == EpisodeBeginRecord.NAME:
+                    b = EpisodeBeginRecord.from_metadata(d)
+                    begun[b.index] = b
+                elif kind == EpisodeDiscardRecord.NAME:
+                    discarded.add(EpisodeDiscardRecord.from_metadata(d).index)
+                elif kind == EpisodeRecord.NAME:
+                    e = EpisodeRecord.from_metadata(d)
+                    self.episodes.append(e.meta)
+                    self._spans[e.meta.index] = _Span(e.start_ns, e.end_ns, e.steps)
+            except (KeyError, ValueError, TypeError) as e:
+                self.damaged.append(f"record {r.name}: {e}")
         return begun, discarded
 
     def _describe_running(self, begin: EpisodeBeginRecord) -> str:
-        rows = sum(n for key, n, _ in self._blocks(begin.index, begin.start_ns, None, want_data=False) if key == "steps")
+        try:
+            rows = sum(n for key, n, _ in self._blocks(begin.index, begin.start_ns, None, want_data=False)
+                       if key == "steps")
+        except ValueError as e:
+            return f"episode {begin.index} (env {begin.env_idx}; its steps cannot be read: {e})"
         return f"episode {begin.index} (env {begin.env_idx}, {rows} step(s) in the file)"
 
     # ---------------------------------------------------------------- data
@@ -210,8 +376,7 @@ class McapReader(EpisodeReader):
         self, index: int, start_ns: int, end_ns: int | None, *, want_data: bool = True
     ) -> Iterator[tuple[str, int, bytes | None]]:
         """(channel key, rows, message data) of episode `index`'s data messages in the chunks of its span."""
-        from mcap.data_stream import ReadDataStream
-        from mcap.records import Chunk, Message
+        from mcap.records import Message
         from mcap.stream_reader import breakup_chunk
 
         wanted = {self._channel_ids["reset"]: "reset", self._channel_ids["steps"]: "steps"}
@@ -219,12 +384,9 @@ class McapReader(EpisodeReader):
             if ref.end_ns < start_ns or (end_ns is not None and ref.start_ns > end_ns):
                 continue
             try:
-                self._fh.seek(ref.offset + 9)
-                records = breakup_chunk(Chunk.read(ReadDataStream(self._fh)))
-            except Exception as e:  # zstd/lz4/struct errors: any of them means a damaged chunk
-                raise RecordingFileError(
-                    self.path, f"corrupt chunk at byte {ref.offset} ({type(e).__name__}: {e})"
-                ) from None
+                records = breakup_chunk(_read_chunk(self._fh, ref.offset), validate_crc=True)
+            except Exception as e:  # noqa: BLE001 - zstd/lz4/CRC/struct errors: any of them means a damaged chunk
+                raise ValueError(f"the chunk at byte {ref.offset} is corrupt ({type(e).__name__}: {e})") from None
             for rec in records:
                 if isinstance(rec, Message) and rec.channel_id in wanted:
                     ep, _, rows = unpack_header(rec.data)

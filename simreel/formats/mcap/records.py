@@ -8,11 +8,14 @@ Metadata records, each a dataclass with its `to_metadata` (write) and `from_meta
 - `EpisodeDiscardRecord` (``simreel.episode_discard.<i>``): an episode was dropped.
 
 One name per record: Rerun merges records of the same name. See `simreel.formats.mcap` for the layout.
+Each record carries its own checksum (`seal`, checked by `unseal`), so a damaged record is found without reading
+the whole data section whose checksum MCAP keeps.
 """
 
 from __future__ import annotations
 
 import json
+import zlib
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,7 +33,11 @@ __all__ = [
     "EpisodeDiscardRecord",
     "record_kind",
     "record_name",
+    "seal",
+    "unseal",
 ]
+
+SEAL_KEY = "crc32"
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 COMPRESSIONS = ("zstd", "lz4", "none")
@@ -155,3 +162,23 @@ def record_name(record: Any) -> str:
         return RecordingRecord.NAME
     index = record.meta.index if isinstance(record, EpisodeRecord) else record.index
     return f"{record.NAME}.{index}"
+
+
+def _crc(d: dict[str, str]) -> str:
+    return f"{zlib.crc32(json.dumps(sorted(d.items()), separators=(',', ':')).encode()):08x}"
+
+
+def seal(d: dict[str, str]) -> dict[str, str]:
+    """A metadata record's map with the CRC-32 of its content added (key `crc32`)."""
+    return {**d, SEAL_KEY: _crc(d)}
+
+
+def unseal(d: dict[str, str]) -> dict[str, str]:
+    """The content of a record sealed by `seal`; ValueError when it does not match its CRC (a damaged record).
+    Records of earlier versions carry none and are returned as they are."""
+    if SEAL_KEY not in d:
+        return d
+    content = {k: v for k, v in d.items() if k != SEAL_KEY}
+    if _crc(content) != d[SEAL_KEY]:
+        raise ValueError("the record does not match its checksum (damaged)")
+    return content

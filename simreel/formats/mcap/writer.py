@@ -3,18 +3,18 @@ safety: `simreel.formats.mcap`). The messages themselves are `simreel.formats.mc
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
 from simreel import __version__
 from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock
-from simreel.errors import UsageError
+from simreel.errors import StorageError, UsageError
 from simreel.formats.base import EpisodeSink, EpisodeWriter
+from simreel.formats.durable import deferred_signals, is_storage_error, storage_error
 from simreel.formats.mcap.channels import EpisodeLane, McapChannels
-from simreel.formats.mcap.lock import being_written, lock_file
 from simreel.formats.mcap.records import COMPRESSIONS
+from simreel.formats.staging import RecordingTarget, side_folder
 
 __all__ = ["McapWriter", "McapOptions"]
 
@@ -55,20 +55,27 @@ class _McapSink(EpisodeSink):
     def append(self, block: StepBlock) -> None:
         self._check_open()
         if len(block):
-            self._channels.steps(self._lane, block.conform(self._writer.fields, episode=self._lane.index), len(block))
+            arrays = block.conform(self._writer.fields, episode=self._lane.index)
+            self._writer.guard(lambda: self._channels.steps(self._lane, arrays, len(block)),
+                               f"episode {self._lane.index} was not committed")
 
     def commit(self, meta: EpisodeMeta) -> None:
         self._check_open()
         if meta.index != self._lane.index:
             raise UsageError(f"commit of episode {meta.index} on the sink of episode {self._lane.index}")
         self._open = False
-        self._writer.lane_ended(self._lane, self._channels.commit(self._lane, meta))
+        with deferred_signals():
+            end = self._writer.guard(lambda: self._channels.commit(self._lane, meta),
+                                     f"episode {meta.index} was not committed")
+        self._writer.lane_ended(self._lane, end)
         self._writer.committed.append(meta)
 
     def discard(self) -> None:
         if self._open:
             self._open = False
-            self._writer.lane_ended(self._lane, self._channels.discard(self._lane))
+            end = self._writer.guard(lambda: self._channels.discard(self._lane),
+                                     f"episode {self._lane.index} was not committed")
+            self._writer.lane_ended(self._lane, end)
 
 
 class McapWriter(EpisodeWriter):
@@ -77,11 +84,13 @@ class McapWriter(EpisodeWriter):
     Args:
         path: the .mcap file to write.
         meta: the recording's metadata (layouts, pose bodies, contact channels, control frequency).
-        overwrite: replace an existing file instead of refusing.
+        overwrite: replace an existing file instead of refusing; the old one is replaced only by `close`
+            (`simreel.formats.staging`), and never while another writer holds it.
         options: `McapOptions` fields (compression, chunk_size, fsync).
 
-    If the constructor fails once it has created (or, with `overwrite`, emptied) the file, it closes and
-    removes it; a file it refuses (exists, being written) is left untouched.
+    If the constructor fails once it has created a file, it removes it; a file it refuses (exists, being
+    written) is left untouched. A write the storage refuses (a full disk) stops the writer with one line:
+    every episode committed before stays in the file, which then needs `simreel recover` (it has no footer).
     """
 
     records_poses_by_default = True
@@ -97,17 +106,18 @@ class McapWriter(EpisodeWriter):
         self._lane_next: dict[int, int] = {}
         self._begun: set[int] = set()
         self.committed: list[EpisodeMeta] = []
-        self._closed = False
-        self.check_target(self.path, overwrite=overwrite)
-        self._fh: IO[bytes] = self._create(overwrite=overwrite)
+        self._closed = self._aborted = False
+        self._failed: StorageError | None = None
+        self._target = RecordingTarget.claim(self.path, self.side_paths(self.path), overwrite=overwrite)
         try:
+            self._fh: IO[bytes] = open(self._target.write_path, "r+b")
             self._mcap = self._start(Writer)
             self._channels = McapChannels(self._mcap, self._fh, meta, fsync=self.options.fsync)
         except BaseException as e:
-            self.path.unlink(missing_ok=True)  # while the lock is still held: the file is this writer's
-            self._fh.close()
+            self.abort()
             if isinstance(e, OSError):
-                raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
+                raise storage_error(self.path, e) if is_storage_error(e) else UsageError(
+                    f"cannot write {self.path}: {e.strerror or e}") from None
             raise
 
     @property
@@ -115,54 +125,30 @@ class McapWriter(EpisodeWriter):
         return self.options.compression
 
     @classmethod
-    def check_target(cls, path: Path, *, overwrite: bool) -> None:
-        super().check_target(path, overwrite=overwrite)
-        if being_written(path):
-            raise UsageError(f"{path} is being written by another recording; choose another file")
-
-    def _create(self, *, overwrite: bool) -> IO[bytes]:
-        """The file opened for writing under the writer's lock (released by close() or the death of the
-        process). An existing file is emptied only once the lock is held, so a recording that another
-        process is writing is never truncated; without `overwrite` an existing file is refused."""
-        flags = os.O_WRONLY | os.O_CREAT | getattr(os, "O_BINARY", 0)
-        try:
-            try:
-                fd = os.open(self.path, flags | os.O_EXCL, 0o666)
-            except FileExistsError:
-                if not overwrite:
-                    raise UsageError(f"{self.path} already exists; pass --overwrite to replace it") from None
-                fd = os.open(self.path, flags, 0o666)
-        except OSError as e:
-            raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
-        fh = os.fdopen(fd, "wb")
-        if not lock_file(fh, exclusive=True):
-            fh.close()
-            raise UsageError(f"{self.path} is being written by another recording; choose another file")
-        try:
-            fh.truncate(0)
-        except OSError as e:
-            fh.close()
-            raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
-        return fh
+    def side_paths(cls, path: Path) -> list[Path]:
+        return [side_folder(path)]
 
     def _start(self, writer_class: Any) -> Any:
-        from mcap.writer import CompressionType
+        from mcap.writer import CompressionType, IndexType
 
         kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-        mcap = writer_class(self._fh, chunk_size=self.options.chunk_size, compression=kind[self.options.compression])
+        # Chunk and metadata indexes, no per-message indexes: readers find an episode by its chunks' time span
+        # and read whole chunks; message indexes would add 16 uncompressed bytes per message.
+        mcap = writer_class(self._fh, chunk_size=self.options.chunk_size, compression=kind[self.options.compression],
+                            index_types=IndexType.CHUNK | IndexType.METADATA | IndexType.ATTACHMENT,
+                            enable_data_crcs=True)
         mcap.start(profile="", library=f"simreel {__version__}")
         return mcap
 
     def begin_episode(self, meta: EpisodeMeta, reset: StepBlock) -> EpisodeSink:
-        if self._closed:
-            raise UsageError(f"{self.path} is closed")
+        self._check_usable()
         if meta.index in self._begun:
             raise UsageError(f"{self.path}: episode {meta.index} was already written; episode indices must be unique")
         arrays = reset.conform(self.reset_fields, episode=meta.index)
         lane = EpisodeLane(meta.index, meta.env_idx, self._lane_next.get(meta.env_idx, 0))
         self._begun.add(meta.index)
         self._lane_next[meta.env_idx] = lane.start_ns + self._channels.step_ns  # a lane holds one running episode
-        self._channels.begin(lane, meta, arrays)
+        self.guard(lambda: self._channels.begin(lane, meta, arrays), f"episode {meta.index} was not committed")
         return _McapSink(self, self._channels, lane)
 
     def lane_ended(self, lane: EpisodeLane, end_ns: int) -> None:
@@ -170,10 +156,55 @@ class McapWriter(EpisodeWriter):
         self._lane_next[lane.env] = end_ns + self._channels.step_ns
 
     def close(self) -> None:
+        """Write the summary and footer, close the file, and move a staged recording over the old one. After a
+        failed write the file is closed as it is (committed episodes, no footer) and replaces nothing."""
         if self._closed:
             return
         self._closed = True
         try:
-            self._mcap.finish()
+            if self._failed is None:
+                with deferred_signals():
+                    self._finish()
         finally:
+            self._close_file()
+            if self._failed is None:
+                self._target.publish()
+            else:
+                self._target.release()
+
+    def _finish(self) -> None:
+        try:
+            self._mcap.finish()
+        except OSError as e:
+            if not is_storage_error(e):
+                raise
+            self._failed = storage_error(self.path, e, committed=len(self.committed), lost="the file has no footer",
+                                         readable=self._where_readable)
+            raise self._failed from None
+
+    @property
+    def _where_readable(self) -> str:
+        where = self._target.write_path
+        kept = " (the recording it was to replace is unchanged)" if self._target.staged else ""
+        return f" through `simreel recover {where}`{kept}"
+
+    def abort(self) -> None:
+        """Drop the recording: a new file is removed, a staged one too (the old recording stays)."""
+        if self._aborted:
+            return
+        self._aborted = self._closed = True
+        try:
+            if getattr(self, "_fh", None) is not None:
+                self._fh.close()
+        except OSError:
+            pass  # the file is dropped anyway
+        self._target.abandon()
+
+    def _close_file(self) -> None:
+        try:
             self._fh.close()
+        except OSError as e:  # its buffer could not be written out: after a failed write, expected
+            if self._failed is None:
+                self._failed = storage_error(self.path, e, committed=len(self.committed),
+                                             lost="the file has no footer", readable=self._where_readable)
+                raise self._failed from None

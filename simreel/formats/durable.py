@@ -1,0 +1,102 @@
+"""What keeps a commit whole: no signal handled in its middle, disk space reserved before it writes, and the
+errors of the storage (a full disk, a read-only file system) turned into one-line errors.
+
+A commit that stopped half way could leave a file with an episode half written; so a writer runs each commit
+inside `deferred_signals` (a Ctrl-C or SIGTERM that arrives then is handled right after it) and first
+`reserve_space` for everything the commit may write, so a full disk refuses the commit before the file is
+touched. `storage_error` words the `OSError` a write raised.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from simreel.errors import StorageError
+
+__all__ = ["deferred_signals", "reserve_space", "storage_error", "errno_of", "is_storage_error", "STORAGE_ERRNOS"]
+
+_DEFERRED = (signal.SIGINT, signal.SIGTERM)
+
+STORAGE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO,
+                            errno.EFBIG})
+"""Errors of the storage rather than of simreel: reported as bad input (exit 2), never as an internal error."""
+
+
+def is_storage_error(e: BaseException) -> bool:
+    """Whether `e` is the storage refusing a write (full, read-only, no permission, failing), not a bug."""
+    return isinstance(e, OSError) and errno_of(e) in STORAGE_ERRNOS
+
+
+@contextmanager
+def deferred_signals() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM until the block has finished, then handle them as they would have been.
+
+    Only the main thread can handle signals; elsewhere (and for a handler Python did not install) nothing is
+    deferred.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = {s: signal.getsignal(s) for s in _DEFERRED}
+    held = [s for s, handler in previous.items() if handler is not None]
+    for s in held:
+        signal.signal(s, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        for s in held:
+            signal.signal(s, previous[s])
+        for s in caught:
+            signal.raise_signal(s)
+
+
+def reserve_space(fd: int, nbytes: int) -> None:
+    """Allocate `nbytes` of disk past the end of the file open as `fd`, so that writing that much cannot fail
+    for lack of space; raises `OSError` (ENOSPC) when the disk has not got them. HDF5 gives back what it does
+    not use when it flushes (it cuts the file at its end of data)."""
+    size = os.fstat(fd).st_size
+    try:
+        os.posix_fallocate(fd, size, max(1, nbytes))
+    except OSError as e:
+        if e.errno in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):
+            return  # the file system cannot reserve: the commit then finds out while it writes
+        os.ftruncate(fd, size)  # what was allocated before the failure
+        raise
+
+
+def errno_of(e: OSError) -> int | None:
+    """The errno of `e`, also when h5py raised it without one and only HDF5's message names it ("errno = 28")."""
+    if e.errno is not None:
+        return e.errno
+    found = re.search(r"errno = (\d+)", str(e))
+    return int(found.group(1)) if found else None
+
+
+def storage_error(path: Path, e: OSError, *, committed: int | None = None, lost: str = "",
+                  readable: str = "") -> StorageError:
+    """The one-line error for `e`, raised while writing the recording `path`: what happened and what to do.
+
+    `committed`: episodes already in the file, which stay readable (`readable`: how, when it takes a step);
+    `lost`: what this failure lost."""
+    code = errno_of(e)
+    if code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+        reason = "the disk is full" if code == errno.ENOSPC else f"cannot grow the file ({os.strerror(code)})"
+        fix = "free some space or write to another disk"
+    elif code == errno.EROFS:
+        reason, fix = "the file system is read-only", "write to another folder"
+    elif code in (errno.EACCES, errno.EPERM):
+        reason, fix = f"permission denied ({os.strerror(code)})", "write to a folder you may write to"
+    else:
+        reason, fix = f"cannot write ({e.strerror or e})", "check the disk"
+    detail = f": {lost}" if lost else ""
+    if committed is not None:
+        detail += f"; the {committed} episode(s) committed before stay readable{readable}"
+    return StorageError(path, reason, fix, detail)

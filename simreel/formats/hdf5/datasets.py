@@ -1,0 +1,150 @@
+"""How one field of an episode is stored: `DatasetWriter` writes it through h5py's low-level API.
+
+Every dataset with data is chunked, each chunk through the filters every h5py build reads without plugins:
+shuffle + gzip (or lzf, or none) and then the Fletcher-32 checksum, so a corrupted chunk fails to read. An
+episode's field normally fits one chunk (up to `CHUNK_BYTES`), which HDF5 1.10 indexes with no index
+structure at all; longer ones are cut into chunks of that size. The low-level calls with property lists
+built once cost about a third of h5py's `create_dataset`, which matters because a commit creates ~16 of them.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["DatasetWriter", "COMPRESSIONS", "CHUNK_BYTES", "chunk_rows", "image_storage"]
+
+COMPRESSIONS = ("gzip", "lzf", None)
+CHUNK_BYTES = 1 << 20
+_GZIP_LEVEL = 4
+_COPY_CHUNKS = 16
+"""Chunks copied at a time from a scratch file (a long episode never sits in memory whole)."""
+
+
+_IMAGE_MIN_ELEMENTS = 1024
+"""An observation whose row has at least 2 dims and this many elements is image-like (camera images, depth,
+segmentation, point clouds) and stored by `image_storage`."""
+_IMAGE_CHUNK_FRAMES = 32
+_IMAGE_TILE = 32
+_POINT_TILE = 1024
+
+
+def image_storage(name: str, row_shape: tuple[int, ...], rows: int) -> dict[str, Any] | None:
+    """How to store an image-like observation dataset (h5py ``create_dataset`` options), or None for any other.
+
+    Chunks span 32 frames and tile the image (32 x 32 pixels, all channels; a point list: 1024 points), gzip
+    level 6 (a compressor every h5py build reads; the Fletcher-32 checksum after it as on every dataset). Measured on re-rendered PickCube episodes (128 x 128 rgb, 61
+    frames): 3.1 KB/frame against 5.4 KB for ManiSkill's RecordEpisode (gzip 5 in h5py's automatic chunks of 16
+    frames x 32 x 32 x 2); one chunk per frame would be 31.8 KB/frame: a frame alone loses the redundancy between
+    frames. Point clouds: 16.5 KB/frame against ManiSkill's 302 KB (it stores xyzw and segmentation raw).
+    Reading one frame costs ~10 ms (ManiSkill's layout ~9 ms).
+    """
+    if not name.startswith("obs/") or len(row_shape) < 2 or int(np.prod(row_shape)) < _IMAGE_MIN_ELEMENTS:
+        return None
+    tile = _IMAGE_TILE if len(row_shape) >= 3 else _POINT_TILE
+    chunks = (max(1, min(rows, _IMAGE_CHUNK_FRAMES)), *(min(n, tile) for n in row_shape[:-1]), row_shape[-1])
+    return {"chunks": chunks, "compression": "gzip", "compression_opts": 6}
+
+
+def chunk_rows(row_shape: tuple[int, ...], itemsize: int, rows: int) -> int:
+    """Rows per chunk: the whole field up to `CHUNK_BYTES`, else as many rows as fit in it (at least 1)."""
+    row_bytes = max(1, int(np.prod(row_shape, dtype=np.int64)) * itemsize)
+    return int(max(1, min(rows, CHUNK_BYTES // row_bytes)))
+
+
+class DatasetWriter:
+    """Creates datasets in an open file with one compression; its property lists are built once and reused."""
+
+    def __init__(self, compression: str | None) -> None:
+        from h5py import h5p
+
+        if compression not in COMPRESSIONS:
+            raise ValueError(f"unknown HDF5 compression {compression!r}; use gzip, lzf or None")
+        self.compression = compression
+        self._lcpl = h5p.create(h5p.LINK_CREATE)
+        self._lcpl.set_create_intermediate_group(True)
+        self._gcpl = h5p.create(h5p.GROUP_CREATE)
+        self._gcpl.set_obj_track_times(False)
+        self._empty = h5p.create(h5p.DATASET_CREATE)
+        self._empty.set_obj_track_times(False)
+        self._chunked: dict[tuple[int, int | None], Any] = {}
+        self._types: dict[np.dtype, Any] = {}
+
+    def _dcpl(self, chunk: tuple[int, ...], image_level: int | None = None) -> Any:
+        """The creation property list of a chunked, filtered dataset of this rank, with its chunk shape set
+        (`image_level`: an image's gzip level, `image_storage`, instead of the writer's compression)."""
+        from h5py import h5p, h5z
+
+        key = (len(chunk), image_level)
+        dcpl = self._chunked.get(key)
+        if dcpl is None:
+            dcpl = h5p.create(h5p.DATASET_CREATE)
+            dcpl.set_obj_track_times(False)
+            dcpl.set_chunk(chunk)
+            if image_level is not None:
+                dcpl.set_deflate(image_level)
+            elif self.compression is not None:
+                dcpl.set_shuffle()
+                if self.compression == "gzip":
+                    dcpl.set_deflate(_GZIP_LEVEL)
+                else:
+                    dcpl.set_filter(h5z.FILTER_LZF, h5z.FLAG_OPTIONAL)
+            dcpl.set_fletcher32()
+            self._chunked[key] = dcpl
+        dcpl.set_chunk(chunk)
+        return dcpl
+
+    def _type(self, dtype: np.dtype) -> Any:
+        from h5py import h5t
+
+        tid = self._types.get(dtype)
+        if tid is None:
+            tid = self._types[dtype] = h5t.py_create(dtype, logical=True)
+        return tid
+
+    def group(self, parent: Any, name: str) -> Any:
+        """A new group `name` in `parent` (an h5py object id); returns its id."""
+        from h5py import h5g
+
+        return h5g.create(parent, name.encode(), gcpl=self._gcpl)
+
+    def create(self, group: Any, name: str, shape: tuple[int, ...], dtype: np.dtype) -> Any:
+        """An empty dataset `name` (a path below `group`, intermediate groups created) laid out for `shape`;
+        returns its id, to be written and closed by the caller."""
+        from h5py import h5d, h5s
+
+        space = h5s.create_simple(shape)
+        image = image_storage(name, shape[1:], shape[0]) if shape[0] else None
+        if 0 in shape:
+            dcpl = self._empty  # nothing to chunk, filter or check
+        elif image is not None:
+            dcpl = self._dcpl(image["chunks"], image["compression_opts"])
+        else:
+            dcpl = self._dcpl((chunk_rows(shape[1:], dtype.itemsize, shape[0]), *shape[1:]))
+        return h5d.create(group, name.encode(), self._type(dtype), space, dcpl=dcpl, lcpl=self._lcpl)
+
+    def write(self, group: Any, name: str, data: np.ndarray) -> None:
+        """Create dataset `name` in `group` (an h5py object id) holding `data`."""
+        from h5py import h5s
+
+        data = np.ascontiguousarray(data)
+        ds = self.create(group, name, data.shape, data.dtype)
+        try:
+            if data.size:
+                ds.write(h5s.ALL, h5s.ALL, data)
+        finally:
+            ds.close()
+
+    def copy(self, group: Any, name: str, source: Any) -> None:
+        """Create dataset `name` in `group` (an h5py object id) from the h5py dataset `source`, a few chunks at a
+        time."""
+        import h5py
+
+        out = h5py.Dataset(self.create(group, name, source.shape, source.dtype))
+        try:
+            step = (out.chunks[0] if out.chunks else max(1, source.shape[0])) * _COPY_CHUNKS
+            for start in range(0, source.shape[0], step):
+                out[start : start + step] = source[start : start + step]
+        finally:
+            out.id.close()

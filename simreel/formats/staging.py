@@ -1,0 +1,132 @@
+"""Where a writer puts a recording, so that `--overwrite` never removes the old one before the new one is complete.
+
+A new recording is written under its own name from the start: every episode it commits is readable there at
+once, while it is being written, and after its process is killed. A recording that replaces an existing one
+is *staged*: written in the side folder beside it (``NAME.partial/NAME``, files beside it there too) and moved
+over the old one, with one rename per file, when the writer closes. Until then the old recording stays whole
+and readable; if the process dies first the old one is untouched and the staged one keeps its committed
+episodes (readers say where).
+
+Either way the writer holds a `WriterLock` on the name (the old file, or the new one), so a second writer of
+the same name is refused with one line, and on the file it writes.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from simreel.errors import UsageError
+from simreel.formats.lock import WriterLock, being_written
+from simreel.formats.targets import check_output
+
+__all__ = ["RecordingTarget", "side_folder", "replacement_note"]
+
+
+def side_folder(path: Path) -> Path:
+    """The folder beside a recording for what its writer keeps apart (`x.h5` → `x.h5.partial`)."""
+    return path.with_name(path.name + ".partial")
+
+
+def replacement_note(path: Path) -> str | None:
+    """What a reader of `path` should know about a recording staged to replace it: one being written now, or one
+    whose writer died before it was complete (its committed episodes are there). None when there is none."""
+    staged = side_folder(path) / path.name
+    if not staged.is_file():
+        return None
+    if being_written(staged):
+        return f"a recording that will replace this one when it is complete is being written in {staged}"
+    return (f"a recording that was to replace this one stopped before it was complete; its committed episodes are "
+            f"in {staged} (this file is unchanged)")
+
+
+@dataclass
+class RecordingTarget:
+    """The file a writer writes (`write_path`) for the recording `path`, and the locks it holds."""
+
+    path: Path
+    write_path: Path
+    folder: Path
+    """The side folder (`side_folder(path)`); the writer creates it when it needs it."""
+    locks: list[WriterLock] = field(default_factory=list)
+    created: bool = False
+    """This writer created `path` (a new recording), so dropping its recording removes it."""
+
+    @property
+    def staged(self) -> bool:
+        """True when the recording replaces an existing one, so it is written in the side folder until `publish`."""
+        return self.write_path != self.path
+
+    def beside(self, name: str) -> Path:
+        """Where the side file `name` (e.g. HDF5's JSON sidecar) is written until `publish`."""
+        return (self.folder if self.staged else self.path.parent) / name
+
+    @classmethod
+    def claim(cls, path: Path, side_paths: list[Path], *, overwrite: bool) -> RecordingTarget:
+        """Check the target (`check_output`), lock it and decide where to write. Without `overwrite` an existing
+        file or side file is refused; with it, a file another writer holds is still refused. Leftovers of an
+        earlier writer in the side folder (never-committed scratch files, a staged file it did not finish) are
+        removed once the name is locked."""
+        check_output(path, overwrite=overwrite, side_paths=side_paths)
+        existing = overwrite and (path.exists() or path.is_symlink())
+        target = cls(path, path, side_folder(path), [WriterLock.acquire(path, create=not existing)], not existing)
+        try:
+            target._clear_folder()  # the name is ours now: what is there was left by a writer that has ended
+            if existing:
+                target.folder.mkdir()
+                target.write_path = target.folder / path.name
+                target.locks.append(WriterLock.acquire(target.write_path, create=True))
+        except OSError as e:
+            target.abandon()
+            raise UsageError(f"cannot write {target.folder}: {e.strerror or e}") from None
+        except BaseException:
+            target.abandon()
+            raise
+        return target
+
+    def _clear_folder(self) -> None:
+        if self.folder.is_dir() and not self.folder.is_symlink():
+            shutil.rmtree(self.folder)
+        elif self.folder.exists() or self.folder.is_symlink():
+            self.folder.unlink()
+
+    def publish(self, side_files: list[str] = ()) -> None:
+        """Move a staged recording (and its `side_files`, by name) over the old one; then give up the locks."""
+        try:
+            if self.staged:
+                os.replace(self.write_path, self.path)
+                for name in side_files:
+                    staged = self.folder / name
+                    if staged.exists():
+                        os.replace(staged, self.path.parent / name)
+            self.remove_folder_if_empty()
+        finally:
+            self.release()
+
+    def abandon(self, side_files: list[str] = ()) -> None:
+        """Drop what this writer wrote: a staged recording (the old one stays) or a new file with its `side_files`,
+        and the side folder when it holds nothing else; then give up the locks."""
+        try:
+            if self.created and not self.staged:
+                for name in side_files:
+                    self.beside(name).unlink(missing_ok=True)
+            if self.staged:
+                shutil.rmtree(self.folder, ignore_errors=True)
+            elif self.created:
+                self.path.unlink(missing_ok=True)
+            self.remove_folder_if_empty()
+        finally:
+            self.release()
+
+    def remove_folder_if_empty(self) -> None:
+        try:
+            self.folder.rmdir()
+        except OSError:
+            pass  # missing, or it holds what a reader should see (scratch of unfinished episodes)
+
+    def release(self) -> None:
+        for lock in self.locks:
+            lock.release()
+        self.locks = []

@@ -1,0 +1,75 @@
+"""Real recording processes for the fault tests: start one, wait until it has committed some episodes, signal it."""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+SUPPORT = Path(__file__).parent
+
+
+def simreel(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    """`simreel ARGS` in its own process, its output captured as text."""
+    return subprocess.run([sys.executable, "-m", "simreel", *args], capture_output=True, text=True, timeout=timeout)
+
+
+class RecordingChild:
+    """`record_child.py` (or `simreel` itself, with `cli=True`) running in its own process."""
+
+    def __init__(self, *args: str, cli: bool = False, env: dict[str, str] | None = None) -> None:
+        command = [sys.executable, "-m", "simreel", *args] if cli else [sys.executable, str(SUPPORT / "record_child.py"),
+                                                                          *args]
+        self.proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+        self.committed = 0
+        self.lines: list[str] = []
+        self._pending = b""
+        self.stderr = ""
+
+    def wait_committed(self, n: int, timeout: float = 180) -> int:
+        """Wait until the child says it has committed at least `n` episodes; returns how many it has."""
+        deadline = time.monotonic() + timeout
+        fd = self.proc.stdout.fileno()
+        while self.committed < n:
+            left = deadline - time.monotonic()
+            assert left > 0, f"the child committed {self.committed} of {n} episodes in {timeout} s"
+            ready, _, _ = select.select([fd], [], [], left)
+            if not ready:
+                continue
+            data = os.read(fd, 65536)
+            if not data:
+                self.proc.wait()
+                raise AssertionError(f"the recording child ended: {self.proc.stderr.read().decode()[-2000:]}")
+            *lines, self._pending = (self._pending + data).split(b"\n")
+            for line in (x.decode().strip() for x in lines):
+                self.lines.append(line)
+                if line.startswith("committed "):
+                    self.committed = int(line.split()[1])
+        return self.committed
+
+    def signal(self, sig: int = signal.SIGKILL, timeout: float = 120) -> int:
+        """Send `sig`, wait for the end; returns the exit status (negative: killed by that signal)."""
+        os.kill(self.proc.pid, sig)
+        return self.wait(timeout)
+
+    def wait(self, timeout: float = 300) -> int:
+        try:
+            out, err = self.proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            raise
+        self.lines += (self._pending + out).decode().splitlines()
+        self.stderr = err.decode()
+        return self.proc.returncode
+
+    def __enter__(self) -> RecordingChild:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
