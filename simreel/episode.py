@@ -166,6 +166,10 @@ class RecordingMeta:
     pose_bodies: list[str] = field(default_factory=list)
     """Names of the bodies whose world poses `Episode.body_poses` holds (empty: none recorded)."""
     versions: dict[str, str] = field(default_factory=dict)
+    scene_fingerprint: dict[str, Any] = field(default_factory=dict)
+    """Physical properties of the scene the recorder found (masses, shapes, materials, joints, controllers: see
+    `simreel.sim.fingerprint`); replay names every difference before it compares a step. Empty in files
+    recorded before simreel kept it: then nothing is compared."""
     imports: list[str] = field(default_factory=list)
     """`--import` specs that registered the task (a file by its absolute path, a module by its name); replay and
     view import them again, found as `simreel.sim.user_code.resolve_task_imports` says."""
@@ -231,6 +235,9 @@ class EpisodeMeta:
     then reproduced as given, and the task rebuilds its scene when it would)."""
     scene_seed: int | None = None
     """Seed of the reset that last built the scene: objects of heterogeneous tasks come from it."""
+    scene_changes: dict[str, Any] = field(default_factory=dict)
+    """Where this episode's scene differs from `RecordingMeta.scene_fingerprint` (a rebuilt scene, another
+    sub-scene): the changed fingerprint entries (`simreel.sim.fingerprint.fingerprint_changes`); empty: the same."""
     length: int = 0
     success: bool | None = None
     """Final `info["success"]` (None if the task reports none)."""

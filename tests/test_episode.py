@@ -159,6 +159,18 @@ def test_metadata_round_trips_through_json():
     assert RecordingMeta.from_json({**meta.to_json(), "a_field_of_a_newer_simreel": 1}) == meta
 
 
+def test_metadata_of_files_recorded_before_the_scene_fingerprint_still_reads():
+    """Recordings made before simreel kept a scene fingerprint lack these keys: they read as empty (not compared)."""
+    old = {k: v for k, v in _meta().to_json().items() if k != "scene_fingerprint"}
+    assert RecordingMeta.from_json(old).scene_fingerprint == {}
+    ep = EpisodeMeta.from_json({"index": 1, "seed": 4, "length": 9})
+    assert ep.scene_changes == {}
+    fingerprinted = _meta(scene_fingerprint={"bodies": {"cube": {"mass": 0.064}}, "controllers": {}})
+    assert RecordingMeta.from_json(fingerprinted.to_json()) == fingerprinted
+    ep = EpisodeMeta(index=2, scene_changes={"bodies": {"cube": {"mass": 0.08}}})
+    assert EpisodeMeta.from_json(ep.to_json()) == ep
+
+
 @pytest.mark.parametrize(
     ("doc", "message"),
     [

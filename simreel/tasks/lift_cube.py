@@ -32,6 +32,8 @@ class LiftCubeEnv(TabletopPandaEnv):
     **Success:** the cube is grasped and its centre is within 2 cm of the target height.
 
     **Custom state:** ``goal_height`` (num_envs,), in the state dict and in the observation.
+
+    **Kwargs:** ``cube_mass`` (kg; default from the cube's density: 0.064).
     """
 
     custom_state = ("goal_height",)
@@ -41,8 +43,16 @@ class LiftCubeEnv(TabletopPandaEnv):
         "cube:table-workspace",
     )
     cube_half_size = 0.02
+    cube_mass: float | None = None
+    """The cube's mass in kg (None: from its density, 0.064 kg); the ``cube_mass`` kwarg sets it, as domain
+    randomization of a physical property would."""
     goal_height_range = (0.08, 0.25)
     goal_thresh = 0.02
+
+    def __init__(self, *args, cube_mass: float | None = None, **kwargs):
+        if cube_mass is not None:
+            self.cube_mass = float(cube_mass)
+        super().__init__(*args, **kwargs)
 
     def _load_scene(self, options: dict):
         self._load_table()
@@ -53,6 +63,10 @@ class LiftCubeEnv(TabletopPandaEnv):
             name="cube",
             initial_pose=sapien.Pose(p=[0, 0, self.cube_half_size]),
         )
+        if self.cube_mass is not None:
+            for body in self.cube._bodies:
+                scale = self.cube_mass / body.mass
+                body.mass, body.inertia = self.cube_mass, body.inertia * scale
         self.goal_height = torch.zeros(self.num_envs, device=self.device)
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
@@ -111,3 +125,4 @@ class LiftCubeLeakyEnv(LiftCubeEnv):
     """
 
     custom_state = ()
+
