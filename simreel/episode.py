@@ -253,6 +253,9 @@ class EpisodeMeta:
     provenance: dict[str, Any] = field(default_factory=dict)
     """For an episode of a converted recording: ``{"source_episode": index in the source, "verdict", "checked",
     "first_exceeded", "max_error"}`` as the conversion judged it (see `RecordingMeta.provenance`)."""
+    verification: dict[str, Any] = field(default_factory=dict)
+    """In a file written by ``simreel replay -o``: the replay's verdict on this episode (verdict, first divergence,
+    scene differences, explanation: `simreel.replay.report.EpisodeReport.verification`); empty elsewhere."""
 
     def to_json(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=json_default))

@@ -164,10 +164,10 @@ def test_metadata_of_files_recorded_before_the_scene_fingerprint_still_reads():
     old = {k: v for k, v in _meta().to_json().items() if k != "scene_fingerprint"}
     assert RecordingMeta.from_json(old).scene_fingerprint == {}
     ep = EpisodeMeta.from_json({"index": 1, "seed": 4, "length": 9})
-    assert ep.scene_changes == {}
+    assert (ep.scene_changes, ep.verification) == ({}, {})
     fingerprinted = _meta(scene_fingerprint={"bodies": {"cube": {"mass": 0.064}}, "controllers": {}})
     assert RecordingMeta.from_json(fingerprinted.to_json()) == fingerprinted
-    ep = EpisodeMeta(index=2, scene_changes={"bodies": {"cube": {"mass": 0.08}}})
+    ep = EpisodeMeta(index=2, scene_changes={"bodies": {"cube": {"mass": 0.08}}}, verification={"verdict": "exact"})
     assert EpisodeMeta.from_json(ep.to_json()) == ep
 
 

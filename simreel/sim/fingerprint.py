@@ -230,6 +230,10 @@ class SceneDifference:
         return {"subject": self.subject, "property": self.prop, "recorded": _json_value(self.recorded),
                 "replaying": _json_value(self.replaying), "text": self.describe()}
 
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> SceneDifference:
+        return cls(str(d["subject"]), str(d.get("property", "")), d.get("recorded"), d.get("replaying"))
+
 
 def _json_value(x: Any) -> Any:
     if isinstance(x, float) and not math.isfinite(x):
