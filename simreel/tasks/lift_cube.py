@@ -3,7 +3,8 @@
 The target height exists only in the task, not in the physics, so it is declared custom state and
 travels in the state dict as ``state["goal_height"]`` (shape ``(num_envs,)``). The leaky variant
 SimreelLiftCubeLeaky-v1 is the same task without that declaration: a restored state then keeps
-whatever height the env had, which `simreel audit` must report.
+whatever height the env had, which `simreel audit` must report. SimreelLiftCubeStageLeaky-v1 leaks state
+that matters only after the cube is lifted, which an audit finds only along a real trajectory.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from mani_skill.utils.structs.pose import Pose
 
 from simreel.tasks._tabletop import TabletopPandaEnv
 
-__all__ = ["LiftCubeEnv", "LiftCubeLeakyEnv"]
+__all__ = ["LiftCubeEnv", "LiftCubeLeakyEnv", "LiftCubeStageLeakyEnv"]
 
 
 @register_env("SimreelLiftCube-v1", max_episode_steps=60)
@@ -126,3 +127,37 @@ class LiftCubeLeakyEnv(LiftCubeEnv):
 
     custom_state = ()
 
+
+@register_env("SimreelLiftCubeStageLeaky-v1", max_episode_steps=60)
+class LiftCubeStageLeakyEnv(LiftCubeEnv):
+    """SimreelLiftCube-v1 with a staged success and a deliberate bug that only shows mid-task.
+
+    The task latches a stage, ``lifted``, once the cube has risen ``lift_threshold`` above its resting height,
+    and keeps it until the episode ends; success needs it. The latch is a plain attribute, not custom state,
+    so the state dict leaves it out, but until the cube is lifted it is ``False`` in every instance and a
+    restore loses nothing. Only after the lift does a restored state (into an env that never lifted) report
+    another success and reward. An audit driven by a few random actions never lifts the cube and misses the
+    leak; ``simreel audit SimreelLiftCubeStageLeaky-v1 --policy scripted`` (along the scripted policy's
+    trajectory) names the step where it shows.
+    """
+
+    lift_threshold = 0.03
+
+    def _load_scene(self, options: dict):
+        super()._load_scene(options)
+        self.lifted = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        super()._initialize_episode(env_idx, options)
+        self.lifted[env_idx] = False
+
+    def _step_action(self, action):
+        action = super()._step_action(action)  # the physics has stepped (and, on the GPU, been fetched)
+        self.lifted |= self.cube.pose.p[:, 2] >= self.cube_half_size + self.lift_threshold
+        return action
+
+    def evaluate(self):
+        info = super().evaluate()
+        info["lifted"] = self.lifted.clone()
+        info["success"] = info["success"] & self.lifted
+        return info
