@@ -6,8 +6,11 @@ and audit a task for state that its state dict does not capture.
   patterns (local worker processes or Ray; a streaming, resumable report); `ReplayOptions` holds its options
 - `verify_recording(path, mode=..., resync=..., ...)` → `ReplayReport`: one recording, every episode's report kept
 - `read_verdicts(report)` → `Verdicts`: the verdicts a replay report holds (for filtering a dataset by them)
+  A diverged episode's report explains why (`simreel.replay.explain`: events, error growth, the cause the data
+  supports), and every episode's scene is compared with the recorded scene fingerprint at its reset
 - `EpisodeReplayer(meta)`: one rebuilt env that reproduces each episode's reset and replays it
-- `audit_task(env_id, ...)` → `AuditReport` (what `simreel audit` runs)
+- `audit_task(env_id, ...)` → `AuditReport` (what `simreel audit` runs), with ``policy=`` or ``trajectory=``
+  also along real trajectories (`simreel.replay.audit_trajectory`)
 
 Restoring a recorded state (`simreel.sim.state.restore_state`) and the per-leaf comparison (`simreel.compare`:
 tolerances, quaternion-aware errors, first divergence) are in the core, so the viewers use them too.

@@ -102,31 +102,23 @@ def _shape(shape: Any) -> dict[str, Any]:
         out[name] = _floats(value) if np.ndim(value) else _f32(value)
     if kind.endswith("mesh"):
         out["mesh"] = _mesh_hash(shape)
-    material = shape.physical_material
-    out.update(
-        local_pose=_pose(shape.local_pose),
-        static_friction=_f32(material.static_friction),
-        dynamic_friction=_f32(material.dynamic_friction),
-        restitution=_f32(material.restitution),
-        contact_offset=_f32(shape.contact_offset),
-        rest_offset=_f32(shape.rest_offset),
-    )
+    out["local_pose"] = _pose(shape.local_pose)
+    out.update(_scalars(shape.physical_material, ("static_friction", "dynamic_friction", "restitution")))
+    out.update(_scalars(shape, ("contact_offset", "rest_offset")))
     return out
+
+
+def _scalars(obj: Any, names: tuple[str, ...]) -> dict[str, float]:
+    return {name: _f32(getattr(obj, name)) for name in names}
 
 
 def _joint(joint: Any) -> dict[str, Any]:
     if joint.dof == 0:  # a fixed joint has no limits or drive
         return {"type": str(joint.type)}
-    return {
-        "type": str(joint.type),
-        "limits": _floats(joint.limits),
-        "stiffness": _f32(joint.stiffness),
-        "damping": _f32(joint.damping),
-        "force_limit": _f32(joint.force_limit),
-        "friction": _f32(joint.friction),
-        "armature": _floats(joint.armature),
-        "drive_mode": str(joint.drive_mode),
-    }
+    out: dict[str, Any] = {"type": str(joint.type), "limits": _floats(joint.limits)}
+    out.update(_scalars(joint, ("stiffness", "damping", "force_limit", "friction")))
+    out.update(armature=_floats(joint.armature), drive_mode=str(joint.drive_mode))
+    return out
 
 
 def _body(entity: Any, body_type: str) -> dict[str, Any]:
@@ -137,13 +129,8 @@ def _body(entity: Any, body_type: str) -> dict[str, Any]:
         if not isinstance(comp, physx.PhysxRigidBaseComponent):
             continue
         if isinstance(comp, physx.PhysxRigidBodyComponent):
-            out.update(
-                mass=_f32(comp.mass),
-                inertia=_floats(comp.inertia),
-                cmass_local_pose=_pose(comp.cmass_local_pose),
-                linear_damping=_f32(comp.linear_damping),
-                angular_damping=_f32(comp.angular_damping),
-            )
+            out.update(mass=_f32(comp.mass), inertia=_floats(comp.inertia), cmass_local_pose=_pose(comp.cmass_local_pose))
+            out.update(_scalars(comp, ("linear_damping", "angular_damping")))
         out["shapes"] = [_shape(s) for s in comp.collision_shapes]
         if isinstance(comp, physx.PhysxArticulationLinkComponent) and comp.joint is not None and not comp.is_root:
             out["joint"] = _joint(comp.joint)

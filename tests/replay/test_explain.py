@@ -3,6 +3,7 @@ state outside its state dict, and a replay from a restored state whose float noi
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -77,7 +78,11 @@ def test_a_heavier_cube_is_named_before_any_step_is_compared(record, monkeypatch
     assert "(cube: mass 0.064 → 0.08), found at the reset before any step was compared" in cause.summary
     assert cause.evidence[0] == "cube: mass 0.064 → 0.08"
     text = report.summary()
-    assert "scene differs from the recording (found at the reset): cube: mass 0.064 → 0.08" in text
+    assert "why: the replaying scene differs from the recorded one (cube: mass 0.064 → 0.08)" in text
+    # a scene difference that did not make the replay diverge is still shown
+    within = dataclasses.replace(ep, verdict="within_tolerance", explanation=None)
+    lines = dataclasses.replace(report, episodes=[within]).summary().splitlines()
+    assert lines[3].strip().startswith("scene differs from the recording (found at the reset): cube: mass 0.064 → 0.08;")
     assert report.to_json()["episodes"][0]["scene_differences"][0] == {
         "subject": "cube", "property": "mass", "recorded": 0.064, "replaying": 0.08, "text": "cube: mass 0.064 → 0.08"}
 
