@@ -4,8 +4,9 @@
 around the first divergence, error growth, onset) and adds what only the simulator can tell, trying the causes
 in this order and keeping the first the data supports:
 
-1. ``scene_differs``: the replaying scene's fingerprint (masses, shapes, materials, joints, controllers) or build
-   (versions, sim backend, sim config) differs from the recording's; found at the reset, before any step.
+1. ``scene_differs``: the replaying scene's fingerprint (masses, shapes, materials, joints, controllers) differs
+   from the recording's; found at the reset, before any step. (Another build, i.e. versions, sim backend or sim
+   config, is named the same way, but only when none of the step-level causes below holds.)
 2. For a divergence right after the reset: two more resets with the recorded seed and options. They agree with
    each other but not with the recording: ``input_inconsistent`` (the seed or options do not produce the recorded
    initial state); they disagree: ``reset_not_reproducible``.
@@ -127,7 +128,7 @@ class _Explainer:
             cause = scene or self._reset()
         else:
             cause = scene or self._one_step_cause() or self._amplification() or self._restore_difference()
-        self.explanation.cause = cause or self._undetermined()
+        self.explanation.cause = cause or self._build() or self._undetermined()
         return self.explanation
 
     # -- 1. the scene
@@ -138,13 +139,19 @@ class _Explainer:
             diffs = []
         else:
             self.checked.append(f"scene fingerprint compared at the reset: {len(diffs)} difference(s)")
-        lines = [d.describe() for d in diffs] + list(self.ctx.build_differences)
+        return self._differs("scene", [d.describe() for d in diffs] + list(self.ctx.build_differences) if diffs else [])
+
+    def _build(self) -> Cause | None:
+        """Other versions, sim backend or sim config: named when no step-level cause was found (a Python patch
+        release beside an altered action is not the reason)."""
+        return self._differs("build (versions, sim backend or sim config)", list(self.ctx.build_differences))
+
+    def _differs(self, what: str, lines: list[str]) -> Cause | None:
         if not lines:
             return None
         more = [f"... {len(lines) - _SCENE_LINES} more"] if len(lines) > _SCENE_LINES else []
-        first = lines[0]
-        return Cause("scene_differs", f"the replaying scene differs from the recorded one ({first}), found at the reset "
-                     "before any step was compared; a replay of another scene is expected to diverge",
+        return Cause("scene_differs", f"the replaying {what} differs from the recorded one ({lines[0]}), found at the "
+                     "reset before any step was compared; a replay of another scene is expected to diverge",
                      step=None, key=None, evidence=lines[:_SCENE_LINES] + more)
 
     # -- 2. the reset

@@ -57,6 +57,24 @@ def test_an_altered_action_is_an_input_inconsistent_with_the_recording(record, t
     assert f"error: {d.key}: " in text
 
 
+def test_another_build_is_not_blamed_for_what_a_step_explains(record, tmp_path):
+    """Version differences are named as the cause only when no step-level cause holds: here the altered action
+    explains the divergence, and the other Python release is one of the things checked, not the reason."""
+    from simreel.compare import Tolerances, compare_episode
+    from simreel.replay.explain import ExplainContext, explain_divergence
+
+    path = _altered(record("PickCube-v1", 1, 30), tmp_path / "altered.h5")
+    with open_reader(path) as r:
+        meta, recorded = r.meta, r.read_episode(0)
+    with EpisodeReplayer(meta) as replayer:
+        replayed = replayer.replay(recorded)
+        cmp = compare_episode(recorded, replayed.episode, Tolerances.for_mode("actions"), channels=meta.contact_channels)
+        ctx = ExplainContext(mode="actions", resync=None, channels=list(meta.contact_channels), env_id=meta.env_id,
+                             build_differences=["python: recorded 3.11.6, replaying 3.11.7"])
+        cause = explain_divergence(replayer, recorded, replayed, cmp, ctx).cause
+    assert (cause.kind, cause.step) == ("input_inconsistent", ALTERED_STEP)
+
+
 def test_a_heavier_cube_is_named_before_any_step_is_compared(record, monkeypatch):
     path = record("SimreelLiftCube-v1", 1, 20)
     from simreel.tasks.lift_cube import LiftCubeEnv
