@@ -11,6 +11,7 @@ trajectory was in (``grasped``, ``success``, ``cabinet moving``, ...), from A's 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -28,7 +29,7 @@ from simreel.replay.audit_checks import (
     computed_now,
     differing_attributes,
 )
-from simreel.sim.rebuild import GYM_MAKE_SEED, another_episode, reset_to_episode
+from simreel.sim.rebuild import GYM_MAKE_SEED, OTHER_EPISODE_OFFSET, another_episode, reset_to_episode
 from simreel.sim.state import read_state, restore_state
 from simreel.state_tree import to_numpy
 
@@ -104,6 +105,12 @@ class _AlongAuditor:
 
     def _reset_b(self, episode: EpisodeMeta) -> None:
         other = another_episode(episode)
+        if other is None:  # the file does not say whether the reset rebuilt the scene: reset as given, another seed
+            other = dataclasses.replace(episode, seed=(episode.seed or 0) + OTHER_EPISODE_OFFSET)
+            note = ("the recording does not say whether its resets rebuilt the scene: the second instance is reset as "
+                    "given with another seed (a task that rebuilds its scene at every reset would get another one)")
+            if note not in self.report.notes:
+                self.report.notes.append(note)
         self.scene_b = reset_to_episode(self.env_b, other, scene_seed=self.scene_b).scene_seed
 
     def _why(self, where: str, keys: list[str]) -> str:
