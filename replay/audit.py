@@ -300,7 +300,7 @@ def _check(opts: AuditOptions) -> None:
 def _config(env_id: str | None, opts: AuditOptions) -> tuple[str, Any]:
     """The env id and `EnvConfig` to audit: the recording's with --trajectory (its imports imported), else the options'."""
     from simreel.sim.make import EnvConfig
-    from simreel.sim.user_code import import_user_code
+    from simreel.sim.user_code import import_user_code, resolve_task_imports
 
     imports = list(opts.imports)
     if opts.trajectory is None:
@@ -315,7 +315,8 @@ def _config(env_id: str | None, opts: AuditOptions) -> tuple[str, Any]:
             meta = reader.meta
         if env_id is not None and env_id != meta.env_id:
             raise UsageError(f"--trajectory {opts.trajectory} is a recording of {meta.env_id}, not of {env_id}")
-        env_id, imports = meta.env_id, [*meta.imports, *imports]
+        # the task's code as a replay finds it: an explicit --import wins, else the recorded specs, looked for
+        env_id, imports = meta.env_id, resolve_task_imports(meta.imports, explicit=imports, recording=opts.trajectory)
         env_kwargs = {k: v for k, v in meta.env_kwargs.items() if k != "render_mode"}
         config = EnvConfig.from_meta(meta).with_overrides(num_envs=1, obs_mode=opts.obs_mode, sim_backend="physx_cpu",
                                                           env_kwargs=env_kwargs)
