@@ -66,7 +66,8 @@ class ExplainContext:
 
 @dataclass(frozen=True)
 class _Worst:
-    """The key furthest out of (or closest to) its tolerance at one step of a comparison."""
+    """The key furthest out of (or closest to) its tolerance at one step of a comparison, or between two states
+    (step -1: the reset)."""
 
     step: int
     key: str
@@ -75,12 +76,20 @@ class _Worst:
 
     @property
     def ratio(self) -> float:
+        """The error in units of its tolerance: above 1 is out of tolerance; any error beyond a zero tolerance is."""
         if self.error == 0:
             return 0.0
         return math.inf if self.tolerance == 0 else self.error / self.tolerance
 
     def describe(self) -> str:
+        """One step's worst key, with the step tolerance it is judged by."""
         return f"{self.key} off by {format_number(self.error)} (step tolerance {format_number(self.tolerance)})"
+
+    def describe_states(self) -> str:
+        """Two states' largest difference, or that they are identical."""
+        if self.error == 0:
+            return "identical"
+        return f"{self.key} off by {format_number(self.error)}"
 
 
 _COMPUTED = ("info/", "rewards", "obs/", "terminated", "truncated", "success", "fail")
@@ -109,6 +118,8 @@ def _worst_at(cmp: EpisodeComparison, step: int, *, only: str | tuple[str, ...] 
 
 
 class _Explainer:
+    """One diverged episode's explanation: the data part first, then the causes tried in the module's order."""
+
     def __init__(self, replayer: EpisodeReplayer, recorded: Episode, replayed: ReplayedEpisode,
                  cmp: EpisodeComparison, ctx: ExplainContext) -> None:
         self.replayer = replayer
@@ -339,32 +350,16 @@ def _other_episode(recorded: Episode) -> Episode | None:
     return None if meta is None else dataclasses.replace(recorded, meta=meta)
 
 
-@dataclass(frozen=True)
-class _StateDiff:
-    key: str
-    error: float
-    tolerance: float
-
-    @property
-    def ratio(self) -> float:
-        return 0.0 if self.error == 0 else (math.inf if self.tolerance == 0 else self.error / self.tolerance)
-
-    def describe_states(self) -> str:
-        if self.error == 0:
-            return "identical"
-        return f"{self.key} off by {format_number(self.error)}"
-
-
-def _state_difference(a: dict[str, Any], b: dict[str, Any], tol: Tolerances) -> _StateDiff:
+def _state_difference(a: dict[str, Any], b: dict[str, Any], tol: Tolerances) -> _Worst:
     """The largest difference (relative to `tol`) between two flat states (key path → (1, ...) arrays)."""
-    worst = _StateDiff("", 0.0, 1.0)
+    worst = _Worst(-1, "", 0.0, 1.0)
     for path in sorted(set(a) & set(b)):
         x, y = np.asarray(a[path]), np.asarray(b[path])
         if x.shape != y.shape:
-            return _StateDiff(f"env_states/{path}", math.inf, 0.0)
+            return _Worst(-1, f"env_states/{path}", math.inf, 0.0)
         for comp in components_of(path, x.shape[1:]):
             err = float(component_error(x, y, comp)[0])
-            cand = _StateDiff(comp.key, err, tol[comp.group])
+            cand = _Worst(-1, comp.key, err, tol[comp.group])
             if cand.ratio > worst.ratio:
                 worst = cand
     return worst

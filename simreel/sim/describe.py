@@ -55,6 +55,7 @@ def flatten_obs(obs: Any, obs_mode: str) -> dict[str, Any]:
 
 
 def sim_config_json(cfg: Any) -> dict[str, Any]:
+    """An env's `sim_config` (a dataclass in ManiSkill 3, a dict or None elsewhere) as plain JSON-able data."""
     if dataclasses.is_dataclass(cfg):
         return dataclasses.asdict(cfg)
     return dict(cfg or {})

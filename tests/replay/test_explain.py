@@ -138,3 +138,22 @@ def test_a_restore_then_replay_is_amplification_through_a_contact(unseeded):
     assert f"step {touch}: contact panda/panda_" in cause.summary and "cube begins" in cause.summary
     assert any(e.kind == "contact_begins" and e.step == touch for e in explanation.events)
     assert cause.evidence[1].startswith(f"step {d.step} alone reproduces the recording")
+
+
+def test_a_changed_seed_is_an_input_inconsistent_with_the_recording_at_the_reset(record, tmp_path):
+    """The recorded seed no longer gives the recorded initial state (here: it was changed after recording): two
+    resets with it agree with each other, not with the recording, so the input is named, not the task's reset."""
+    src = record("PickCube-v1", 1, 30)
+    path = tmp_path / "reseeded.h5"
+    with open_reader(src) as r, open_writer(path, r.meta) as w:
+        episode = r.read_episode(0)
+        w.write_episode(dataclasses.replace(episode, meta=dataclasses.replace(episode.meta, seed=episode.meta.seed + 1)))
+    ep = verify_recording(path).episodes[0]
+    d = ep.first_divergence
+    assert (ep.verdict, d.at) == ("diverged", "reset")
+    cause = ep.explanation.cause
+    assert (cause.kind, cause.step) == ("input_inconsistent", -1)
+    assert cause.key.startswith("env_states/actors/cube[")  # the cube is placed from the seed
+    assert cause.summary.startswith("input inconsistent with the recording at the reset: seed 4 gives the same "
+                                    "initial state twice, but not the recorded one (env_states/actors/cube[")
+    assert cause.evidence[0] == "reset 1 vs reset 2: identical"
