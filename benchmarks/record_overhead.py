@@ -3,11 +3,17 @@ ManiSkill's own RecordEpisode on the same content.
 
 Usage: python benchmarks/record_overhead.py [--env PickCube-v1] [--episodes 100] [--steps 50]
                                            [--contacts auto|none] [--poses] [--format h5|mcap] [--no-storage]
+                                           [--without-fingerprints]
 
 Overhead: a bare env and a recorded one step the same actions from the same seeds, interleaved episode by
 episode so machine noise hits both alike. The step() ratio times step() alone; the end-to-end ratio adds the
 resets, where the recorder commits each finished episode to the file (the commit's own mean time is printed).
 Target (issue 17): end to end ≤ 1.05× for PickCube-v1, state obs, contacts on.
+
+`--without-fingerprints` adds a third env, recorded without the per-episode scene fingerprints (taken at every reset
+that rebuilds the scene, issue 14), interleaved with the other two: the fingerprints' cost is the difference between
+the two recorded rows (it shows in the resets of tasks that rebuild their scene, e.g. --env SimreelHeteroPick-v1,
+never in step()).
 
 Storage: 10 episodes of `--steps` steps recorded with the same seeds and actions by ManiSkill's RecordEpisode
 (record_env_state=True, state observations) and by RecordWrapper into .h5 and .mcap with the same content
@@ -65,36 +71,57 @@ class _CommitClock:
         writer.begin_episode = timed_begin
 
 
+class _WithoutFingerprints(RecordWrapper):
+    """The recorder without a scene fingerprint per rebuilt scene (the recording's own, taken once when the recorder
+    starts, is outside the timed loop either way)."""
+
+    def _fingerprint_scenes(self, envs) -> None:
+        pass
+
+
+def _ratios(label: str, bare: np.ndarray, rec: np.ndarray, steps: int, per_episode: list[float]) -> None:
+    (bw, bc, br, brc), (rw, rc, rr, rrc) = bare, rec
+    print(f"  {label:<20} {rw / steps * 1e6:8.1f} µs/step wall, {rc / steps * 1e6:8.1f} µs/step CPU, "
+          f"reset {rr / len(per_episode) * 1e3:.2f} ms (bare {br / len(per_episode) * 1e3:.2f} ms)")
+    print(f"  step() ratio         {rw / bw:8.3f}× wall, {rc / bc:.3f}× CPU "
+          f"(per-episode wall ratios: median {statistics.median(per_episode):.3f})")
+    print(f"  end-to-end ratio     {(rw + rr) / (bw + br):8.3f}× wall, {(rc + rrc) / (bc + brc):.3f}× CPU (resets, which "
+          "commit episodes, included; target ≤ 1.05×)")
+
+
 def overhead(args: argparse.Namespace, folder: Path) -> None:
     bare = make_env(args.env, obs_mode="state", max_episode_steps=args.steps)
     shape = bare.action_space.shape
     actions = np.random.default_rng(0).uniform(-1, 1, size=(args.episodes, args.steps, *shape)).astype(np.float32)
     path = folder / f"overhead.{args.format}"
-    rec = RecordWrapper(make_env(args.env, obs_mode="state", max_episode_steps=args.steps), path,
-                        contacts=args.contacts, poses=args.poses)
-    for env in (bare, rec):  # warm-up: first steps build caches, the first commit creates the file's layout
+    kinds = [RecordWrapper] + ([_WithoutFingerprints] if args.without_fingerprints else [])
+    recs = [kind(make_env(args.env, obs_mode="state", max_episode_steps=args.steps),
+                 path if i == 0 else folder / f"without_fingerprints.{args.format}", contacts=args.contacts,
+                 poses=args.poses) for i, kind in enumerate(kinds)]
+    for env in (bare, *recs):  # warm-up: first steps build caches, the first commit creates the file's layout
         _episode(env, 10_000, actions[0])
-    clock = _CommitClock(rec)
-    totals = np.zeros((2, 4))
-    per_episode = []
-    for k in range(args.episodes):  # interleaved episode by episode, so machine noise hits both alike
+    clock = _CommitClock(recs[0])
+    totals = np.zeros((1 + len(recs), 4))
+    per_episode: list[list[float]] = [[] for _ in recs]
+    for k in range(args.episodes):  # interleaved episode by episode, so machine noise hits all alike
         b = _episode(bare, k, actions[k])
-        r = _episode(rec, k, actions[k])
-        totals += [b, r]
-        per_episode.append(r[0] / b[0])
+        totals[0] += b
+        for i, rec in enumerate(recs):
+            r = _episode(rec, k, actions[k])
+            totals[1 + i] += r
+            per_episode[i].append(r[0] / b[0])
     t = time.perf_counter()
-    rec.close()
+    recs[0].close()
     close = time.perf_counter() - t
+    for rec in recs[1:]:
+        rec.close()
     steps = args.episodes * args.steps
-    (bw, bc, br, brc), (rw, rc, rr, rrc) = totals
+    bw, bc = totals[0][:2]
     print(f"{args.env}, state obs, contacts={args.contacts}, poses={args.poses}, format={args.format}: "
           f"{args.episodes} episodes × {args.steps} steps, bare and recorded interleaved per episode")
     print(f"  bare env.step        {bw / steps * 1e6:8.1f} µs/step wall, {bc / steps * 1e6:8.1f} µs/step CPU")
-    print(f"  recorded step        {rw / steps * 1e6:8.1f} µs/step wall, {rc / steps * 1e6:8.1f} µs/step CPU")
-    print(f"  step() ratio         {rw / bw:8.3f}× wall, {rc / bc:.3f}× CPU "
-          f"(per-episode wall ratios: median {statistics.median(per_episode):.3f})")
-    print(f"  end-to-end ratio     {(rw + rr) / (bw + br):8.3f}× wall, {(rc + rrc) / (bc + brc):.3f}× CPU (resets, which "
-          "commit episodes, included; target ≤ 1.05×)")
+    for i, label in enumerate(["recorded step", "without fingerprints"][: len(recs)]):
+        _ratios(label, totals[0], totals[1 + i], steps, per_episode[i])
     print(f"  commit               {statistics.mean(clock.seconds) * 1e3:8.2f} ms/episode mean "
           f"(median {statistics.median(clock.seconds) * 1e3:.2f}); close {close * 1e3:.0f} ms incl. env.close")
     print(f"  file size            {path.stat().st_size / ((args.episodes + 1) * args.steps):8.1f} bytes/step")
@@ -137,6 +164,8 @@ def main() -> None:
     ap.add_argument("--poses", action="store_true")
     ap.add_argument("--format", default="h5", choices=["h5", "mcap"])
     ap.add_argument("--no-storage", action="store_true", help="skip the file-size comparison with RecordEpisode")
+    ap.add_argument("--without-fingerprints", action="store_true",
+                    help="also time a recorder without per-episode scene fingerprints, interleaved")
     args = ap.parse_args()
 
     import torch

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +25,7 @@ from simreel.formats import open_writer, records_poses_by_default
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.sim.contacts import ContactSampler, contact_channels
 from simreel.sim.describe import flatten_obs, recording_meta
+from simreel.sim.fingerprint import fingerprint_changes, scene_fingerprint
 from simreel.sim.poses import pose_body_names, sample_body_poses
 from simreel.sim.state import FastStateReader, check_same_layout, read_state
 from simreel.sim.user_code import recorded_spec
@@ -122,6 +123,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._has_success = "success" in self.meta.info_layout
         self._next_index = 0
         self._scene_seed: list[int | None] = [None] * self._n
+        self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
+        self._fingerprint_scenes(range(1, self._n))  # sub-scene 0's is the recording's own
         self.episodes_committed: list[EpisodeMeta] = []
         self._closed = False
 
@@ -159,11 +162,14 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reset_rows = self._per_state_rows(state, obs)
         stored_options = json.loads(json.dumps({k: v for k, v in options.items() if k != "env_idx"},
                                                default=json_default))
+        if reconfigured:
+            self._fingerprint_scenes(range(self._n))
         for i, seed_i in zip(idxs, self._episode_seeds(seed, idxs), strict=True):
             if reconfigured:
                 self._scene_seed[i] = seed_i
             meta = EpisodeMeta(index=self._next_index, seed=seed_i, reset_options=stored_options, env_idx=i,
-                               reconfigured=reconfigured, scene_seed=self._scene_seed[i])
+                               reconfigured=reconfigured, scene_seed=self._scene_seed[i],
+                               scene_changes=self._scene_changes[i])
             self._start(i, meta, StepBlock({k: a[i : i + 1] for k, a in reset_rows.items()}, 1))
         return obs, info
 
@@ -262,6 +268,13 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     @property
     def path(self) -> Path:
         return self._writer.path
+
+    def _fingerprint_scenes(self, envs: Iterable[int]) -> None:
+        """Where sub-scenes `envs` differ from the recording's scene fingerprint (after the scene was built or
+        rebuilt; ~3 ms each, never per step): each of their episodes keeps it (`EpisodeMeta.scene_changes`)."""
+        for i in envs:
+            now = scene_fingerprint(self._u, env_idx=i)
+            self._scene_changes[i] = fingerprint_changes(self.meta.scene_fingerprint, now)
 
     def _episode_seeds(self, seed: Any, idxs: list[int]) -> list[int | None]:
         """The episode seed of each reset env, or None where the reset was not reproducible from a seed.

@@ -4,10 +4,13 @@ and audit a task for state that its state dict does not capture.
 
 - `ReplayRun(inputs, options).execute()` → `RunTally`: what `simreel replay` runs over recordings, folders and
   patterns (local worker processes or Ray; a streaming, resumable report); `ReplayOptions` holds its options
-- `verify_recording(path, mode=..., resync=..., ...)` → `ReplayReport`: one recording, every episode's report kept
+- `verify_recording(path, mode=..., resync=..., ...)` → `ReplayReport`: one recording, every episode's report kept.
+  A diverged episode's report explains why (`simreel.replay.explain`: events, error growth, the cause the data
+  supports), and every episode's scene is compared with the recorded scene fingerprint at its reset
 - `read_verdicts(report)` → `Verdicts`: the verdicts a replay report holds (for filtering a dataset by them)
 - `EpisodeReplayer(meta)`: one rebuilt env that reproduces each episode's reset and replays it
-- `audit_task(env_id, ...)` → `AuditReport` (what `simreel audit` runs)
+- `audit_task(env_id, ...)` → `AuditReport` (what `simreel audit` runs), with ``policy=`` or ``trajectory=``
+  also along real trajectories (`simreel.replay.audit_trajectory`)
 
 Restoring a recorded state (`simreel.sim.state.restore_state`) and the per-leaf comparison (`simreel.compare`:
 tolerances, quaternion-aware errors, first divergence) are in the core, so the viewers use them too.

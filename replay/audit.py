@@ -11,6 +11,9 @@
    observations and the reward. Then both step the same actions and are compared again.
 4. The state-dict layout must not depend on the seed (several reconfiguring resets) nor, where a CUDA
    device exists, on ``num_envs``.
+5. With a recording (``trajectory``) or a ``policy``: the same restore-and-compare at every step of real
+   trajectories, where grasps, success and moving joints happen (`simreel.replay.audit_trajectory`); each
+   finding names the step and the phase.
 
 Each disagreement is an `AuditFinding` naming the key and the likely cause, e.g.
 ``evaluate()['success'] differs after restore: ... task state not in the state dict — declare it``.
@@ -21,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -70,6 +73,17 @@ class AuditOptions:
     obs_mode: str = "state"
     reward_mode: str | None = None
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    trajectory: str | None = None
+    """Also audit along the episodes of this recording (`simreel.replay.audit_trajectory`); its env, control mode
+    and kwargs are the recording's."""
+    trajectory_episodes: tuple[int, ...] | None = None
+    """Which of its episodes (None: all)."""
+    policy: Callable[[Any, Any], Any] | None = None
+    """Also audit along `episodes` episodes of this policy (`policy(env, obs) -> action`), seeds `seed`, `seed` + 1, ..."""
+    policy_name: str = "the policy"
+    episodes: int = 1
+    every: int = 1
+    """Along a trajectory, restore into the second instance after every `every`-th step (and after the first)."""
 
 
 def _state(u: Any) -> dict[str, np.ndarray]:
@@ -274,22 +288,70 @@ def _nested_torch(flat: Mapping[str, np.ndarray], device: Any) -> dict[str, Any]
     return unflatten({k: torch.as_tensor(np.array(v), device=device) for k, v in flat.items()})
 
 
-def audit_task(env_id: str, options: AuditOptions | None = None, **overrides: Any) -> AuditReport:
-    """Audit task `env_id` for state-dict fidelity (see the module docstring); never raises for a finding.
+def _check(opts: AuditOptions) -> None:
+    if opts.steps < 1:
+        raise UsageError(f"--steps must be >= 1, got {opts.steps}")
+    if opts.every < 1 or opts.episodes < 1:
+        raise UsageError(f"--every and --episodes must be >= 1, got {opts.every} and {opts.episodes}")
+    if opts.trajectory is not None and opts.policy is not None:
+        raise UsageError("audit along a recording (--trajectory) or along a policy (--policy), not both")
+
+
+def _config(env_id: str | None, opts: AuditOptions) -> tuple[str, Any]:
+    """The env id and `EnvConfig` to audit: the recording's with --trajectory (its imports imported), else the options'."""
+    from simreel.sim.make import EnvConfig
+    from simreel.sim.user_code import import_user_code, resolve_task_imports
+
+    imports = list(opts.imports)
+    if opts.trajectory is None:
+        if env_id is None:
+            raise UsageError("name the task to audit (ENV_ID), or a recording with --trajectory")
+        config = EnvConfig(num_envs=1, obs_mode=opts.obs_mode, control_mode=opts.control_mode,
+                           reward_mode=opts.reward_mode, sim_backend="physx_cpu", env_kwargs=dict(opts.env_kwargs))
+    else:
+        from simreel.formats import open_reader
+
+        with open_reader(opts.trajectory) as reader:
+            meta = reader.meta
+        if env_id is not None and env_id != meta.env_id:
+            raise UsageError(f"--trajectory {opts.trajectory} is a recording of {meta.env_id}, not of {env_id}")
+        # the task's code as a replay finds it: an explicit --import wins, else the recorded specs, looked for
+        env_id, imports = meta.env_id, resolve_task_imports(meta.imports, explicit=imports, recording=opts.trajectory)
+        env_kwargs = {k: v for k, v in meta.env_kwargs.items() if k != "render_mode"}
+        config = EnvConfig.from_meta(meta).with_overrides(num_envs=1, obs_mode=opts.obs_mode, sim_backend="physx_cpu",
+                                                          env_kwargs=env_kwargs)
+    for spec in dict.fromkeys(imports):
+        import_user_code(spec)
+    return env_id, config
+
+
+def _trajectories(opts: AuditOptions) -> Any:
+    from simreel.replay.audit_trajectory import policy_trajectories, recorded_trajectories
+
+    if opts.trajectory is not None:
+        indices = None if opts.trajectory_episodes is None else list(opts.trajectory_episodes)
+        return recorded_trajectories(opts.trajectory, indices)
+    seeds = [opts.seed + k for k in range(opts.episodes)]
+    return policy_trajectories(opts.policy, seeds, _POLICY_STEPS, opts.policy_name)
+
+
+_POLICY_STEPS = 10_000
+"""A policy's episode ends when the task terminates or truncates it (its time limit); this only bounds a task without one."""
+
+
+def audit_task(env_id: str | None, options: AuditOptions | None = None, **overrides: Any) -> AuditReport:
+    """Audit task `env_id` for state-dict fidelity (see the module docstring); never raises for a finding. With
+    `trajectory` (a recording; `env_id` may then be None) or `policy`, it also audits along real trajectories
+    (`simreel.replay.audit_trajectory`).
 
     `overrides` are `AuditOptions` fields (``audit_task("PickCube-v1", steps=10)``). Raises `UsageError` for bad
     arguments and `EnvBuildError` when the env cannot be built.
     """
     opts = dataclasses.replace(options or AuditOptions(), **overrides)
-    if opts.steps < 1:
-        raise UsageError(f"--steps must be >= 1, got {opts.steps}")
-    from simreel.sim.make import EnvConfig, camera_use, make_env
-    from simreel.sim.user_code import import_user_code
+    _check(opts)
+    from simreel.sim.make import camera_use, make_env
 
-    for spec in opts.imports:
-        import_user_code(spec)
-    config = EnvConfig(num_envs=1, obs_mode=opts.obs_mode, control_mode=opts.control_mode,
-                       reward_mode=opts.reward_mode, sim_backend="physx_cpu", env_kwargs=dict(opts.env_kwargs))
+    env_id, config = _config(env_id, opts)
     render = "none" if camera_use(opts.obs_mode, config.env_kwargs.get("render_mode")) is None else "auto"
 
     def make(**over: Any) -> Any:
@@ -301,4 +363,8 @@ def audit_task(env_id: str, options: AuditOptions | None = None, **overrides: An
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         _Auditor(report, make, seed=opts.seed, steps=opts.steps).run()
+        if opts.trajectory is not None or opts.policy is not None:
+            from simreel.replay.audit_trajectory import audit_along
+
+            audit_along(report, make, _trajectories(opts), every=opts.every)
     return report

@@ -41,11 +41,15 @@ class AuditFinding:
     step: int | None = None
     error: float | None = None
     tolerance: float | None = None
+    phase: str = ""
+    """Where along a trajectory it showed (``episode 0 of lift.h5, grasped``); empty for the random-action checks."""
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"kind": self.kind, "key": self.key, "detail": self.detail}
         if self.step is not None:
             out["step"] = self.step
+        if self.phase:
+            out["phase"] = self.phase
         if self.error is not None:
             out["error"] = self.error if math.isfinite(self.error) else "inf"
         if self.tolerance is not None:
@@ -99,7 +103,7 @@ class AuditReport:
             return "\n".join(lines)
         lines.append(f"{len(self.findings)} finding(s):")
         for f in self.findings:
-            where = "" if f.step is None else f" [step {f.step}]"
+            where = "" if f.step is None else f" [step {f.step}" + (f", {f.phase}]" if f.phase else "]")
             lines.append(f"  {f.kind:<18} {f.key}{where}")
             lines.append(f"  {'':<18} {f.detail}")
         return "\n".join(lines)
@@ -115,6 +119,7 @@ class Check:
     tolerances: Tolerances
     step: int | None = None
     why: str = ""
+    phase: str = ""
 
 
 def max_error(a: Any, b: Any) -> float:
@@ -133,7 +138,7 @@ def compare_states(report: AuditReport, check: Check, want: Mapping[str, np.ndar
                    have: Mapping[str, np.ndarray]) -> None:
     """A finding for every state key that one side lacks, that changed shape, or whose part is off."""
     for key in sorted(set(want) | set(have)):
-        finding = AuditFinding(check.kind, f"env_states/{key}", "", step=check.step)
+        finding = AuditFinding(check.kind, f"env_states/{key}", "", step=check.step, phase=check.phase)
         if key not in have or key not in want:
             side = "missing after the restore" if key not in have else "present only after the restore"
             finding.detail = f"state key {key!r} {side}: {check.why}"
@@ -151,7 +156,7 @@ def _compare_parts(report: AuditReport, check: Check, key: str, a: np.ndarray, b
         tol = check.tolerances[comp.group]
         if err > tol:
             report.add(AuditFinding(check.kind, comp.key, f"{comp.key} off by {err:.3g}: {check.why}",
-                                    step=check.step, error=err, tolerance=tol))
+                                    step=check.step, error=err, tolerance=tol, phase=check.phase))
 
 
 @dataclass(frozen=True)
@@ -177,24 +182,25 @@ def compare_computed(report: AuditReport, check: Check, a: Computed, b: Computed
             continue
         if key not in a.info or key not in b.info:
             report.add(AuditFinding(f"{check.kind}_evaluate", f"info/{key}",
-                                    f"evaluate()[{key!r}] exists in one instance only {check.why}", step=check.step))
+                                    f"evaluate()[{key!r}] exists in one instance only {check.why}", step=check.step,
+                                    phase=check.phase))
             continue
         err = max_error(a.info[key], b.info[key])
         limit = 0.0 if to_numpy(a.info[key]).dtype.kind in "biu" else check.tolerances["info"]
         if err > limit:
             report.add(AuditFinding(f"{check.kind}_evaluate", f"info/{key}", f"evaluate()[{key!r}] differs {check.why}",
-                                    step=check.step, error=err, tolerance=limit))
+                                    step=check.step, error=err, tolerance=limit, phase=check.phase))
     flat_a = flatten(a.obs) if isinstance(a.obs, Mapping) else {"obs": to_numpy(a.obs)}
     flat_b = flatten(b.obs) if isinstance(b.obs, Mapping) else {"obs": to_numpy(b.obs)}
     for key in sorted(set(flat_a) & set(flat_b)):
         err = max_error(flat_a[key], flat_b[key])
         if err > check.tolerances["obs"]:
             report.add(AuditFinding(f"{check.kind}_obs", f"obs/{key}", f"observation {key!r} differs {check.why}",
-                                    step=check.step, error=err, tolerance=check.tolerances["obs"]))
+                                    step=check.step, error=err, tolerance=check.tolerances["obs"], phase=check.phase))
     err = max_error(a.reward, b.reward)
     if err > check.tolerances["reward"]:
         report.add(AuditFinding(f"{check.kind}_reward", "reward", f"the reward differs {check.why}",
-                                step=check.step, error=err, tolerance=check.tolerances["reward"]))
+                                step=check.step, error=err, tolerance=check.tolerances["reward"], phase=check.phase))
 
 
 def differing_attributes(ua: Any, ub: Any, state_keys: Iterable[str]) -> list[str]:

@@ -27,6 +27,7 @@ import numpy as np
 
 from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta
 from simreel.errors import EnvBuildError, ReplayError, SimreelError
+from simreel.sim.fingerprint import SceneDifference
 from simreel.sim.rebuild import (
     GYM_MAKE_SEED,
     EpisodeReset,
@@ -84,6 +85,12 @@ class ReplayedEpisode:
     commands: np.ndarray | None = None
     """(T, 2, 7) per step: the tool-centre pose the recorded action commanded, and the one the converted action
     commanded (`EpisodeReplayer.replay_converted`; NaN where unknown)."""
+    scene_differences: list[SceneDifference] | None = None
+    """Where the replaying scene differs from the episode's recorded scene fingerprint, found at the reset, before
+    any step (empty: the same scene; None: not compared, the recording has no fingerprint)."""
+    restored_at: list[int] = field(default_factory=list)
+    """Steps before which the replay put the recorded state back (``actions`` mode: 0 for an unseeded episode,
+    every K-th with ``resync``); a restored state lacks what PhysX keeps between steps."""
 
 
 def _scalar(x: Any) -> Any:
@@ -146,6 +153,7 @@ class EpisodeReplayer:
         self._scene_builds = 0
         self._fast_allowed = True
         self._contacts = None
+        self._fingerprint: tuple[int, dict[str, Any]] | None = None  # (scene build, fingerprint)
         if self.meta.contact_channels:
             from simreel.sim.contacts import ContactSampler
 
@@ -225,6 +233,24 @@ class EpisodeReplayer:
                 self._contacts = None
         return done
 
+    def scene_check(self, ep: EpisodeMeta) -> list[SceneDifference] | None:
+        """Every difference between episode `ep`'s recorded scene fingerprint and the scene the env holds now (after
+        `reset_for(ep)`); None when the recording has no fingerprint. The live fingerprint is taken once per scene
+        build (~3 ms)."""
+        from simreel.sim.fingerprint import apply_changes, scene_differences, scene_fingerprint
+
+        if not self.meta.scene_fingerprint:
+            return None
+        if self._fingerprint is None or self._fingerprint[0] != self._scene_builds:
+            self._fingerprint = (self._scene_builds, scene_fingerprint(self.u))
+        recorded = apply_changes(self.meta.scene_fingerprint, ep.scene_changes)
+        return scene_differences(recorded, self._fingerprint[1])
+
+    def initial_state(self, ep: EpisodeMeta) -> dict[str, np.ndarray]:
+        """The state right after resetting the env the way episode `ep` was reset (row 0 of a replay)."""
+        self.reset_for(ep)
+        return {k: np.array(v) for k, v in self._state().items()}
+
     # ------------------------------------------------------------------ replay
     def replay(self, episode: Episode, *, mode: str = "actions", resync: int | None = None) -> ReplayedEpisode:
         """Replay `episode` in `mode` and return the replayed arrays (compare them with `simreel.compare`)."""
@@ -291,10 +317,15 @@ class EpisodeReplayer:
     def _replay(self, episode: Episode, mode: str, resync: int | None) -> ReplayedEpisode:
         done = self.reset_for(episode.meta)
         self._check_layout()
+        scene = self.scene_check(episode.meta)
         run = {"actions": self._run_actions, "states": self._run_states, "step": self._run_step}[mode]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # ManiSkill warns on every out-of-bounds action; the recording had them too
             out = run(episode, resync) if mode == "actions" else run(episode)
+        if scene is None:
+            done.notes.append("scene fingerprint not compared: the file holds none (ManiSkill's own files, and "
+                              "simreel's from before it kept one)")
+        out.scene_differences = scene
         file_notes = list(episode.meta.notes)  # what the reader found in the file about this episode
         out.notes = done.notes + file_notes + done.limits + out.limits + out.notes
         out.limits = file_notes + done.limits + out.limits
@@ -375,13 +406,15 @@ class EpisodeReplayer:
             limits.append("actions replayed from the recorded initial state")
         self._initial(buf)
         notes = []
+        restored = [0] if episode.meta.seed is None else []
         for t in range(episode.length):
             if resync and t and t % resync == 0:
                 restore_state(self.u, state_row(episode.env_states, t), elapsed_steps=t)
+                restored.append(t)
             self._after_step(buf, t, self._step(actions[t]))
         if resync:
             notes.append(f"restored the recorded state every {resync} steps")
-        return ReplayedEpisode(buf.episode(), notes, limits=limits)
+        return ReplayedEpisode(buf.episode(), notes, limits=limits, restored_at=restored)
 
     def _run_step(self, episode: Episode) -> ReplayedEpisode:
         actions = self._actions(episode)

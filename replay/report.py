@@ -9,7 +9,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from simreel.compare import Divergence, EpisodeComparison, format_number, json_number, worst_keys
+from simreel.divergence import Explanation
 from simreel.episode import Episode
+from simreel.sim.fingerprint import SceneDifference
 
 __all__ = ["EpisodeReport", "VERIFIED", "CHECK_ORDER", "checked_groups", "recording_limits", "episode_lines"]
 
@@ -73,6 +75,11 @@ class EpisodeReport:
     """Why the episode could not be replayed (verdict ``error``)."""
     per_step: dict[str, list[float]] = field(default_factory=dict)
     """Key -> its error at every compared row, where a report carries them (a conversion's tracking errors)."""
+    scene_differences: list[SceneDifference] | None = None
+    """Where the replaying scene differs from the recorded fingerprint, found at the reset before any step (None: not
+    compared, the recording has none)."""
+    explanation: Explanation | None = None
+    """Why it diverged (`simreel.replay.explain`); None unless the verdict is ``diverged``."""
 
     @classmethod
     def from_comparison(cls, recorded: Episode, cmp: EpisodeComparison, *, notes: list[str], limits: list[str],
@@ -131,7 +138,17 @@ class EpisodeReport:
         }
         if self.error is not None:
             out["error"] = self.error
+        if self.scene_differences is not None:
+            out["scene_differences"] = [d.to_json() for d in self.scene_differences]
+        if self.explanation is not None:
+            out["explanation"] = self.explanation.to_json()
         return out
+
+    def verification(self) -> dict[str, Any]:
+        """What a replayed episode written by ``simreel replay -o`` keeps of its report (`EpisodeMeta.verification`):
+        verdict, first divergence, scene differences and explanation, for viewers of that file."""
+        full = self.to_json()
+        return {k: full.get(k) for k in ("verdict", "first_divergence", "scene_differences", "explanation")}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> EpisodeReport:
@@ -146,18 +163,31 @@ class EpisodeReport:
             seconds=float(d.get("seconds", 0.0)), limits=list(d.get("limits", [])), checked=list(d.get("checked", [])),
             keys_compared=int(d.get("keys_compared", 0)), error=d.get("error"),
             per_step={k: [float(x) for x in v] for k, v in d.get("per_step", {}).items()},
+            scene_differences=_scene_differences(d.get("scene_differences")),
+            explanation=None if d.get("explanation") is None else Explanation.from_json(d["explanation"]),
         )
 
 
+def _scene_differences(items: list[Mapping[str, Any]] | None) -> list[SceneDifference] | None:
+    return None if items is None else [SceneDifference.from_json(item) for item in items]
+
+
 def episode_lines(e: EpisodeReport) -> list[str]:
-    """An episode's row of the summary table, its worst keys when it diverged, and its notes."""
+    """An episode's row of the summary table, and under it: the scene differences (unless the explanation lists
+    them), its worst keys and the explanation when it diverged, and its notes."""
     pad = f"  {'':>7} {'':>6}  {'':<17}"
     first = e.first_divergence.describe() if e.first_divergence else (e.error or "")
     lines = [f"  {e.index:>7} {e.length:>6}  {e.verdict:<17} {first}".rstrip()]
+    if e.scene_differences and not (e.explanation and e.explanation.cause and e.explanation.cause.kind == "scene_differs"):
+        shown = [d.describe() for d in e.scene_differences[:4]]
+        more = f" (+{len(e.scene_differences) - 4} more)" if len(e.scene_differences) > 4 else ""
+        lines.append(f"{pad} scene differs from the recording (found at the reset): " + "; ".join(shown) + more)
     if e.verdict == "diverged":
         also = [f"{k} {format_number(v)} (tol {format_number(t)})" for k, v, t in e.worst(4)
                 if e.first_divergence is None or k != e.first_divergence.key]
         if also:
             lines.append(f"{pad} {len(e.diverged_keys)} keys left their tolerance; worst: " + ", ".join(also[:3]))
+    if e.explanation is not None:
+        lines += [f"{pad} {line}" for line in e.explanation.lines()]
     lines += [f"{pad} note: {note}" for note in (e.notes if e.verdict != "exact" else e.limits)]  # always: unchecked
     return lines

@@ -28,6 +28,7 @@ from simreel.episode import Episode, RecordingMeta
 from simreel.errors import EpisodeLayoutError, MetadataError, RecordingFileError, SimreelError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.replay.engine import EpisodeReplayer, ReplayedEpisode, ReplayerOptions
+from simreel.replay.explain import ExplainContext, explain_divergence
 from simreel.replay.output import output_pose_bodies
 from simreel.replay.report import EpisodeReport
 from simreel.replay.worklist import WorkItem
@@ -165,7 +166,7 @@ class ReplayWorker:
         job = self.job
         recorded = reader.read_episode(index)
         replayed = replayer.replay(recorded, mode=job.mode, resync=job.resync)
-        report = self._report(reader.meta, recorded, replayed)
+        report = self._report(reader, replayer, recorded, replayed)
         if job.output is None:
             return report, None
         episode = replayed.episode
@@ -173,16 +174,27 @@ class ReplayWorker:
             # states were restored from the recording; its contact forces are the true ones of the original run
             # (the replay's come from one step simulated from each restored state)
             episode = dataclasses.replace(episode, contact_forces=recorded.contact_forces)
-        return report, episode
+        meta = dataclasses.replace(episode.meta, verification=report.verification())
+        return report, dataclasses.replace(episode, meta=meta)
 
-    def _report(self, meta: RecordingMeta, recorded: Episode, replayed: ReplayedEpisode) -> EpisodeReport:
+    def _report(self, reader: EpisodeReader, replayer: EpisodeReplayer, recorded: Episode,
+                replayed: ReplayedEpisode) -> EpisodeReport:
+        meta = reader.meta
         scope = CompareScope(initial=recorded.meta.initial_state_known,
                              obs=self.job.obs_mode is None or self.job.obs_mode == meta.obs_mode,
                              contacts=replayed.compare_contacts)
         cmp = compare_episode(recorded, replayed.episode, self.job.tolerances, channels=meta.contact_channels,
                               scope=scope)
-        return EpisodeReport.from_comparison(recorded, cmp, notes=replayed.notes, limits=replayed.limits,
-                                             seconds=replayed.seconds)
+        report = EpisodeReport.from_comparison(recorded, cmp, notes=replayed.notes, limits=replayed.limits,
+                                               seconds=replayed.seconds)
+        report.scene_differences = replayed.scene_differences
+        if cmp.first_divergence is not None:  # after the report's timing: explaining replays steps again
+            from simreel.replay.fingerprint import fingerprint_differences
+
+            ctx = ExplainContext(mode=self.job.mode, resync=self.job.resync, channels=list(meta.contact_channels),
+                                 env_id=meta.env_id, build_differences=fingerprint_differences(meta, replayer.u))
+            report.explanation = explain_divergence(replayer, recorded, replayed, cmp, ctx)
+        return report
 
     def _warnings(self, path: str, meta: RecordingMeta, replayer: EpisodeReplayer) -> list[str]:
         from simreel.replay.fingerprint import fingerprint_differences

@@ -159,6 +159,21 @@ def test_metadata_round_trips_through_json():
     assert RecordingMeta.from_json({**meta.to_json(), "a_field_of_a_newer_simreel": 1}) == meta
 
 
+def test_metadata_of_files_recorded_before_the_scene_fingerprint_still_reads():
+    """Recordings made before simreel kept a scene fingerprint lack these keys: they read as empty (not compared)."""
+    old = {k: v for k, v in _meta().to_json().items() if k != "scene_fingerprint"}
+    assert RecordingMeta.from_json(old).scene_fingerprint == {}
+    ep = EpisodeMeta.from_json({"index": 1, "seed": 4, "length": 9})
+    assert (ep.scene_changes, ep.verification) == ({}, {})
+    fingerprinted = _meta(scene_fingerprint={"bodies": {"cube": {"mass": 0.064}}, "controllers": {}})
+    assert RecordingMeta.from_json(fingerprinted.to_json()) == fingerprinted
+    assert list(fingerprinted.to_json()["scene_fingerprint"]) == ["zlib+base64"]  # stored packed
+    assert RecordingMeta.from_json({**fingerprinted.to_json(), "scene_fingerprint": fingerprinted.scene_fingerprint}) \
+        == fingerprinted  # and read unpacked too
+    ep = EpisodeMeta(index=2, scene_changes={"bodies": {"cube": {"mass": 0.08}}}, verification={"verdict": "exact"})
+    assert EpisodeMeta.from_json(ep.to_json()) == ep
+
+
 @pytest.mark.parametrize(
     ("doc", "message"),
     [
@@ -174,6 +189,8 @@ def test_metadata_round_trips_through_json():
         ({"env_id": "X", "contact_channels": [{"kind": "net", "bodies": ["a", "b"]}]},
          "contact channel {'kind': 'net', 'bodies': ['a', 'b']}: expected kind 'net' with 1 body name or 'pair' with 2"),
         ({"env_id": "X", "contact_channels": [{"kind": "side"}]}, "contact channel {'kind': 'side'}: expected kind"),
+        ({"env_id": "X", "scene_fingerprint": {"zlib+base64": "not base64!"}},
+         "recording metadata: scene_fingerprint: the packed JSON does not decode"),
         ({"env_id": "X", "action_space": {"shape": ["2"]}},
          "recording metadata: action_space shape is ['2'], expected a list of sizes"),
     ],

@@ -57,6 +57,7 @@ def test_every_task_is_registered_with_end_effector_control():
     assert TASK_IDS == (
         "SimreelLiftCube-v1",
         "SimreelLiftCubeLeaky-v1",
+        "SimreelLiftCubeStageLeaky-v1",
         "SimreelHeteroPick-v1",
         "SimreelHeteroDrawer-v1",
     )

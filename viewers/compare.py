@@ -1,5 +1,7 @@
 """Recorded vs replayed for the viewer: the core's comparison (`simreel.compare`, the same numbers
-`simreel replay` reports) placed on state rows, so the viewer can plot errors and mark the divergence.
+`simreel replay` reports) placed on state rows, so the viewer can plot errors and mark the divergence, and the
+explanation of that divergence (`simreel.divergence`: events, error growth, and the cause `simreel replay -o`
+classified and stored with the replayed episode).
 
 The core reports a divergence by step (the outcome of step k is state row k + 1; ``at="reset"`` is row 0);
 `divergence_row` converts. Episodes of different lengths are compared over the shorter one.
@@ -14,9 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from simreel.compare import Divergence, EpisodeComparison, Tolerances, compare_episode
+from simreel.divergence import Explanation, describe_divergence
 from simreel.episode import ContactChannel, Episode
 
-__all__ = ["ViewComparison", "compare_for_view", "divergence_row", "DEFAULT_MODE"]
+__all__ = ["ViewComparison", "compare_for_view", "divergence_row", "explain_for_view", "DEFAULT_MODE"]
 
 DEFAULT_MODE = "actions"
 """Whose default tolerances apply: `simreel replay --mode` (actions, states or step); actions is its default."""
@@ -89,3 +92,30 @@ def compare_for_view(
     tolerances = tolerances or Tolerances.for_mode(DEFAULT_MODE)
     comparison = compare_episode(_truncate(recorded, steps), _truncate(replayed, steps), tolerances, channels=channels)
     return ViewComparison(comparison, steps, note)
+
+
+def explain_for_view(recorded: Episode, replayed: Episode, comparison: ViewComparison,
+                     channels: Sequence[ContactChannel] = ()) -> Explanation | None:
+    """The explanation of the viewer's first divergence: its events and error growth from the two episodes, and the
+    cause that ``simreel replay -o`` classified and kept with the replayed episode (`EpisodeMeta.verification`) when
+    it explains the same divergence (same step and key); None when nothing diverged."""
+    explanation = describe_divergence(recorded, comparison.comparison, channels)
+    if explanation is None:
+        return None
+    stored = replayed.meta.verification.get("explanation")
+    if not stored:
+        explanation.checked.append("cause not classified: the replayed file holds no explanation "
+                                   "(it was not written by `simreel replay -o`, or that replay did not diverge)")
+        return explanation
+    try:
+        replay = Explanation.from_json(stored)
+    except (KeyError, TypeError, ValueError) as e:
+        explanation.checked.append(f"cause not shown: the replayed file's explanation is malformed ({e!r})")
+        return explanation
+    d, r = explanation.divergence, replay.divergence
+    if (r.step, r.at, r.key) == (d.step, d.at, d.key):
+        explanation.cause = replay.cause
+    else:
+        explanation.checked.append(f"cause not shown: `simreel replay` explained another first divergence "
+                                   f"({r.describe()}): other tolerances")
+    return explanation

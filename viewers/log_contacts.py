@@ -12,14 +12,15 @@ from collections.abc import Sequence
 import numpy as np
 import rerun as rr
 
+from simreel.divergence import CONTACT_THRESHOLD_N
 from simreel.episode import ContactChannel
 from simreel.viewers.paths import contact_path
 
 __all__ = ["FORCE_THRESHOLD_N", "ARROW_SCALE_M", "ActiveChannels", "arrow_vectors", "active_channels", "log_contact_block",
            "log_contact_styles"]
 
-FORCE_THRESHOLD_N = 1e-6
-"""Forces at or below this magnitude count as no contact: no arrow is drawn."""
+FORCE_THRESHOLD_N = CONTACT_THRESHOLD_N
+"""Forces at or below this magnitude count as no contact: no arrow is drawn (the core's rule)."""
 ARROW_SCALE_M = 0.05
 _COLORS = {"net": (255, 140, 0, 255), "pair": (230, 40, 200, 255)}
 _RADIUS = 0.003

@@ -1,4 +1,4 @@
-"""Time series under ``plots/`` and the text log of episode events under ``events``.
+"""Time series under ``plots/`` and the text log of episode events (and of a divergence's explanation) under ``events``.
 
 Everything is placed by state row: a quantity of step t (reward, success, info, contact force) goes with
 row t + 1, the state that step produced, which the ``step`` timeline shows at t (see `simreel.viewers.paths`). Multi-column series (a robot's qpos, all contact
@@ -13,9 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 import rerun as rr
 
+from simreel.divergence import EpisodeEvent, Explanation
+from simreel.divergence import episode_events as core_episode_events
 from simreel.episode import ContactChannel, Episode
 from simreel.viewers.compare import ViewComparison, divergence_row
-from simreel.viewers.log_contacts import FORCE_THRESHOLD_N, ActiveChannels
+from simreel.viewers.log_contacts import ActiveChannels
 from simreel.viewers.paths import EVENTS, SIM_TIME, STEP, plot_path
 
 __all__ = ["time_indexes", "SeriesStyle", "log_series", "log_step_plots", "log_qpos", "log_contact_magnitudes", "log_errors",
@@ -132,11 +134,36 @@ class Event:
     text: str
 
 
-def _transitions(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Indices (into `flags`) where a bool series turns on and where it turns off."""
-    f = np.asarray(flags, bool).astype(np.int8)
-    d = np.diff(np.concatenate([[0], f]))
-    return np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]
+_EVENT_LEVELS = {"contact_begins": "DEBUG", "contact_ends": "DEBUG", "success_lost": "WARN", "fail": "WARN",
+                 "controller_jump": "WARN"}
+"""Text-log level of each `simreel.divergence.EpisodeEvent` kind (INFO for the others)."""
+
+
+def _row(step: int) -> int:
+    """The state row of a step's outcome (step -1, the reset: row 0)."""
+    return step + 1
+
+
+def _episode_event(e: EpisodeEvent) -> Event:
+    text = e.describe().split(": ", 1)[1]  # the timeline says the step
+    return Event(_row(e.step), _EVENT_LEVELS.get(e.kind, "INFO"), text)
+
+
+def _explanation_events(explanation: Explanation) -> list[Event]:
+    """The explanation's lines at the steps they are about: why (at the divergence), error growth (where each key left
+    its tolerance), the onset of the state difference."""
+    d = explanation.divergence
+    row = divergence_row(d)
+    out = []
+    if explanation.cause is not None:
+        out.append(Event(row, "ERROR", f"why: {explanation.cause.summary}"))
+        out += [Event(row, "WARN", f"why: {line}") for line in explanation.cause.evidence]
+    else:
+        out += [Event(row, "WARN", f"why: {line}") for line in explanation.checked]
+    out += [Event(_row(g.step), "WARN", f"error: {g.describe()}") for g in explanation.growth]
+    if explanation.onset is not None:
+        out.append(Event(_row(explanation.onset.step), "WARN", f"onset: {explanation.onset.describe()}"))
+    return out
 
 
 def episode_events(
@@ -145,27 +172,14 @@ def episode_events(
     channels: Sequence[ContactChannel] = (),
     comparison: ViewComparison | None = None,
     compare_label: str | None = None,
+    explanation: Explanation | None = None,
 ) -> list[Event]:
-    """Start, success on/off, pair contacts beginning/ending, termination/truncation, first divergence."""
+    """Start, the episode's events (`simreel.divergence.episode_events`: contacts with their force, grasps, success,
+    controller jumps, termination), the first divergence and its explanation."""
     m = episode.meta
     start = f"episode {m.index} starts (seed {m.seed}, env {m.env_idx}, {episode.length} steps)"
     events = [Event(0, "INFO", start), *(Event(0, "WARN", note) for note in m.notes)]
-    if episode.success is not None:
-        on, off = _transitions(episode.success)
-        events += [Event(int(t) + 1, "INFO", f"success at step {int(t)}") for t in on]
-        events += [Event(int(t) + 1, "WARN", f"success lost at step {int(t)}") for t in off]
-    if episode.contact_forces is not None and len(episode.contact_forces):
-        touching = np.linalg.norm(episode.contact_forces, axis=-1) > FORCE_THRESHOLD_N
-        for c, ch in enumerate(channels):
-            if ch.kind != "pair":
-                continue
-            on, off = _transitions(touching[:, c])
-            events += [Event(int(t) + 1, "DEBUG", f"contact {ch.name} begins") for t in on]
-            events += [Event(int(t) + 1, "DEBUG", f"contact {ch.name} ends") for t in off]
-    for flag in ("terminated", "truncated"):
-        hits = np.nonzero(np.asarray(getattr(episode, flag), bool))[0]
-        if len(hits):
-            events.append(Event(int(hits[0]) + 1, "INFO", f"{flag} at step {int(hits[0])}"))
+    events += [_episode_event(e) for e in core_episode_events(episode, channels)]
     if comparison is not None:
         label = compare_label or "the replay"
         verdict = comparison.comparison.verdict.replace("_", " ")
@@ -176,7 +190,10 @@ def episode_events(
         if d is not None:
             text = d.describe() if d.at == "reset" else f"at {d.describe()}"
             events.append(Event(divergence_row(d), "ERROR", f"replay diverges {text}"))
-    return sorted(events, key=lambda e: (e.row, e.level != "ERROR"))
+    if explanation is not None:
+        events += _explanation_events(explanation)
+    order = {"ERROR": 0, "WARN": 1}
+    return sorted(events, key=lambda e: (e.row, order.get(e.level, 2)))
 
 
 def log_events(rec: rr.RecordingStream, events: Sequence[Event], period: float | None) -> None:

@@ -110,7 +110,8 @@ class _SessionLogger:
         if session.comparison is not None:
             log_errors(rec, session.comparison, period)
         label = session.replayed.label if session.replayed is not None else None
-        events = episode_events(ep, channels=self.channels, comparison=session.comparison, compare_label=label)
+        events = episode_events(ep, channels=self.channels, comparison=session.comparison, compare_label=label,
+                                explanation=session.explanation)
         log_events(rec, events, period)
 
 

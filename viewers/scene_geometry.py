@@ -1,10 +1,7 @@
 """What to draw: every body of a rebuilt scene, with its shapes in its own frame. No rerun here.
 
-`scene_bodies` lists the bodies of one sub-scene by simreel's names (``<actor>``,
-``<articulation>/<link>``): first the state-dict registry's (merged views included, so the part of a
-heterogeneous object that sits in this sub-scene is drawn under the merged name), then links of a merged
-articulation that only this sub-scene's part has (a cabinet's ``knob_1``) and actors outside the registry.
-`body_geometry` reads a body's shapes: collision shapes (``sapien.physx.PhysxCollisionShape*``) or visual
+The bodies of one sub-scene by simreel's names are the core's `simreel.sim.describe.scene_bodies` (the scene
+fingerprint lists the same bodies). `body_geometry` reads a body's shapes: collision shapes (``sapien.physx.PhysxCollisionShape*``) or visual
 shapes (render components, present only when the env was built with a render device).
 """
 
@@ -14,6 +11,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+from simreel.sim.describe import SceneBody, scene_bodies
 
 __all__ = [
     "GEOMETRY_SOURCES",
@@ -87,83 +86,6 @@ class BodyGeometry:
     @property
     def empty(self) -> bool:
         return not self.primitives and not self.meshes
-
-
-@dataclass
-class SceneBody:
-    """One body of the rebuilt sub-scene: its simreel name and the sapien entity that carries its pose."""
-
-    name: str
-    entity: Any
-    body_type: str
-    """``static``, ``kinematic``, ``dynamic`` (actors) or ``link``."""
-    group: str
-    """``robot`` (a link of the agent), ``articulation`` (another articulation's link) or ``actor``."""
-    in_registry: bool = True
-    """False for bodies not in the state-dict registry (their poses are never recorded)."""
-
-
-def _slot(obj: Any, env_idx: int) -> int | None:
-    """Position of sub-scene `env_idx` among a ManiSkill struct's per-sub-scene objects (None: absent)."""
-    idxs = getattr(obj, "_scene_idxs", None)
-    if idxs is None:
-        return 0 if env_idx == 0 else None
-    where = np.nonzero(np.asarray(idxs.tolist()) == env_idx)[0]
-    return int(where[0]) if len(where) else None
-
-
-def _agent_articulations(unwrapped: Any) -> set[str]:
-    agent = getattr(unwrapped, "agent", None)
-    if agent is None:
-        return set()
-    agents = list(agent.agents) if hasattr(agent, "agents") else [agent]
-    return {a.robot.name for a in agents if getattr(a, "robot", None) is not None}
-
-
-class _BodyList:
-    """Bodies in the order they are found, each entity once."""
-
-    def __init__(self) -> None:
-        self.bodies: list[SceneBody] = []
-        self._seen: set[int] = set()
-
-    def add(self, name: str, entity: Any, body_type: str, group: str, in_registry: bool) -> None:
-        if entity.global_id not in self._seen:
-            self._seen.add(entity.global_id)
-            self.bodies.append(SceneBody(name, entity, body_type, group, in_registry))
-
-    def actors(self, actors: dict[str, Any], env_idx: int, *, in_registry: bool) -> None:
-        for name, actor in actors.items():
-            k = _slot(actor, env_idx)
-            if k is not None:
-                self.add(name, actor._objs[k], str(getattr(actor, "px_body_type", "dynamic")), "actor", in_registry)
-
-    def articulation(self, art_name: str, art: Any, env_idx: int, group: str) -> None:
-        k = _slot(art, env_idx)
-        if k is None:
-            return
-        for link in art.links:
-            lk = _slot(link, env_idx)
-            if lk is not None:
-                self.add(f"{art_name}/{link.name}", link._objs[lk].entity, "link", group, True)
-        # links that only this sub-scene's part of a merged articulation has
-        for physx_link in art._objs[k].links:
-            self.add(f"{art_name}/{physx_link.entity.name}", physx_link.entity, "link", group, False)
-
-
-def scene_bodies(unwrapped: Any, *, env_idx: int = 0) -> list[SceneBody]:
-    """Every body of sub-scene `env_idx` of a live ManiSkill env, named as simreel names them: registry actors,
-    registry articulations' links (also those only one part of a merged articulation has), then the actors
-    that are not in the state dict."""
-    scene = unwrapped.scene
-    reg = scene.state_dict_registry
-    robots = _agent_articulations(unwrapped)
-    found = _BodyList()
-    found.actors(reg.actors, env_idx, in_registry=True)
-    for art_name, art in reg.articulations.items():
-        found.articulation(art_name, art, env_idx, "robot" if art_name in robots else "articulation")
-    found.actors(scene.actors, env_idx, in_registry=False)
-    return found.bodies
 
 
 # ----------------------------------------------------------------------------------------------- shapes

@@ -19,12 +19,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from simreel.compare import Tolerances
+from simreel.divergence import Explanation
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import UsageError, ViewError
 from simreel.formats import EpisodeReader
 from simreel.sim.rebuild import GYM_MAKE_SEED, reset_to_episode
 from simreel.sim.state import check_rebuilt_layout, read_state
-from simreel.viewers.compare import DEFAULT_MODE, ViewComparison, compare_for_view, divergence_row
+from simreel.viewers.compare import (
+    DEFAULT_MODE,
+    ViewComparison,
+    compare_for_view,
+    divergence_row,
+    explain_for_view,
+)
 from simreel.viewers.paths import step_of_row
 from simreel.viewers.scene_geometry import (
     GEOMETRY_SOURCES,
@@ -182,6 +189,8 @@ class ViewSession:
     geometry: list[BodyGeometry]
     geometry_source: str
     comparison: ViewComparison | None = None
+    explanation: Explanation | None = None
+    """Why the replay diverged (`simreel.viewers.compare.explain_for_view`), when it did."""
     block_steps: int = 256
     joint_names: dict[str, list[str]] = field(default_factory=dict)
     eye: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
@@ -360,8 +369,9 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
             env.close()
         raise
     if rep_run is not None:
-        session.comparison = compare_for_view(rec_run.episode, rep_run.episode, channels=rec_run.meta.contact_channels,
-                                              tolerances=tolerances)
+        channels = rec_run.meta.contact_channels
+        session.comparison = compare_for_view(rec_run.episode, rep_run.episode, channels=channels, tolerances=tolerances)
+        session.explanation = explain_for_view(rec_run.episode, rep_run.episode, session.comparison, channels)
     return session
 
 

@@ -6,7 +6,7 @@ import argparse
 import json
 from typing import Any
 
-from simreel.cli.common import add_import_option, parse_json_kwargs
+from simreel.cli.common import add_import_option, parse_index_ranges, parse_json_kwargs
 from simreel.errors import UsageError
 
 __all__ = ["add_parser", "run"]
@@ -20,11 +20,25 @@ def add_parser(sub: Any) -> None:
             "Run ENV_ID for some steps, restore its state dict into a second instance reset with another seed, "
             "and compare everything the task computes (state dict, evaluate() info, observations, reward), "
             "then step both and compare again; also check get/set round-trips, controller state and that the "
-            "state-dict layout does not depend on the seed. Exit status: 0 clean, 1 findings, 2 bad input."
+            "state-dict layout does not depend on the seed. With --policy or --trajectory, do the same at every "
+            "step of real trajectories (after grasps, at success, with joints moving), naming the step and phase "
+            "of each finding. Exit status: 0 clean, 1 findings, 2 bad input."
         ),
     )
-    p.add_argument("env_id", metavar="ENV_ID")
+    p.add_argument("env_id", metavar="ENV_ID", nargs="?", default=None,
+                   help="the task (may be left out with --trajectory: the recording names it)")
     p.add_argument("--steps", type=int, default=20, metavar="N", help="random steps before the restore (default 20)")
+    along = p.add_mutually_exclusive_group()
+    along.add_argument("--policy", default=None, metavar="POLICY",
+                       help="also audit along episodes of this policy: scripted (the task's shipped one), "
+                            "MODULE:CALLABLE or FILE.py:CALLABLE")
+    along.add_argument("--trajectory", default=None, metavar="REC",
+                       help="also audit along the episodes of this recording (.h5/.mcap), replaying its actions")
+    p.add_argument("--episodes", default=None, metavar="N|LIST",
+                   help="with --policy: how many episodes (seeds S, S+1, ...; default 1); with --trajectory: which "
+                        "episodes, e.g. 0,3-5 (default all)")
+    p.add_argument("--every", type=int, default=1, metavar="K",
+                   help="along a trajectory, restore into the second instance after every K-th step (default 1)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the first instance; the second uses S+1")
     p.add_argument("--json", default=None, metavar="PATH", help="write the findings as JSON here")
     p.add_argument("--overwrite", action="store_true", help="replace the --json file if it exists")
@@ -38,16 +52,42 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(run=run)
 
 
+def _along(args: argparse.Namespace) -> dict[str, Any]:
+    """The AuditOptions fields of --policy / --trajectory / --episodes / --every."""
+    if args.episodes is not None and args.policy is None and args.trajectory is None:
+        raise UsageError("--episodes needs --policy or --trajectory")
+    out: dict[str, Any] = {"every": args.every, "trajectory": args.trajectory}
+    if args.trajectory is not None and args.episodes is not None:
+        out["trajectory_episodes"] = tuple(parse_index_ranges(args.episodes))
+    if args.policy is not None:
+        if args.env_id is None:
+            raise UsageError("--policy needs the task's ENV_ID")
+        from simreel.cli.policy_option import load_policy
+        from simreel.sim.user_code import import_user_code
+
+        for spec in args.imports:  # a user policy may live in an --import module
+            import_user_code(spec)
+        out.update(policy=load_policy(args.policy, args.env_id), policy_name=f"--policy {args.policy}")
+        if args.episodes is not None:
+            if not args.episodes.isdigit():
+                raise UsageError(f"--episodes with --policy is a number of episodes, got {args.episodes!r}")
+            out["episodes"] = int(args.episodes)
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise UsageError(f"--steps must be >= 1, got {args.steps}")
+    if args.env_id is None and args.trajectory is None:
+        raise UsageError("name the task to audit (ENV_ID), or a recording with --trajectory")
     from simreel.formats.targets import check_output, write_text_atomic
     from simreel.replay.audit import AuditOptions, audit_task
 
     if args.json is not None:
         check_output(args.json, overwrite=args.overwrite, option="--json")
     options = AuditOptions(imports=tuple(args.imports), steps=args.steps, seed=args.seed, control_mode=args.control_mode,
-                           obs_mode=args.obs_mode, reward_mode=args.reward_mode, env_kwargs=args.env_kwargs)
+                           obs_mode=args.obs_mode, reward_mode=args.reward_mode, env_kwargs=args.env_kwargs,
+                           **_along(args))
     report = audit_task(args.env_id, options)
     text = report.summary()
     if args.quiet:

@@ -182,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)")
         for note in session.episode.meta.notes:
             print(f"note: {note}")
-        _print_comparison(session.comparison)
+        _print_comparison(session.comparison, session.explanation)
         if mode == "save":
             print(f"open it with: {open_command(out)}")
         elif mode == "serve":
@@ -214,7 +214,7 @@ def _wait_for_stop() -> str:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _print_comparison(c: Any) -> None:
+def _print_comparison(c: Any, explanation: Any) -> None:
     if c is None:
         return
     if c.note:
@@ -222,3 +222,5 @@ def _print_comparison(c: Any) -> None:
     d = c.divergence
     print(f"replay diverges at {d.describe()}" if d is not None
           else f"replay {c.comparison.verdict.replace('_', ' ')}: no value leaves its tolerance")
+    if explanation is not None and explanation.cause is not None:
+        print(f"why: {explanation.cause.summary} (the events log shows the evidence)")

@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 from simreel.episode import RecordingMeta
 from simreel.errors import UsageError
@@ -27,6 +30,8 @@ __all__ = [
     "describe_scene",
     "named_bodies",
     "dynamic_actor_names",
+    "SceneBody",
+    "scene_bodies",
 ]
 
 
@@ -50,6 +55,7 @@ def flatten_obs(obs: Any, obs_mode: str) -> dict[str, Any]:
 
 
 def sim_config_json(cfg: Any) -> dict[str, Any]:
+    """An env's `sim_config` (a dataclass in ManiSkill 3, a dict or None elsewhere) as plain JSON-able data."""
     if dataclasses.is_dataclass(cfg):
         return dataclasses.asdict(cfg)
     return dict(cfg or {})
@@ -58,9 +64,12 @@ def sim_config_json(cfg: Any) -> dict[str, Any]:
 def recording_meta(env: Any, **recorder_fields: Any) -> RecordingMeta:
     """Describe `env` (a gym.make'd ManiSkill env, possibly wrapped) as recording metadata.
 
+    The scene fingerprint is that of sub-scene 0 as it is now (`simreel.sim.fingerprint`).
     `recorder_fields` are the `RecordingMeta` fields only the recorder knows (``contact_channels``,
     ``info_layout``, ``obs_layout``, ``pose_bodies``, ``imports``, ``command``); they are set as given.
     """
+    from simreel.sim.fingerprint import scene_fingerprint
+
     u = env.unwrapped
     spec = getattr(u, "spec", None) or getattr(env, "spec", None)
     env_id = spec.id if spec is not None else type(u).__name__
@@ -82,6 +91,7 @@ def recording_meta(env: Any, **recorder_fields: Any) -> RecordingMeta:
         state_layout=layout_of(flatten(u.get_state_dict()), batched=True),
         scene=describe_scene(u),
         versions=env_versions(),
+        scene_fingerprint=scene_fingerprint(u),
         created_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         **recorder_fields,
     )
@@ -148,3 +158,81 @@ def dynamic_actor_names(unwrapped: Any) -> list[str]:
     """Registry actors that move (neither static nor kinematic)."""
     reg = unwrapped.scene.state_dict_registry
     return [n for n, a in reg.actors.items() if str(getattr(a, "px_body_type", "")) == "dynamic"]
+
+
+# ------------------------------------------------------------------------------------ bodies of a sub-scene
+@dataclass
+class SceneBody:
+    """One body of the rebuilt sub-scene: its simreel name and the sapien entity that carries its pose."""
+
+    name: str
+    entity: Any
+    body_type: str
+    """``static``, ``kinematic``, ``dynamic`` (actors) or ``link``."""
+    group: str
+    """``robot`` (a link of the agent), ``articulation`` (another articulation's link) or ``actor``."""
+    in_registry: bool = True
+    """False for bodies not in the state-dict registry (their poses are never recorded)."""
+
+
+def _slot(obj: Any, env_idx: int) -> int | None:
+    """Position of sub-scene `env_idx` among a ManiSkill struct's per-sub-scene objects (None: absent)."""
+    idxs = getattr(obj, "_scene_idxs", None)
+    if idxs is None:
+        return 0 if env_idx == 0 else None
+    where = np.nonzero(np.asarray(idxs.tolist()) == env_idx)[0]
+    return int(where[0]) if len(where) else None
+
+
+def _agent_articulations(unwrapped: Any) -> set[str]:
+    agent = getattr(unwrapped, "agent", None)
+    if agent is None:
+        return set()
+    agents = list(agent.agents) if hasattr(agent, "agents") else [agent]
+    return {a.robot.name for a in agents if getattr(a, "robot", None) is not None}
+
+
+class _BodyList:
+    """Bodies in the order they are found, each entity once."""
+
+    def __init__(self) -> None:
+        self.bodies: list[SceneBody] = []
+        self._seen: set[int] = set()
+
+    def add(self, name: str, entity: Any, body_type: str, group: str, in_registry: bool) -> None:
+        if entity.global_id not in self._seen:
+            self._seen.add(entity.global_id)
+            self.bodies.append(SceneBody(name, entity, body_type, group, in_registry))
+
+    def actors(self, actors: dict[str, Any], env_idx: int, *, in_registry: bool) -> None:
+        for name, actor in actors.items():
+            k = _slot(actor, env_idx)
+            if k is not None:
+                self.add(name, actor._objs[k], str(getattr(actor, "px_body_type", "dynamic")), "actor", in_registry)
+
+    def articulation(self, art_name: str, art: Any, env_idx: int, group: str) -> None:
+        k = _slot(art, env_idx)
+        if k is None:
+            return
+        for link in art.links:
+            lk = _slot(link, env_idx)
+            if lk is not None:
+                self.add(f"{art_name}/{link.name}", link._objs[lk].entity, "link", group, True)
+        # links that only this sub-scene's part of a merged articulation has
+        for physx_link in art._objs[k].links:
+            self.add(f"{art_name}/{physx_link.entity.name}", physx_link.entity, "link", group, False)
+
+
+def scene_bodies(unwrapped: Any, *, env_idx: int = 0) -> list[SceneBody]:
+    """Every body of sub-scene `env_idx` of a live ManiSkill env, named as simreel names them: registry actors,
+    registry articulations' links (also those only one part of a merged articulation has), then the actors
+    that are not in the state dict."""
+    scene = unwrapped.scene
+    reg = scene.state_dict_registry
+    robots = _agent_articulations(unwrapped)
+    found = _BodyList()
+    found.actors(reg.actors, env_idx, in_registry=True)
+    for art_name, art in reg.articulations.items():
+        found.articulation(art_name, art, env_idx, "robot" if art_name in robots else "articulation")
+    found.actors(scene.actors, env_idx, in_registry=False)
+    return found.bodies

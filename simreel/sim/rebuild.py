@@ -16,6 +16,7 @@ periodic reconfiguration held off (the recorded reset did not reconfigure).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -29,6 +30,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     "GYM_MAKE_SEED",
+    "OTHER_EPISODE_OFFSET",
+    "another_episode",
     "EpisodeReset",
     "build_with_render_fallback",
     "env_from_meta",
@@ -39,6 +42,9 @@ GYM_MAKE_SEED = 2022
 """ManiSkill 3.0.1's `gym.make` builds the scene with `reset(seed=[2022 + i for i in range(num_envs)])`."""
 
 _T = TypeVar("_T")
+
+OTHER_EPISODE_OFFSET = 7919
+"""`another_episode` resets with the episode's seed + this (this alone for an unseeded episode)."""
 
 
 def env_from_meta(meta: RecordingMeta, **overrides: Any) -> gym.Env:
@@ -143,3 +149,16 @@ def _reset_in_its_scene(env: Any, episode: EpisodeMeta, options: dict[str, Any],
         out.scene_seed = episode.seed
         out.scene_builds += 1
         out.limits.append("the reset reconfigured the scene, the recorded one did not")
+
+
+def another_episode(episode: EpisodeMeta) -> EpisodeMeta | None:
+    """The metadata of another episode in `episode`'s scene: its scene kept (rebuilt from its seed if needed), its
+    reset moved to seed + `OTHER_EPISODE_OFFSET`, so whatever a task draws per episode differs. Restoring a state
+    into an env reset to it shows what the state dict misses (the audit and `simreel replay`'s explanations do).
+    None when the scene cannot be rebuilt (it was built by a reset without a seed) or the file does not say whether
+    the episode's reset rebuilt it."""
+    if episode.reconfigured is None or (episode.reconfigured and episode.seed is None):
+        return None  # unknown whether the reset rebuilt the scene (ManiSkill's files), or it was built unseeded
+    scene_seed = episode.seed if episode.reconfigured else episode.scene_seed
+    return dataclasses.replace(episode, seed=(episode.seed or 0) + OTHER_EPISODE_OFFSET, reconfigured=False,
+                               scene_seed=scene_seed)

@@ -3,7 +3,8 @@
 The target height exists only in the task, not in the physics, so it is declared custom state and
 travels in the state dict as ``state["goal_height"]`` (shape ``(num_envs,)``). The leaky variant
 SimreelLiftCubeLeaky-v1 is the same task without that declaration: a restored state then keeps
-whatever height the env had, which `simreel audit` must report.
+whatever height the env had, which `simreel audit` must report. SimreelLiftCubeStageLeaky-v1 leaks state
+that matters only after the cube is lifted, which an audit finds only along a real trajectory.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from mani_skill.utils.structs.pose import Pose
 
 from simreel.tasks._tabletop import TabletopPandaEnv
 
-__all__ = ["LiftCubeEnv", "LiftCubeLeakyEnv"]
+__all__ = ["LiftCubeEnv", "LiftCubeLeakyEnv", "LiftCubeStageLeakyEnv"]
 
 
 @register_env("SimreelLiftCube-v1", max_episode_steps=60)
@@ -32,6 +33,8 @@ class LiftCubeEnv(TabletopPandaEnv):
     **Success:** the cube is grasped and its centre is within 2 cm of the target height.
 
     **Custom state:** ``goal_height`` (num_envs,), in the state dict and in the observation.
+
+    **Kwargs:** ``cube_mass`` (kg; default from the cube's density: 0.064).
     """
 
     custom_state = ("goal_height",)
@@ -41,8 +44,16 @@ class LiftCubeEnv(TabletopPandaEnv):
         "cube:table-workspace",
     )
     cube_half_size = 0.02
+    cube_mass: float | None = None
+    """The cube's mass in kg (None: from its density, 0.064 kg); the ``cube_mass`` kwarg sets it, as domain
+    randomization of a physical property would."""
     goal_height_range = (0.08, 0.25)
     goal_thresh = 0.02
+
+    def __init__(self, *args, cube_mass: float | None = None, **kwargs):
+        if cube_mass is not None:
+            self.cube_mass = float(cube_mass)
+        super().__init__(*args, **kwargs)
 
     def _load_scene(self, options: dict):
         self._load_table()
@@ -53,6 +64,10 @@ class LiftCubeEnv(TabletopPandaEnv):
             name="cube",
             initial_pose=sapien.Pose(p=[0, 0, self.cube_half_size]),
         )
+        if self.cube_mass is not None:
+            for body in self.cube._bodies:
+                scale = self.cube_mass / body.mass
+                body.mass, body.inertia = self.cube_mass, body.inertia * scale
         self.goal_height = torch.zeros(self.num_envs, device=self.device)
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
@@ -111,3 +126,38 @@ class LiftCubeLeakyEnv(LiftCubeEnv):
     """
 
     custom_state = ()
+
+
+@register_env("SimreelLiftCubeStageLeaky-v1", max_episode_steps=60)
+class LiftCubeStageLeakyEnv(LiftCubeEnv):
+    """SimreelLiftCube-v1 with a staged success and a deliberate bug that only shows mid-task.
+
+    The task latches a stage, ``lifted``, once the cube has risen ``lift_threshold`` above its resting height,
+    and keeps it until the episode ends; success needs it. The latch is a plain attribute, not custom state,
+    so the state dict leaves it out, but until the cube is lifted it is ``False`` in every instance and a
+    restore loses nothing. Only after the lift does a restored state (into an env that never lifted) report
+    another success and reward. An audit driven by a few random actions never lifts the cube and misses the
+    leak; ``simreel audit SimreelLiftCubeStageLeaky-v1 --policy scripted`` (along the scripted policy's
+    trajectory) names the step where it shows.
+    """
+
+    lift_threshold = 0.03
+
+    def _load_scene(self, options: dict):
+        super()._load_scene(options)
+        self.lifted = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        super()._initialize_episode(env_idx, options)
+        self.lifted[env_idx] = False
+
+    def _step_action(self, action):
+        action = super()._step_action(action)  # the physics has stepped (and, on the GPU, been fetched)
+        self.lifted |= self.cube.pose.p[:, 2] >= self.cube_half_size + self.lift_threshold
+        return action
+
+    def evaluate(self):
+        info = super().evaluate()
+        info["lifted"] = self.lifted.clone()
+        info["success"] = info["success"] & self.lifted
+        return info

@@ -63,7 +63,7 @@ def _reach_and_grasp(tcp: torch.Tensor, grasp_point: torch.Tensor, grasped: torc
 
 
 def lift_cube_policy(env: Any, obs: Any = None) -> torch.Tensor:
-    """SimreelLiftCube-v1 / SimreelLiftCubeLeaky-v1: grasp the cube, carry it to ``goal_height``."""
+    """SimreelLiftCube-v1 and its leaky variants: grasp the cube, carry it to ``goal_height``."""
     base = env.unwrapped
     _check_mode(base)
     tcp, cube = base.agent.tcp.pose.p, base.cube.pose.p
@@ -104,6 +104,7 @@ def hetero_drawer_policy(env: Any, obs: Any = None) -> torch.Tensor:
 DEFAULT_POLICIES = {
     "SimreelLiftCube-v1": lift_cube_policy,
     "SimreelLiftCubeLeaky-v1": lift_cube_policy,
+    "SimreelLiftCubeStageLeaky-v1": lift_cube_policy,
     "SimreelHeteroPick-v1": hetero_pick_policy,
     "SimreelHeteroDrawer-v1": hetero_drawer_policy,
 }

@@ -48,7 +48,7 @@ def test_hdf5_recording_on_a_full_disk_stops_with_one_line_and_keeps_every_commi
     """Regression: the recorder segfaulted or exited 3, and one half-written group made simreel refuse every
     episode of the file."""
     with small_disk(tmp_path, 4096) as disk:
-        fill(disk, leave_kib=160)
+        fill(disk, leave_kib=200)  # room for the file's header and one episode (its first commit needs ~160 KiB free)
         out = disk / "rec.h5"
         done = simreel("record", "PickCube-v1", "-o", str(out), "-n", "1000", "--max-steps", "20", "--record-obs", "-q")
         assert done.returncode == 2, done.stderr

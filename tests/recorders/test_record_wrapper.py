@@ -207,3 +207,32 @@ def test_the_wrapper_keeps_its_arguments_in_env_spec(tmp_path):
         assert env.options.record_obs and env.options.block_steps == 16
     finally:
         env.close()
+
+
+def test_the_scene_fingerprint_is_kept_once_and_per_rebuilt_scene(record):
+    """The recording keeps the fingerprint of the scene the recorder found; an episode whose reset rebuilt the scene
+    keeps what differs in its own (a heterogeneous task's cabinet), which is that scene's fingerprint."""
+    from simreel.sim.fingerprint import apply_changes, scene_fingerprint
+    from simreel.sim.rebuild import reset_to_episode
+
+    with open_reader(record("PickCube-v1", 2, 5)) as r:
+        meta, episodes = r.meta, r.episodes
+    env = make_env("PickCube-v1", render_backend="none")
+    try:
+        assert meta.scene_fingerprint == scene_fingerprint(env.unwrapped)
+    finally:
+        env.close()
+    assert meta.scene_fingerprint["bodies"]["cube"]["mass"] > 0
+    assert all(m.scene_changes == {} for m in episodes)  # the same scene all along
+
+    with open_reader(record("SimreelHeteroDrawer-v1", 2, 5)) as r:
+        meta, episodes = r.meta, r.episodes
+    assert all(m.reconfigured and set(m.scene_changes) == {"bodies"} for m in episodes)
+    assert all(name.startswith("cabinet") for m in episodes for name in m.scene_changes["bodies"])
+    env = make_env("SimreelHeteroDrawer-v1", render_backend="none")
+    try:
+        for m in episodes:
+            reset_to_episode(env, m, scene_seed=None)
+            assert apply_changes(meta.scene_fingerprint, m.scene_changes) == scene_fingerprint(env.unwrapped)
+    finally:
+        env.close()

@@ -1,0 +1,374 @@
+"""Explain a diverged replay: gather the evidence with the simulator and classify the likely cause.
+
+`explain_divergence` starts from the data of the two episodes (`simreel.divergence.describe_divergence`: events
+around the first divergence, error growth, onset) and adds what only the simulator can tell, trying the causes
+in this order and keeping the first the data supports:
+
+1. ``scene_differs``: the replaying scene's fingerprint (masses, shapes, materials, joints, controllers) differs
+   from the recording's; found at the reset, before any step. (Another build, i.e. versions, sim backend or sim
+   config, is named the same way, but only when none of the step-level causes below holds.)
+2. For a divergence right after the reset: two more resets with the recorded seed and options. They agree with
+   each other but not with the recording: ``input_inconsistent`` (the seed or options do not produce the recorded
+   initial state); they disagree: ``reset_not_reproducible``.
+3. The one-step errors of ``--mode step`` (restore the recorded state t, step action t, compare with recorded
+   t + 1), judged by step mode's tolerances, at the divergent step k and the steps around it: off at k only:
+   ``input_inconsistent`` (the recorded action k does not produce the recorded transition, while its neighbours
+   do); off at k and around it: ``state_not_captured`` (the recorded state does not determine the transition).
+4. Each step alone reproduces the recording, but the state began to differ by float noise and grew:
+   ``amplification`` (through the contact events on the way, when there are some).
+5. The difference appeared in the first step after the replay restored a recorded state (``--resync``, an
+   unseeded episode's start) and is no larger than one step from a restored state is: ``restore_difference``.
+6. Otherwise ``undetermined``, with what was checked.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from simreel.compare import (
+    EpisodeComparison,
+    Tolerances,
+    compare_episode,
+    component_error,
+    components_of,
+    format_number,
+)
+from simreel.divergence import Cause, Explanation, describe_divergence
+from simreel.episode import ContactChannel, Episode
+from simreel.replay.engine import EpisodeReplayer, ReplayedEpisode
+from simreel.sim.fingerprint import SceneDifference
+from simreel.sim.rebuild import another_episode
+from simreel.sim.state import state_row
+
+__all__ = ["ExplainContext", "explain_divergence", "NEIGHBOURS"]
+
+NEIGHBOURS = 2
+"""Steps on each side of the divergent step whose one-step errors are checked."""
+_SCENE_LINES = 8
+
+
+@dataclass(frozen=True)
+class ExplainContext:
+    """What an explanation needs besides the two episodes: how the replay ran and what differed before it ran."""
+
+    mode: str
+    resync: int | None
+    channels: list[ContactChannel]
+    env_id: str
+    build_differences: list[str] = field(default_factory=list)
+    """Version, sim backend and sim config differences (`simreel.replay.fingerprint.fingerprint_differences`)."""
+
+
+@dataclass(frozen=True)
+class _Worst:
+    """The key furthest out of (or closest to) its tolerance at one step of a comparison, or between two states
+    (step -1: the reset)."""
+
+    step: int
+    key: str
+    error: float
+    tolerance: float
+
+    @property
+    def ratio(self) -> float:
+        """The error in units of its tolerance: above 1 is out of tolerance; any error beyond a zero tolerance is."""
+        if self.error == 0:
+            return 0.0
+        return math.inf if self.tolerance == 0 else self.error / self.tolerance
+
+    def describe(self) -> str:
+        """One step's worst key, with the step tolerance it is judged by."""
+        return f"{self.key} off by {format_number(self.error)} (step tolerance {format_number(self.tolerance)})"
+
+    def describe_states(self) -> str:
+        """Two states' largest difference, or that they are identical."""
+        if self.error == 0:
+            return "identical"
+        return f"{self.key} off by {format_number(self.error)}"
+
+
+_COMPUTED = ("info/", "rewards", "obs/", "terminated", "truncated", "success", "fail")
+"""Keys of what a task computes from its state (not the physics: state leaves and contact forces)."""
+
+
+def _worst_at(cmp: EpisodeComparison, step: int, *, only: str | tuple[str, ...] = "") -> _Worst:
+    """The key of `cmp` furthest out of its tolerance at `step`, among the keys starting with `only` (all: "").
+
+    Observations are left out where the state is compared: they are computed from it, and one step after a restore
+    their velocity entries carry the same cache noise as the state's velocities, which step mode's observation
+    tolerance is not made for."""
+    best = _Worst(step, "", 0.0, 1.0)
+    has_states = any(k.startswith("env_states/") for k in cmp.errors)
+    for key, err in cmp.errors.items():
+        per_state = key.startswith(("env_states/", "obs/"))
+        if not key.startswith(only) or (has_states and key.startswith("obs/")):
+            continue
+        row = step + 1 if per_state else step
+        if not 0 <= row < len(err):
+            continue
+        cand = _Worst(step, key, float(err[row]), float(cmp.tolerance[key]))
+        if cand.ratio > best.ratio:
+            best = cand
+    return best
+
+
+class _Explainer:
+    """One diverged episode's explanation: the data part first, then the causes tried in the module's order."""
+
+    def __init__(self, replayer: EpisodeReplayer, recorded: Episode, replayed: ReplayedEpisode,
+                 cmp: EpisodeComparison, ctx: ExplainContext) -> None:
+        self.replayer = replayer
+        self.recorded = recorded
+        self.replayed = replayed
+        self.cmp = cmp
+        self.ctx = ctx
+        self.explanation = describe_divergence(recorded, cmp, ctx.channels)
+        d = cmp.first_divergence
+        self.step = -1 if d.at == "reset" else d.step
+        self.one_step: EpisodeComparison | None = None
+        self.between: EpisodeComparison | None = None
+        self.other_seed: int | None = None
+
+    @property
+    def checked(self) -> list[str]:
+        return self.explanation.checked
+
+    def run(self) -> Explanation:
+        scene = self._scene()
+        if self.step < 0:
+            cause = scene or self._reset()
+        else:
+            cause = scene or self._one_step_cause() or self._amplification() or self._restore_difference()
+        self.explanation.cause = cause or self._build() or self._undetermined()
+        return self.explanation
+
+    # -- 1. the scene
+    def _scene(self) -> Cause | None:
+        diffs: list[SceneDifference] | None = self.replayed.scene_differences
+        if diffs is None:
+            self.checked.append("scene fingerprint: not compared (the recording has none)")
+            diffs = []
+        else:
+            self.checked.append(f"scene fingerprint compared at the reset: {len(diffs)} difference(s)")
+        return self._differs("scene", [d.describe() for d in diffs] + list(self.ctx.build_differences) if diffs else [])
+
+    def _build(self) -> Cause | None:
+        """Other versions, sim backend or sim config: named when no step-level cause was found (a Python patch
+        release beside an altered action is not the reason)."""
+        return self._differs("build (versions, sim backend or sim config)", list(self.ctx.build_differences))
+
+    def _differs(self, what: str, lines: list[str]) -> Cause | None:
+        if not lines:
+            return None
+        more = [f"... {len(lines) - _SCENE_LINES} more"] if len(lines) > _SCENE_LINES else []
+        return Cause("scene_differs", f"the replaying {what} differs from the recorded one ({lines[0]}), found at the "
+                     "reset before any step was compared; a replay of another scene is expected to diverge",
+                     step=None, key=None, evidence=lines[:_SCENE_LINES] + more)
+
+    # -- 2. the reset
+    def _reset(self) -> Cause | None:
+        ep = self.recorded.meta
+        first = self.replayer.initial_state(ep)
+        second = self.replayer.initial_state(ep)
+        tol = Tolerances.for_mode("states")
+        again = _state_difference(first, second, tol)
+        recorded = _state_difference(state_row(self.recorded.env_states, 0), first, tol)
+        self.checked.append(f"reset twice with seed {ep.seed} and the recorded options")
+        how = f"seed {ep.seed}" + (f" and options {ep.reset_options}" if ep.reset_options else "")
+        if again.ratio > 1:
+            return Cause("reset_not_reproducible", f"the task's reset is not reproducible: two resets with {how} give "
+                         f"different states ({again.describe_states()}), so it draws from something the seed does not "
+                         "set (torch or numpy's global RNG, say)", step=-1, key=again.key,
+                         evidence=[f"reset 1 vs reset 2: {again.describe_states()}",
+                                   f"reset 1 vs the recording: {recorded.describe_states()}"])
+        if recorded.ratio > 1:
+            return Cause("input_inconsistent", f"input inconsistent with the recording at the reset: {how} gives the same "
+                         f"initial state twice, but not the recorded one ({recorded.describe_states()})", step=-1,
+                         key=recorded.key, evidence=[f"reset 1 vs reset 2: {again.describe_states()}",
+                                                     f"reset vs the recording: {recorded.describe_states()}"])
+        return None
+
+    # -- 3. one step from the restored state
+    def _stepped(self, episode: Episode) -> Episode | None:
+        """`episode` replayed in step mode (None, with a note, where that fails)."""
+        try:
+            return self.replayer.replay(episode, mode="step").episode
+        except Exception as exc:  # noqa: BLE001 - a failed check is reported, the replay's verdict stands
+            self.checked.append(f"one-step errors: not measured ({type(exc).__name__}: {exc})")
+            return None
+
+    def _one_step_errors(self) -> None:
+        """A: one step from each restored state, the env reset to the episode (``--mode step``); B: the same with the env
+        reset to another episode of the same scene first. A vs the recording says whether a transition is reproduced;
+        A vs B whether it depends on what the env held before the restore (state the dict lacks)."""
+        tol = Tolerances.for_mode("step")
+        a = self.replayed.episode if self.ctx.mode == "step" else self._stepped(self.recorded)
+        if a is None:
+            return
+        self.one_step = compare_episode(self.recorded, a, tol, channels=self.ctx.channels)
+        other = _other_episode(self.recorded)
+        if other is None:
+            self.checked.append("no second instance: the episode's scene cannot be rebuilt for certain (built by an "
+                                "unseeded reset, or the file does not say whether its reset rebuilt it)")
+            return
+        b = self._stepped(other)
+        if b is not None:
+            self.between = compare_episode(a, b, tol, channels=self.ctx.channels)
+            self.other_seed = other.meta.seed
+
+    def _one_step_cause(self) -> Cause | None:
+        self._one_step_errors()
+        one = self.one_step
+        if one is None:
+            return None
+        k, T = self.step, self.recorded.length
+        steps = [t for t in range(k - NEIGHBOURS, k + NEIGHBOURS + 1) if 0 <= t < T]
+        worst = {t: _worst_at(one, t) for t in steps}
+        self.checked.append("one-step errors (restore state t, step action t; step tolerances) at steps "
+                            + ", ".join(map(str, steps)))
+        at_k = f"step {k} from the exactly restored state {k}: " + (worst[k].describe() if worst[k].error else "exact")
+        apart = None
+        if self.between is not None:
+            self.checked.append(f"the same after resetting to another episode (seed {self.other_seed}) first")
+            apart = _worst_at(self.between, k)
+        physics = _worst_at(one, k, only="env_states/")
+        if (apart is not None and apart.ratio > 1) or (worst[k].ratio > 1 and physics.ratio <= 1):
+            return self._state_not_captured(k, worst, at_k, apart)
+        if worst[k].ratio <= 1:
+            return None
+        others = [t for t in steps if t != k]
+        bad = [t for t in others if worst[t].ratio > 1]
+        if bad:
+            return None  # not reproduced around k either, whatever the env held: see _undetermined
+        fine = max((worst[t] for t in others), key=lambda w: w.ratio, default=None)
+        near = ", ".join(map(str, others)) or "none"
+        largest = f" (largest: {fine.describe()})" if fine is not None and fine.error > 0 else " (exactly)"
+        evidence = [at_k, f"steps {near} reproduce the recording from their restored states{largest}"]
+        if self.between is not None:
+            same = _worst_at(self.between, k)
+            evidence.append(f"an instance reset to another episode (seed {self.other_seed}) before the restore gives the "
+                            "same step " + (f"(largest difference: {same.describe()})" if same.error else "exactly"))
+        return Cause("input_inconsistent", f"input inconsistent with the recording at step {k}: the recorded action "
+                     f"{k} does not produce the recorded step {k} even from the exactly restored state, while the "
+                     "steps around it do", step=k, key=self.cmp.first_divergence.key, evidence=evidence)
+
+    def _state_not_captured(self, k: int, worst: dict[int, _Worst], at_k: str, apart: _Worst | None) -> Cause:
+        """The step from a restored state depends on what the env held before the restore (two instances disagree),
+        or reproduces the physics state but not what the task computes from it."""
+        evidence = [at_k]
+        physics = _worst_at(self.one_step, k, only="env_states/")
+        computed = _worst_at(self.one_step, k, only=_COMPUTED)
+        if physics.ratio <= 1 and computed.ratio > 1:
+            evidence.append(f"the state after step {k} is reproduced ("
+                            + (f"largest: {physics.describe()}" if physics.error > 0 else "exactly")
+                            + f"), but not what the task computes from it: {computed.describe()}")
+        if apart is not None:
+            same = "differs" if apart.ratio > 1 else "agrees"
+            evidence.append(f"restored into an instance reset to another episode (seed {self.other_seed}) first, step {k} "
+                            f"{same}: " + (apart.describe() if apart.error else "exactly") + " between the two")
+        evidence += [f"step {t}: {w.describe()}" for t, w in worst.items() if t != k and w.ratio > 1]
+        evidence.append(f"find the state the task keeps outside its state dict with `simreel audit {self.ctx.env_id}` "
+                        "(--trajectory to audit along this recording)")
+        return Cause("state_not_captured", f"state not captured: restoring the recorded state does not reproduce step {k}, "
+                     "which depends on state the task's state dict does not hold", step=k,
+                     key=self.cmp.first_divergence.key, evidence=evidence)
+
+    # -- 4. and 5. small differences that grew, or came from a restore
+    def _one_step_fine(self) -> str:
+        if self.one_step is None:
+            return "one-step errors not measured"
+        w = _worst_at(self.one_step, self.step)
+        return f"step {self.step} alone reproduces the recording ({w.describe() if w.error > 0 else 'exactly'})"
+
+    def _amplification(self) -> Cause | None:
+        onset = self.explanation.onset
+        if onset is None or not onset.float_noise or onset.growth < 10 or onset.step >= self.step:
+            return None
+        contacts = [e for e in self.explanation.events
+                    if onset.step <= e.step <= self.step and e.kind in ("contact_begins", "contact_ends", "grasp_begins",
+                                                                         "grasp_ends")]
+        where = "after reset" if onset.step < 0 else f"at step {onset.step}"
+        via = "through " + ", ".join(e.describe() for e in contacts[:3]) if contacts else \
+            "with no contact beginning or ending on the way"
+        restored = self._restore_before(onset.step)
+        evidence = [onset.describe(), self._one_step_fine()]
+        if restored is not None:
+            evidence.append(f"the replay restored the recorded state before step {restored} ({self._restore_reason()})")
+        return Cause("amplification", f"amplification of a tiny difference: the state first differed {where} by "
+                     f"{format_number(onset.error)} (float noise) and grew {format_number(onset.growth)}× {via}, until "
+                     f"{self.cmp.first_divergence.key} left its tolerance at step {self.step}", step=self.step,
+                     key=self.cmp.first_divergence.key, evidence=evidence)
+
+    def _restore_before(self, step: int) -> int | None:
+        """The restore that a run of error starting at `step` follows: a restore before action r puts state row r back
+        (a difference there shows at step r - 1) and steps from it (step r)."""
+        return next((r for r in sorted(self.replayed.restored_at, reverse=True) if step in (r - 1, r)), None)
+
+    def _restore_reason(self) -> str:
+        if self.ctx.resync:
+            return f"--resync {self.ctx.resync}"
+        return "the episode has no seed, so the replay starts from its recorded initial state"
+
+    def _restore_difference(self) -> Cause | None:
+        onset = self.explanation.onset
+        if onset is None or self.one_step is None:
+            return None
+        restored = self._restore_before(onset.step)
+        if restored is None:
+            return None
+        at_onset = _worst_at(self.one_step, max(onset.step, 0))
+        return Cause("restore_difference", f"a restored state: the difference began in the first step after the replay "
+                     f"restored the recorded state (step {restored}, {self._restore_reason()}), where one step from a "
+                     "restored state is known to differ from the uninterrupted run; it stays within step mode's "
+                     "tolerances", step=self.step, key=self.cmp.first_divergence.key,
+                     evidence=[onset.describe(), f"one step from the restored state {max(onset.step, 0)}: "
+                               + (at_onset.describe() if at_onset.error > 0 else "exact"), self._one_step_fine()])
+
+    # -- 6.
+    def _undetermined(self) -> Cause:
+        onset = self.explanation.onset
+        evidence = [self._one_step_fine()] if self.step >= 0 else []
+        if self.one_step is not None and self.step >= 0 and _worst_at(self.one_step, self.step).ratio > 1:
+            evidence = [f"step {self.step} and the steps around it are not reproduced from their restored states, "
+                        "whatever the env held before the restore: the recorded actions or the physics differ at each "
+                        "of them (the scene fingerprint matched)"]
+        evidence.append(onset.describe() if onset is not None else "the state matched the recording up to the divergence")
+        return Cause("undetermined", "undetermined: the scene matches, each step alone reproduces the recording, and the "
+                     "difference did not start at float noise nor right after a restore; "
+                     "checked: " + "; ".join(self.checked), step=self.step, key=self.cmp.first_divergence.key,
+                     evidence=evidence)
+
+
+def _other_episode(recorded: Episode) -> Episode | None:
+    """`recorded` with its reset moved to another episode of the same scene (None: its scene cannot be rebuilt)."""
+    meta = another_episode(recorded.meta)
+    return None if meta is None else dataclasses.replace(recorded, meta=meta)
+
+
+def _state_difference(a: dict[str, Any], b: dict[str, Any], tol: Tolerances) -> _Worst:
+    """The largest difference (relative to `tol`) between two flat states (key path → (1, ...) arrays)."""
+    worst = _Worst(-1, "", 0.0, 1.0)
+    for path in sorted(set(a) & set(b)):
+        x, y = np.asarray(a[path]), np.asarray(b[path])
+        if x.shape != y.shape:
+            return _Worst(-1, f"env_states/{path}", math.inf, 0.0)
+        for comp in components_of(path, x.shape[1:]):
+            err = float(component_error(x, y, comp)[0])
+            cand = _Worst(-1, comp.key, err, tol[comp.group])
+            if cand.ratio > worst.ratio:
+                worst = cand
+    return worst
+
+
+def explain_divergence(replayer: EpisodeReplayer, recorded: Episode, replayed: ReplayedEpisode, cmp: EpisodeComparison,
+                       ctx: ExplainContext) -> Explanation | None:
+    """The explanation of `cmp`'s first divergence (None when the replay did not diverge). Uses `replayer` for the
+    one-step errors and resets (its env is left reset to another point of the episode)."""
+    if cmp.first_divergence is None:
+        return None
+    return _Explainer(replayer, recorded, replayed, cmp, ctx).run()

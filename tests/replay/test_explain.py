@@ -1,0 +1,159 @@
+"""Why a replay diverged, on real recordings with a known cause: an altered action, a heavier cube, a task that keeps
+state outside its state dict, and a replay from a restored state whose float noise grows through a grasp."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from support.unseeded import record_unseeded
+
+from simreel.divergence import CONTACT_THRESHOLD_N
+from simreel.formats import open_reader, open_writer
+from simreel.replay import EpisodeReplayer, verify_recording
+from simreel.sim.fingerprint import SceneDifference
+
+ALTERED_STEP = 17
+
+
+@pytest.fixture(scope="module")
+def unseeded(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("unseeded")
+    return {env_id: record_unseeded(env_id, folder / f"{env_id}.h5")
+            for env_id in ("SimreelLiftCube-v1", "SimreelLiftCubeLeaky-v1")}
+
+
+def _altered(src, dst):
+    """A copy of episode 0 of `src` whose action at ALTERED_STEP points the other way on every axis."""
+    with open_reader(src) as r, open_writer(dst, r.meta) as w:
+        episode = r.read_episode(0)
+        a = episode.actions[ALTERED_STEP]
+        episode.actions[ALTERED_STEP] = np.where(a > 0, -1.0, 1.0)
+        w.write_episode(episode)
+    return dst
+
+
+def test_an_altered_action_is_an_input_inconsistent_with_the_recording(record, tmp_path):
+    path = _altered(record("PickCube-v1", 1, 30), tmp_path / "altered.h5")
+    report = verify_recording(path)
+    ep = report.episodes[0]
+    d = ep.first_divergence
+    assert (ep.verdict, d.step, d.key) == ("diverged", ALTERED_STEP, "env_states/articulations/panda[qpos]")
+    cause = ep.explanation.cause
+    assert (cause.kind, cause.step, cause.key) == ("input_inconsistent", ALTERED_STEP, d.key)
+    assert cause.evidence[0].startswith(f"step {ALTERED_STEP} from the exactly restored state {ALTERED_STEP}: "
+                                        "env_states/articulations/panda")
+    assert cause.evidence[1].startswith(f"steps {ALTERED_STEP - 2}, {ALTERED_STEP - 1}, {ALTERED_STEP + 1}, "
+                                        f"{ALTERED_STEP + 2} reproduce the recording")
+    doc = json.loads(json.dumps(report.to_json()))["episodes"][0]["explanation"]
+    assert (doc["cause"]["kind"], doc["cause"]["step"], doc["divergence"]["step"]) == ("input_inconsistent",
+                                                                                        ALTERED_STEP, ALTERED_STEP)
+    assert doc["growth"][0]["key"] == d.key and doc["growth"][0]["trend"] in ("constant offset", "grew", "shrank",
+                                                                             "fluctuates")
+    text = report.summary()
+    assert f"why: input inconsistent with the recording at step {ALTERED_STEP}: the recorded action" in text
+    assert f"error: {d.key}: " in text
+
+
+def test_another_build_is_not_blamed_for_what_a_step_explains(record, tmp_path):
+    """Version differences are named as the cause only when no step-level cause holds: here the altered action
+    explains the divergence, and the other Python release is one of the things checked, not the reason."""
+    from simreel.compare import Tolerances, compare_episode
+    from simreel.replay.explain import ExplainContext, explain_divergence
+
+    path = _altered(record("PickCube-v1", 1, 30), tmp_path / "altered.h5")
+    with open_reader(path) as r:
+        meta, recorded = r.meta, r.read_episode(0)
+    with EpisodeReplayer(meta) as replayer:
+        replayed = replayer.replay(recorded)
+        cmp = compare_episode(recorded, replayed.episode, Tolerances.for_mode("actions"), channels=meta.contact_channels)
+        ctx = ExplainContext(mode="actions", resync=None, channels=list(meta.contact_channels), env_id=meta.env_id,
+                             build_differences=["python: recorded 3.11.6, replaying 3.11.7"])
+        cause = explain_divergence(replayer, recorded, replayed, cmp, ctx).cause
+    assert (cause.kind, cause.step) == ("input_inconsistent", ALTERED_STEP)
+
+
+def test_a_heavier_cube_is_named_before_any_step_is_compared(record, monkeypatch):
+    path = record("SimreelLiftCube-v1", 1, 20)
+    from simreel.tasks.lift_cube import LiftCubeEnv
+
+    monkeypatch.setattr(LiftCubeEnv, "cube_mass", 0.08)  # the task's builder changed since the recording
+    with open_reader(path) as r:
+        meta, episode = r.meta, r.read_episode(0)
+    assert meta.scene_fingerprint["bodies"]["cube"]["mass"] == 0.064
+    with EpisodeReplayer(meta) as replayer:
+        replayer.reset_for(episode.meta)
+        found = replayer.scene_check(episode.meta)  # right after the reset: no step taken
+    assert found[0] == SceneDifference("cube", "mass", 0.064, 0.08)
+
+    report = verify_recording(path)
+    ep = report.episodes[0]
+    assert ep.verdict == "diverged" and ep.scene_differences == found
+    cause = ep.explanation.cause
+    assert (cause.kind, cause.step, cause.key) == ("scene_differs", None, None)
+    assert "(cube: mass 0.064 → 0.08), found at the reset before any step was compared" in cause.summary
+    assert cause.evidence[0] == "cube: mass 0.064 → 0.08"
+    text = report.summary()
+    assert "why: the replaying scene differs from the recorded one (cube: mass 0.064 → 0.08)" in text
+    # a scene difference that did not make the replay diverge is still shown
+    within = dataclasses.replace(ep, verdict="within_tolerance", explanation=None)
+    lines = dataclasses.replace(report, episodes=[within]).summary().splitlines()
+    assert lines[3].strip().startswith("scene differs from the recording (found at the reset): cube: mass 0.064 → 0.08;")
+    assert report.to_json()["episodes"][0]["scene_differences"][0] == {
+        "subject": "cube", "property": "mass", "recorded": 0.064, "replaying": 0.08, "text": "cube: mass 0.064 → 0.08"}
+
+
+def test_the_leaky_task_is_explained_as_state_not_captured(unseeded):
+    report = verify_recording(unseeded["SimreelLiftCubeLeaky-v1"])
+    ep = report.episodes[0]
+    d = ep.first_divergence
+    assert (d.step, d.key) == (0, "info/height_error")  # the goal height is the replaying env's own
+    cause = ep.explanation.cause
+    assert (cause.kind, cause.step, cause.key) == ("state_not_captured", 0, "info/height_error")
+    assert any(line.startswith("the state after step 0 is reproduced") and "info/height_error" in line
+               for line in cause.evidence)
+    assert "simreel audit SimreelLiftCubeLeaky-v1" in cause.evidence[-1]
+
+
+def test_a_restore_then_replay_is_amplification_through_a_contact(unseeded):
+    path = unseeded["SimreelLiftCube-v1"]
+    with open_reader(path) as r:
+        meta, episode = r.meta, r.read_episode(0)
+    fingers = [c for c, ch in enumerate(meta.contact_channels) if ch.kind == "pair" and "finger" in ch.bodies[0]]
+    touching = np.linalg.norm(episode.contact_forces[:, fingers], axis=-1).max(axis=1) > CONTACT_THRESHOLD_N
+    touch = int(np.argmax(touching))  # the step the fingers first touch the cube
+
+    report = verify_recording(path)
+    ep = report.episodes[0]
+    assert "actions replayed from the recorded initial state" in ep.limits  # the replay restored that state
+    d = ep.first_divergence
+    assert d.key.startswith("env_states/actors/cube[") and touch <= d.step <= touch + 1
+    explanation = ep.explanation
+    cause = explanation.cause
+    assert (cause.kind, cause.step, cause.key) == ("amplification", d.step, d.key)
+    onset = explanation.onset
+    assert onset.float_noise and onset.step < touch and onset.growth > 100
+    assert f"step {touch}: contact panda/panda_" in cause.summary and "cube begins" in cause.summary
+    assert any(e.kind == "contact_begins" and e.step == touch for e in explanation.events)
+    assert cause.evidence[1].startswith(f"step {d.step} alone reproduces the recording")
+
+
+def test_a_changed_seed_is_an_input_inconsistent_with_the_recording_at_the_reset(record, tmp_path):
+    """The recorded seed no longer gives the recorded initial state (here: it was changed after recording): two
+    resets with it agree with each other, not with the recording, so the input is named, not the task's reset."""
+    src = record("PickCube-v1", 1, 30)
+    path = tmp_path / "reseeded.h5"
+    with open_reader(src) as r, open_writer(path, r.meta) as w:
+        episode = r.read_episode(0)
+        w.write_episode(dataclasses.replace(episode, meta=dataclasses.replace(episode.meta, seed=episode.meta.seed + 1)))
+    ep = verify_recording(path).episodes[0]
+    d = ep.first_divergence
+    assert (ep.verdict, d.at) == ("diverged", "reset")
+    cause = ep.explanation.cause
+    assert (cause.kind, cause.step) == ("input_inconsistent", -1)
+    assert cause.key.startswith("env_states/actors/cube[")  # the cube is placed from the seed
+    assert cause.summary.startswith("input inconsistent with the recording at the reset: seed 4 gives the same "
+                                    "initial state twice, but not the recorded one (env_states/actors/cube[")
+    assert cause.evidence[0] == "reset 1 vs reset 2: identical"
