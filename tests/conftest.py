@@ -8,6 +8,7 @@ subprocess started with one of these environments (see tests/sim/test_make.py).
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -17,6 +18,11 @@ from support.rrd import read_rrd
 from support.viewer_data import record_pickcube, write_variant
 
 from simreel.cli.main import main
+
+# The Ctrl-C tests stand for a user at a terminal. A suite started in the background by a non-interactive
+# shell (`make test &`, some CI runners) inherits SIGINT ignored, and so would every process it starts; Python
+# then never raises KeyboardInterrupt. Give this process, and through exec its children, the terminal's default.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 REPO = Path(__file__).resolve().parents[1]
 _VULKAN_VARS = ("VK_ICD_FILENAMES", "VK_DRIVER_FILES", "VK_ADD_DRIVER_FILES", "SIMREEL_VK_ICD")
