@@ -23,6 +23,7 @@ from typing import Any
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import EpisodeReader
+from simreel.formats.inputs import file_identity
 from simreel.replay.workers import EpisodeResult, ReaderCache, ReplayJob, ReplayWorker
 from simreel.replay.worklist import RecordingInfo, WorkItem
 
@@ -77,11 +78,10 @@ class _Actor:
         seen = []
         for path, size, mtime_ns in files:
             try:
-                stat = os.stat(path)
+                if file_identity(path) == (size, mtime_ns):
+                    seen.append(path)
             except OSError:
                 continue
-            if (stat.st_size, stat.st_mtime_ns) == (size, mtime_ns):
-                seen.append(path)
         return seen
 
     def run(self, item: WorkItem, shipped: ShippedEpisode | None = None) -> EpisodeResult:

@@ -130,11 +130,13 @@ class ReplayWorker:
         self._failed: dict[str, SimreelError] = {}
         """Env keys whose env could not be built, with why: their other episodes fail at once, the same way."""
         self._warned: set[str] = set()
+        self.where = f"{socket.gethostname()} pid {os.getpid()}"
+        """Which process replays: what each result names as its worker."""
 
     def run(self, item: WorkItem, shipped: EpisodeReader | None = None) -> EpisodeResult:
         """Replay and verify `item`, read from its file or from `shipped` (the episode, sent where the file is not);
         a `SimreelError` comes back in the result, never raised."""
-        where = f"{socket.gethostname()} pid {os.getpid()}"
+        where = self.where
         try:
             reader = shipped if shipped is not None else self._readers.get(item.path)
             replayer = self._replayer_for(item, reader.meta)

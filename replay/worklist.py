@@ -18,7 +18,7 @@ from pathlib import Path
 from simreel.episode import RecordingMeta, json_default
 from simreel.errors import FileProblemError, RecordingFileError, SimreelError, UsageError
 from simreel.formats import open_reader
-from simreel.formats.inputs import expand_inputs
+from simreel.formats.inputs import expand_inputs, file_identity
 
 __all__ = ["RecordingInfo", "WorkItem", "WorkList", "env_key", "build_worklist"]
 
@@ -77,7 +77,7 @@ def env_key(meta: RecordingMeta) -> str:
 
 
 def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None) -> RecordingInfo:
-    stat = path.stat() if path.is_file() else None
+    size, mtime_ns = file_identity(path) if path.is_file() else (None, None)
     with open_reader(path) as reader:
         if restores is not None and not reader.meta.state_layout:
             raise UsageError(f"{path}: holds no env_states (recorded without them), and {restores} restores recorded "
@@ -91,8 +91,7 @@ def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None)
             for i in wanted:
                 reader.episode_meta(i)  # raises RecordingFileError naming the episodes the file has
             steps = {i: steps[i] for i in dict.fromkeys(wanted)}
-        return RecordingInfo(str(path), reader.meta, steps, size=stat and stat.st_size,
-                             mtime_ns=stat and stat.st_mtime_ns)
+        return RecordingInfo(str(path), reader.meta, steps, size=size, mtime_ns=mtime_ns)
 
 
 def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | None = None,

@@ -36,6 +36,7 @@ from simreel.episode import Episode, EpisodeMeta, RecordingMeta
 from simreel.errors import OutputCheckError, RecordingFileError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
 from simreel.formats.copy import Target, write_episodes
+from simreel.formats.inputs import file_identity
 from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.targets import check_distinct
 
@@ -222,10 +223,10 @@ class _Source:
                 raise RecordingFileError(path, f"{len(reader.damaged)} damaged episode(s) ({'; '.join(reader.damaged)})"
                                                f"; `simreel recover {path} -o OUT` copies the intact ones")
             source = cls(Path(path).resolve(), str(path), reader.meta, list(reader.episodes))
-            st = os.stat(path)
+            size, mtime_ns = file_identity(path)
             m = reader.meta
             source.identity = {
-                "path": str(source.path), "size": st.st_size, "mtime_ns": st.st_mtime_ns,
+                "path": str(source.path), "size": size, "mtime_ns": mtime_ns,
                 "meta_digest": hashlib.blake2b(_canonical(m.to_json()), digest_size=16).hexdigest(),
                 "kind": reader.kind, "episodes": len(reader.episodes), "versions": m.versions,
                 "created_utc": m.created_utc, "command": m.command, "source": m.source, "provenance": m.provenance,
@@ -236,8 +237,7 @@ class _Source:
     def reopen(self) -> Any:
         """The input's reader again; `RecordingFileError` when the file changed since it was planned."""
         reader = open_reader(self.path)
-        st = os.stat(self.path)
-        if (st.st_size, st.st_mtime_ns) != (self.identity["size"], self.identity["mtime_ns"]):
+        if file_identity(self.path) != (self.identity["size"], self.identity["mtime_ns"]):
             reader.close()
             raise RecordingFileError(self.label, "changed while it was being copied (size or mtime differ from when "
                                                 "it was first read); run the command again")
@@ -565,8 +565,7 @@ def report_verdicts(path: str | Path, verdicts: Mapping[tuple[str, int], str],
     if entry is None:
         raise UsageError(f"{report} holds no verdict for {path}: replay it with --report first (simreel replay "
                          f"{path} --report REPORT.json)")
-    st = p.stat()
-    if tuple(files[entry]) != (st.st_size, st.st_mtime_ns):
+    if tuple(files[entry]) != file_identity(p):
         raise UsageError(f"{path} changed since {report} verified it (its size or modification time differ): the "
                          "verdicts are about another file; replay it again")
     return {index: verdict for (f, index), verdict in verdicts.items() if f == entry}

@@ -11,9 +11,16 @@ from pathlib import Path
 from simreel.errors import UsageError
 from simreel.formats import HDF5_SUFFIXES, MCAP_SUFFIXES
 
-__all__ = ["RECORDING_SUFFIXES", "expand_inputs", "shown_path"]
+__all__ = ["RECORDING_SUFFIXES", "expand_inputs", "file_identity", "shown_path"]
 
 RECORDING_SUFFIXES = (*HDF5_SUFFIXES, *MCAP_SUFFIXES)
+
+
+def file_identity(path: str | os.PathLike[str]) -> tuple[int, int]:
+    """What says a recording is the file seen before (by a report, a plan, another machine): its size and its
+    modification time in ns. Raises `OSError` when there is no such file."""
+    st = os.stat(path)
+    return st.st_size, st.st_mtime_ns
 
 
 def _is_pattern(spec: str) -> bool:
