@@ -12,7 +12,8 @@ actions and compares every state-dict leaf, reward, flag, info entry and contact
 
 With ``--maniskill`` the replayed file is one ManiSkill's own tools wrote (its RecordEpisode, inside
 `replay_trajectory --save-traj` of the recording): no simreel metadata, state observations, no rewards; simreel
-reads it as a ManiSkill trajectory file and verifies what it holds (states, observations, flags).
+reads it as a ManiSkill trajectory file and verifies what it holds (states, observations, flags). The file holds
+no rewards: simreel does not compute them (``reward_mode="none"``), ManiSkill's tool computes them and drops them.
 
 ManiSkill's tool builds its env with ``render_mode="rgb_array"``, which needs a Vulkan device; simreel finds
 the software one (lavapipe, `make setup`) itself. Without any device the benchmark installs simreel's

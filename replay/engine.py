@@ -33,6 +33,7 @@ from simreel.sim.rebuild import (
     EpisodeReset,
     build_with_render_fallback,
     env_from_meta,
+    import_task_code,
     reset_to_episode,
 )
 from simreel.sim.state import FastStateReader, check_rebuilt_layout, read_state, restore_state, state_row
@@ -53,6 +54,9 @@ class ReplayerOptions:
         obs_mode: observation mode of the replay (None: the recorded one when observations are needed, else
             ``"none"``, which skips computing observations; the physics is the same).
         need_obs: compute and return observations (for comparing recorded ones or writing ``-o``).
+        need_rewards: compute rewards. False (the recording holds none and nothing writes the replay) builds the
+            env with ``reward_mode="none"`` where the task allows it: rewards are read-only functions of the
+            state, so the physics is the same and no reward is computed that nothing could check.
         pose_bodies: also sample the world pose of these bodies after reset and every step (for ``-o``).
         render_backend: None: ``"none"`` unless the observation mode needs cameras, then ``"auto"``.
         sim_backend: None: the recorded one.
@@ -62,6 +66,7 @@ class ReplayerOptions:
 
     obs_mode: str | None = None
     need_obs: bool = False
+    need_rewards: bool = True
     pose_bodies: tuple[str, ...] = ()
     render_backend: str | None = None
     sim_backend: str | None = None
@@ -135,6 +140,7 @@ class EpisodeReplayer:
         self.need_obs = opts.need_obs or opts.obs_mode is not None
         self.pose_bodies = list(opts.pose_bodies)
         self.obs_mode = opts.obs_mode or (meta.obs_mode if self.need_obs else "none")
+        self.need_rewards = opts.need_rewards
         self._render_backend = opts.render_backend
         self._sim_backend = opts.sim_backend
         self._control_mode = opts.control_mode
@@ -173,6 +179,8 @@ class EpisodeReplayer:
             overrides["sim_backend"] = self._sim_backend
         if self._control_mode is not None:
             overrides["control_mode"] = self._control_mode
+        if not self.need_rewards and self._rewards_optional():
+            overrides["reward_mode"] = "none"
 
         def build(render: str) -> Any:
             return env_from_meta(self.meta, render_backend=render, **overrides)
@@ -190,6 +198,13 @@ class EpisodeReplayer:
                     "The CPU and GPU sims are different engines, so expect within_tolerance or diverged, not exact"
                 ) from exc
             raise
+
+    def _rewards_optional(self) -> bool:
+        """Whether the recorded task can be built with ``reward_mode="none"``."""
+        from simreel.sim.make import reward_modes
+
+        import_task_code(self.meta)
+        return "none" in reward_modes(self.meta.env_id)
 
     def close(self) -> None:
         if self.env is not None:

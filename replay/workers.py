@@ -60,8 +60,9 @@ class ReplayJob:
     def replayer_options(self, meta: RecordingMeta) -> ReplayerOptions:
         """How to build the env replaying the recording with `meta`."""
         need_obs = bool(meta.obs_layout) or self.obs_mode is not None
-        return ReplayerOptions(obs_mode=self.obs_mode, need_obs=need_obs, sim_backend=self.sim_backend,
-                               pose_bodies=output_pose_bodies(meta, self.output))
+        need_rewards = "rewards" not in meta.unknown or self.output is not None
+        return ReplayerOptions(obs_mode=self.obs_mode, need_obs=need_obs, need_rewards=need_rewards,
+                               sim_backend=self.sim_backend, pose_bodies=output_pose_bodies(meta, self.output))
 
     def meta_for(self, meta: RecordingMeta, path: str) -> RecordingMeta:
         """The metadata of the recording at `path` with its task's code found: the job's `--import`s, else the

@@ -166,6 +166,15 @@ def time_limit(env_id: str) -> int | None:
     return REGISTERED_ENVS[env_id].max_episode_steps
 
 
+def reward_modes(env_id: str) -> tuple[str, ...]:
+    """The reward modes `env_id`'s class supports (``SUPPORTED_REWARD_MODES``); raises `EnvBuildError` for an
+    unknown id, as `time_limit` does."""
+    _registered(env_id)
+    from mani_skill.utils.registration import REGISTERED_ENVS
+
+    return tuple(getattr(REGISTERED_ENVS[env_id].cls, "SUPPORTED_REWARD_MODES", ()))
+
+
 def prepare_plain_gym_make() -> None:
     """Let the user's own ``gym.make`` (not `make_env`) build ManiSkill envs on this machine.
 

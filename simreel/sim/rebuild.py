@@ -60,11 +60,17 @@ def env_from_meta(meta: RecordingMeta, **overrides: Any) -> gym.Env:
     `simreel.errors.EnvBuildError` / `RenderUnavailableError` as `make_env` does.
     """
     from simreel.sim.make import EnvConfig, make_env
+
+    import_task_code(meta)
+    return make_env(meta.env_id, EnvConfig.from_meta(meta), **overrides)
+
+
+def import_task_code(meta: RecordingMeta) -> None:
+    """Import ``meta.imports`` (the user code registering the recorded task), as `env_from_meta` does first."""
     from simreel.sim.user_code import import_user_code
 
     for spec in meta.imports:
         import_user_code(spec)
-    return make_env(meta.env_id, EnvConfig.from_meta(meta), **overrides)
 
 
 def build_with_render_fallback(build: Callable[[str], _T], render_backend: str) -> tuple[_T, str]:

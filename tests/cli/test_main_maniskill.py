@@ -4,6 +4,7 @@ action is found at its step; what simreel converts back is read by ManiSkill's l
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -112,3 +113,32 @@ def test_a_control_mode_conversion_by_replay_trajectory_verifies(maniskill_env, 
     with open_reader(tmp_path / "ee.h5") as r:
         assert r.meta.control_mode == "pd_ee_delta_pose" and r.episodes[0].length > 12
     assert report["episodes"][0]["verdict"] == "exact"
+
+
+def test_a_file_without_rewards_replays_without_computing_them_and_minus_o_still_writes_real_ones(tmp_path, capsys):
+    """Rewards nothing could check are not computed (reward_mode="none": ManiSkill's replay_trajectory computes
+    them anyway); a replay written with -o computes them, equal to what RecordEpisode recorded for the same run."""
+    from simreel.compare import Tolerances
+    from simreel.replay.engine import EpisodeReplayer
+    from simreel.replay.workers import ReplayJob
+
+    with_rewards = record_maniskill(tmp_path / "a", "PickCube-v1", episodes=2, steps=12)
+    without = record_maniskill(tmp_path / "b", "PickCube-v1", episodes=2, steps=12, record_reward=False)
+    with open_reader(without) as r:
+        meta = r.meta
+    assert "rewards" in meta.unknown
+    job = ReplayJob(mode="actions", resync=None, tolerances=Tolerances.for_mode("actions"))
+    for output, mode in ((None, "none"), ("x.h5", "normalized_dense")):
+        with EpisodeReplayer(meta, dataclasses.replace(job, output=output).replayer_options(meta)) as replayer:
+            assert replayer.u.reward_mode == mode
+
+    report = _replay_report(without, tmp_path, capsys)
+    assert [e["verdict"] for e in report["episodes"]] == ["exact", "exact"]
+    assert "rewards" not in report["episodes"][0]["checked"]
+    replayed = tmp_path / "replayed.h5"
+    assert main(["replay", str(without), "-q", "-o", str(replayed)]) == 0
+    with open_reader(replayed) as out, h5py.File(with_rewards, "r") as f:
+        for m in out.episodes:
+            rewards = out.read_episode(m.index).rewards
+            assert np.any(rewards != 0)
+            np.testing.assert_array_equal(rewards, f[f"traj_{m.index}/rewards"][()])
