@@ -33,6 +33,7 @@ from simreel.compare import CompareScope, Tolerances, compare_episode, format_nu
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import SimreelError, UsageError
 from simreel.formats import EpisodeReader, check_writable, format_of, open_reader, recording_files
+from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct
 from simreel.replay.control import check_pair
 from simreel.replay.engine import GPU_SIM_BACKENDS, EpisodeReplayer, ReplayerOptions
@@ -480,6 +481,7 @@ class _Collector:
         """Episode -> its arrays' digests as handed to the writer (checked when read back)."""
 
     def __call__(self, result: EpisodeResult) -> None:
+        raise_if_stopped()  # a Ctrl-C that landed in a finalizer was printed and dropped by Python
         if result.error is not None:  # an episode that cannot be read, an env that does not build here
             raise result.error
         episode_report, episode = result.report, result.episode

@@ -23,6 +23,7 @@ import datetime
 import math
 import os
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,13 +32,14 @@ from simreel import __version__
 from simreel.compare import Tolerances
 from simreel.errors import FileProblemError, UsageError
 from simreel.formats import check_writable, format_of, recording_files
+from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct, check_output
 from simreel.replay.engine import MODES
 from simreel.replay.output import ReplayedWriter, ReplayOutput
 from simreel.replay.report import EpisodeReport, recording_limits
 from simreel.replay.report_log import LoggedRun, ReportLog, load_log, report_paths, tally_of_log, write_report
 from simreel.replay.tally import FileTally, ReplayReport, RunTally
-from simreel.replay.workers import EpisodeResult, ReplayJob, ReplayWorker, run_pool
+from simreel.replay.workers import EpisodeResult, ReplayJob, ReplayWorker, run_pool, start_pool, stop_pool
 from simreel.replay.worklist import RecordingInfo, WorkItem, WorkList, build_worklist
 
 __all__ = ["ReplayOptions", "ReplayRun", "verify_recording"]
@@ -240,15 +242,22 @@ class ReplayRun:
         (a resumed run's includes the verdicts it found in the report). Raises the user errors (`SimreelError`)
         a strict run meets; Ctrl-C stops it with every verdict reached so far in the report."""
         worker = ReplayWorker(self._job())
+        pool = self._start_pool(worker.job)
         try:
             if self.strict and self.worklist.items and self.options.ray is None:
                 worker.prepare(self.worklist.items[0])  # a bad env fails before anything is written
             with self._log() as log, self._sink() as sink:
-                self._dispatch(worker, self._collector(log, sink, progress), log)
+                self._dispatch(worker, self._collector(log, sink, progress), log, pool)
                 if log is not None:
                     log.write({"type": "end"})
+        except BaseException:
+            if pool is not None:
+                stop_pool(pool)
+            raise
         finally:
             worker.close()
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
             if self.report_log is not None and self.report_log.exists():
                 write_report(self.report_log, self.report_json, output=self.options.output)
         return self.tally
@@ -290,6 +299,7 @@ class ReplayRun:
     def _collector(self, log: ReportLog | None, sink: ReplayedWriter | None,
                    progress: Progress | None) -> Callable[[EpisodeResult], None]:
         def collect(result: EpisodeResult) -> None:
+            raise_if_stopped()  # a Ctrl-C that landed in a finalizer was printed and dropped by Python
             item = result.item
             report = self._report_of(result)
             if not self.tally.add(item.path, report, result.warnings):
@@ -313,7 +323,20 @@ class ReplayRun:
         why = error.problem if isinstance(error, FileProblemError) else str(error)  # the file is named beside it
         return EpisodeReport.errored(result.item.index, result.item.steps, why)
 
-    def _dispatch(self, worker: ReplayWorker, collect: Callable[[EpisodeResult], None], log: ReportLog | None) -> None:
+    @property
+    def _local_workers(self) -> int:
+        """Processes of the local pool (this one included); 1: no pool."""
+        return 1 if self.options.ray is not None else min(self.options.workers, len(self.worklist.items))
+
+    def _start_pool(self, job: ReplayJob) -> ProcessPoolExecutor | None:
+        """The local pool's processes, started before this process builds its env so that both happen at once;
+        each builds the env of the first item (the list is ordered by env key: most need no other)."""
+        if self._local_workers <= 1:
+            return None
+        return start_pool(job, self._local_workers, self.worklist.items[0])
+
+    def _dispatch(self, worker: ReplayWorker, collect: Callable[[EpisodeResult], None], log: ReportLog | None,
+                  pool: ProcessPoolExecutor | None) -> None:
         items = self.worklist.items
         opts = self.options
         if opts.ray is not None:
@@ -326,12 +349,11 @@ class ReplayRun:
                 if log is not None:
                     log.write({"type": "note", "text": note})
             return
-        workers = min(opts.workers, len(items))
-        if workers <= 1:
+        if pool is None:
             for item in items:
                 collect(worker.run(item))
         else:
-            run_pool(worker, items, workers, collect)
+            run_pool(worker, items, self._local_workers, collect, pool)
 
 
 def _file_tally(f: RecordingInfo) -> FileTally:

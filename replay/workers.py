@@ -34,7 +34,7 @@ from simreel.replay.report import EpisodeReport
 from simreel.replay.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports
 
-__all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "run_pool"]
+__all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "run_pool", "start_pool", "stop_pool"]
 
 _EPISODE_DATA_ERRORS = (RecordingFileError, EpisodeLayoutError, MetadataError)
 """Errors about one episode's data (damaged, missing, malformed); any other error is about the env its file
@@ -221,16 +221,32 @@ _WORKER: Any = None
 """A worker process's worker, or the user error that building it raised (given back with each item)."""
 
 
-def _worker_init(job: Any) -> None:
+def _worker_init(job: Any, first: WorkItem | None = None) -> None:
     """Build this process's worker: ``job.open_worker()`` (a `ReplayJob`, or another picklable job, such as a
-    conversion's)."""
+    conversion's), and where `first` is given, build its env now (`start_pool`): the error that stops it comes
+    back with the item, as any other."""
     global _WORKER
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+    _one_thread_per_process()
     try:
         _WORKER = job.open_worker()
+        if first is not None and hasattr(_WORKER, "prepare"):
+            _WORKER.prepare(first)
     except SimreelError as e:  # an initializer that raises breaks the whole pool (BrokenProcessPool)
-        _WORKER = e
+        if _WORKER is None:
+            _WORKER = e
+
+
+def _one_thread_per_process() -> None:
+    """A pool of N processes on N cores: torch's intra-op threads (one per core in each process by default)
+    would only compete with the other workers. Unless the user set it, one thread each."""
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
+def _ready() -> None:
+    """Nothing: submitted to start a pool's processes before work is handed out (`start_pool`)."""
 
 
 def _exit_with_parent(parent: int) -> None:
@@ -249,16 +265,28 @@ def _worker_run(item: WorkItem) -> EpisodeResult:
     return _WORKER.run(item)
 
 
-def run_pool(worker: Any, items: Iterable[WorkItem], workers: int, collect: Callable[[EpisodeResult], Any]) -> None:
-    """Replay `items` in `worker` (this process) and `workers - 1` worker processes; `collect` each result here,
-    as it arrives. `worker` is a `ReplayWorker`, or another with ``job`` (whose ``open_worker()`` builds one in
-    each process) and ``run(item) -> EpisodeResult``. When `collect` raises (a strict run meeting an error, Ctrl-C), the queued items are dropped
-    and the pool is shut down."""
-    queue = deque(items)
-    ahead = 2 * (workers - 1)  # items handed to the workers at a time; the rest stay for this process
+def start_pool(job: Any, workers: int, first: WorkItem | None = None) -> ProcessPoolExecutor:
+    """`workers - 1` worker processes for `job`, started now: each imports, builds its worker and, given `first`,
+    that item's env while this process prepares its own (a worker costs seconds to start, as long as tens of
+    steps). Hand it to `run_pool`, which shuts it down."""
     ctx = multiprocessing.get_context("spawn")  # sapien/torch state must not be forked
     pool = ProcessPoolExecutor(max_workers=workers - 1, mp_context=ctx, initializer=_worker_init,
-                               initargs=(worker.job,))
+                               initargs=(job, first))
+    for _ in range(workers - 1):
+        pool.submit(_ready)  # each submit starts one more process while none is idle
+    return pool
+
+
+def run_pool(worker: Any, items: Iterable[WorkItem], workers: int, collect: Callable[[EpisodeResult], Any],
+             pool: ProcessPoolExecutor | None = None) -> None:
+    """Replay `items` in `worker` (this process) and `workers - 1` worker processes (`pool`, from `start_pool`, or
+    started here); `collect` each result here, as it arrives. `worker` is a `ReplayWorker`, or another with ``job``
+    (whose ``open_worker()`` builds one in each process) and ``run(item) -> EpisodeResult``. When `collect` raises
+    (a strict run meeting an error, Ctrl-C), the queued items are dropped and the pool is shut down."""
+    queue = deque(items)
+    ahead = 2 * (workers - 1)  # items handed to the workers at a time; the rest stay for this process
+    if pool is None:
+        pool = start_pool(worker.job, workers)
     pending: set[Any] = set()
     try:
         while queue or pending:
@@ -273,13 +301,13 @@ def run_pool(worker: Any, items: Iterable[WorkItem], workers: int, collect: Call
             for fut in done:
                 collect(fut.result())
     except BaseException:
-        _stop(pool)
+        stop_pool(pool)
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _stop(pool: ProcessPoolExecutor) -> None:
+def stop_pool(pool: ProcessPoolExecutor) -> None:
     """End the pool's processes now (Ctrl-C, an error raised here): an episode they are replaying is not waited for."""
     for process in list((getattr(pool, "_processes", None) or {}).values()):
         process.terminate()

@@ -13,14 +13,13 @@ import argparse
 import importlib
 import os
 import shlex
-import signal
 import sys
-import threading
 import traceback
 from collections.abc import Sequence
 
 from simreel import __version__
 from simreel.errors import SimreelError, Terminated
+from simreel.formats.durable import stopping_signals
 
 __all__ = ["main", "COMMANDS"]
 
@@ -55,18 +54,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _terminate(signum: int, frame: object) -> None:
-    raise Terminated()
-
-
-def _handle_sigterm() -> object:
-    """Make SIGTERM raise `Terminated` (in the main thread; elsewhere signals are not ours to handle); returns the
-    handler to put back."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
-    return signal.signal(signal.SIGTERM, _terminate)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -75,12 +62,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.command:
         parser.print_help()
         return 2
-    previous = _handle_sigterm()
-    try:
+    with stopping_signals():
         return _run(args)
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -9,6 +9,7 @@ from typing import Any
 from simreel.cli.common import add_env_options, apply_imports, progress_bar
 from simreel.cli.policy_option import POLICY_HELP
 from simreel.errors import ActionError, SimreelError, UsageError
+from simreel.formats.durable import raise_if_stopped
 
 __all__ = ["add_parser", "run"]
 
@@ -164,6 +165,7 @@ def _record_single(rec: Any, policy: _Policy, args: argparse.Namespace, max_step
         for k in range(args.episodes):
             obs, _ = rec.reset(seed=args.seed + k)
             for t in range(max_steps):
+                raise_if_stopped()
                 obs, _, terminated, truncated, _ = policy.step(rec, obs, f"episode {k}, step {t}")
                 if _done(terminated, truncated).any():
                     break
@@ -180,6 +182,7 @@ def _record_batched(rec: Any, policy: _Policy, args: argparse.Namespace, max_ste
     steps = np.zeros(n, dtype=np.int64)
     with _progress(args) as bar:
         while len(rec.episodes_committed) < args.episodes:
+            raise_if_stopped()
             obs, _, terminated, truncated, _ = policy.step(rec, obs, f"after {len(rec.episodes_committed)} episodes")
             steps += 1
             done = _done(terminated, truncated) | (steps >= max_steps)

@@ -4,7 +4,8 @@ errors of the storage (a full disk, a read-only file system) turned into one-lin
 A commit that stopped half way could leave a file with an episode half written; so a writer runs each commit
 inside `deferred_signals` (a Ctrl-C or SIGTERM that arrives then is handled right after it) and first
 `reserve_space` for everything the commit may write, so a full disk refuses the commit before the file is
-touched. `storage_error` words the `OSError` a write raised.
+touched. `storage_error` words the `OSError` a write raised. And what keeps a command's stop a stop:
+`stopping_signals` / `raise_if_stopped`, for a Ctrl-C that Python swallowed.
 """
 
 from __future__ import annotations
@@ -17,10 +18,11 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
-from simreel.errors import StorageError
+from simreel.errors import StorageError, Terminated
 
-__all__ = ["deferred_signals", "reserve_space", "storage_error", "errno_of", "is_storage_error", "STORAGE_ERRNOS"]
+__all__ = ["deferred_signals", "stopping_signals", "raise_if_stopped", "reserve_space", "storage_error", "errno_of", "is_storage_error", "STORAGE_ERRNOS"]
 
 _DEFERRED = (signal.SIGINT, signal.SIGTERM)
 
@@ -56,6 +58,46 @@ def deferred_signals() -> Iterator[None]:
             signal.signal(s, previous[s])
         for s in caught:
             signal.raise_signal(s)
+
+
+# ------------------------------------------------------------------ signals that must stop a command
+# Python raises a signal's exception wherever the main thread happens to be. When that is a finalizer or a weakref
+# callback run by the garbage collector, Python prints "Exception ignored in ..." and goes on: a replay asked to
+# stop would run to its end and exit 0. `stopping_signals` (the CLI holds it around every command) notes each
+# signal before raising; loops between units of work call `raise_if_stopped`, which raises it again.
+
+_received: list[int] = []
+
+
+def _exception(signum: int) -> KeyboardInterrupt:
+    return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _on_signal(signum: int, frame: Any) -> None:
+    _received.append(signum)
+    raise _exception(signum)
+
+
+@contextmanager
+def stopping_signals() -> Iterator[None]:
+    """SIGINT raises KeyboardInterrupt and SIGTERM `Terminated`, each noted for `raise_if_stopped`; the previous
+    handlers are put back after. Only the main thread handles signals: elsewhere this changes nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        _received.clear()
+
+
+def raise_if_stopped() -> None:
+    """Raise the exception of a signal received inside `stopping_signals` (again, if it was swallowed)."""
+    if _received:
+        raise _exception(_received[0])
 
 
 def reserve_space(fd: int, nbytes: int) -> None:
