@@ -125,16 +125,17 @@ class _Fleet:
         self.deaths = 0
         self.replayed_again = 0
         self._readers = ReaderCache()
-        for _ in range(options.workers):
-            self._start_actor()
+        self._start_actors(options.workers)
 
-    def _start_actor(self) -> None:
-        actor = self.remote.remote(self.job)
+    def _start_actors(self, n: int) -> None:
+        """`n` more actors, started at once (each takes seconds to start), and what each of them sees."""
+        started = [self.remote.remote(self.job) for _ in range(n)]
         identity = [(f.path, f.size, f.mtime_ns) for f in self.files.values()]
-        seen, where = self.ray.get([actor.visible.remote(identity), actor.where.remote()])
-        self.sees[actor] = set() if self.options.ship else set(seen)
-        self.where[actor] = where
-        self.actors.append(actor)
+        answers = self.ray.get([ref for a in started for ref in (a.visible.remote(identity), a.where.remote())])
+        for actor, seen, where in zip(started, answers[::2], answers[1::2], strict=True):
+            self.sees[actor] = set() if self.options.ship else set(seen)
+            self.where[actor] = where
+            self.actors.append(actor)
 
     def run(self, items: Iterable[WorkItem], collect: Callable[[EpisodeResult], Any]) -> None:
         queue = deque(items)
@@ -171,7 +172,7 @@ class _Fleet:
         if actor in self.actors:
             self.actors.remove(actor)
             self.deaths += 1
-            self._start_actor()
+            self._start_actors(1)
         if self.attempts[(item.path, item.index)] >= MAX_ATTEMPTS:
             error = RecordingFileError(item.path, f"episode {item.index}: the Ray worker replaying it died "
                                                   f"{MAX_ATTEMPTS} times (see the Ray logs of its node)")
