@@ -201,10 +201,46 @@ class EpisodeRows(ABC):
         for start in range(0, self.length, rows):
             yield start, self.steps(start, min(self.length, start + rows))
 
-    def episode(self, rows: int | None = None) -> Episode:
-        """The whole episode, put together from its blocks (`join_blocks`)."""
-        steps = [block for _, block in self.blocks(rows or self.length or None)]
-        return Episode.from_fields(self.meta, join_blocks(self.fields, self.reset(), steps))
+    def episode(self, rows: int | None = None, *, obs: bool = True) -> Episode:
+        """The whole episode, put together from its blocks (`join_blocks`); `obs=False` leaves the observations out,
+        reading them a block at a time (camera frames of a long episode never sit in memory whole)."""
+        if obs:
+            fields, rows = self.fields, rows or self.length or None
+        else:
+            fields = [f for f in self.fields if not f.name.startswith("obs/")]
+        names = [f.name for f in fields]
+        steps = [StepBlock.of({n: block[n] for n in names}) for _, block in self.blocks(rows)]
+        reset = self.reset()
+        reset = StepBlock.of({n: reset[n] for n in names if n in reset.arrays})
+        return Episode.from_fields(self.meta, join_blocks(fields, reset, steps))
+
+    @staticmethod
+    def of(episode: Episode) -> EpisodeRows:
+        """An episode already in memory, read like one in a file (a shipped episode, an explanation's replays)."""
+        return _MemoryRows(episode)
+
+
+class _MemoryRows(EpisodeRows):
+    def __init__(self, episode: Episode) -> None:
+        super().__init__(episode.meta, _fields_of(episode))
+        self._episode = episode
+
+    @property
+    def length(self) -> int:
+        return self._episode.length
+
+    def reset(self) -> StepBlock:
+        return self._episode.reset_block()
+
+    def steps(self, start: int, stop: int) -> StepBlock:
+        return StepBlock.of({f.name: a[start + f.per_state : stop + f.per_state]
+                             for f, a in zip(self.fields, self._episode.fields().values(), strict=True)})
+
+
+def _fields_of(episode: Episode) -> list[FieldSpec]:
+    """The field table of an episode in memory, in the order of `Episode.fields`."""
+    per_state = set(episode.reset_block().arrays)
+    return [FieldSpec(name, a.dtype.name, tuple(a.shape[1:]), name in per_state) for name, a in episode.fields().items()]
 
 
 class EpisodeReader(ABC):
