@@ -1,6 +1,6 @@
 """Where episodes are replayed: a `ReplayWorker` (readers and one rebuilt env) in this process, and one in each
-worker process of a pool (`run_pool`), each replaying whole episodes of any file of the run and answering with
-an `EpisodeResult`.
+worker process of a pool (`run_pool`), each replaying episodes of any file of the run, a block of rows at a time,
+and answering with an `EpisodeResult`.
 
 A worker keeps the env it built for the last env key (`simreel.replay.worklist.env_key`) and rebuilds only when
 the key changes; the work list is ordered by key so that is rare. A `ReplayJob` is everything a worker needs,
