@@ -6,6 +6,13 @@ command once per recording in a fresh process and reads that process's peak resi
 
     .venv/bin/python benchmarks/bench_memory.py                       # PickCube-v1, 200 vs 20,000 steps
     .venv/bin/python benchmarks/bench_memory.py --format mcap --folder /tmp/mem
+    .venv/bin/python benchmarks/bench_memory.py --cameras             # also episodes with 128x128 rgb frames
+
+With `--cameras` (HDF5 only) the same two episodes are also written with camera frames: every state row gets the
+observations (128x128 rgb frame, agent and extra state) of a row of a real 30-step `--obs-mode rgb --record-obs`
+recording of the env, in turn (recording 20,000 rendered steps on a CPU takes ~25 min; the bytes a reader holds do
+not depend on which frames they are). Those are replayed with `--obs-mode state`: the frames are read, block by
+block, and not compared (re-rendering them would be the same ~70 ms per step); the states are verified.
 
 The peak includes the interpreter, torch, SAPIEN and the env (~0.5 GiB), which every run pays once; what a
 long episode adds on top of that is what the ratio shows.
@@ -20,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 SIMREEL = Path(sys.executable).with_name("simreel")
 
 
@@ -30,6 +39,35 @@ def _record(env_id: str, steps: int, path: Path) -> None:
     subprocess.run([str(SIMREEL), "record", env_id, "-o", str(path), "--max-steps", str(steps), "--seed", "0", "-q"],
                    check=True, stdout=subprocess.DEVNULL)
     print(f"recorded {path.name}: {steps} steps in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+
+
+def _with_frames(path: Path, frames: Path, out: Path) -> None:
+    """`path` (one state-only episode) written to `out` with the observations of `frames` (a short recording with
+    camera observations) repeated row after row, a block at a time (`simreel.formats` writer API)."""
+    import dataclasses
+
+    from simreel.episode import StepBlock
+    from simreel.formats import open_reader, open_writer
+
+    if out.exists():
+        return
+    with open_reader(frames) as f:
+        cam_meta = f.meta
+        obs = {k: a for k, a in f.read_episode(f.episodes[0].index).fields().items() if k.startswith("obs/")}
+    period = len(next(iter(obs.values())))
+    with open_reader(path) as reader:
+        meta = dataclasses.replace(reader.meta, obs_mode=cam_meta.obs_mode, obs_layout=cam_meta.obs_layout)
+        rows = reader.open_episode(reader.episodes[0].index)
+
+        def with_obs(block: StepBlock, first_row: int) -> StepBlock:
+            picked = (np.arange(first_row, first_row + block.rows)) % period
+            return StepBlock.of({**block.arrays, **{k: a[picked] for k, a in obs.items()}})
+
+        with open_writer(out, meta) as writer:
+            sink = writer.begin_episode(rows.meta, with_obs(rows.reset(), 0))
+            for first, block in rows.blocks(256):
+                sink.append(with_obs(block, first + 1))
+            sink.commit(rows.meta)
 
 
 def _peak_mib(argv: list[str]) -> tuple[float, float]:
@@ -60,6 +98,7 @@ def main() -> int:
     p.add_argument("--long", type=int, default=20_000)
     p.add_argument("--format", default="h5", choices=("h5", "mcap"))
     p.add_argument("--folder", default="/tmp/simreel_bench_memory", help="where the recordings are kept")
+    p.add_argument("--cameras", action="store_true", help="also episodes with camera frames (see above)")
     args = p.parse_args()
 
     folder = Path(args.folder)
@@ -69,10 +108,37 @@ def main() -> int:
         _record(args.env, steps, path)
     print(f"{args.env}, one episode of {args.short} vs {args.long} steps, {args.format}")
     print(f"  {'command':<12} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}")
-    for name in _commands(folder, folder):
-        (short, _), (long, seconds) = (_peak_mib(_commands(path, folder)[name]) for path in paths.values())
-        print(f"  {name:<12} {short:>10.0f} {long:>9.0f} {long / short:>6.2f}  {seconds:>7.0f}   [target <= 1.2]")
+    _table(paths, _commands, folder)
+    if args.cameras:
+        frames = folder / f"{args.env}.frames.h5"
+        if not frames.exists():
+            subprocess.run([str(SIMREEL), "record", args.env, "-o", str(frames), "--obs-mode", "rgb", "--record-obs",
+                            "--max-steps", "30", "--seed", "0", "-q"], check=True, stdout=subprocess.DEVNULL)
+        cams = {n: folder / f"{args.env}.{n}.rgb.h5" for n in paths}
+        for n, path in paths.items():
+            _with_frames(path, frames, cams[n])
+        size = cams[args.long].stat().st_size / 2**20
+        print(f"the same episodes with a 128x128 rgb camera frame per state row (the long one {size:.0f} MiB on disk)")
+        print(f"  {'command':<12} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}")
+        _table(cams, _camera_commands, folder)
     return 0
+
+
+def _camera_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
+    sim = str(SIMREEL)
+    return {
+        "inspect": [sim, "inspect", str(path)],
+        "replay": [sim, "replay", str(path), "-q", "--obs-mode", "state", "--report",
+                   str(scratch / f"{path.stem}.report.json"), "--overwrite"],
+    }
+
+
+def _table(paths: dict[int, Path], commands, scratch: Path) -> None:
+    """One line per command: peak RSS on the short and on the long recording, and their ratio."""
+    short_path, long_path = paths.values()
+    for name in commands(short_path, scratch):
+        (short, _), (long, seconds) = (_peak_mib(commands(path, scratch)[name]) for path in (short_path, long_path))
+        print(f"  {name:<12} {short:>10.0f} {long:>9.0f} {long / short:>6.2f}  {seconds:>7.0f}   [target <= 1.2]")
 
 
 if __name__ == "__main__":

@@ -25,8 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta
+from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import EnvBuildError, ReplayError, SimreelError
+from simreel.formats.base import EpisodeRows
 from simreel.sim.fingerprint import SceneDifference
 from simreel.sim.rebuild import (
     GYM_MAKE_SEED,
@@ -36,10 +37,11 @@ from simreel.sim.rebuild import (
     import_task_code,
     reset_to_episode,
 )
-from simreel.sim.state import FastStateReader, check_rebuilt_layout, read_state, restore_state, state_row
+from simreel.sim.state import FastStateReader, check_rebuilt_layout, read_state, restore_state
 from simreel.state_tree import to_numpy
 
-__all__ = ["MODES", "EpisodeReplayer", "ReplayerOptions", "ReplayedEpisode", "ReplayError", "GYM_MAKE_SEED"]
+__all__ = ["MODES", "EpisodeReplayer", "ReplayerOptions", "ReplayedEpisode", "ReplayError", "GYM_MAKE_SEED",
+           "BlockSink", "Collected"]
 
 MODES = ("actions", "states", "step")
 """Replay modes; ``resync`` is an option of ``actions`` (with its own default tolerances, see
@@ -76,9 +78,10 @@ class ReplayerOptions:
 
 @dataclass
 class ReplayedEpisode:
-    """What one replay produced: the replayed arrays (same layout as the recording) and notes on how."""
+    """What one replay produced: the replayed arrays (same layout as the recording; None when they went to a
+    `BlockSink` block by block) and notes on how."""
 
-    episode: Episode
+    episode: Episode | None
     notes: list[str] = field(default_factory=list)
     """How it was replayed, and (also in `limits`) what it could not check or reproduce."""
     seconds: float = 0.0
@@ -267,15 +270,28 @@ class EpisodeReplayer:
         return {k: np.array(v) for k, v in self._state().items()}
 
     # ------------------------------------------------------------------ replay
-    def replay(self, episode: Episode, *, mode: str = "actions", resync: int | None = None) -> ReplayedEpisode:
-        """Replay `episode` in `mode` and return the replayed arrays (compare them with `simreel.compare`)."""
+    def replay(self, episode: Episode, *, mode: str = "actions", resync: int | None = None,
+               obs: bool = True) -> ReplayedEpisode:
+        """Replay `episode` (in memory) in `mode` and return the replayed arrays (compare them with `simreel.compare`);
+        `obs=False` keeps no observations (an explanation's replays need none)."""
+        collected = Collected(obs=obs)
+        out = self.replay_rows(EpisodeRows.of(episode), collected, mode=mode, resync=resync)
+        out.episode = collected.episode(episode.meta)
+        return out
+
+    def replay_rows(self, source: EpisodeRows, sink: BlockSink, *, mode: str = "actions", resync: int | None = None,
+                    rows: int | None = None) -> ReplayedEpisode:
+        """Replay episode `source` in `mode`, a block of `rows` recorded steps at a time (None: the reader's
+        `block_rows`): each recorded block is read, replayed and handed to `sink` with its replay, then dropped, so
+        a long episode is never held whole. Returns how it was replayed (`ReplayedEpisode.episode` is None)."""
         if mode not in MODES:
             raise ReplayError(f"unknown replay mode {mode!r}; expected one of {', '.join(MODES)}")
         if resync is not None and (mode != "actions" or resync < 1):
             raise ReplayError(f"resync={resync} needs mode 'actions' and K >= 1")
         start = time.perf_counter()
+        run = _Run(source, sink, mode, resync, rows)
         try:
-            out = self._replay(episode, mode, resync)
+            out = self._replay(run)
         except SimreelError:
             raise
         except Exception as exc:
@@ -286,7 +302,7 @@ class EpisodeReplayer:
             self.close()
             self.obs_mode = self.meta.obs_mode
             self._build()
-            out = self._replay(episode, mode, resync)
+            out = self._replay(run)
             out.notes.insert(0, f"replayed with obs_mode={self.obs_mode!r}: the task failed without observations "
                                 f"({type(exc).__name__}: {exc})")
         out.compare_contacts = self._contacts is not None
@@ -297,16 +313,18 @@ class EpisodeReplayer:
         """Reproduce `episode`'s reset, then step, for each recorded action, the action `converter` turns it into
         (`simreel.replay.control`: bound to this env after the reset, called with each recorded action, returning
         the target mode's action and whether it was clipped). The replayed episode holds the converted actions;
-        its notes say at which steps the target mode's limits clipped them."""
+        its notes say at which steps the target mode's limits clipped them. Works on a whole episode in memory
+        (a conversion judges and writes each episode whole)."""
         import torch
 
         start = time.perf_counter()
         done = self.reset_for(episode.meta)
         self._check_layout()
         converter.bind(self.u)
-        buf = self._new(episode)
-        buf.actions = np.zeros((episode.length, *self.u.single_action_space.shape), np.float32)
-        self._initial(buf)
+        recorded = EpisodeRows.of(episode)
+        recorded_reset, recorded_steps = recorded.reset(), recorded.steps(0, episode.length)
+        reset = self._reset_row(recorded_reset)
+        buf = self._block(recorded_steps, np.zeros((episode.length, *self.u.single_action_space.shape), np.float32))
         clipped = []
         commands = np.full((episode.length, 2, 7), np.nan)
         commanded = getattr(converter, "commanded", lambda: None)  # optional for converters of one's own
@@ -323,28 +341,88 @@ class EpisodeReplayer:
             notes.append(f"the {converter.target_mode} action was clipped to its limits at {len(clipped)} step(s) "
                          f"(first: step {clipped[0]}): the recorded target was out of one step's reach; their commands "
                          "are not compared, the trajectory is")
-        out = ReplayedEpisode(buf.episode(), notes, limits=[*episode.meta.notes, *done.limits], clipped=clipped,
-                              commands=commands)
+        collected = Collected()
+        collected.reset(recorded_reset, reset)
+        collected.steps(0, recorded_steps, buf.block())
+        out = ReplayedEpisode(collected.episode(episode.meta), notes, limits=[*episode.meta.notes, *done.limits],
+                              clipped=clipped, commands=commands)
         out.compare_contacts = self._contacts is not None
         out.seconds = time.perf_counter() - start
         return out
 
-    def _replay(self, episode: Episode, mode: str, resync: int | None) -> ReplayedEpisode:
-        done = self.reset_for(episode.meta)
+    def _replay(self, run: _Run) -> ReplayedEpisode:
+        meta = run.source.meta
+        done = self.reset_for(meta)
         self._check_layout()
-        scene = self.scene_check(episode.meta)
-        run = {"actions": self._run_actions, "states": self._run_states, "step": self._run_step}[mode]
+        scene = self.scene_check(meta)
+        run.sink.start()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # ManiSkill warns on every out-of-bounds action; the recording had them too
-            out = run(episode, resync) if mode == "actions" else run(episode)
+            out = self._drive(run)
         if scene is None:
             done.notes.append("scene fingerprint not compared: the file holds none (ManiSkill's own files, and "
                               "simreel's from before it kept one)")
         out.scene_differences = scene
-        file_notes = list(episode.meta.notes)  # what the reader found in the file about this episode
+        file_notes = list(meta.notes)  # what the reader found in the file about this episode
         out.notes = done.notes + file_notes + done.limits + out.limits + out.notes
         out.limits = file_notes + done.limits + out.limits
         return out
+
+    def _drive(self, run: _Run) -> ReplayedEpisode:
+        """Reset the replay as `run.mode` starts, then replay the recorded blocks one by one into `run.sink`."""
+        source = run.source
+        out = run.out = ReplayedEpisode(None)
+        recorded = source.reset()
+        states = run.states = _States(recorded)
+        if run.mode == "states" or (run.mode == "actions" and source.meta.seed is None):
+            restore_state(self.u, states.row(0), elapsed_steps=0)
+        if run.mode == "actions" and source.meta.seed is None:
+            # An unseeded reset cannot be reproduced (ManiSkill drew it from the global RNG): start the
+            # actions from the recorded initial state instead, and say that the reset went unchecked.
+            out.limits.append("actions replayed from the recorded initial state")
+            out.restored_at.append(0)
+        run.sink.reset(recorded, self._reset_row(recorded))
+        step = {"actions": self._step_actions, "states": self._step_states, "step": self._step_restored}[run.mode]
+        for first, block in source.blocks(run.rows):
+            states.advance(first, block)
+            buf = self._block(block)
+            actions = self._actions(block["actions"])
+            for i in range(block.rows):
+                step(run, buf, i, actions[i])
+            run.sink.steps(first, block, buf.block())
+        if run.resync:
+            out.notes.append(f"restored the recorded state every {run.resync} steps")
+        return out
+
+    def _step_actions(self, run: _Run, buf: _Block, i: int, action: Any) -> None:
+        t = run.states.first + i
+        if run.resync and t and t % run.resync == 0:
+            restore_state(self.u, run.states.row(t), elapsed_steps=t)
+            run.out.restored_at.append(t)
+        self._after_step(buf, i, self._step(action))
+
+    def _step_restored(self, run: _Run, buf: _Block, i: int, action: Any) -> None:
+        t = run.states.first + i
+        if t or run.source.meta.initial_state_known:  # else step 0 starts from the reproduced reset
+            restore_state(self.u, run.states.row(t), elapsed_steps=t)
+        self._after_step(buf, i, self._step(action))
+
+    def _step_states(self, run: _Run, buf: _Block, i: int, action: Any) -> None:
+        u, states, t = self.u, run.states, run.states.first + i
+        restore_state(u, states.row(t), elapsed_steps=t)
+        self._step(action)  # for contacts: one step from the recorded state t
+        contacts = self._contacts.sample()[0] if buf.contact_forces is not None else None
+        restore_state(u, states.row(t + 1), elapsed_steps=t + 1)
+        info = u.get_info()
+        obs = u.get_obs(info, unflattened=True) if self.obs_mode != "none" else {}
+        reward = u.get_reward(obs=obs, action=action[None], info=info)
+        terminated = _flag(info, "success") or _flag(info, "fail")
+        truncated = self.max_episode_steps is not None and t + 1 >= self.max_episode_steps
+        self._after_step(buf, i, (None, reward, terminated, truncated, info))
+        if contacts is not None:
+            buf.contact_forces[i] = contacts
+        if self.need_obs:
+            buf.set_obs(i, self._obs(u._flatten_raw_obs(obs) if obs else u.get_obs(info)))
 
     def _check_layout(self) -> None:
         if not self._layout_checked and self.meta.state_layout:  # a file without env_states has none to check
@@ -362,46 +440,50 @@ class EpisodeReplayer:
 
         return {p: a[0] for p, a in flatten_obs(obs, self.obs_mode).items()}
 
-    def _new(self, episode: Episode) -> _Buffers:
-        return _Buffers(episode, self.meta, n_channels=len(self.meta.contact_channels) if self._contacts else 0,
-                        n_poses=len(self.pose_bodies))
+    def _block(self, recorded: StepBlock, actions: np.ndarray | None = None) -> _Block:
+        """Buffers for the replay of the recorded block (`actions`: what is stepped, if not the recorded actions)."""
+        return _Block(recorded, actions, n_channels=len(self.meta.contact_channels) if self._contacts else 0,
+                      n_poses=len(self.pose_bodies))
 
-    def _after_step(self, buf: _Buffers, t: int, outcome: tuple[Any, Any, Any, Any, Any]) -> None:
-        """Store step t's outcome ``(obs, reward, terminated, truncated, info)`` and the state after it."""
+    def _after_step(self, buf: _Block, i: int, outcome: tuple[Any, Any, Any, Any, Any]) -> None:
+        """Store the outcome ``(obs, reward, terminated, truncated, info)`` of the block's step i and the state after it."""
         obs, reward, terminated, truncated, info = outcome
-        buf.rewards[t] = _scalar(reward)
-        buf.terminated[t] = _scalar(terminated)
-        buf.truncated[t] = _scalar(truncated)
-        buf.success[t] = _flag(info, "success")
-        buf.fail[t] = _flag(info, "fail")
+        buf.rewards[i] = _scalar(reward)
+        buf.terminated[i] = _scalar(terminated)
+        buf.truncated[i] = _scalar(truncated)
+        buf.success[i] = _flag(info, "success")
+        buf.fail[i] = _flag(info, "fail")
         for key, dst in buf.info.items():
             value = info.get(key)
             if value is not None:
-                dst[t] = _scalar(value)
+                dst[i] = _scalar(value)
         if buf.contact_forces is not None:
-            buf.contact_forces[t] = self._contacts.sample()[0]
-        buf.set_state(t + 1, self._state())
+            buf.contact_forces[i] = self._contacts.sample()[0]
+        self._after_state(buf, i, obs)
+
+    def _after_state(self, buf: _Block, i: int, obs: Any) -> None:
+        """Store the state the env holds now (and its observation and body poses) as the block's per-state row i."""
+        buf.set_state(i, self._state())
         if self.need_obs and obs is not None:
-            buf.set_obs(t + 1, self._obs(obs))
+            buf.set_obs(i, self._obs(obs))
         if buf.body_poses is not None:
-            buf.body_poses[t + 1] = self._poses()
+            buf.body_poses[i] = self._poses()
 
     def _poses(self) -> np.ndarray:
         from simreel.sim.poses import sample_body_poses
 
         return sample_body_poses(self.u, self.pose_bodies)[0]
 
-    def _initial(self, buf: _Buffers) -> None:
-        buf.set_state(0, self._state())
-        if buf.body_poses is not None:
-            buf.body_poses[0] = self._poses()
-        if self.need_obs:
-            buf.set_obs(0, self._obs(self.u.get_obs()))
+    def _reset_row(self, recorded: StepBlock) -> StepBlock:
+        """The replay's row 0 (state, observations, body poses right after its reset), laid out like `recorded`."""
+        buf = self._block(recorded)
+        self._after_state(buf, 0, self.u.get_obs() if self.need_obs else None)
+        return buf.block()
 
-    def _actions(self, episode: Episode) -> Any:
+    def _actions(self, actions: np.ndarray) -> Any:
         import torch
 
-        return torch.from_numpy(np.ascontiguousarray(episode.actions)).to(self.u.device)
+        return torch.from_numpy(np.ascontiguousarray(actions)).to(self.u.device)
 
     def _step(self, action: Any) -> tuple[Any, Any, Any, Any, Any]:
         """`unwrapped.step` plus the time limit (what ManiSkill's TimeLimitWrapper adds), without the wrapper stack."""
@@ -410,84 +492,70 @@ class EpisodeReplayer:
         truncated = limit is not None and self.u._elapsed_steps[0].item() >= limit
         return obs, reward, terminated, truncated, info
 
-    def _run_actions(self, episode: Episode, resync: int | None) -> ReplayedEpisode:
-        actions = self._actions(episode)
-        buf = self._new(episode)
-        limits = []
-        if episode.meta.seed is None:
-            # An unseeded reset cannot be reproduced (ManiSkill drew it from the global RNG): start the
-            # actions from the recorded initial state instead, and say that the reset went unchecked.
-            restore_state(self.u, state_row(episode.env_states, 0), elapsed_steps=0)
-            limits.append("actions replayed from the recorded initial state")
-        self._initial(buf)
-        notes = []
-        restored = [0] if episode.meta.seed is None else []
-        for t in range(episode.length):
-            if resync and t and t % resync == 0:
-                restore_state(self.u, state_row(episode.env_states, t), elapsed_steps=t)
-                restored.append(t)
-            self._after_step(buf, t, self._step(actions[t]))
-        if resync:
-            notes.append(f"restored the recorded state every {resync} steps")
-        return ReplayedEpisode(buf.episode(), notes, limits=limits, restored_at=restored)
-
-    def _run_step(self, episode: Episode) -> ReplayedEpisode:
-        actions = self._actions(episode)
-        buf = self._new(episode)
-        self._initial(buf)
-        for t in range(episode.length):
-            if t or episode.meta.initial_state_known:  # else step 0 starts from the reproduced reset
-                restore_state(self.u, state_row(episode.env_states, t), elapsed_steps=t)
-            self._after_step(buf, t, self._step(actions[t]))
-        return ReplayedEpisode(buf.episode())
-
-    def _run_states(self, episode: Episode) -> ReplayedEpisode:
-
-        u = self.u
-        actions = self._actions(episode)
-        buf = self._new(episode)
-        restore_state(u, state_row(episode.env_states, 0), elapsed_steps=0)
-        self._initial(buf)
-        for t in range(episode.length):
-            restore_state(u, state_row(episode.env_states, t), elapsed_steps=t)
-            self._step(actions[t])  # for contacts: one step from the recorded state t
-            contacts = self._contacts.sample()[0] if buf.contact_forces is not None else None
-            restore_state(u, state_row(episode.env_states, t + 1), elapsed_steps=t + 1)
-            info = u.get_info()
-            obs = u.get_obs(info, unflattened=True) if self.obs_mode != "none" else {}
-            reward = u.get_reward(obs=obs, action=actions[t][None], info=info)
-            terminated = _flag(info, "success") or _flag(info, "fail")
-            truncated = self.max_episode_steps is not None and t + 1 >= self.max_episode_steps
-            self._after_step(buf, t, (None, reward, terminated, truncated, info))
-            if contacts is not None:
-                buf.contact_forces[t] = contacts
-            if self.need_obs:
-                buf.set_obs(t + 1, self._obs(u._flatten_raw_obs(obs) if obs else u.get_obs(info)))
-        return ReplayedEpisode(buf.episode())
-
-
 def _put(rows: np.ndarray, *values: np.ndarray | None) -> None:
     for row, value in zip(rows, values, strict=True):
         if value is not None:
             row[:] = value
 
 
-class _Buffers:
-    """Preallocated arrays of one replayed episode, laid out like the recorded one."""
+class _States:
+    """The recorded states a block replay restores: state row t of the episode, whether it is the last row of the
+    block before (or the reset row) or a row of the current block."""
 
-    def __init__(self, episode: Episode, meta: RecordingMeta, *, n_channels: int, n_poses: int = 0) -> None:
-        T = episode.length
-        self.meta_ep = dataclasses.replace(episode.meta)
-        self.actions = episode.actions
-        self.rewards = np.zeros(T, np.float32)
+    def __init__(self, reset: StepBlock) -> None:
+        self.names = [name for name in reset.arrays if name.startswith("env_states/")]
+        self.first = 0
+        self._before = {name[len("env_states/"):]: reset[name] for name in self.names}
+        self._block: dict[str, np.ndarray] = {}
+
+    def advance(self, first: int, block: StepBlock) -> None:
+        """Move to the block of steps `first`.. (its per-state rows: the states after them)."""
+        if self._block:
+            self._before = {p: a[-1:] for p, a in self._block.items()}
+        self.first = first
+        self._block = {name[len("env_states/"):]: block[name] for name in self.names}
+
+    def row(self, t: int) -> dict[str, np.ndarray]:
+        """State row t (0: after the reset; t: after step t - 1), each leaf (1, ...)."""
+        i = t - self.first
+        if i == 0:
+            return self._before
+        return {p: a[i - 1 : i] for p, a in self._block.items()}
+
+
+@dataclass
+class _Run:
+    """One block replay: the recorded episode, where its rows go, the mode and the block size."""
+
+    source: EpisodeRows
+    sink: BlockSink
+    mode: str
+    resync: int | None
+    rows: int | None
+    out: ReplayedEpisode = field(default_factory=lambda: ReplayedEpisode(None))
+    """What the replay found so far (notes, limits, restores)."""
+    states: _States | None = None
+    """The recorded states at hand: set as the replay begins."""
+
+
+class _Block:
+    """Preallocated arrays of the replay of one recorded block (or of the reset row), laid out like it: per-step
+    rows, and per-state rows holding the states after those steps (for the reset row: the state after the reset)."""
+
+    def __init__(self, recorded: StepBlock, actions: np.ndarray | None, *, n_channels: int, n_poses: int = 0) -> None:
+        k = recorded.rows
+        self.per_step = "actions" in recorded.arrays
+        self.actions = recorded.get("actions") if actions is None else actions
+        self.rewards = np.zeros(k, np.float32)
         for name in FLAG_FIELDS:
-            setattr(self, name, np.zeros(T, bool))
-        self.env_states = {p: np.zeros_like(a) for p, a in episode.env_states.items()}
-        self.info = {k: np.zeros_like(a) for k, a in episode.info.items()}
-        self.contact_forces = np.zeros((T, n_channels, 3), np.float32) if n_channels else None
+            setattr(self, name, np.zeros(k, bool))
+        self.env_states = {n[len("env_states/"):]: np.zeros_like(a) for n, a in recorded.arrays.items()
+                           if n.startswith("env_states/")}
+        self.info = {n[len("info/"):]: np.zeros_like(a) for n, a in recorded.arrays.items() if n.startswith("info/")}
+        self.contact_forces = np.zeros((k, n_channels, 3), np.float32) if n_channels and self.per_step else None
         self.obs: dict[str, np.ndarray] = {}
-        self.body_poses = np.zeros((T + 1, n_poses, 7), np.float32) if n_poses else None
-        self.T = T
+        self.body_poses = np.zeros((k, n_poses, 7), np.float32) if n_poses else None
+        self.rows = k
 
     def set_state(self, row: int, flat: dict[str, np.ndarray]) -> None:
         for p, dst in self.env_states.items():
@@ -499,21 +567,69 @@ class _Buffers:
         for p, a in flat.items():
             dst = self.obs.get(p)
             if dst is None:
-                dst = self.obs[p] = np.zeros((self.T + 1, *a.shape), a.dtype)
+                dst = self.obs[p] = np.zeros((self.rows, *a.shape), a.dtype)
             dst[row] = a
 
-    def episode(self) -> Episode:
-        return Episode(
-            meta=self.meta_ep,
-            actions=self.actions,
-            rewards=self.rewards,
-            terminated=self.terminated,
-            truncated=self.truncated,
-            success=self.success,
-            fail=self.fail,
-            env_states=self.env_states,
-            obs=self.obs,
-            info=self.info,
-            contact_forces=self.contact_forces,
-            body_poses=self.body_poses,
-        )
+    def block(self) -> StepBlock:
+        """The replayed rows as flat fields (the reset row: per-state fields only)."""
+        arrays: dict[str, np.ndarray] = {}
+        if self.per_step:
+            arrays.update({"actions": self.actions, "rewards": self.rewards,
+                           **{name: getattr(self, name) for name in FLAG_FIELDS}})
+            arrays.update({f"info/{k}": a for k, a in self.info.items()})
+            if self.contact_forces is not None:
+                arrays["contact_forces"] = self.contact_forces
+        arrays.update({f"env_states/{p}": a for p, a in self.env_states.items()})
+        arrays.update({f"obs/{p}": a for p, a in self.obs.items()})
+        if self.body_poses is not None:
+            arrays["body_poses"] = self.body_poses
+        return StepBlock(arrays, self.rows)
+
+
+class BlockSink:
+    """Where a block replay (`EpisodeReplayer.replay_rows`) hands each recorded block with its replay. Subclasses
+    must not keep a block's arrays beyond the call unless they mean to hold the episode (`Collected`)."""
+
+    def start(self) -> None:
+        """A replay of the episode begins (again, if the engine had to rebuild its env: drop what came before)."""
+
+    def reset(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        """Row 0 of the per-state fields, recorded and replayed."""
+
+    def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
+        """The block of steps `first`.. , recorded and replayed."""
+
+
+class Collected(BlockSink):
+    """Keeps every replayed block, to put the replayed episode together (`episode`); `obs=False` drops the
+    observations."""
+
+    def __init__(self, *, obs: bool = True) -> None:
+        self.obs = obs
+        self.start()
+
+    def start(self) -> None:
+        self._reset: StepBlock | None = None
+        self._blocks: list[StepBlock] = []
+
+    def _kept(self, block: StepBlock) -> StepBlock:
+        return block if self.obs else StepBlock({k: a for k, a in block.arrays.items() if not k.startswith("obs/")},
+                                                block.rows)
+
+    def reset(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        self._reset = self._kept(replayed)
+
+    def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
+        self._blocks.append(self._kept(replayed))
+
+    def episode(self, meta: EpisodeMeta) -> Episode:
+        """The replayed episode (a copy of `meta`; per-step fields empty when it has no step)."""
+        assert self._reset is not None
+        per_state = set(self._reset.arrays)
+        template = self._blocks[0].arrays if self._blocks else {"actions": np.zeros((0, 0), np.float32)}
+        names = dict.fromkeys([*template, *per_state])
+        arrays = {n: np.concatenate(([self._reset[n]] if n in per_state else [])
+                                    + [b[n] for b in self._blocks]) for n in names}
+        if not self._blocks:
+            arrays.update({n: np.zeros(0, bool) for n in FLAG_FIELDS}, rewards=np.zeros(0, np.float32))
+        return Episode.from_fields(dataclasses.replace(meta), arrays)

@@ -197,7 +197,7 @@ class _Explainer:
     def _stepped(self, episode: Episode) -> Episode | None:
         """`episode` replayed in step mode (None, with a note, where that fails)."""
         try:
-            return self.replayer.replay(episode, mode="step").episode
+            return self.replayer.replay(episode, mode="step", obs=False).episode
         except Exception as exc:  # noqa: BLE001 - a failed check is reported, the replay's verdict stands
             self.checked.append(f"one-step errors: not measured ({type(exc).__name__}: {exc})")
             return None
@@ -207,7 +207,8 @@ class _Explainer:
         reset to another episode of the same scene first. A vs the recording says whether a transition is reproduced;
         A vs B whether it depends on what the env held before the restore (state the dict lacks)."""
         tol = Tolerances.for_mode("step")
-        a = self.replayed.episode if self.ctx.mode == "step" else self._stepped(self.recorded)
+        a = self.replayed.episode if self.ctx.mode == "step" and self.replayed.episode is not None else \
+            self._stepped(self.recorded)
         if a is None:
             return
         self.one_step = compare_episode(self.recorded, a, tol, channels=self.ctx.channels)

@@ -1,21 +1,25 @@
 """`ReplayedWriter`: writes replayed episodes (``simreel replay -o``) as a simreel recording, in the order they
-were asked for, whatever order the workers finish them in."""
+were asked for, whatever order the workers finish them in. The episode that is next in that order and replayed in
+this process is written block by block as it is replayed (`ReplayedWriter.stream`: an `EpisodeStream`); one
+replayed in another process comes back whole and waits for its turn (`put`)."""
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
 from collections import deque
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from simreel.episode import OPTIONAL_STEP_FIELDS, Episode, RecordingMeta
-from simreel.formats import format_of
+from simreel.episode import OPTIONAL_STEP_FIELDS, Episode, EpisodeMeta, RecordingMeta, StepBlock
+from simreel.formats import EpisodeSink, format_of
+from simreel.replay.engine import BlockSink
 from simreel.state_tree import layout_of
 
-__all__ = ["ReplayOutput", "ReplayedWriter", "output_pose_bodies"]
+__all__ = ["ReplayOutput", "ReplayedWriter", "EpisodeStream", "RecordedContacts", "output_pose_bodies"]
 
 _PRODUCED = ("versions", *OPTIONAL_STEP_FIELDS)
 """What a replay knows even where the recording did not hold it: this machine's versions, rewards and flags."""
@@ -63,21 +67,30 @@ class ReplayedWriter:
 
     def put(self, index: int, episode: Episode | None) -> None:
         """Write episode `index` once those before it in the order are written; None: it has no replay (it could not
-        be replayed), go on without it."""
+        be replayed, or it was streamed), go on without it."""
         self.waiting[index] = episode
         while self.order and self.order[0] in self.waiting:
             episode = self.waiting.pop(self.order.popleft())
             if episode is not None:
                 self._write(episode)
 
-    def _output_meta(self, episode: Episode) -> RecordingMeta:
+    def stream(self, meta: EpisodeMeta) -> EpisodeStream | None:
+        """A sink writing the episode of `meta` block by block as it is replayed, when it is the next one to write
+        (else None: its replay must wait for its turn whole, `put`). Its result is then `put` as None."""
+        if not self.order or self.order[0] != meta.index or self.waiting:
+            return None
+        return EpisodeStream(self, meta)
+
+    def _output_meta(self, fields: Mapping[str, np.ndarray]) -> RecordingMeta:
+        """The output's metadata, from the replayed fields of its first episode (any rows of them)."""
         from simreel.sim.make import env_versions
 
+        obs = {k[len("obs/"):]: a for k, a in fields.items() if k.startswith("obs/")}
         fields = {
             "obs_mode": self.spec.obs_mode or self.meta.obs_mode,
-            "obs_layout": layout_of(episode.obs, batched=True) if episode.obs else {},
-            "contact_channels": list(self.meta.contact_channels) if episode.contact_forces is not None else [],
-            "pose_bodies": list(self.spec.pose_bodies) if episode.body_poses is not None else [],
+            "obs_layout": layout_of(obs, batched=True) if obs else {},
+            "contact_channels": list(self.meta.contact_channels) if "contact_forces" in fields else [],
+            "pose_bodies": list(self.spec.pose_bodies) if "body_poses" in fields else [],
             "versions": {k: v for k, v in env_versions().items() if v is not None},
             "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "command": self.spec.command,
@@ -85,17 +98,93 @@ class ReplayedWriter:
         }
         return dataclasses.replace(self.meta, **{**fields, **self.spec.changes})
 
-    def _write(self, episode: Episode) -> None:
+    def begin(self, meta: EpisodeMeta, reset: StepBlock, first: StepBlock | None) -> EpisodeSink:
+        """Begin writing an episode with replayed `reset` row (the writer opened with the layout of it and of its
+        `first` block of steps, if the writer is not open yet)."""
         from simreel.formats import open_writer
 
         if self.writer is None:
-            self.writer = open_writer(self.spec.path, self._output_meta(episode), overwrite=self.spec.overwrite)
+            fields = {**(first.arrays if first is not None else {}), **reset.arrays}
+            self.writer = open_writer(self.spec.path, self._output_meta(fields), overwrite=self.spec.overwrite)
+        return self.writer.begin_episode(meta, reset)
+
+    def _write(self, episode: Episode) -> None:
         ep_meta = dataclasses.replace(episode.meta, length=episode.length)
         if episode.length:
             ep_meta.success = bool(episode.success[-1])
             ep_meta.ever_success = bool(np.any(episode.success))
-        self.writer.write_episode(dataclasses.replace(episode, meta=ep_meta))
+        episode.check_shapes()
+        sink = self.begin(ep_meta, episode.reset_block(), episode.steps_block())
+        if episode.length:
+            sink.append(episode.steps_block())
+        sink.commit(ep_meta)
 
     def close(self) -> None:
         if self.writer is not None:
             self.writer.close()
+
+
+class EpisodeStream(BlockSink):
+    """Writes one replayed episode to the output as its blocks are replayed; `commit` with the verdict, or `discard`
+    (an error stopped the replay: nothing of the episode stays)."""
+
+    def __init__(self, output: ReplayedWriter, meta: EpisodeMeta) -> None:
+        self.output = output
+        self.meta = meta
+        """The recorded episode's metadata, which the episode begins with (its final one comes with `commit`)."""
+        self._sink: EpisodeSink | None = None
+        self.start()
+
+    def start(self) -> None:
+        self.discard()
+        self._reset: StepBlock | None = None
+        self._success: tuple[bool, bool] | None = None  # (last, ever)
+
+    def reset(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        self._reset = replayed
+
+    def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
+        if self._sink is None:
+            assert self._reset is not None
+            self._sink = self.output.begin(self.meta, self._reset, replayed)
+        self._sink.append(replayed)
+        if replayed.rows:
+            ever = bool(np.any(replayed["success"])) or (self._success is not None and self._success[1])
+            self._success = (bool(replayed["success"][-1]), ever)
+
+    def commit(self, meta: EpisodeMeta, length: int) -> None:
+        """Make the episode durable with `meta` (its length and success set from what was written)."""
+        meta = dataclasses.replace(meta, length=length)
+        if self._success is not None:
+            meta.success, meta.ever_success = self._success
+        if self._sink is None:
+            assert self._reset is not None
+            self._sink = self.output.begin(meta, self._reset, None)
+        self._sink.commit(meta)
+        self._sink = None
+
+    def discard(self) -> None:
+        if self._sink is not None:
+            self._sink.discard()
+            self._sink = None
+
+
+class RecordedContacts(BlockSink):
+    """Hands replayed blocks on to `then` with the recorded contact forces in place of the replayed ones: in ``states``
+    mode the states were restored from the recording, so its contact forces are the true ones of the original run
+    (the replay's come from one step simulated from each restored state)."""
+
+    def __init__(self, then: BlockSink) -> None:
+        self.then = then
+
+    def start(self) -> None:
+        self.then.start()
+
+    def reset(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        self.then.reset(recorded, replayed)
+
+    def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
+        arrays = {k: a for k, a in replayed.arrays.items() if k != "contact_forces"}
+        if recorded.get("contact_forces") is not None:
+            arrays["contact_forces"] = recorded["contact_forces"]
+        self.then.steps(first, recorded, StepBlock(arrays, replayed.rows))

@@ -23,6 +23,7 @@ from typing import Any
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import EpisodeReader
+from simreel.formats.base import EpisodeRows
 from simreel.formats.inputs import file_identity
 from simreel.replay.workers import EpisodeResult, ReaderCache, ReplayJob, ReplayWorker
 from simreel.replay.worklist import RecordingInfo, WorkItem
@@ -57,9 +58,9 @@ class ShippedEpisode(EpisodeReader):
         self.kind = "episode shipped by the driver"
         self._episode = episode
 
-    def read_episode(self, index: int) -> Episode:
+    def open_episode(self, index: int) -> EpisodeRows:
         self.episode_meta(index)
-        return self._episode
+        return EpisodeRows.of(self._episode)
 
 
 class _Actor:

@@ -11,6 +11,7 @@ from typing import Any
 from simreel.compare import Divergence, EpisodeComparison, format_number, json_number, worst_keys
 from simreel.divergence import Explanation
 from simreel.episode import Episode
+from simreel.formats.base import EpisodeRows
 from simreel.sim.fingerprint import SceneDifference
 
 __all__ = ["EpisodeReport", "VERIFIED", "CHECK_ORDER", "checked_groups", "recording_limits", "episode_lines"]
@@ -82,9 +83,10 @@ class EpisodeReport:
     """Why it diverged (`simreel.replay.explain`); None unless the verdict is ``diverged``."""
 
     @classmethod
-    def from_comparison(cls, recorded: Episode, cmp: EpisodeComparison, *, notes: list[str], limits: list[str],
-                        seconds: float) -> EpisodeReport:
-        """The report of `recorded`'s replay, judged by `cmp`, with the replay's notes and limits."""
+    def from_comparison(cls, recorded: Episode | EpisodeRows, cmp: EpisodeComparison, *, notes: list[str],
+                        limits: list[str], seconds: float) -> EpisodeReport:
+        """The report of `recorded`'s replay (the episode, or the rows it was read in), judged by `cmp`, with the
+        replay's notes and limits."""
         return cls(
             index=recorded.meta.index,
             seed=recorded.meta.seed,

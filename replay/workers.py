@@ -1,6 +1,6 @@
 """Where episodes are replayed: a `ReplayWorker` (readers and one rebuilt env) in this process, and one in each
-worker process of a pool (`run_pool`), each replaying whole episodes of any file of the run and answering with
-an `EpisodeResult`.
+worker process of a pool (`run_pool`), each replaying episodes of any file of the run, a block of rows at a time,
+and answering with an `EpisodeResult`.
 
 A worker keeps the env it built for the last env key (`simreel.replay.worklist.env_key`) and rebuilds only when
 the key changes; the work list is ordered by key so that is rare. A `ReplayJob` is everything a worker needs,
@@ -23,13 +23,14 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any
 
-from simreel.compare import CompareScope, Tolerances, compare_episode
-from simreel.episode import Episode, RecordingMeta
+from simreel.compare import BlockComparison, CompareScope, EpisodeComparison, Tolerances
+from simreel.episode import ContactChannel, Episode, RecordingMeta, StepBlock
 from simreel.errors import EpisodeLayoutError, MetadataError, RecordingFileError, SimreelError
 from simreel.formats import EpisodeReader, open_reader
-from simreel.replay.engine import EpisodeReplayer, ReplayedEpisode, ReplayerOptions
+from simreel.formats.base import EpisodeRows
+from simreel.replay.engine import BlockSink, Collected, EpisodeReplayer, ReplayedEpisode, ReplayerOptions
 from simreel.replay.explain import ExplainContext, explain_divergence
-from simreel.replay.output import output_pose_bodies
+from simreel.replay.output import RecordedContacts, ReplayedWriter, output_pose_bodies
 from simreel.replay.report import EpisodeReport
 from simreel.replay.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports
@@ -56,6 +57,8 @@ class ReplayJob:
     """Where the replayed episodes go (`-o`): workers then return them, with the bodies' poses it needs."""
     imports: tuple[str, ...] = ()
     """`--import` specs given now: used instead of the recorded ones (`resolve_task_imports`)."""
+    block_rows: int | None = None
+    """Steps read, replayed and compared at a time (None: the reader's `simreel.formats.base.block_rows`)."""
 
     def replayer_options(self, meta: RecordingMeta) -> ReplayerOptions:
         """How to build the env replaying the recording with `meta`."""
@@ -96,6 +99,36 @@ class EpisodeResult:
         return self.error is not None and not isinstance(self.error, _EPISODE_DATA_ERRORS)
 
 
+class _Verify(BlockSink):
+    """Compares each replayed block with its recorded one as it comes (`simreel.compare.BlockComparison`), and hands
+    both on to `then` (the `-o` output, or a `Collected` replay) when given."""
+
+    def __init__(self, tolerances: Tolerances, channels: list[ContactChannel], scope: CompareScope,
+                 then: BlockSink | None) -> None:
+        self._args = (tolerances, channels, scope)
+        self.then = then
+        self.start()
+
+    def start(self) -> None:
+        tolerances, channels, scope = self._args
+        self.blocks = BlockComparison(tolerances, channels=channels, scope=scope)
+        if self.then is not None:
+            self.then.start()
+
+    def reset(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        self.blocks.reset(recorded, replayed)
+        if self.then is not None:
+            self.then.reset(recorded, replayed)
+
+    def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
+        self.blocks.steps(recorded, replayed)
+        if self.then is not None:
+            self.then.steps(first, recorded, replayed)
+
+    def comparison(self) -> EpisodeComparison:
+        return self.blocks.comparison()
+
+
 class ReaderCache:
     """The recordings a process has open, the `_OPEN_READERS` last used: a work list ordered by env key meets each
     file in runs, and thousands of files must not mean thousands of open handles."""
@@ -131,6 +164,8 @@ class ReplayWorker:
         self._failed: dict[str, SimreelError] = {}
         """Env keys whose env could not be built, with why: their other episodes fail at once, the same way."""
         self._warned: set[str] = set()
+        self.output: ReplayedWriter | None = None
+        """The `-o` output when this process writes it: the episode next in its order is written as it is replayed."""
         self.where = f"{socket.gethostname()} pid {os.getpid()}"
         """Which process replays: what each result names as its worker."""
 
@@ -166,29 +201,39 @@ class ReplayWorker:
         return self._replayer
 
     def _replay(self, reader: EpisodeReader, replayer: EpisodeReplayer, index: int) -> tuple[EpisodeReport, Episode | None]:
+        """Replay episode `index` block by block, comparing each block as it is replayed (and writing it to `-o` when
+        this process writes the output and the episode is next); only the per-key error curves outlive a block.
+        A replay for an output written elsewhere (another process's) is collected whole and returned."""
         job = self.job
-        recorded = reader.read_episode(index)
-        replayed = replayer.replay(recorded, mode=job.mode, resync=job.resync)
-        report = self._report(reader, replayer, recorded, replayed)
-        if job.output is None:
+        source = reader.open_episode(index)
+        scope = CompareScope(initial=source.meta.initial_state_known,
+                             obs=job.obs_mode is None or job.obs_mode == reader.meta.obs_mode)
+        stream = self.output.stream(source.meta) if self.output else None
+        kept = Collected() if job.output is not None and stream is None else None
+        written: BlockSink | None = stream or kept
+        if written is not None and job.mode == "states":
+            written = RecordedContacts(written)
+        verify = _Verify(job.tolerances, reader.meta.contact_channels, scope, written)
+        try:
+            replayed = replayer.replay_rows(source, verify, mode=job.mode, resync=job.resync, rows=job.block_rows)
+            report = self._report(reader, replayer, source, replayed, verify.comparison)
+        except BaseException:
+            if stream is not None:
+                stream.discard()
+            raise
+        if stream is not None:
+            stream.commit(dataclasses.replace(source.meta, verification=report.verification()), source.length)
+        if kept is None:
             return report, None
-        episode = replayed.episode
-        if job.mode == "states":
-            # states were restored from the recording; its contact forces are the true ones of the original run
-            # (the replay's come from one step simulated from each restored state)
-            episode = dataclasses.replace(episode, contact_forces=recorded.contact_forces)
+        episode = kept.episode(source.meta)
         meta = dataclasses.replace(episode.meta, verification=report.verification())
         return report, dataclasses.replace(episode, meta=meta)
 
-    def _report(self, reader: EpisodeReader, replayer: EpisodeReplayer, recorded: Episode,
-                replayed: ReplayedEpisode) -> EpisodeReport:
+    def _report(self, reader: EpisodeReader, replayer: EpisodeReplayer, source: EpisodeRows,
+                replayed: ReplayedEpisode, comparison: Callable[[], EpisodeComparison]) -> EpisodeReport:
         meta = reader.meta
-        scope = CompareScope(initial=recorded.meta.initial_state_known,
-                             obs=self.job.obs_mode is None or self.job.obs_mode == meta.obs_mode,
-                             contacts=replayed.compare_contacts)
-        cmp = compare_episode(recorded, replayed.episode, self.job.tolerances, channels=meta.contact_channels,
-                              scope=scope)
-        report = EpisodeReport.from_comparison(recorded, cmp, notes=replayed.notes, limits=replayed.limits,
+        cmp = comparison()
+        report = EpisodeReport.from_comparison(source, cmp, notes=replayed.notes, limits=replayed.limits,
                                                seconds=replayed.seconds)
         report.scene_differences = replayed.scene_differences
         if cmp.first_divergence is not None:  # after the report's timing: explaining replays steps again
@@ -196,6 +241,8 @@ class ReplayWorker:
 
             ctx = ExplainContext(mode=self.job.mode, resync=self.job.resync, channels=list(meta.contact_channels),
                                  env_id=meta.env_id, build_differences=fingerprint_differences(meta, replayer.u))
+            # the recorded episode again, without its observations (camera frames), for the explanation's replays
+            recorded = source.episode(obs=False)
             report.explanation = explain_divergence(replayer, recorded, replayed, cmp, ctx)
         return report
 

@@ -26,6 +26,7 @@ flags, info and contacts of row t are the outcome of action t, reported as ``at=
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -33,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import FLAG_FIELDS, ContactChannel, Episode
+from simreel.episode import FLAG_FIELDS, ContactChannel, Episode, StepBlock
 
 __all__ = [
     "GROUPS",
@@ -47,6 +48,7 @@ __all__ = [
     "EpisodeComparison",
     "CompareScope",
     "ErrorTable",
+    "BlockComparison",
     "compare_episode",
     "VERDICTS",
     "worst_keys",
@@ -359,14 +361,30 @@ class ErrorTable:
             else:
                 self.add(f"info/{key}", component_error(rec, rep), "info", per_state=False)
 
-    def step_fields(self, recorded: Episode, replayed: Episode) -> None:
-        """Rewards and flags, where both episodes hold them (a file may hold no rewards, success or fail)."""
-        if recorded.rewards is not None and replayed.rewards is not None:
-            self.add("rewards", component_error(recorded.rewards, replayed.rewards), "reward", per_state=False)
+    def step_fields(self, recorded: Mapping[str, np.ndarray], replayed: Mapping[str, np.ndarray]) -> None:
+        """Rewards and flags (flat field name -> rows), where both sides hold them (a file may hold no rewards,
+        success or fail)."""
+        if recorded.get("rewards") is not None and replayed.get("rewards") is not None:
+            self.add("rewards", component_error(recorded["rewards"], replayed["rewards"]), "reward", per_state=False)
         for name in FLAG_FIELDS:
-            rec, rep = getattr(recorded, name), getattr(replayed, name)
+            rec, rep = recorded.get(name), replayed.get(name)
             if rec is not None and rep is not None:
                 self.add(name, (np.asarray(rec) != np.asarray(rep)).astype(np.float64), "flag", per_state=False)
+
+    def rows(self, recorded: Mapping[str, np.ndarray], replayed: Mapping[str, np.ndarray], *,
+             channels: list[ContactChannel]) -> None:
+        """Compare the same rows of two episodes, given as flat fields (`simreel.episode.StepBlock` arrays): a
+        reset row (per-state fields only) or a block of steps. Keys only one side has are skipped."""
+        self.states(_group(recorded, "env_states"), _group(replayed, "env_states"))
+        if self.scope.obs:
+            self.observations(_group(recorded, "obs"), _group(replayed, "obs"))
+        rec_f, rep_f = recorded.get("contact_forces"), replayed.get("contact_forces")
+        if self.scope.contacts and rec_f is not None and rep_f is not None and rec_f.shape == rep_f.shape:
+            self.contacts(rec_f, rep_f, channels)
+        actions = recorded.get("actions")
+        if actions is not None:
+            self.info(_group(recorded, "info"), _group(replayed, "info"), len(actions))
+        self.step_fields(recorded, replayed)
 
     def first_bad_row(self, key: str) -> int | None:
         bad = np.flatnonzero(self.errors[key] > self.tol[key])
@@ -415,6 +433,49 @@ class ErrorTable:
         return first, diverged
 
 
+class BlockComparison:
+    """Compares a replay with its recording a block of rows at a time (`reset`, then `steps` for each block in
+    order): each block's per-row errors are kept (T+1 or T floats per key, the curves explanations read), the
+    blocks' arrays are not. `comparison` judges them as `compare_episode` does a whole episode, with the same
+    result."""
+
+    def __init__(self, tolerances: Tolerances, *, channels: Iterable[ContactChannel] = (),
+                 scope: CompareScope = CompareScope()) -> None:
+        self.tolerances = tolerances
+        self.channels = list(channels)
+        self.scope = scope
+        self._parts: dict[str, list[np.ndarray]] = {}
+        self._table = ErrorTable(tolerances, scope)
+
+    def reset(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        """Row 0: the states (and observations) right after the reset."""
+        self._add(recorded, replayed)
+
+    def steps(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        """The next block of steps (per-state rows: the states after them)."""
+        if recorded.rows != replayed.rows:
+            raise ValueError(f"a block of {recorded.rows} recorded steps was replayed as {replayed.rows}")
+        self._add(recorded, replayed)
+
+    def _add(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        part = ErrorTable(self.tolerances, dataclasses.replace(self.scope, initial=True))
+        part.rows(recorded.arrays, replayed.arrays, channels=self.channels)
+        for key, err in part.errors.items():
+            self._parts.setdefault(key, []).append(err)
+            self._table.tol[key] = part.tol[key]
+            self._table.per_state[key] = part.per_state[key]
+
+    def comparison(self) -> EpisodeComparison:
+        table = self._table
+        for key, parts in self._parts.items():
+            err = np.concatenate(parts) if len(parts) > 1 else parts[0]
+            if table.per_state[key] and not self.scope.initial:
+                err = err.copy()
+                err[0] = 0.0
+            table.errors[key] = err
+        return table.comparison()
+
+
 def compare_episode(
     recorded: Episode,
     replayed: Episode,
@@ -429,21 +490,22 @@ def compare_episode(
     whether a layout difference is an error); `channels` name the contact channels in keys; `scope` says
     what else to compare. The first divergence is the earliest step at which a value leaves its
     tolerance; at that step state leaves come first, then observations, contacts, info, rewards and
-    flags, and within a category the largest error relative to its tolerance wins.
+    flags, and within a category the largest error relative to its tolerance wins. The same comparison as a
+    `BlockComparison` of the two episodes in one block.
     """
     T = recorded.length
     if replayed.length != T:
         raise ValueError(f"episode {recorded.meta.index}: replay has {replayed.length} steps, recording {T}")
-    errs = ErrorTable(tolerances, scope)
-    errs.states(recorded.env_states, replayed.env_states)
-    if scope.obs:
-        errs.observations(recorded.obs, replayed.obs)
-    rec_f, rep_f = recorded.contact_forces, replayed.contact_forces
-    if scope.contacts and rec_f is not None and rep_f is not None and rec_f.shape == rep_f.shape:
-        errs.contacts(rec_f, rep_f, list(channels))
-    errs.info(recorded.info, replayed.info, T)
-    errs.step_fields(recorded, replayed)
-    return errs.comparison()
+    blocks = BlockComparison(tolerances, channels=channels, scope=scope)
+    blocks.reset(recorded.reset_block(), replayed.reset_block())
+    blocks.steps(recorded.steps_block(), replayed.steps_block())
+    return blocks.comparison()
+
+
+def _group(arrays: Mapping[str, np.ndarray], group: str) -> dict[str, np.ndarray]:
+    """The fields of `group` (``env_states``, ``obs``, ``info``) by their key path inside it."""
+    prefix = group + "/"
+    return {k[len(prefix):]: a for k, a in arrays.items() if k.startswith(prefix)}
 
 
 def json_number(x: float) -> float | str:

@@ -28,7 +28,7 @@ import json
 import types
 import typing
 import zlib
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,6 +46,7 @@ __all__ = [
     "FieldSpec",
     "StepBlock",
     "episode_fields",
+    "join_blocks",
     "STEP_FIELDS",
     "FLAG_FIELDS",
     "OPTIONAL_STEP_FIELDS",
@@ -399,6 +400,18 @@ class StepBlock:
                 "the RecordingMeta (state_layout, obs_layout, info_layout, contact_channels, pose_bodies)"
             )
         return out
+
+
+def join_blocks(fields: Sequence[FieldSpec], reset: StepBlock, steps: Sequence[StepBlock]) -> dict[str, np.ndarray]:
+    """The whole arrays of `fields` from an episode's reset row and its consecutive step blocks, in order: per-state
+    fields are the reset row and then every block's rows (the states after those steps), per-step fields every
+    block's rows. The inverse of `Episode.reset_block` + `Episode.steps_block`; the one place an episode read in
+    blocks is put back together."""
+    out: dict[str, np.ndarray] = {}
+    for f in fields:
+        parts = ([reset[f.name]] if f.per_state else []) + [b[f.name] for b in steps]
+        out[f.name] = np.concatenate(parts) if parts else np.empty((0, *f.shape), f.dtype)
+    return out
 
 
 @dataclass

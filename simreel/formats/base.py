@@ -6,26 +6,50 @@ parallel env) with the episode's reset row, the recorder appends `StepBlock`s of
 Every block is checked against the recording's field table (`simreel.episode.episode_fields`) on its way
 in. A writer holds its file's lock for its whole life and writes where `simreel.formats.staging` says (a
 recording that replaces another is moved over it only by `close`); `abort` drops what it wrote instead.
-Reading is per episode, so a large file never has to fit in memory; a reader names what it could not read
-(`damaged`), what never finished (`unfinished`) and anything else a user should know about the file (`notes`).
+Reading is per episode, and an episode is read in blocks of rows (`EpisodeReader.open_episode` gives its
+`EpisodeRows`), so neither a large file nor a long episode has to fit in memory; `read_episode` puts one whole
+episode together from the same blocks. A reader names what it could not read (`damaged`), what never finished
+(`unfinished`) and anything else a user should know about the file (`notes`).
 """
 
 from __future__ import annotations
 
 import shutil
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any, ClassVar
 
-from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock, episode_fields
+import numpy as np
+
+from simreel.episode import (
+    Episode,
+    EpisodeMeta,
+    FieldSpec,
+    RecordingMeta,
+    StepBlock,
+    episode_fields,
+    join_blocks,
+)
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats.durable import is_storage_error, storage_error
 from simreel.formats.lock import being_written
 from simreel.formats.targets import check_output
 
-__all__ = ["EpisodeSink", "EpisodeWriter", "EpisodeReader"]
+__all__ = ["EpisodeSink", "EpisodeWriter", "EpisodeReader", "EpisodeRows", "BLOCK_BYTES", "block_rows"]
+
+BLOCK_BYTES = 4 << 20
+"""About how many bytes of an episode one block of rows holds: 85 steps of 128x128 rgb camera frames (49 KB each),
+thousands of steps of a state-only recording (`block_rows`)."""
+_MAX_BLOCK_ROWS = 4096
+"""At most this many steps per block (state-only rows are small; longer blocks gain nothing)."""
+
+
+def block_rows(fields: Sequence[FieldSpec], budget: int = BLOCK_BYTES) -> int:
+    """Steps per block of an episode with `fields`: as many as fit in `budget` bytes, between 1 and 4096."""
+    row = sum(np.dtype(f.dtype).itemsize * int(np.prod(f.shape, dtype=np.int64)) for f in fields)
+    return int(min(_MAX_BLOCK_ROWS, max(1, budget // max(1, row))))
 
 
 class EpisodeSink(ABC):
@@ -147,6 +171,78 @@ class EpisodeWriter(ABC):
         self.close()
 
 
+class EpisodeRows(ABC):
+    """One episode of a recording, read a block of rows at a time, in the writers' convention: the reset row (row 0
+    of the per-state fields) and blocks of steps (per-step rows t, and per-state rows t + 1: the states after those
+    steps). Made by `EpisodeReader.open_episode`, which has checked what can be checked without reading the data
+    (the fields' names, dtypes, shapes and row counts); every block read is checked as the format allows (HDF5
+    chunk checksums, MCAP chunk CRCs) and raises `RecordingFileError` naming the episode when it fails."""
+
+    def __init__(self, meta: EpisodeMeta, fields: Sequence[FieldSpec]) -> None:
+        self.meta = meta
+        """The episode's metadata; `length` is the number of steps the file holds."""
+        self.fields = list(fields)
+
+    @property
+    def length(self) -> int:
+        return self.meta.length
+
+    @abstractmethod
+    def reset(self) -> StepBlock:
+        """Row 0 of the per-state fields: the episode right after its reset."""
+
+    @abstractmethod
+    def steps(self, start: int, stop: int) -> StepBlock:
+        """Steps `start`..`stop - 1`: their per-step rows and the per-state rows after them."""
+
+    def blocks(self, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
+        """(first step, block) for every block of `rows` steps (None: `block_rows`), in order."""
+        rows = rows or block_rows(self.fields)
+        for start in range(0, self.length, rows):
+            yield start, self.steps(start, min(self.length, start + rows))
+
+    def episode(self, rows: int | None = None, *, obs: bool = True) -> Episode:
+        """The whole episode, put together from its blocks (`join_blocks`); `obs=False` leaves the observations out,
+        reading them a block at a time (camera frames of a long episode never sit in memory whole)."""
+        if obs:
+            fields, rows = self.fields, rows or self.length or None
+        else:
+            fields = [f for f in self.fields if not f.name.startswith("obs/")]
+        names = [f.name for f in fields]
+        steps = [StepBlock.of({n: block[n] for n in names}) for _, block in self.blocks(rows)]
+        reset = self.reset()
+        reset = StepBlock.of({n: reset[n] for n in names if n in reset.arrays})
+        return Episode.from_fields(self.meta, join_blocks(fields, reset, steps))
+
+    @staticmethod
+    def of(episode: Episode) -> EpisodeRows:
+        """An episode already in memory, read like one in a file (a shipped episode, an explanation's replays)."""
+        return _MemoryRows(episode)
+
+
+class _MemoryRows(EpisodeRows):
+    def __init__(self, episode: Episode) -> None:
+        super().__init__(episode.meta, _fields_of(episode))
+        self._episode = episode
+
+    @property
+    def length(self) -> int:
+        return self._episode.length
+
+    def reset(self) -> StepBlock:
+        return self._episode.reset_block()
+
+    def steps(self, start: int, stop: int) -> StepBlock:
+        return StepBlock.of({f.name: a[start + f.per_state : stop + f.per_state]
+                             for f, a in zip(self.fields, self._episode.fields().values(), strict=True)})
+
+
+def _fields_of(episode: Episode) -> list[FieldSpec]:
+    """The field table of an episode in memory, in the order of `Episode.fields`."""
+    per_state = set(episode.reset_block().arrays)
+    return [FieldSpec(name, a.dtype.name, tuple(a.shape[1:]), name in per_state) for name, a in episode.fields().items()]
+
+
 class EpisodeReader(ABC):
     """Reads one recording file: `meta`, the list of `episodes` (metadata only) and each episode's data."""
 
@@ -165,8 +261,12 @@ class EpisodeReader(ABC):
     """What the file is, for people: "simreel HDF5 recording (format 1)", "ManiSkill trajectory file", ..."""
 
     @abstractmethod
+    def open_episode(self, index: int) -> EpisodeRows:
+        """The episode whose `EpisodeMeta.index` is `index`, to be read in blocks of rows."""
+
     def read_episode(self, index: int) -> Episode:
-        """The episode whose `EpisodeMeta.index` is `index`."""
+        """The whole episode whose `EpisodeMeta.index` is `index` (its blocks put together: `EpisodeRows.episode`)."""
+        return self.open_episode(index).episode()
 
     def __len__(self) -> int:
         return len(self.episodes)

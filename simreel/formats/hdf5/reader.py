@@ -7,7 +7,8 @@ every episode against the recording's own layout, and naming what it cannot read
 - An episode whose group or metadata is corrupt or half written (a crash in a commit, a damaged disk) is listed
   in `damaged` with what is wrong; the others stay readable. An episode's data that fails its checksum, or
   that does not fit the layout (a field missing, another dtype or shape, a dataset the layout does not list)
-  raises `RecordingFileError` naming the episode and the field when it is read.
+  raises `RecordingFileError` naming the episode and the field: the layout when the episode is opened
+  (`open_episode`), the checksum of each chunk when a block of rows that it holds is read (`Hdf5Rows`).
 - Files of earlier simreel versions keep their attributes in HDF5 global heaps, where some corruptions make
   libhdf5 loop forever; those heaps are checked before libhdf5 reads them (`_check_global_heaps`).
 """
@@ -17,6 +18,7 @@ from __future__ import annotations
 import json
 import mmap
 import struct
+from collections.abc import Sequence
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
@@ -24,9 +26,9 @@ from typing import Any
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import Episode, EpisodeMeta, FieldSpec, RecordingMeta, episode_fields
+from simreel.episode import EpisodeMeta, FieldSpec, RecordingMeta, StepBlock, episode_fields
 from simreel.errors import RecordingFileError
-from simreel.formats.base import EpisodeReader
+from simreel.formats.base import EpisodeReader, EpisodeRows
 from simreel.formats.hdf5.layout import (
     EPISODE_ATTR,
     HDF5_MAGIC,
@@ -43,7 +45,7 @@ from simreel.formats.maniskill.layout import dataset_name, group_index
 from simreel.formats.maniskill.sidecar import sidecar_episodes
 from simreel.formats.staging import replacement_note
 
-__all__ = ["Hdf5Reader", "open_hdf5", "holds_simreel_metadata"]
+__all__ = ["Hdf5Reader", "Hdf5Rows", "open_hdf5", "holds_simreel_metadata"]
 
 
 _H5PY_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError)
@@ -225,20 +227,21 @@ class Hdf5Reader(EpisodeReader):
         return unfinished, notes
 
     # ---------------------------------------------------------------- data
-    def read_episode(self, index: int) -> Episode:
+    def open_episode(self, index: int) -> Hdf5Rows:
+        """Episode `index`, its datasets checked against the layout (names, dtypes, shapes, row counts; none read)."""
         meta = self.episode_meta(index)
         group = self._groups[index]
         where = group_name(index)
         try:
             names = {f.name: self._dataset(group, f.name) for f in self.fields}
-            arrays = {f.name: self._field(group, where, f, names[f.name], meta.length) for f in self.fields}
+            datasets = {f.name: self._field(group, where, f, names[f.name], meta.length) for f in self.fields}
             extra = sorted(set(_datasets(group)) - set(names.values()))
         except _H5PY_ERRORS as e:
             raise RecordingFileError(self.path, f"{where} is corrupt: its structure cannot be read ({e})") from None
         if extra:
             raise RecordingFileError(self.path, f"{where} holds {', '.join(extra[:3])}, which the recording's layout "
                                                 "does not list (a damaged or altered file)")
-        return Episode.from_fields(meta, arrays)
+        return Hdf5Rows(self.path, meta, self.fields, datasets)
 
     def _dataset(self, group: Any, field: str) -> str:
         """Where `field` is in `group`: ManiSkill's layout, or simreel's format-1 name (a bare-array observation
@@ -246,8 +249,8 @@ class Hdf5Reader(EpisodeReader):
         name = dataset_name(field, self.meta)
         return name if name in group or field not in group else field
 
-    def _field(self, group: Any, where: str, spec: FieldSpec, name: str, steps: int) -> np.ndarray:
-        """Field `spec` of episode group `group` (its dataset `name`), checked against the layout and its checksum."""
+    def _field(self, group: Any, where: str, spec: FieldSpec, name: str, steps: int) -> Any:
+        """The dataset `name` of field `spec` in episode group `group`, checked against the layout (not read)."""
         import h5py
 
         ds = group.get(name)
@@ -258,16 +261,40 @@ class Hdf5Reader(EpisodeReader):
             raise RecordingFileError(
                 self.path, f"{where}/{name} is {ds.dtype} {ds.shape}, the layout says {spec.dtype} {want}"
             )
-        try:
-            return ds[()]
-        except _H5PY_ERRORS as e:
-            raise RecordingFileError(
-                self.path, f"{where}/{name} is corrupt: its data fails its checksum or cannot be decompressed ({e})"
-            ) from None
+        return ds
 
     def close(self) -> None:
         self._groups.clear()
         self._file.close()
+
+
+class Hdf5Rows(EpisodeRows):
+    """An episode held in one HDF5 group (simreel's recordings and ManiSkill's files), read by h5py slicing: a block
+    reads only the chunks holding its rows, and libhdf5 checks each against its Fletcher-32 checksum as it reads it.
+
+    Args:
+        datasets: field name -> its h5py dataset, already checked against the field table (T or T+1 rows).
+    """
+
+    def __init__(self, path: Path, meta: EpisodeMeta, fields: Sequence[FieldSpec], datasets: dict[str, Any]) -> None:
+        super().__init__(meta, fields)
+        self.path = path
+        self.datasets = datasets
+
+    def reset(self) -> StepBlock:
+        return StepBlock.of({f.name: self._read(f.name, 0, 1) for f in self.fields if f.per_state})
+
+    def steps(self, start: int, stop: int) -> StepBlock:
+        return StepBlock.of({f.name: self._read(f.name, start + f.per_state, stop + f.per_state) for f in self.fields})
+
+    def _read(self, name: str, start: int, stop: int) -> np.ndarray:
+        ds = self.datasets[name]
+        try:
+            return ds[start:stop]
+        except _H5PY_ERRORS as e:
+            raise RecordingFileError(
+                self.path, f"{ds.name.lstrip('/')} is corrupt: its data fails its checksum or cannot be decompressed ({e})"
+            ) from None
 
 
 def _datasets(group: Any) -> list[str]:

@@ -27,14 +27,14 @@ import numpy as np
 from simreel.compare import Tolerances, component_error, components_of
 from simreel.episode import (
     OPTIONAL_STEP_FIELDS,
-    Episode,
     EpisodeMeta,
     RecordingMeta,
+    StepBlock,
     episode_fields,
 )
-from simreel.errors import EpisodeLayoutError, RecordingFileError
+from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader
-from simreel.formats.hdf5.reader import open_hdf5
+from simreel.formats.hdf5.reader import Hdf5Rows, open_hdf5
 from simreel.formats.maniskill.layout import OBS, dataset_name, field_name, group_index, group_name
 from simreel.formats.maniskill.sidecar import Sidecar
 from simreel.state_tree import LeafSpec
@@ -92,21 +92,28 @@ class ManiskillReader(EpisodeReader):
         self.fields = episode_fields(self.meta)
         self.kind = f"ManiSkill trajectory file (JSON sidecar {self.sidecar.path.name})"
 
-    def read_episode(self, index: int) -> Episode:
+    def open_episode(self, index: int) -> Hdf5Rows:
+        """Episode `index`: its datasets found and their row counts checked (T actions, T + 1 states), and the file's
+        quirks noted in its metadata (`_note_quirks`: reads state rows 0 and 1 only)."""
         meta = dataclasses.replace(self.episode_meta(index))
         meta.notes = list(meta.notes)
         group = self._file[group_name(index)]
-        arrays = {}
+        datasets = {}
         for f in self.fields:
             name = dataset_name(f.name, self.meta)
             if name not in group:
                 raise RecordingFileError(self.path, f"{group_name(index)} has no {name} (the first episode has it)")
-            arrays[f.name] = group[name][()]
-        try:
-            episode = Episode.from_fields(meta, arrays)
-            episode.check_shapes()
-        except EpisodeLayoutError as e:
-            raise RecordingFileError(self.path, f"{group_name(index)}: {e}") from None
+            datasets[f.name] = group[name]
+        steps = datasets["actions"].shape[0]
+        for f in self.fields:
+            rows = datasets[f.name].shape[0]
+            if rows != f.row_count(steps):
+                raise RecordingFileError(self.path, f"{group_name(index)}: episode {index}: {f.name} has {rows} rows, "
+                                                    f"expected {f.row_count(steps)}")
+        if meta.length != steps:
+            meta.notes.append(f"elapsed_steps {meta.length} in the sidecar, {steps} actions in the file")
+            meta.length = steps
+        episode = Hdf5Rows(self.path, meta, self.fields, datasets)
         _note_quirks(episode)
         return episode
 
@@ -199,13 +206,10 @@ def _unlisted(sidecar: Sidecar, groups: dict[int, str]) -> list[str]:
             "skipped, as ManiSkill's tools skip them"]
 
 
-def _note_quirks(episode: Episode) -> None:
-    """Notes on what the episode's arrays say about the file: a stale `elapsed_steps`, an off-by-one row 0."""
+def _note_quirks(episode: Hdf5Rows) -> None:
+    """Notes on what the episode's first two state rows say about the file: an off-by-one row 0."""
     meta = episode.meta
-    if meta.length != episode.length:
-        meta.notes.append(f"elapsed_steps {meta.length} in the sidecar, {episode.length} actions in the file")
-        meta.length = episode.length
-    gap = _first_step_gap(episode.env_states) if episode.length >= 1 else None
+    gap = _first_step_gap(episode.reset(), episode.steps(0, 1)) if episode.length >= 1 else None
     if gap is not None:
         meta.initial_state_known = False
         meta.notes.append(
@@ -216,15 +220,17 @@ def _note_quirks(episode: Episode) -> None:
         )
 
 
-def _first_step_gap(states: dict[str, np.ndarray]) -> float | None:
-    """The largest difference between state rows 0 and 1 when every part of every leaf agrees within the
-    tolerances of a restore (`simreel.compare`, mode ``states``), else None (a real first step moved something)."""
+def _first_step_gap(reset: StepBlock, first: StepBlock) -> float | None:
+    """The largest difference between state rows 0 (`reset`) and 1 (after the first step, `first`) when every part of
+    every leaf agrees within the tolerances of a restore (`simreel.compare`, mode ``states``), else None (a real first
+    step moved something, or the file holds no states)."""
+    states = [name for name in reset.arrays if name.startswith("env_states/")]
     if not states:
         return None
     tolerances, gap = Tolerances.for_mode("states"), 0.0
-    for path, rows in states.items():
-        for comp in components_of(path, rows.shape[1:]):
-            err = float(component_error(rows[:1], rows[1:2], comp)[0])
+    for name in states:
+        for comp in components_of(name.split("/", 1)[1], reset[name].shape[1:]):
+            err = float(component_error(reset[name], first[name], comp)[0])
             if err > tolerances[comp.group]:
                 return None
             gap = max(gap, err)

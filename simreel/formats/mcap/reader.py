@@ -24,12 +24,11 @@ from typing import IO, Any
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import Episode, EpisodeMeta
+from simreel.episode import EpisodeMeta, StepBlock, episode_fields
 from simreel.errors import RecordingFileError
-from simreel.formats.base import EpisodeReader
+from simreel.formats.base import EpisodeReader, EpisodeRows, block_rows
 from simreel.formats.lock import lock_file
 from simreel.formats.mcap.blocks import (
-    WireField,
     fields_from_schema,
     reset_fields,
     step_fields,
@@ -47,7 +46,7 @@ from simreel.formats.mcap.records import (
 )
 from simreel.formats.staging import replacement_note
 
-__all__ = ["McapReader"]
+__all__ = ["McapReader", "McapRows"]
 
 _OP_CHUNK, _OP_MESSAGE_INDEX, _OP_METADATA, _OP_DATA_END, _OP_FOOTER = 0x06, 0x07, 0x0C, 0x0F, 0x02
 _RECORD_HEADER = struct.Struct("<BQ")
@@ -336,6 +335,7 @@ class McapReader(EpisodeReader):
         self._channel_ids = head.channels
         self._reset_fields = fields_from_schema(head.reset_schema)
         self._step_fields = fields_from_schema(head.step_schema)
+        self.fields = episode_fields(self.meta)
         if self._step_fields != step_fields(self.meta) or self._reset_fields != reset_fields(self.meta):
             raise RecordingFileError(self.path, "its data channels' field tables do not match the recording's layout "
                                                 "(a damaged or altered file)")
@@ -393,46 +393,100 @@ class McapReader(EpisodeReader):
                     if ep == index:
                         yield wanted[rec.channel_id], rows, rec.data if want_data else None
 
-    def read_episode(self, index: int) -> Episode:
-        meta = self.episode_meta(index)
-        span = self._spans[index]
-        resets: list[bytes] = []
-        steps: dict[int, dict[str, np.ndarray]] = {}
-        try:
-            for key, _, data in self._blocks(index, span.start_ns, span.end_ns):
-                if key == "reset":
-                    resets.append(data)
-                else:
-                    first, _, arrays = unpack_block(self._step_fields, data)
-                    steps[first] = arrays
-            if len(resets) != 1:
-                raise ValueError(f"{len(resets)} reset rows, expected 1")
-            _, _, row0 = unpack_block(self._reset_fields, resets[0])
-        except ValueError as e:
-            raise RecordingFileError(self.path, f"episode {index}: {e}") from None
-        blocks = []
-        row = 0
-        for first in sorted(steps):
-            if first != row:
-                raise RecordingFileError(self.path, f"episode {index}: steps {row}–{first - 1} are missing")
-            blocks.append(steps[first])
-            row += len(steps[first]["actions"])
-        if row != span.steps:
-            raise RecordingFileError(self.path, f"episode {index}: {row} steps in the file, its record says {span.steps}")
-        return self._assemble(meta, row0, blocks)
-
-    def _assemble(self, meta: EpisodeMeta, row0: dict[str, np.ndarray], blocks: list[dict[str, np.ndarray]]) -> Episode:
-        def steps_of(f: WireField) -> np.ndarray:
-            if not blocks:
-                return np.empty((0, *f.shape), f.dtype)
-            return np.concatenate([b[f.name] for b in blocks])
-
-        cols = {f.name: steps_of(f) for f in self._step_fields}
-        for f in self._reset_fields:
-            cols[f.name] = np.concatenate([row0[f.name], cols[f.name]])
-        # Native byte order (a no-op on little-endian machines) so arrays compare and save like the HDF5 ones.
-        cols = {k: v.astype(v.dtype.newbyteorder("="), copy=False) for k, v in cols.items()}
-        return Episode.from_fields(meta, cols)
+    def open_episode(self, index: int) -> McapRows:
+        """Episode `index`, to be read a block of rows at a time from the chunks of its time span."""
+        return McapRows(self, self.episode_meta(index), self._spans[index])
 
     def close(self) -> None:
         self._fh.close()
+
+
+class McapRows(EpisodeRows):
+    """An episode of an MCAP recording, read from the chunks of its time span: each chunk is decompressed and checked
+    against its CRC when it is read, and the episode's step messages are cut or joined into blocks of the rows asked
+    for. `blocks` reads them front to back once and checks, as they come, that the rows follow each other with none
+    missing, that there is one reset row, and at the end that the rows add up to what the episode's record says."""
+
+    def __init__(self, reader: McapReader, meta: EpisodeMeta, span: _Span) -> None:
+        super().__init__(meta, reader.fields)
+        self._reader = reader
+        self._span = span
+
+    def _messages(self) -> Iterator[tuple[str, int, bytes | None]]:
+        span = self._span
+        return self._reader._blocks(self.meta.index, span.start_ns, span.end_ns)
+
+    def _error(self, problem: object) -> RecordingFileError:
+        return RecordingFileError(self._reader.path, f"episode {self.meta.index}: {problem}")
+
+    def reset(self) -> StepBlock:
+        try:
+            data = next((data for key, _, data in self._messages() if key == "reset"), None)
+            if data is None:
+                raise ValueError("0 reset rows, expected 1")
+            return StepBlock.of(_native(unpack_block(self._reader._reset_fields, data)[2]))
+        except ValueError as e:
+            raise self._error(e) from None
+
+    def _runs(self) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
+        """(first step, rows, arrays) of every step message in order, checked as described in the class."""
+        row = resets = 0
+        try:
+            for key, _, data in self._messages():
+                if key == "reset":
+                    resets += 1
+                    continue
+                first, rows, arrays = unpack_block(self._reader._step_fields, data)
+                if first != row:
+                    raise ValueError(f"steps {row}–{first - 1} are missing" if first > row else
+                                     f"steps {first}–{first + rows - 1} appear again or out of order")
+                yield first, rows, arrays
+                row += rows
+            if resets != 1:
+                raise ValueError(f"{resets} reset rows, expected 1")
+            if row != self._span.steps:
+                raise ValueError(f"{row} steps in the file, its record says {self._span.steps}")
+        except ValueError as e:
+            raise self._error(e) from None
+
+    def blocks(self, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
+        rows = rows or block_rows(self.fields)
+        pending: list[dict[str, np.ndarray]] = []
+        held = start = 0
+        for _, n, arrays in self._runs():
+            pending.append(arrays)
+            held += n
+            while held >= rows:
+                block, pending = _cut(pending, rows)
+                yield start, block
+                start, held = start + rows, held - rows
+        if held:
+            yield start, _cut(pending, held)[0]
+
+    def steps(self, start: int, stop: int) -> StepBlock:
+        parts = []
+        for first, n, arrays in self._runs():
+            if first >= stop:
+                break
+            if first + n > start:
+                lo, hi = max(start, first) - first, min(stop, first + n) - first
+                parts.append({k: a[lo:hi] for k, a in arrays.items()})
+        block, _ = _cut(parts, stop - start)
+        if block.rows != stop - start:
+            raise self._error(f"steps {start}–{stop - 1} asked for, the file holds {self.length}")
+        return block
+
+
+def _native(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Writable copies in native byte order (a no-op order on little-endian machines), so arrays compare and save like
+    the HDF5 ones."""
+    return {k: np.array(a, dtype=a.dtype.newbyteorder("=")) for k, a in arrays.items()}
+
+
+def _cut(parts: list[dict[str, np.ndarray]], rows: int) -> tuple[StepBlock, list[dict[str, np.ndarray]]]:
+    """The first `rows` rows of consecutive `parts` as one block (copied, native byte order), and what is left."""
+    names = list(parts[0]) if parts else []
+    joined = {k: np.concatenate([p[k] for p in parts]) for k in names}
+    left = {k: a[rows:] for k, a in joined.items()}
+    rest = [left] if names and len(next(iter(left.values()))) else []
+    return StepBlock.of(_native({k: a[:rows] for k, a in joined.items()})), rest
