@@ -122,13 +122,13 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._n = int(u.num_envs)
         self._sampler = ContactSampler(contact_channels(u, opts.contacts))
         self._sampler.bind(u)
-        self._action_shape = tuple(u.single_action_space.shape)
         self._fast: FastStateReader | None = None
         self._fast_unchecked = False
         self._fast_refuted = False
         self._fast_scene: int | None = None
         """id() of the PhysX scene whose fast reader passed the check after a step (None: none yet, or rebuilt)."""
-        self.meta = self._describe(env, path)
+        self.meta = self._describe(env, path)  # refuses an action space other than a Box
+        self._action_shape = tuple(u.single_action_space.shape)
         self._writer = open_writer(path, self.meta, overwrite=opts.overwrite, **opts.writer_options)
         self._buffer = StepBuffer(opts.block_steps, self._n)
         self._sinks: list[Any] = [None] * self._n
