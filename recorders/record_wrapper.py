@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ from simreel.state_tree import layout_of, to_numpy
 __all__ = ["RecordWrapper", "RecordOptions"]
 
 _SKIPPED_INFO = ("reconfigure",)
+_PYTHON_CHECK_MAX = 256
 
 
 @dataclass(frozen=True)
@@ -73,14 +75,28 @@ def _scalar_info(info: dict[str, Any], n: int) -> dict[str, np.ndarray]:
     """Info entries that hold one scalar per env, as (n,) arrays; everything else is left out."""
     out = {}
     for key, value in info.items():
-        if key in _SKIPPED_INFO or isinstance(value, dict):
-            continue
-        a = to_numpy(value)
-        if a.ndim == 0:
-            a = np.broadcast_to(a, (n,))
-        if a.shape == (n,) and a.dtype.kind in "biuf":
+        a = None if key in _SKIPPED_INFO else _scalar(value, n)
+        if a is not None:
             out[key] = a
     return out
+
+
+def _finite(a: np.ndarray) -> bool:
+    """Whether every number in the float array `a` is finite; a small one is checked in Python floats (a numpy call
+    right after a physics step costs several times more: caches are cold)."""
+    if a.size <= _PYTHON_CHECK_MAX:
+        return all(map(math.isfinite, a.reshape(-1).tolist()))
+    return bool(np.isfinite(a).all())
+
+
+def _scalar(value: Any, n: int) -> np.ndarray | None:
+    """`value` as an (n,) numeric array when it holds one scalar per env, else None."""
+    if value is None or isinstance(value, dict):
+        return None
+    a = to_numpy(value)
+    if a.ndim == 0:
+        a = np.broadcast_to(a, (n,))
+    return a if a.shape == (n,) and a.dtype.kind in "biuf" else None
 
 
 class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -109,18 +125,24 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._fast: FastStateReader | None = None
         self._fast_unchecked = False
         self._fast_refuted = False
-        self.meta = self._describe(env, path)
+        self._fast_scene: int | None = None
+        """id() of the PhysX scene whose fast reader passed the check after a step (None: none yet, or rebuilt)."""
+        self.meta = self._describe(env, path)  # refuses an action space other than a Box
+        self._action_shape = tuple(u.single_action_space.shape)
         self._writer = open_writer(path, self.meta, overwrite=opts.overwrite, **opts.writer_options)
         self._buffer = StepBuffer(opts.block_steps, self._n)
         self._sinks: list[Any] = [None] * self._n
         self._episodes: list[EpisodeMeta | None] = [None] * self._n
         self._open = 0
-        # Per-env running counts, vectorised so a step costs the same Python work for any num_envs;
-        # folded into each episode's EpisodeMeta when it ends.
-        self._lengths = np.zeros(self._n, np.int64)
+        # Per-env running counts, folded into each episode's EpisodeMeta when it ends: its length is the steps taken
+        # since it began; its success flags are updated from each block of steps the buffer hands to its sink.
+        self._steps = 0
+        self._began_at = [0] * self._n
         self._success = np.zeros(self._n, bool)
         self._ever_success = np.zeros(self._n, bool)
         self._has_success = "success" in self.meta.info_layout
+        self._info_fields = [(key, f"info/{key}", np.dtype(spec.dtype)) for key, spec in self.meta.info_layout.items()]
+        self._info_keys = list(dict.fromkeys(("success", "fail", *self.meta.info_layout)))
         self._next_index = 0
         self._scene_seed: list[int | None] = [None] * self._n
         self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
@@ -154,11 +176,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options or None)
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
         self._sampler.bind(self._u)
-        if not self._fast_refuted:  # a reconfiguring reset builds new bodies: bind a new reader
-            self._fast = FastStateReader.for_env(self._u)
-            self._fast_unchecked = self._fast is not None
         state = read_state(self._u)
         check_same_layout(self.meta.env_id, self.meta.state_layout, layout_of(state, batched=True))
+        self._bind_fast_reader(state, reconfigured)
         reset_rows = self._per_state_rows(state, obs)
         stored_options = json.loads(json.dumps({k: v for k, v in options.items() if k != "env_idx"},
                                                default=json_default))
@@ -177,7 +197,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._next_index += 1
         self._episodes[i] = meta
         self._open += 1
-        self._lengths[i] = 0
+        self._began_at[i] = self._steps
         self._success[i] = self._ever_success[i] = False
         self._sinks[i] = self._writer.begin_episode(meta, reset)
         self._buffer.start[i] = self._buffer.rows
@@ -192,9 +212,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._sampler.channels:
             fields["contact_forces"] = self._sampler.sample()
         self._buffer.push(fields)
-        self._lengths += 1
-        self._success[:] = fields["success"]
-        self._ever_success |= fields["success"]
+        self._steps += 1
         if self._buffer.full:
             for i in range(self._n):
                 self._flush(i)
@@ -204,7 +222,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _actions(self, action: Any) -> np.ndarray:
         """`action` as a (num_envs, A) float32 array, once it is checked to fit the action space and be finite;
         `ActionError` (before the env steps) otherwise, since the recording could not hold it or replay it."""
-        single = tuple(self._u.single_action_space.shape)
+        single = self._action_shape
         a = None if action is None else to_numpy(action)
         if a is None or a.dtype.kind not in "biuf":
             raise ActionError(f"an action of type {type(action).__name__}; {self.meta.env_id} takes a numeric array "
@@ -212,7 +230,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if a.shape != (self._n, *single) and not (self._n == 1 and a.shape == single):
             raise ActionError(f"an action of shape {a.shape}; {self.meta.env_id} takes shape "
                               f"{(self._n, *single) if self._n > 1 else single}")
-        if not np.isfinite(a).all():
+        if a.dtype.kind == "f" and not _finite(a):
             raise ActionError(f"an action holding NaN or infinity ({a.reshape(-1)[~np.isfinite(a.reshape(-1))][:3]}); "
                               "ManiSkill refuses them")
         return a.astype(np.float32, copy=False).reshape(self._n, -1)
@@ -221,7 +239,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                    info: Any) -> dict[str, np.ndarray]:
         """This step's per-step fields for every env: action, reward, flags and scalar info."""
         n = self._n
-        scalars = _scalar_info(info, n)
+        scalars = {key: _scalar(info.get(key), n) for key in self._info_keys}
         fields: dict[str, np.ndarray] = {
             "actions": actions,
             "rewards": to_numpy(reward).astype(np.float32, copy=False).reshape(n),
@@ -229,9 +247,11 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             "truncated": to_numpy(truncated).reshape(n),
         }
         for flag in ("success", "fail"):
-            fields[flag] = scalars[flag] if flag in scalars else np.zeros(n, bool)
-        for key, spec in self.meta.info_layout.items():
-            fields[f"info/{key}"] = scalars[key] if key in scalars else np.zeros(n, spec.dtype)
+            a = scalars[flag]
+            fields[flag] = np.zeros(n, bool) if a is None else a
+        for key, name, dtype in self._info_fields:
+            a = scalars[key]
+            fields[name] = np.zeros(n, dtype) if a is None else a
         return fields
 
     def _per_state_rows(self, state: dict[str, np.ndarray], obs: Any) -> dict[str, np.ndarray]:
@@ -293,12 +313,24 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return [int(x) for x in drawn]
         return [None] * len(idxs)
 
-    def _state(self) -> dict[str, np.ndarray]:
-        """The state dict after a step; through the fast CPU reader where it is proven equal.
+    def _bind_fast_reader(self, state: dict[str, np.ndarray], reconfigured: bool) -> None:
+        """Bind a fast state reader to the scene after a reset (a reconfiguring reset builds new bodies).
 
-        The reader is checked bit for bit against `get_state_dict()` at the first step of every
-        episode (after reset most velocities are zero, a weaker check); any difference retires it.
-        """
+        A reader is checked bit for bit against `get_state_dict()` after the first step of an episode (`_state`; after
+        a reset most velocities are zero, a weaker check), and any difference retires it. Once a scene's reader has
+        passed that check, the readers of its later episodes are checked at their reset instead, against `state` (the
+        reset row just read through `get_state_dict()`): one fast read rather than one more `get_state_dict()` per
+        episode. A reader that differs there is checked after the first step again."""
+        if self._fast_refuted:
+            return
+        if reconfigured:
+            self._fast_scene = None
+        self._fast = FastStateReader.for_env(self._u)
+        proven = self._fast_scene == id(self._u.scene.px) and self._fast is not None and self._fast.equals(state)
+        self._fast_unchecked = self._fast is not None and not proven
+
+    def _state(self) -> dict[str, np.ndarray]:
+        """The state dict after a step; through the fast CPU reader where it is proven equal (`_bind_fast_reader`)."""
         if self._fast is None:
             return read_state(self._u)
         if self._fast_unchecked:
@@ -308,13 +340,19 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 warnings.warn(f"simreel: the fast state reader disagrees with {self.meta.env_id}'s get_state_dict(); "
                               "recording through get_state_dict() from now on", RuntimeWarning, stacklevel=3)
                 return read_state(self._u)
+            self._fast_scene = id(self._u.scene.px)
         return self._fast.read()
 
     def _flush(self, i: int) -> None:
+        """Hand env i's buffered steps to its episode's sink, noting whether the episode has succeeded."""
         sink = self._sinks[i]
         if sink is None or not self._buffer.pending(i):
             return
-        sink.append(self._buffer.take(i))
+        block = self._buffer.take(i)
+        success = block["success"]
+        self._success[i] = success[-1]
+        self._ever_success[i] |= success.any()
+        sink.append(block)
 
     def _finish(self, i: int) -> None:
         sink, meta = self._sinks[i], self._episodes[i]
@@ -324,7 +362,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._sinks[i] = None
         self._episodes[i] = None
         self._open -= 1
-        meta.length = int(self._lengths[i])
+        meta.length = self._steps - self._began_at[i]
         if self._has_success:
             meta.success, meta.ever_success = bool(self._success[i]), bool(self._ever_success[i])
         if meta.length == 0:

@@ -10,7 +10,9 @@ touched. `storage_error` words the `OSError` a write raised. And what keeps a co
 
 from __future__ import annotations
 
+import ctypes
 import errno
+import functools
 import os
 import re
 import signal
@@ -22,7 +24,8 @@ from typing import Any
 
 from simreel.errors import StorageError, Terminated
 
-__all__ = ["deferred_signals", "stopping_signals", "raise_if_stopped", "reserve_space", "storage_error", "errno_of", "is_storage_error", "STORAGE_ERRNOS"]
+__all__ = ["deferred_signals", "stopping_signals", "raise_if_stopped", "reserve_space", "release_space",
+           "storage_error", "errno_of", "is_storage_error", "STORAGE_ERRNOS"]
 
 _DEFERRED = (signal.SIGINT, signal.SIGTERM)
 
@@ -102,16 +105,58 @@ def raise_if_stopped() -> None:
 
 def reserve_space(fd: int, nbytes: int) -> None:
     """Allocate `nbytes` of disk past the end of the file open as `fd`, so that writing that much cannot fail
-    for lack of space; raises `OSError` (ENOSPC) when the disk has not got them. HDF5 gives back what it does
-    not use when it flushes (it cuts the file at its end of data)."""
+    for lack of space; raises `OSError` (ENOSPC) when the disk has not got them.
+
+    The blocks are allocated without changing the file's size (Linux `fallocate` with FALLOC_FL_KEEP_SIZE), so
+    HDF5, which cuts a file longer than its data back at every flush, has nothing to cut: growing the file into
+    blocks already allocated costs microseconds, while freeing blocks that `posix_fallocate` added costs ~1.6 ms
+    a commit on ext4. What a commit leaves unused is used by the next one; `release_space` gives back the rest.
+    Where the system has no such call, `posix_fallocate` reserves them (the file grows until HDF5's flush).
+    """
     size = os.fstat(fd).st_size
     try:
-        os.posix_fallocate(fd, size, max(1, nbytes))
+        _allocate(fd, size, max(1, nbytes))
     except OSError as e:
-        if e.errno in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):
+        if e.errno in _CANNOT_RESERVE:
             return  # the file system cannot reserve: the commit then finds out while it writes
         os.ftruncate(fd, size)  # what was allocated before the failure
         raise
+
+
+def release_space(fd: int) -> None:
+    """Give back the blocks `reserve_space` allocated past the end of the file open as `fd` (a truncation to its
+    own size frees them)."""
+    os.ftruncate(fd, os.fstat(fd).st_size)
+
+
+_CANNOT_RESERVE = (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS)
+_FALLOC_FL_KEEP_SIZE = 1
+
+
+@functools.cache
+def _fallocate() -> Any:
+    """libc's `fallocate(fd, mode, offset, len)`, or None where there is none (not Linux)."""
+    try:
+        call = ctypes.CDLL(None, use_errno=True).fallocate
+    except (OSError, AttributeError):
+        return None
+    call.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int64, ctypes.c_int64]
+    call.restype = ctypes.c_int
+    return call
+
+
+def _allocate(fd: int, offset: int, length: int) -> None:
+    """Allocate `length` bytes of disk at `offset` of `fd`, keeping the file's size where the system can."""
+    call = _fallocate()
+    while call is not None:
+        if call(fd, _FALLOC_FL_KEEP_SIZE, offset, length) == 0:
+            return
+        code = ctypes.get_errno()
+        if code in _CANNOT_RESERVE:
+            break  # this file system has no FALLOC_FL_KEEP_SIZE: reserve by growing the file
+        if code != errno.EINTR:
+            raise OSError(code, os.strerror(code))
+    os.posix_fallocate(fd, offset, length)
 
 
 def errno_of(e: OSError) -> int | None:

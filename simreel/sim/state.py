@@ -6,8 +6,8 @@
   recording needs, raising `simreel.errors.StateLayoutError` naming every leaf that differs.
 
 Fast reads: ManiSkill 3.0.1's `get_state_dict()` builds a `Pose` and several torch tensors per object (~240 µs for
-PickCube, a fifth of a CPU step). On the CPU sim with one env the same numbers are plain attributes of
-the SAPIEN entities; `FastStateReader` reads them into numpy (~30 µs). It is used only where it gives the
+PickCube, a fifth of a CPU step). On the CPU sim with one env the same numbers come from one `pack()` of the
+PhysX system; `FastStateReader` gathers them into numpy (~15 µs). It is used only where it gives the
 very same values: a task that does not override `get_state_dict` (or only adds declared custom state
 through `simreel.authoring.custom_state.CustomStateMixin`), registry objects of ManiSkill's own `Actor` /
 `Articulation` classes, CPU sim, `num_envs == 1`. Its users (the recorder, the replay engine) check it
@@ -45,15 +45,27 @@ def _base_get_state_dict() -> tuple[Any, ...]:
 
 
 class FastStateReader:
-    """`read()` → flat state dict (key path → (1, ...) float32 array) of a supported CPU env."""
+    """`read()` → flat state dict (key path → (1, ...) float32 array) of a supported CPU env.
+
+    Actors and articulations come from one call, the PhysX CPU system's `pack()`: a byte string of every rigid
+    dynamic body's pose (q wxyz, p), linear and angular velocity, then of every articulation its root pose and
+    velocities, qpos, qvel and joint drive targets, in the order of `px.rigid_dynamic_components` /
+    `px.articulation_link_components` (SAPIEN 3.0.3's `PhysxSystemCpu::packState`). Where each state leaf's
+    numbers sit in it is worked out once per scene; a read is then one gather, not a dozen pybind calls and
+    concatenations per body. A scene whose bodies changed since (the byte string has another length) is read
+    through `get_state_dict()`.
+    """
 
     def __init__(self, unwrapped: Any) -> None:
         from mani_skill.utils.structs import Actor, Articulation
 
         u = unwrapped
         self.u = u
-        self._actors: list[tuple[str, Any, Any, bool]] = []
-        self._arts: list[tuple[str, Any, Any]] = []
+        self._px = u.scene.px
+        bodies, articulations, self._nbytes = _packed_starts(self._px)
+        zero = self._nbytes // 4  # `read` appends one 0.0 there: the velocities of kinematic actors
+        index: list[int] = []
+        self._slices: list[tuple[str, int, int]] = []
         reg = u.scene.state_dict_registry
         for name, actor in reg.actors.items():
             if type(actor) is not Actor or len(actor._objs) != 1:
@@ -61,13 +73,25 @@ class FastStateReader:
             kind = actor.px_body_type
             if kind == "static":
                 continue
-            self._actors.append((f"actors/{name}", actor._objs[0], actor._bodies[0], kind == "dynamic"))
+            s = bodies[actor._bodies[0]]
+            velocities = list(range(s + 7, s + 13)) if kind == "dynamic" else [zero] * 6
+            self._add(f"actors/{name}", index, [*range(s + 4, s + 7), *range(s, s + 4), *velocities])
         for name, art in reg.articulations.items():
             if type(art) is not Articulation or len(art._objs) != 1 or art.max_dof != art._objs[0].dof:
                 raise TypeError(name)
-            root = art.root
-            self._arts.append((f"articulations/{name}", art._objs[0], root._bodies[0]))
+            s, dof = articulations[art._objs[0]], art._objs[0].dof
+            # root p, q, linear and angular velocity, then qpos and qvel
+            self._add(f"articulations/{name}", index, [*range(s + 4, s + 7), *range(s, s + 4),
+                                                      *range(s + 7, s + 13 + 2 * dof)])
+        self._index = np.asarray(index, np.intp)
         self._custom = type(u).get_state_dict is _base_get_state_dict()[1]
+        self._agent = getattr(u, "agent", None)
+        if self._agent is not None and not self._controller_state():
+            self._agent = None  # a controller without targets (pd_joint_pos, ...) never has state: skip asking
+
+    def _add(self, key: str, index: list[int], leaf: list[int]) -> None:
+        self._slices.append((key, len(index), len(index) + len(leaf)))
+        index.extend(leaf)
 
     @classmethod
     def for_env(cls, unwrapped: Any) -> FastStateReader | None:
@@ -83,47 +107,69 @@ class FastStateReader:
             return None
         try:
             return cls(u)
-        except (TypeError, AttributeError, IndexError):
+        except (TypeError, AttributeError, IndexError, KeyError):
             return None
 
     def read(self) -> dict[str, np.ndarray]:
-        out: dict[str, np.ndarray] = {}
-        zeros = np.zeros(3, np.float32)
-        for key, entity, body, dynamic in self._actors:
-            pose = entity.pose
-            if dynamic:
-                v, w = body.linear_velocity, body.angular_velocity
-            else:
-                v = w = zeros
-            out[key] = np.concatenate([pose.p, pose.q, v, w]).astype(np.float32, copy=False)[None]
-        for key, px_art, root in self._arts:
-            pose = root.entity_pose
-            out[key] = np.concatenate(
-                [pose.p, pose.q, root.linear_velocity, root.angular_velocity, px_art.qpos, px_art.qvel]
-            ).astype(np.float32, copy=False)[None]
-        u = self.u
-        agent = getattr(u, "agent", None)
-        if agent is not None:
-            controller = agent.get_controller_state()
-            if isinstance(agent.controller, dict):
-                controller = {k: v for k, v in controller.items() if len(v) > 0}
-            if len(controller) > 0:
+        packed = self._px.pack()
+        if len(packed) != self._nbytes:  # bodies were added or removed since the reader was built
+            return read_state(self.u)
+        flat = np.frombuffer(packed + _ZERO_F32, np.float32)[self._index]  # one gather: a new array per read
+        out: dict[str, np.ndarray] = {key: flat[None, a:b] for key, a, b in self._slices}
+        if self._agent is not None:
+            controller = self._controller_state()
+            if controller:
                 out.update(flatten({"controller": controller}))
         if self._custom:
             from simreel.authoring.custom_state import get_custom_state
 
-            out.update({k: to_numpy(v) for k, v in get_custom_state(u).items()})
+            out.update({k: to_numpy(v) for k, v in get_custom_state(self.u).items()})
         return out
+
+    def _controller_state(self) -> dict[str, Any]:
+        """The controller's entry of the state dict now, as `get_state_dict()` makes it (empty: none)."""
+        agent = self._agent
+        controller = agent.get_controller_state()
+        if isinstance(agent.controller, dict):
+            controller = {k: v for k, v in controller.items() if len(v) > 0}
+        return controller if len(controller) > 0 else {}
 
     def matches(self) -> bool:
         """Whether `read()` equals `get_state_dict()` now, bit for bit, key for key."""
-        fast, slow = self.read(), flatten(self.u.get_state_dict())
-        if list(fast) != list(slow):
+        return self.equals(flatten(self.u.get_state_dict()))
+
+    def equals(self, state: Mapping[str, np.ndarray]) -> bool:
+        """Whether `read()` equals `state` (a flat state dict read through `get_state_dict()` now), bit for bit, key
+        for key."""
+        fast = self.read()
+        if list(fast) != list(state):
             return False
         return all(
-            fast[k].shape == slow[k].shape and fast[k].dtype == slow[k].dtype and np.array_equal(fast[k], slow[k])
-            for k in slow
+            fast[k].shape == state[k].shape and fast[k].dtype == state[k].dtype and np.array_equal(fast[k], state[k])
+            for k in state
         )
+
+
+_ZERO_F32 = np.zeros(1, np.float32).tobytes()
+_BODY_FLOATS = 13
+"""A body in `pack()`: pose (q wxyz, p xyz), linear velocity, angular velocity."""
+
+
+def _packed_starts(px: Any) -> tuple[dict[Any, int], dict[Any, int], int]:
+    """Where each rigid dynamic body and each articulation starts in `px.pack()` (in float32s), and its length in
+    bytes; `TypeError` where that length is not the one `pack()` returns (another SAPIEN than 3.0.3's layout)."""
+    bodies, articulations, at = {}, {}, 0
+    for body in px.rigid_dynamic_components:
+        bodies[body] = at
+        at += _BODY_FLOATS
+    for link in px.articulation_link_components:
+        if link.is_root:
+            art = link.articulation
+            articulations[art] = at
+            at += _BODY_FLOATS + 2 * art.dof + 2 * sum(j.dof for j in art.active_joints)  # + qpos, qvel, drive targets
+    if 4 * at != len(px.pack()):
+        raise TypeError("unknown pack() layout")
+    return bodies, articulations, 4 * at
 
 
 def read_state(unwrapped: Any) -> dict[str, np.ndarray]:

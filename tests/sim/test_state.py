@@ -81,6 +81,7 @@ def test_fast_state_reader_is_bit_identical_or_not_used(record, env_id, extra, f
             assert (reader is not None) == fast
             if reader is None:
                 return
+            assert reader.equals(flatten(rp.u.get_state_dict()))  # the recorder's check at a reset
             for a in ep.actions[:6]:
                 rp.u.step(a)
                 got, want = reader.read(), flatten(rp.u.get_state_dict())

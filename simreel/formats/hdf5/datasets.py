@@ -9,6 +9,7 @@ built once cost about a third of h5py's `create_dataset`, which matters because 
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,8 @@ CHUNK_BYTES = 1 << 20
 _GZIP_LEVEL = 4
 _COPY_CHUNKS = 16
 """Chunks copied at a time from a scratch file (a long episode never sits in memory whole)."""
+_MAX_DCPLS = 256
+"""Creation property lists kept (one per chunk shape); past this many the cache starts over."""
 
 
 _IMAGE_MIN_ELEMENTS = 1024
@@ -40,7 +43,7 @@ def image_storage(name: str, row_shape: tuple[int, ...], rows: int) -> dict[str,
     frames. Point clouds: 16.5 KB/frame against ManiSkill's 302 KB (it stores xyzw and segmentation raw).
     Reading one frame costs ~10 ms (ManiSkill's layout ~9 ms).
     """
-    if not name.startswith("obs/") or len(row_shape) < 2 or int(np.prod(row_shape)) < _IMAGE_MIN_ELEMENTS:
+    if not name.startswith("obs/") or len(row_shape) < 2 or math.prod(row_shape) < _IMAGE_MIN_ELEMENTS:
         return None
     tile = _IMAGE_TILE if len(row_shape) >= 3 else _POINT_TILE
     chunks = (max(1, min(rows, _IMAGE_CHUNK_FRAMES)), *(min(n, tile) for n in row_shape[:-1]), row_shape[-1])
@@ -49,7 +52,7 @@ def image_storage(name: str, row_shape: tuple[int, ...], rows: int) -> dict[str,
 
 def chunk_rows(row_shape: tuple[int, ...], itemsize: int, rows: int) -> int:
     """Rows per chunk: the whole field up to `CHUNK_BYTES`, else as many rows as fit in it (at least 1)."""
-    row_bytes = max(1, int(np.prod(row_shape, dtype=np.int64)) * itemsize)
+    row_bytes = max(1, math.prod(row_shape) * itemsize)
     return int(max(1, min(rows, CHUNK_BYTES // row_bytes)))
 
 
@@ -68,17 +71,21 @@ class DatasetWriter:
         self._gcpl.set_obj_track_times(False)
         self._empty = h5p.create(h5p.DATASET_CREATE)
         self._empty.set_obj_track_times(False)
-        self._chunked: dict[tuple[int, int | None], Any] = {}
+        self._chunked: dict[tuple[tuple[int, ...], int | None], Any] = {}
         self._types: dict[np.dtype, Any] = {}
+        self._memory_types: dict[np.dtype, Any] = {}
 
     def _dcpl(self, chunk: tuple[int, ...], image_level: int | None = None) -> Any:
-        """The creation property list of a chunked, filtered dataset of this rank, with its chunk shape set
-        (`image_level`: an image's gzip level, `image_storage`, instead of the writer's compression)."""
+        """The creation property list of a chunked, filtered dataset with this chunk shape (`image_level`: an
+        image's gzip level, `image_storage`, instead of the writer's compression); built once per shape and kept
+        (up to `_MAX_DCPLS`: a recording's shapes are its fields times its episode lengths)."""
         from h5py import h5p, h5z
 
-        key = (len(chunk), image_level)
+        key = (chunk, image_level)
         dcpl = self._chunked.get(key)
         if dcpl is None:
+            if len(self._chunked) >= _MAX_DCPLS:
+                self._chunked.clear()
             dcpl = h5p.create(h5p.DATASET_CREATE)
             dcpl.set_obj_track_times(False)
             dcpl.set_chunk(chunk)
@@ -92,7 +99,6 @@ class DatasetWriter:
                     dcpl.set_filter(h5z.FILTER_LZF, h5z.FLAG_OPTIONAL)
             dcpl.set_fletcher32()
             self._chunked[key] = dcpl
-        dcpl.set_chunk(chunk)
         return dcpl
 
     def _type(self, dtype: np.dtype) -> Any:
@@ -126,13 +132,16 @@ class DatasetWriter:
 
     def write(self, group: Any, name: str, data: np.ndarray) -> None:
         """Create dataset `name` in `group` (an h5py object id) holding `data`."""
-        from h5py import h5s
+        from h5py import h5s, h5t
 
         data = np.ascontiguousarray(data)
         ds = self.create(group, name, data.shape, data.dtype)
         try:
             if data.size:
-                ds.write(h5s.ALL, h5s.ALL, data)
+                mtype = self._memory_types.get(data.dtype)
+                if mtype is None:  # the type h5py's own write would build for `data`, built once
+                    mtype = self._memory_types[data.dtype] = h5t.py_create(data.dtype)
+                ds.write(h5s.ALL, h5s.ALL, data, mtype=mtype)
         finally:
             ds.close()
 

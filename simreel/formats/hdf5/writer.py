@@ -20,6 +20,7 @@ one by `close` (`simreel.formats.staging`); a second writer of the same name is 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -33,7 +34,13 @@ from simreel import FORMAT_VERSION
 from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import StorageError, UsageError
 from simreel.formats.base import EpisodeSink, EpisodeWriter
-from simreel.formats.durable import deferred_signals, is_storage_error, reserve_space, storage_error
+from simreel.formats.durable import (
+    deferred_signals,
+    is_storage_error,
+    release_space,
+    reserve_space,
+    storage_error,
+)
 from simreel.formats.hdf5.datasets import DatasetWriter, image_storage
 from simreel.formats.hdf5.layout import (
     EPISODE_ATTR,
@@ -307,6 +314,8 @@ class Hdf5Writer(EpisodeWriter):
                                                          readable=self._where_readable)
             raise self._failed from None
         finally:
+            with contextlib.suppress(OSError):
+                release_space(self._fd)  # what the last commit reserved and did not use
             self._commit_lock.close()
             self._clear_running()
             if self._failed is None:

@@ -1,0 +1,44 @@
+"""`simreel recover` on a real HDF5 recording with damaged episodes: it keeps every intact one and names the others."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+from support.children import simreel
+from support.damage import stored_bytes
+from support.mcap_samples import assert_same_episode
+
+from simreel.formats import open_reader
+
+
+def test_recover_keeps_every_intact_hdf5_episode_and_names_the_damaged_ones(record, tmp_path):
+    """Issue 17, item 6 (HDF5): one damaged episode must not cost the intact ones after it. Episode 1's stored
+    bytes fail their checksum; episode 2 lacks a dataset its layout lists; 0, 3 and 4 must come out unchanged."""
+    path = tmp_path / "damaged.h5"
+    path.write_bytes(record("PickCube-v1", 5, 12).read_bytes())
+    with open_reader(path) as r:
+        intact = {i: r.read_episode(i) for i in (0, 3, 4)}
+    offset, size = stored_bytes(path, "traj_1/env_states/articulations/panda")
+    data = bytearray(path.read_bytes())
+    data[offset + size // 2] ^= 0x04
+    path.write_bytes(data)
+    with h5py.File(path, "a") as f:
+        del f["traj_2/contact_forces"]
+
+    done = simreel("recover", str(path), "-o", str(tmp_path / "saved.h5"))
+
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0] == f"recovered 3 committed episode(s), 36 steps, into {tmp_path / 'saved.h5'}"
+    lost = next(line for line in lines if line.startswith("lost (damaged): "))
+    assert "episode 1 (traj_1/env_states/articulations/panda is corrupt: its data fails its checksum" in lost
+    assert "episode 2 (traj_2 lacks contact_forces, which the recording's layout lists)" in lost
+    with open_reader(tmp_path / "saved.h5") as r:
+        assert [m.index for m in r.episodes] == [0, 3, 4] and r.damaged == [] and r.unfinished == []
+        for i, want in intact.items():
+            assert_same_episode(r.read_episode(i), want)
+    sidecar = json.loads((tmp_path / "saved.json").read_text())  # what ManiSkill's tools read beside the .h5
+    assert [e["episode_id"] for e in sidecar["episodes"]] == [0, 3, 4]
+    with open_reader(path) as r:  # the damaged input is left as it was
+        assert [m.index for m in r.episodes] == [0, 1, 2, 3, 4]
