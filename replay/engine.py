@@ -410,7 +410,9 @@ class EpisodeReplayer:
     def _step_states(self, run: _Run, buf: _Block, i: int, action: Any) -> None:
         u, states, t = self.u, run.states, run.states.first + i
         restore_state(u, states.row(t), elapsed_steps=t)
-        self._step(action)  # for contacts: one step from the recorded state t
+        # one step from the recorded state t, for its contacts and the controller's target; without the
+        # observation `step` would compute (with cameras: a frame rendered for nothing, half the time)
+        u._step_action(action)
         contacts = self._contacts.sample()[0] if buf.contact_forces is not None else None
         restore_state(u, states.row(t + 1), elapsed_steps=t + 1)
         info = u.get_info()

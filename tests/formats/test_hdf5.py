@@ -239,6 +239,32 @@ def test_kill_9_keeps_every_committed_episode(tmp_path):
     assert f"episodes: {len(r)}," in out.stdout
 
 
+def _end_of_data(path: Path) -> int:
+    """The end-of-address field of the file's version-0 superblock: where HDF5's allocated space ends."""
+    head = path.read_bytes()[:48]
+    assert head[8] == 0, "simreel writes a version-0 superblock"
+    return int.from_bytes(head[40:48], "little")
+
+
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_each_commit_gives_back_the_disk_space_it_reserved_but_did_not_use(tmp_path, overwrite):
+    """Regression: the space a commit reserves (an episode's raw size + 64 KiB) stayed at the end of the file as
+    zeros, HDF5 never cutting it: half of a 226 KB conversion output. After every commit the file ends where
+    HDF5's data ends, and h5py reads it."""
+    rng = np.random.default_rng(1)
+    path = tmp_path / "r.h5"
+    if overwrite:
+        path.write_bytes(b"an older recording")
+    with open_writer(path, _meta(), overwrite=overwrite) as w:
+        for i, T in enumerate((200, 50, 300, 0)):  # the first commit left 106 KB of zeros
+            w.write_episode(_episode(i, T, rng))
+            written = w._target.write_path  # the staged file while it replaces another
+            assert written.stat().st_size == _end_of_data(written), f"after episode {i}"
+    assert path.stat().st_size == _end_of_data(path)
+    with h5py.File(path, "r") as f:
+        assert f["traj_2/actions"].shape == (300, 2)
+
+
 def test_a_short_episode_with_a_large_field_is_written_whole(tmp_path):
     """Regression: a field over the contiguous limit with fewer rows than a chunk (6 camera frames) failed
     ("Chunk shape must not be greater than data shape")."""

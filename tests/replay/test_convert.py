@@ -67,7 +67,8 @@ def test_a_conversion_verifies_with_per_step_tracking_errors(demos, env_id, mode
         assert episode["checked"] == ["commanded pose", "end-effector pose", "object poses", "success"]
         per_step = episode["per_step"]
         assert len(per_step["ee/panda_hand_tcp[p]"]) == STEPS + 1 and len(per_step["success"]) == STEPS
-        assert max(per_step["ee/panda_hand_tcp[p]"]) == episode["max_abs_error"]["ee/panda_hand_tcp[p]"]
+        # the report lists the keys that differ; an exact one (PegInsertionSide, pd_joint_delta_pos) is left out
+        assert max(per_step["ee/panda_hand_tcp[p]"]) == episode["max_abs_error"].get("ee/panda_hand_tcp[p]", 0.0)
     with open_reader(out) as r, open_reader(src) as original:
         assert r.meta.control_mode == mode and r.meta.action_space["shape"] == [7 if "ee" in mode else 8]
         assert r.meta.provenance["source"] == str(src.resolve())

@@ -23,12 +23,30 @@ def demos(tmp_path_factory):
                             path="pick")
 
 
+_COUNTING_FRAMES = """
+import atexit, sys
+from simreel.cli.main import main  # first: importing simreel points Vulkan at lavapipe before sapien loads
+from mani_skill.sensors.camera import Camera
+
+captured = []
+capture = Camera.capture
+Camera.capture = lambda self, *a, **k: (captured.append(1), capture(self, *a, **k))[1]
+atexit.register(lambda: print("frames captured:", len(captured)))
+sys.exit(main())
+"""
+"""`python -m simreel`, counting the frames the cameras capture."""
+
+
 def _convert(env, src, out, *args):
-    done = subprocess.run([sys.executable, "-m", "simreel", "convert", str(src), str(out), "-q",
+    done = subprocess.run([sys.executable, "-c", _COUNTING_FRAMES, "convert", str(src), str(out), "-q",
                            "--report", str(out.with_suffix(".report.json")), *args],
                           env=env, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return done.stdout, json.loads(out.with_suffix(".report.json").read_text())
+
+
+def _frames_captured(printed: str) -> int:
+    return int(printed.rsplit("frames captured:", 1)[1])
 
 
 def _same_states_and_actions(src, out) -> None:
@@ -50,6 +68,9 @@ def test_rgb_re_render_is_read_by_maniskill_with_the_input_states(demos, lavapip
     assert "obs none -> rgb" in printed and "2 of 2 episode(s) verified; 2 written" in printed
     assert report["ok"] and report["written_check"].endswith("its states and actions equal the input's exactly")
     assert all(e["verdict"] in ("exact", "within_tolerance") for e in report["episodes"])
+    # each frame rendered once (regression: twice, the env's step rendering one it threw away): the env's first
+    # reset, then per episode its reset, its first frame and one per step
+    assert _frames_captured(printed) == 1 + sum(2 + e["length"] for e in report["episodes"])
     _same_states_and_actions(demos, out)
     with open_reader(out) as r:
         assert r.meta.obs_mode == "rgb" and r.meta.env_kwargs["sensor_configs"] == {"width": 64, "height": 48}
@@ -80,3 +101,4 @@ def test_pointcloud_re_render_is_read_by_maniskill_with_the_input_states(demos, 
     data = ManiSkillTrajectoryDataset(str(out))
     np.testing.assert_array_equal(data.obs["pointcloud"]["xyzw"][:8], xyzw[:-1])
     data.data.close()
+

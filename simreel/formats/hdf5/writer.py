@@ -38,6 +38,7 @@ from simreel.formats.durable import (
     deferred_signals,
     is_storage_error,
     release_space,
+    release_unused,
     reserve_space,
     storage_error,
 )
@@ -250,6 +251,7 @@ class Hdf5Writer(EpisodeWriter):
                         self._datasets.group(group, OBS)  # have it empty
                     self._h5py.Group(group).attrs[EPISODE_ATTR] = encode_text(json.dumps(meta.to_json()))
                     self._file.flush()
+                    release_unused(self._fd, self._file.id.get_filesize())  # HDF5's end of allocated space
                 self._sidecar.append(meta)
             except BaseException as e:
                 raise self._fail(e, meta) from None
