@@ -1,5 +1,6 @@
 """Log a prepared `ViewSession` into a Rerun recording stream: static geometry first, then each run's poses
-(and, for the recording, its camera images and contact arrows) in blocks of rows, then the plots and events.
+(and, for the recording, its contact arrows) in blocks of rows, the recording's camera frames read from its file a
+block at a time, then the plots and events.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from simreel.formats.base import block_rows
 from simreel.viewers.log_cameras import camera_streams, log_camera_block, log_camera_formats
 from simreel.viewers.log_contacts import active_channels, log_contact_block, log_contact_styles
 from simreel.viewers.log_plots import (
@@ -51,7 +53,8 @@ class _SessionLogger:
         self.active = active_channels(forces) if forces is not None else np.zeros(len(self.channels), bool)
         index = {n: j for j, n in enumerate(names)}
         self.channel_body = np.array([index.get(ch.bodies[0], -1) for ch in self.channels], np.intp)
-        self.streams = camera_streams(self.episode.obs)
+        self.streams = camera_streams(session.recording.rows.fields)
+        self.block_steps = session.block_steps or block_rows(session.recording.rows.fields)
 
     def static(self) -> None:
         import rerun as rr
@@ -64,7 +67,7 @@ class _SessionLogger:
         if session.replayed is not None:
             log_geometry(rec, REPLAYED, session.geometry, ghost=True)
         log_contact_styles(rec, [(c, ch) for c, ch in enumerate(self.channels) if self.active[c]])
-        log_camera_formats(rec, self.episode.obs, self.streams)
+        log_camera_formats(rec, self.streams)
 
     def timeline(self, root: str, run: EpisodeRun) -> bool:
         """Log `run`'s poses under `root` (for the recording also its images and contacts), block by block;
@@ -73,8 +76,8 @@ class _SessionLogger:
         src = PoseSource(session.env.unwrapped, session.bodies, run.episode.env_states,
                          recorded=run.episode.body_poses, recorded_names=run.meta.pose_bodies)
         total = run.episode.length + 1
-        for start in range(0, total, session.block_steps):
-            rows = slice(start, min(total, start + session.block_steps))
+        for start in range(0, total, self.block_steps):
+            rows = slice(start, min(total, start + self.block_steps))
             poses = src.rows(rows.start, rows.stop)
             if start == 0 and self.static_names:
                 log_static_poses(self.rec, root, self.static_names, poses[0, ~self.moving])
@@ -84,9 +87,19 @@ class _SessionLogger:
                 self._recording_block(rows, poses, indexes)
         return src.from_recording
 
+    def cameras(self) -> None:
+        """The recording's camera frames, read from its file and logged a block of rows at a time."""
+        if not self.streams:
+            return
+        run = self.session.recording
+        names = [f.name for f in self.streams.values()]
+        reset = run.rows.reset()
+        log_camera_block(self.rec, reset.arrays, self.streams, time_indexes(np.arange(1), self.period))
+        for start, block in run.blocks(run.episode.length, self.block_steps):
+            rows = np.arange(start + 1, start + 1 + block.rows)
+            log_camera_block(self.rec, {n: block[n] for n in names}, self.streams, time_indexes(rows, self.period))
+
     def _recording_block(self, rows: slice, poses: np.ndarray, indexes: list[Any]) -> None:
-        if self.streams:
-            log_camera_block(self.rec, self.episode.obs, self.streams, rows, indexes)
         if self.forces is None or not self.active.any():
             return
         first = max(rows.start, 1)  # contacts of step k go with state row k + 1
@@ -121,6 +134,7 @@ def log_session(rec: rr.RecordingStream, session: ViewSession) -> None:
     logger = _SessionLogger(rec, session)
     logger.static()
     from_recording = logger.timeline(WORLD, session.recording)
+    logger.cameras()
     if session.replayed is not None:
         logger.timeline(REPLAYED, session.replayed)
     session.pose_source = "recorded" if from_recording else "restored"

@@ -1,13 +1,20 @@
-"""The episodes a session draws: the recorded one and, with ``--compare``, its replay, read from their files."""
+"""The episodes a session draws: the recorded one and, with ``--compare``, its replay, read from their files.
+
+An `EpisodeRun` keeps its file open and holds the episode without its observations (`EpisodeRows.episode` with
+``obs=False``: states, actions, rewards, flags, info, contacts, body poses); the observations (camera frames) are
+read a block of rows at a time from `EpisodeRun.rows`, whenever they are compared or logged.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from simreel.episode import Episode, RecordingMeta
+from simreel.episode import Episode, FieldSpec, RecordingMeta, StepBlock
 from simreel.errors import RecordingFileError, ViewError
 from simreel.formats import EpisodeReader, open_reader
+from simreel.formats.base import EpisodeRows, block_rows
 
 __all__ = ["EpisodeRun", "read_run", "read_compare", "Source"]
 
@@ -22,7 +29,27 @@ class EpisodeRun:
     label: str
     meta: RecordingMeta
     episode: Episode
+    """The episode without its observations (``episode.obs`` is empty): those are read in blocks from `rows`."""
     file_name: str
+    rows: EpisodeRows
+    """The episode in its file, read a block of rows at a time."""
+    reader: EpisodeReader | None = None
+    """The reader this run opened (closed by `close`); None when the caller's."""
+
+    @property
+    def obs_fields(self) -> list[FieldSpec]:
+        return [f for f in self.rows.fields if f.name.startswith("obs/")]
+
+    def blocks(self, steps: int, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
+        """(first step, block) of the first `steps` steps, `rows` steps a block (None: `block_rows` of the file)."""
+        rows = rows or block_rows(self.rows.fields)
+        for start in range(0, steps, rows):
+            yield start, self.rows.steps(start, min(steps, start + rows))
+
+    def close(self) -> None:
+        if self.reader is not None:
+            self.reader.close()
+            self.reader = None
 
 
 def _open(source: Source) -> tuple[EpisodeReader, bool]:
@@ -32,7 +59,8 @@ def _open(source: Source) -> tuple[EpisodeReader, bool]:
 
 
 def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun:
-    """Episode `index` of `source` (None: its first episode); `role` is added to the label (``replayed``)."""
+    """Episode `index` of `source` (None: its first episode); `role` is added to the label (``replayed``).
+    The run keeps a reader it opened until `EpisodeRun.close`."""
     reader, owned = _open(source)
     try:
         if not reader.episodes:
@@ -40,13 +68,15 @@ def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun
         if index is None:
             index = reader.episodes[0].index
         reader.episode_meta(index)  # a clear error naming the episodes there are
-        episode = reader.read_episode(index)
-        name = Path(reader.path).name
-        label = f"{name} episode {index}" + (f" ({role})" if role else "")
-        return EpisodeRun(label, reader.meta, episode, name)
-    finally:
+        rows = reader.open_episode(index)
+        episode = rows.episode(obs=False)
+    except BaseException:
         if owned:
             reader.close()
+        raise
+    name = Path(reader.path).name
+    label = f"{name} episode {index}" + (f" ({role})" if role else "")
+    return EpisodeRun(label, reader.meta, episode, name, rows, reader if owned else None)
 
 
 def read_compare(compare: Source, recorded: EpisodeRun) -> EpisodeRun:
@@ -63,9 +93,20 @@ def read_compare(compare: Source, recorded: EpisodeRun) -> EpisodeRun:
                 )
             index = have[0]
         run = read_run(reader, index, role="replayed")
-    finally:
+    except BaseException:
         if owned:
             reader.close()
+        raise
+    run.reader = reader if owned else None
+    try:
+        _check_comparable(run, recorded)
+    except BaseException:
+        run.close()
+        raise
+    return run
+
+
+def _check_comparable(run: EpisodeRun, recorded: EpisodeRun) -> None:
     if run.meta.env_id != recorded.meta.env_id:
         raise ViewError(
             f"--compare {run.label}: it is a recording of {run.meta.env_id}, not of {recorded.meta.env_id}; "
@@ -73,4 +114,3 @@ def read_compare(compare: Source, recorded: EpisodeRun) -> EpisodeRun:
         )
     if not set(run.episode.env_states) & set(recorded.episode.env_states):
         raise ViewError(f"--compare {run.label}: no state key in common with {recorded.label}")
-    return run
