@@ -1,8 +1,10 @@
 """The episodes a session draws: the recorded one and, with ``--compare``, its replay, read from their files.
 
-An `EpisodeRun` keeps its file open and holds the episode without its observations (`EpisodeRows.episode` with
-``obs=False``: states, actions, rewards, flags, info, contacts, body poses); the observations (camera frames) are
-read a block of rows at a time from `EpisodeRun.rows`, whenever they are compared or logged.
+An `EpisodeRun` keeps its file open and holds a summary of the episode: its per-step fields (actions, rewards,
+flags, info, contact forces) and its controller states, what the events of a whole episode (`simreel.divergence`:
+grasps, contacts, controller jumps) and the layout are found from. The rest, the states, body poses and
+observations (camera frames) that make up most of a long episode, is read a block of rows at a time from
+`EpisodeRun.rows` whenever it is compared or logged.
 """
 
 from __future__ import annotations
@@ -11,7 +13,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from simreel.episode import Episode, FieldSpec, RecordingMeta, StepBlock
+import numpy as np
+
+from simreel.episode import Episode, FieldSpec, RecordingMeta, StepBlock, join_blocks
 from simreel.errors import RecordingFileError, ViewError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows, block_rows
@@ -29,7 +33,8 @@ class EpisodeRun:
     label: str
     meta: RecordingMeta
     episode: Episode
-    """The episode without its observations (``episode.obs`` is empty): those are read in blocks from `rows`."""
+    """The episode's summary (`summary`): per-step fields and controller states; no observations, body poses or other
+    states (read in blocks from `rows`)."""
     file_name: str
     rows: EpisodeRows
     """The episode in its file, read a block of rows at a time."""
@@ -37,14 +42,19 @@ class EpisodeRun:
     """The reader this run opened (closed by `close`); None when the caller's."""
 
     @property
-    def obs_fields(self) -> list[FieldSpec]:
-        return [f for f in self.rows.fields if f.name.startswith("obs/")]
+    def state_keys(self) -> set[str]:
+        """The state keys the file holds (``actors/cube``, ...)."""
+        return {f.name.split("/", 1)[1] for f in self.rows.fields if f.name.startswith("env_states/")}
 
-    def blocks(self, steps: int, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
-        """(first step, block) of the first `steps` steps, `rows` steps a block (None: `block_rows` of the file)."""
-        rows = rows or block_rows(self.rows.fields)
-        for start in range(0, steps, rows):
-            yield start, self.rows.steps(start, min(steps, start + rows))
+    def row_blocks(self, rows: int | None = None) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+        """(first state row, flat field arrays) of the whole episode, in order: state row 0 (the reset: per-state
+        fields only), then blocks of `rows` steps (None: `block_rows` of the file), each with its per-step rows and
+        the per-state rows after them, so every array of a block starting at state row r covers rows r, r + 1, ...
+        States the file lacks but the summary holds (`states_by_stepping`) are sliced from the summary."""
+        extra = {f"env_states/{k}": a for k, a in self.episode.env_states.items() if k not in self.state_keys}
+        yield 0, {**self.rows.reset().arrays, **{k: a[:1] for k, a in extra.items()}}
+        for start, block in self.rows.blocks(rows or block_rows(self.rows.fields)):
+            yield start + 1, {**block.arrays, **{k: a[start + 1 : start + 1 + block.rows] for k, a in extra.items()}}
 
     def close(self) -> None:
         if self.reader is not None:
@@ -69,7 +79,7 @@ def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun
             index = reader.episodes[0].index
         reader.episode_meta(index)  # a clear error naming the episodes there are
         rows = reader.open_episode(index)
-        episode = rows.episode(obs=False)
+        episode = summary(rows)
     except BaseException:
         if owned:
             reader.close()
@@ -106,11 +116,27 @@ def read_compare(compare: Source, recorded: EpisodeRun) -> EpisodeRun:
     return run
 
 
+def _in_summary(field: FieldSpec) -> bool:
+    if field.name.startswith("env_states/"):
+        return field.name.startswith("env_states/controller/")
+    return not field.per_state
+
+
+def summary(rows: EpisodeRows) -> Episode:
+    """The episode's per-step fields and controller states, read a block at a time (`EpisodeRun.episode`)."""
+    fields = [f for f in rows.fields if _in_summary(f)]
+    names = [f.name for f in fields]
+    steps = [StepBlock.of({n: block[n] for n in names}) for _, block in rows.blocks()]
+    reset = rows.reset()
+    reset = StepBlock.of({n: reset[n] for n in names if n in reset.arrays})
+    return Episode.from_fields(rows.meta, join_blocks(fields, reset, steps))
+
+
 def _check_comparable(run: EpisodeRun, recorded: EpisodeRun) -> None:
     if run.meta.env_id != recorded.meta.env_id:
         raise ViewError(
             f"--compare {run.label}: it is a recording of {run.meta.env_id}, not of {recorded.meta.env_id}; "
             "compare a replay of the same recording"
         )
-    if not set(run.episode.env_states) & set(recorded.episode.env_states):
+    if not run.state_keys & recorded.state_keys:
         raise ViewError(f"--compare {run.label}: no state key in common with {recorded.label}")
