@@ -1,10 +1,12 @@
 """A Rerun session of one recorded episode: `build_session` prepares it, `ViewSession` logs it to a sink.
 
-Preparing reads the episode without its observations (and the replayed one for ``compare``, comparing the two a
-block of rows at a time), rebuilds the recorded env on the CPU with one sub-scene and resets it to the episode's
-scene, and reads the scene's geometry. Logging then sends the geometry once (static) and everything per step in
-blocks of `block_steps` rows through `send_columns`, camera frames read from the file block by block, so memory for
-frames and derived data (poses, arrows, images) stays bounded by one block whatever the episode's length. One episode is one Rerun recording (recording id ``<file name>#episode-<index>``).
+Preparing reads a summary of the episode (`simreel.viewers.sources`: its per-step values and controller states) and,
+for ``compare``, compares it with the replayed one a block of rows at a time; it rebuilds the recorded env on the
+CPU with one sub-scene, resets it to the episode's scene and reads the scene's geometry. Logging then sends the
+geometry once (static) and reads and sends everything per step in blocks of `block_steps` rows through
+`send_columns` (poses, camera frames, plots, contacts), so memory for an episode's states, frames and derived data
+stays bounded by one block whatever its length.
+One episode is one Rerun recording (recording id ``<file name>#episode-<index>``).
 """
 
 from __future__ import annotations
