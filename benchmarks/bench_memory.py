@@ -12,7 +12,8 @@ With `--cameras` (HDF5 only) the same two episodes are also written with camera 
 observations (128x128 rgb frame, agent and extra state) of a row of a real 30-step `--obs-mode rgb --record-obs`
 recording of the env, in turn (recording 20,000 rendered steps on a CPU takes ~25 min; the bytes a reader holds do
 not depend on which frames they are). Those are replayed with `--obs-mode state`: the frames are read, block by
-block, and not compared (re-rendering them would be the same ~70 ms per step); the states are verified.
+block, and not compared (re-rendering them would be the same ~70 ms per step); the states are verified. `view --save`
+logs every frame into the .rrd, read from the file a block at a time.
 
 The peak includes the interpreter, torch, SAPIEN and the env (~0.5 GiB), which every run pays once; what a
 long episode adds on top of that is what the ratio shows.
@@ -130,6 +131,7 @@ def _camera_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
         "inspect": [sim, "inspect", str(path)],
         "replay": [sim, "replay", str(path), "-q", "--obs-mode", "state", "--report",
                    str(scratch / f"{path.stem}.report.json"), "--overwrite"],
+        "view --save": [sim, "view", str(path), "--save", str(scratch / f"{path.stem}.rrd"), "--overwrite"],
     }
 
 

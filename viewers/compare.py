@@ -4,20 +4,21 @@ explanation of that divergence (`simreel.divergence`: events, error growth, and 
 classified and stored with the replayed episode).
 
 The core reports a divergence by step (the outcome of step k is state row k + 1; ``at="reset"`` is row 0);
-`divergence_row` converts. Episodes of different lengths are compared over the shorter one.
+`divergence_row` converts. Episodes of different lengths are compared over the shorter one, a block of rows at a
+time.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from simreel.compare import Divergence, EpisodeComparison, Tolerances, compare_episode
+from simreel.compare import BlockComparison, Divergence, EpisodeComparison, Tolerances
 from simreel.divergence import Explanation, describe_divergence
 from simreel.episode import ContactChannel, Episode
+from simreel.formats.base import EpisodeRows, block_rows
 
 __all__ = ["ViewComparison", "compare_for_view", "divergence_row", "explain_for_view", "DEFAULT_MODE"]
 
@@ -60,38 +61,33 @@ class ViewComparison:
         return off or [k for k in self.comparison.errors if k.startswith("env_states/")]
 
 
-def _truncate(ep: Episode, steps: int) -> Episode:
-    if ep.length == steps:
-        return ep
-    cut = {name: getattr(ep, name)[:steps] for name in ("actions", "rewards", "terminated", "truncated", "success", "fail")}
-    return dataclasses.replace(
-        ep,
-        **cut,
-        env_states={k: v[: steps + 1] for k, v in ep.env_states.items()},
-        obs={k: v[: steps + 1] for k, v in ep.obs.items()},
-        info={k: v[:steps] for k, v in ep.info.items()},
-        contact_forces=None if ep.contact_forces is None else ep.contact_forces[:steps],
-        body_poses=None if ep.body_poses is None else ep.body_poses[: steps + 1],
-        meta=dataclasses.replace(ep.meta, length=steps),
-    )
+def _rows(episode: Episode | EpisodeRows) -> EpisodeRows:
+    return EpisodeRows.of(episode) if isinstance(episode, Episode) else episode
 
 
 def compare_for_view(
-    recorded: Episode,
-    replayed: Episode,
+    recorded: Episode | EpisodeRows,
+    replayed: Episode | EpisodeRows,
     *,
     channels: Sequence[ContactChannel] = (),
     tolerances: Tolerances | None = None,
+    rows: int | None = None,
 ) -> ViewComparison:
-    """Compare with `simreel.compare.compare_episode` (default tolerances: those of `DEFAULT_MODE`) over the
-    steps both episodes have."""
+    """Compare with `simreel.compare.BlockComparison` (the rule `simreel replay` judges by; default tolerances:
+    those of `DEFAULT_MODE`) over the steps both episodes have, reading both `rows` steps at a time (None:
+    `simreel.formats.base.block_rows` of the recording): only a block of each and the per-row error curves are held."""
+    recorded, replayed = _rows(recorded), _rows(replayed)
     steps = min(recorded.length, replayed.length)
     note = ""
     if recorded.length != replayed.length:
         note = f"the replay has {replayed.length} steps, the recording {recorded.length}: compared the first {steps}"
-    tolerances = tolerances or Tolerances.for_mode(DEFAULT_MODE)
-    comparison = compare_episode(_truncate(recorded, steps), _truncate(replayed, steps), tolerances, channels=channels)
-    return ViewComparison(comparison, steps, note)
+    blocks = BlockComparison(tolerances or Tolerances.for_mode(DEFAULT_MODE), channels=channels)
+    blocks.reset(recorded.reset(), replayed.reset())
+    rows = rows or block_rows(recorded.fields)
+    for start in range(0, steps, rows) or [0]:  # an episode of no steps still compares its (empty) per-step keys
+        stop = min(steps, start + rows)
+        blocks.steps(recorded.steps(start, stop), replayed.steps(start, stop))
+    return ViewComparison(blocks.comparison(), steps, note)
 
 
 def explain_for_view(recorded: Episode, replayed: Episode, comparison: ViewComparison,

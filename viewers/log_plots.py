@@ -1,8 +1,9 @@
 """Time series under ``plots/`` and the text log of episode events (and of a divergence's explanation) under ``events``.
 
 Everything is placed by state row: a quantity of step t (reward, success, info, contact force) goes with
-row t + 1, the state that step produced, which the ``step`` timeline shows at t (see `simreel.viewers.paths`). Multi-column series (a robot's qpos, all contact
-magnitudes) are one entity each with named series, so each is one `send_columns` call.
+row t + 1, the state that step produced, which the ``step`` timeline shows at t (see `simreel.viewers.paths`).
+Multi-column series (a robot's qpos, all contact magnitudes) are one entity each with named series, so each block of
+rows is one `send_columns` call; the series' names and colours are logged once, static, with the first block.
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ from simreel.viewers.compare import ViewComparison, divergence_row
 from simreel.viewers.log_contacts import ActiveChannels
 from simreel.viewers.paths import EVENTS, SIM_TIME, STEP, plot_path
 
-__all__ = ["time_indexes", "SeriesStyle", "log_series", "log_step_plots", "log_qpos", "log_contact_magnitudes", "log_errors",
-           "Event", "episode_events", "log_events"]
+__all__ = ["time_indexes", "SeriesStyle", "log_series", "log_step_block", "log_qpos_block", "log_contact_magnitudes",
+           "log_errors", "Event", "episode_events", "log_events"]
 
 _TOLERANCE_COLOR = (200, 40, 40, 255)
 _ERROR_COLORS = ((40, 110, 220, 255), (30, 160, 90, 255), (150, 80, 200, 255), (230, 140, 20, 255),
@@ -65,28 +66,32 @@ def log_series(rec: rr.RecordingStream, path: str, values: np.ndarray, indexes: 
     rec.send_columns(path, indexes=indexes, columns=rr.Scalars.columns(scalars=values))
 
 
-def log_step_plots(rec: rr.RecordingStream, episode: Episode, period: float | None) -> None:
-    """``plots/reward``, ``plots/success`` and ``plots/info/<key>`` for every scalar info entry."""
-    T = episode.length
-    if T == 0:
-        return
-    at = time_indexes(np.arange(1, T + 1), period)
-    if episode.rewards is not None:
-        log_series(rec, plot_path("reward"), episode.rewards, at, SeriesStyle(["reward"]))
-    if episode.success is not None:
-        log_series(rec, plot_path("success"), episode.success.astype(np.float64), at, SeriesStyle(["success"]))
-    for key, values in episode.info.items():
-        if key in ("success", "elapsed_steps") or values.ndim != 1:
+def _style(names: Sequence[str], styled: bool) -> SeriesStyle | None:
+    return SeriesStyle(names) if styled else None
+
+
+def log_step_block(rec: rr.RecordingStream, arrays: Mapping[str, np.ndarray], at: list[rr.TimeColumn], *,
+                   styled: bool) -> None:
+    """``plots/reward``, ``plots/success`` and ``plots/info/<key>`` (every scalar info entry) of a block of steps:
+    `arrays` holds their per-step fields, at the time points `at` of the state rows those steps produced; `styled`:
+    the first block, which logs the series' names."""
+    if "rewards" in arrays:
+        log_series(rec, plot_path("reward"), arrays["rewards"], at, _style(["reward"], styled))
+    if "success" in arrays:
+        log_series(rec, plot_path("success"), arrays["success"].astype(np.float64), at, _style(["success"], styled))
+    for name, values in arrays.items():
+        key = name.removeprefix("info/")
+        if key == name or key in ("success", "elapsed_steps") or values.ndim != 1:
             continue
-        log_series(rec, plot_path("info", key), values.astype(np.float64), at, SeriesStyle([key]))
+        log_series(rec, plot_path("info", key), values.astype(np.float64), at, _style([key], styled))
 
 
-def log_qpos(
-    rec: rr.RecordingStream, states: Mapping[str, np.ndarray], joint_names: Mapping[str, Sequence[str]],
-    period: float | None,
-) -> None:
-    """``plots/qpos/<articulation>``: joint positions from the articulation states (13 + 2·DOF floats)."""
-    for key, a in states.items():
+def log_qpos_block(rec: rr.RecordingStream, arrays: Mapping[str, np.ndarray], at: list[rr.TimeColumn],
+                   joint_names: Mapping[str, Sequence[str]], *, styled: bool) -> None:
+    """``plots/qpos/<articulation>``: joint positions from the articulation states (13 + 2·DOF floats) of a block of
+    state rows at the time points `at` (`arrays`: flat field names)."""
+    for name, a in arrays.items():
+        key = name.removeprefix("env_states/")
         if not key.startswith("articulations/") or a.ndim != 2 or a.shape[1] < 13:
             continue
         art = key.split("/", 1)[1]
@@ -94,22 +99,21 @@ def log_qpos(
         names = list(joint_names.get(art, []))[:dof] or [f"q{i}" for i in range(dof)]
         if not names:
             continue
-        log_series(rec, plot_path("qpos", art), a[:, 13 : 13 + len(names)], time_indexes(np.arange(len(a)), period),
-                   SeriesStyle(names))
+        log_series(rec, plot_path("qpos", art), a[:, 13 : 13 + len(names)], at, _style(names, styled))
 
 
 def log_contact_magnitudes(rec: rr.RecordingStream, channels: ActiveChannels, forces: np.ndarray,
-                           period: float | None) -> None:
-    """``plots/contacts/net`` and ``plots/contacts/pair``: |F| in newtons of every channel that is ever non-zero."""
+                           at: list[rr.TimeColumn], *, styled: bool) -> None:
+    """``plots/contacts/net`` and ``plots/contacts/pair``: |F| in newtons of every channel that is ever non-zero, for
+    a block of steps (`forces` (R, C, 3), at the time points `at` of the state rows they produced)."""
     if forces is None or not len(forces):
         return
     mags = np.linalg.norm(forces, axis=-1)
-    at = time_indexes(np.arange(1, len(forces) + 1), period)
     for kind in ("net", "pair"):
         picked = [(c, ch) for c, ch in channels if ch.kind == kind]
         if picked:
             log_series(rec, plot_path("contacts", kind), mags[:, [c for c, _ in picked]], at,
-                       SeriesStyle([ch.name for _, ch in picked]))
+                       _style([ch.name for _, ch in picked], styled))
 
 
 def log_errors(rec: rr.RecordingStream, comparison: ViewComparison, period: float | None) -> None:

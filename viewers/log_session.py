@@ -1,11 +1,14 @@
-"""Log a prepared `ViewSession` into a Rerun recording stream: static geometry first, then each run's poses
-(and, for the recording, its camera images and contact arrows) in blocks of rows, then the plots and events.
+"""Log a prepared `ViewSession` into a Rerun recording stream: static geometry first, then each run read from its
+file a block of rows at a time (`EpisodeRun.row_blocks`), each block's poses (and, for the recording, its camera
+frames, contact arrows and plots) sent with `send_columns` before the next is read, then the comparison's error
+curves and the events.
 """
 
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,8 +19,8 @@ from simreel.viewers.log_plots import (
     log_contact_magnitudes,
     log_errors,
     log_events,
-    log_qpos,
-    log_step_plots,
+    log_qpos_block,
+    log_step_block,
     time_indexes,
 )
 from simreel.viewers.log_scene import log_geometry, log_pose_block, log_static_poses
@@ -31,6 +34,10 @@ if TYPE_CHECKING:
     from simreel.viewers.sources import EpisodeRun
 
 __all__ = ["log_session"]
+
+
+def _states(arrays: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    return {k.removeprefix("env_states/"): a for k, a in arrays.items() if k.startswith("env_states/")}
 
 
 class _SessionLogger:
@@ -49,9 +56,10 @@ class _SessionLogger:
         forces = self.episode.contact_forces
         self.forces = forces
         self.active = active_channels(forces) if forces is not None else np.zeros(len(self.channels), bool)
+        self.active_list = [(c, ch) for c, ch in enumerate(self.channels) if self.active[c]]
         index = {n: j for j, n in enumerate(names)}
         self.channel_body = np.array([index.get(ch.bodies[0], -1) for ch in self.channels], np.intp)
-        self.streams = camera_streams(self.episode.obs)
+        self.streams = camera_streams(session.recording.rows.fields)
 
     def static(self) -> None:
         import rerun as rr
@@ -63,50 +71,50 @@ class _SessionLogger:
         log_geometry(rec, WORLD, session.geometry, markers=markers)
         if session.replayed is not None:
             log_geometry(rec, REPLAYED, session.geometry, ghost=True)
-        log_contact_styles(rec, [(c, ch) for c, ch in enumerate(self.channels) if self.active[c]])
-        log_camera_formats(rec, self.episode.obs, self.streams)
+        log_contact_styles(rec, self.active_list)
+        log_camera_formats(rec, self.streams)
 
     def timeline(self, root: str, run: EpisodeRun) -> bool:
-        """Log `run`'s poses under `root` (for the recording also its images and contacts), block by block;
-        returns whether the poses came from the recording (else from restored states)."""
+        """Log `run` under `root` a block of rows at a time: its poses, and for the recording also its camera
+        frames, contacts and plots; returns whether the poses came from the recording (else from restored states)."""
         session = self.session
-        src = PoseSource(session.env.unwrapped, session.bodies, run.episode.env_states,
-                         recorded=run.episode.body_poses, recorded_names=run.meta.pose_bodies)
-        total = run.episode.length + 1
-        for start in range(0, total, session.block_steps):
-            rows = slice(start, min(total, start + session.block_steps))
-            poses = src.rows(rows.start, rows.stop)
-            if start == 0 and self.static_names:
+        from_recording = True
+        for first, arrays in run.row_blocks(session.block_steps):
+            src = PoseSource(session.env.unwrapped, session.bodies, _states(arrays), recorded=arrays.get("body_poses"),
+                             recorded_names=run.meta.pose_bodies)
+            from_recording = src.from_recording
+            rows = np.arange(first, first + len(next(iter(arrays.values()))))
+            poses = src.rows(0, len(rows))
+            if first == 0 and self.static_names:
                 log_static_poses(self.rec, root, self.static_names, poses[0, ~self.moving])
-            indexes = time_indexes(np.arange(rows.start, rows.stop), self.period)
+            indexes = time_indexes(rows, self.period)
             log_pose_block(self.rec, root, self.moving_names, poses[:, self.moving], indexes)
             if root == WORLD:
-                self._recording_block(rows, poses, indexes)
-        return src.from_recording
+                self._recording_block(rows, arrays, poses, indexes)
+        return from_recording
 
-    def _recording_block(self, rows: slice, poses: np.ndarray, indexes: list[Any]) -> None:
+    def _recording_block(self, rows: np.ndarray, arrays: Mapping[str, np.ndarray], poses: np.ndarray,
+                         indexes: list[rr.TimeColumn]) -> None:
         if self.streams:
-            log_camera_block(self.rec, self.episode.obs, self.streams, rows, indexes)
-        if self.forces is None or not self.active.any():
+            log_camera_block(self.rec, arrays, self.streams, indexes)
+        log_qpos_block(self.rec, arrays, indexes, self.session.joint_names, styled=rows[0] == 0)
+        if rows[0] == 0:  # the reset: no step yet
             return
-        first = max(rows.start, 1)  # contacts of step k go with state row k + 1
-        if first >= rows.stop:
+        log_step_block(self.rec, arrays, indexes, styled=rows[0] == 1)
+        forces = arrays.get("contact_forces")
+        if forces is None:
             return
-        block = poses[first - rows.start :]
-        origins = np.full((len(block), len(self.channels), 3), np.nan, np.float32)
+        log_contact_magnitudes(self.rec, self.active_list, forces, indexes, styled=rows[0] == 1)
+        if not self.active.any():
+            return
+        # contacts of step k go with state row k + 1, at the bodies' poses there
+        origins = np.full((len(rows), len(self.channels), 3), np.nan, np.float32)
         known = self.channel_body >= 0
-        origins[:, known] = block[:, self.channel_body[known], :3]
-        active = [(c, ch) for c, ch in enumerate(self.channels) if self.active[c]]
-        log_contact_block(self.rec, active, self.forces[first - 1 : rows.stop - 1], origins,
-                          time_indexes(np.arange(first, rows.stop), self.period))
+        origins[:, known] = poses[:, self.channel_body[known], :3]
+        log_contact_block(self.rec, self.active_list, forces, origins, indexes)
 
     def plots(self) -> None:
         rec, session, ep, period = self.rec, self.session, self.episode, self.period
-        log_step_plots(rec, ep, period)
-        log_qpos(rec, ep.env_states, session.joint_names, period)
-        if self.forces is not None:
-            log_contact_magnitudes(rec, [(c, ch) for c, ch in enumerate(self.channels) if self.active[c]],
-                                   self.forces, period)
         if session.comparison is not None:
             log_errors(rec, session.comparison, period)
         label = session.replayed.label if session.replayed is not None else None

@@ -1,17 +1,20 @@
 """A Rerun session of one recorded episode: `build_session` prepares it, `ViewSession` logs it to a sink.
 
-Preparing reads the episode (and the replayed one for ``compare``), rebuilds the recorded env on the CPU
-with one sub-scene and resets it to the episode's scene, and reads the scene's geometry. Logging then
-sends the geometry once (static) and everything per step in blocks of `block_steps` rows through
-`send_columns`, so memory for derived data (poses, arrows, images) stays bounded by one block whatever
-the episode's length. One episode is one Rerun recording (recording id ``<file name>#episode-<index>``).
+Preparing reads a summary of the episode (`simreel.viewers.sources`: its per-step values and controller states) and,
+for ``compare``, compares it with the replayed one a block of rows at a time; it rebuilds the recorded env on the
+CPU with one sub-scene, resets it to the episode's scene and reads the scene's geometry. Logging then sends the
+geometry once (static) and reads and sends everything per step in blocks of `block_steps` rows through
+`send_columns` (poses, camera frames, plots, contacts), so memory for an episode's states, frames and derived data
+stays bounded by one block whatever its length.
+One episode is one Rerun recording (recording id ``<file name>#episode-<index>``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -76,7 +79,8 @@ class ViewOptions:
         mode, atol, tolerances: the comparison's tolerances, as for ``simreel replay --mode/--atol/--tol``: the
             defaults of `mode` (``actions``, ``states`` or ``step``), `atol` for every group, then per-group
             overrides such as ``{"pos": 1e-4}`` (see `simreel.compare.Tolerances.for_mode`).
-        block_steps: steps per `send_columns` block (bounds the memory of derived data).
+        block_steps: steps per block read from the files, compared and sent with `send_columns` (bounds the memory of
+            observations and derived data); None: `simreel.formats.base.block_rows` of the recording (~4 MiB).
         imports: ``--import`` specs that register the task, used instead of those the recording names.
     """
 
@@ -86,14 +90,14 @@ class ViewOptions:
     mode: str = DEFAULT_MODE
     atol: float | None = None
     tolerances: dict[str, float] | None = None
-    block_steps: int = 256
+    block_steps: int | None = None
     imports: tuple[str, ...] = ()
 
     def check(self) -> Tolerances:
         """The comparison's tolerances; `UsageError` for a bad geometry source, block size or tolerance."""
         if self.geometry not in GEOMETRY_SOURCES:
             raise UsageError(f"--geometry {self.geometry!r}: expected one of {', '.join(GEOMETRY_SOURCES)}")
-        if self.block_steps < 1:
+        if self.block_steps is not None and self.block_steps < 1:
             raise UsageError(f"block_steps must be ≥ 1, got {self.block_steps}")
         try:
             return Tolerances.for_mode(self.mode, atol=self.atol, groups=self.tolerances)
@@ -191,7 +195,7 @@ class ViewSession:
     comparison: ViewComparison | None = None
     explanation: Explanation | None = None
     """Why the replay diverged (`simreel.viewers.compare.explain_for_view`), when it did."""
-    block_steps: int = 256
+    block_steps: int | None = None
     joint_names: dict[str, list[str]] = field(default_factory=dict)
     eye: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     owns_env: bool = False
@@ -241,7 +245,7 @@ class ViewSession:
         eye, target = self.eye if self.eye is not None else (None, None)
         return Layout(
             compare=self.replayed is not None,
-            cameras=tuple(camera_streams(self.episode.obs)),
+            cameras=tuple(camera_streams(self.recording.rows.fields)),
             plot_groups=tuple(groups),
             eye=eye,
             look_target=target,
@@ -319,13 +323,25 @@ class ViewSession:
 
     # ------------------------------------------------------------------ lifetime
     def close(self) -> None:
-        """Stop serving (`serve`) and close the env if the session built it."""
+        """Stop serving (`serve`), close the files the session opened and the env if the session built it."""
+        self.recording.close()
+        if self.replayed is not None:
+            self.replayed.close()
         if self.served is not None:
             self.served.disconnect()
             self.served = None
         if self.owns_env and self.env is not None:
             self.env.close()
             self.env = None
+
+    @contextlib.contextmanager
+    def closed_on_error(self) -> Iterator[None]:
+        """Close the session when the block raises."""
+        try:
+            yield
+        except BaseException:
+            self.close()
+            raise
 
     def __enter__(self) -> ViewSession:
         return self
@@ -353,26 +369,41 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
     tolerances = opts.check()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    rec_run = read_run(source, opts.episode)
-    rep_run = read_compare(opts.compare, rec_run) if opts.compare is not None else None
-    timings["read_s"] = time.perf_counter() - t0
+    runs = [read_run(source, opts.episode)]
+    try:
+        if opts.compare is not None:
+            runs.append(read_compare(opts.compare, runs[0]))
+        timings["read_s"] = time.perf_counter() - t0
+        session = _session(source, env, opts, (runs[0], runs[1] if len(runs) > 1 else None), timings)
+    except BaseException:
+        for run in runs:
+            run.close()
+        raise
+    rec_run, rep_run = session.recording, session.replayed
+    if rep_run is not None:
+        with session.closed_on_error():
+            channels = rec_run.meta.contact_channels
+            session.comparison = compare_for_view(rec_run.rows, rep_run.rows, channels=channels,
+                                                  tolerances=tolerances, rows=opts.block_steps)
+            session.explanation = explain_for_view(rec_run.episode, rep_run.episode, session.comparison, channels)
+    return session
+
+
+def _session(source: Source, env: Any, opts: ViewOptions, runs: tuple[EpisodeRun, EpisodeRun | None],
+             timings: dict[str, float]) -> ViewSession:
+    """The session of `runs` in `env` (None: rebuilt from the recording's metadata, closed on failure)."""
     owns = env is None
     t1 = time.perf_counter()
     if env is None:
         path = source.path if isinstance(source, EpisodeReader) else source
-        env = rebuild_env(rec_run.meta, geometry=opts.geometry, imports=opts.imports, recording=path)
+        env = rebuild_env(runs[0].meta, geometry=opts.geometry, imports=opts.imports, recording=path)
     timings["env_s"] = time.perf_counter() - t1
     try:
-        session = _prepare(env, owns, opts, (rec_run, rep_run), timings)
+        return _prepare(env, owns, opts, runs, timings)
     except BaseException:
         if owns:
             env.close()
         raise
-    if rep_run is not None:
-        channels = rec_run.meta.contact_channels
-        session.comparison = compare_for_view(rec_run.episode, rep_run.episode, channels=channels, tolerances=tolerances)
-        session.explanation = explain_for_view(rec_run.episode, rep_run.episode, session.comparison, channels)
-    return session
 
 
 def states_by_stepping(unwrapped: Any, episode: Episode) -> None:

@@ -1,13 +1,24 @@
-"""The episodes a session draws: the recorded one and, with ``--compare``, its replay, read from their files."""
+"""The episodes a session draws: the recorded one and, with ``--compare``, its replay, read from their files.
+
+An `EpisodeRun` keeps its file open and holds a summary of the episode: its per-step fields (actions, rewards,
+flags, info, contact forces) and its controller states, what the events of a whole episode (`simreel.divergence`:
+grasps, contacts, controller jumps) and the layout are found from. The rest, the states, body poses and
+observations (camera frames) that make up most of a long episode, is read a block of rows at a time from
+`EpisodeRun.rows` whenever it is compared or logged.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from simreel.episode import Episode, RecordingMeta
+import numpy as np
+
+from simreel.episode import Episode, FieldSpec, RecordingMeta, StepBlock, join_blocks
 from simreel.errors import RecordingFileError, ViewError
 from simreel.formats import EpisodeReader, open_reader
+from simreel.formats.base import EpisodeRows, block_rows
 
 __all__ = ["EpisodeRun", "read_run", "read_compare", "Source"]
 
@@ -22,7 +33,33 @@ class EpisodeRun:
     label: str
     meta: RecordingMeta
     episode: Episode
+    """The episode's summary (`summary`): per-step fields and controller states; no observations, body poses or other
+    states (read in blocks from `rows`)."""
     file_name: str
+    rows: EpisodeRows
+    """The episode in its file, read a block of rows at a time."""
+    reader: EpisodeReader | None = None
+    """The reader this run opened (closed by `close`); None when the caller's."""
+
+    @property
+    def state_keys(self) -> set[str]:
+        """The state keys the file holds (``actors/cube``, ...)."""
+        return {f.name.split("/", 1)[1] for f in self.rows.fields if f.name.startswith("env_states/")}
+
+    def row_blocks(self, rows: int | None = None) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
+        """(first state row, flat field arrays) of the whole episode, in order: state row 0 (the reset: per-state
+        fields only), then blocks of `rows` steps (None: `block_rows` of the file), each with its per-step rows and
+        the per-state rows after them, so every array of a block starting at state row r covers rows r, r + 1, ...
+        States the file lacks but the summary holds (`states_by_stepping`) are sliced from the summary."""
+        extra = {f"env_states/{k}": a for k, a in self.episode.env_states.items() if k not in self.state_keys}
+        yield 0, {**self.rows.reset().arrays, **{k: a[:1] for k, a in extra.items()}}
+        for start, block in self.rows.blocks(rows or block_rows(self.rows.fields)):
+            yield start + 1, {**block.arrays, **{k: a[start + 1 : start + 1 + block.rows] for k, a in extra.items()}}
+
+    def close(self) -> None:
+        if self.reader is not None:
+            self.reader.close()
+            self.reader = None
 
 
 def _open(source: Source) -> tuple[EpisodeReader, bool]:
@@ -32,7 +69,8 @@ def _open(source: Source) -> tuple[EpisodeReader, bool]:
 
 
 def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun:
-    """Episode `index` of `source` (None: its first episode); `role` is added to the label (``replayed``)."""
+    """Episode `index` of `source` (None: its first episode); `role` is added to the label (``replayed``).
+    The run keeps a reader it opened until `EpisodeRun.close`."""
     reader, owned = _open(source)
     try:
         if not reader.episodes:
@@ -40,13 +78,15 @@ def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun
         if index is None:
             index = reader.episodes[0].index
         reader.episode_meta(index)  # a clear error naming the episodes there are
-        episode = reader.read_episode(index)
-        name = Path(reader.path).name
-        label = f"{name} episode {index}" + (f" ({role})" if role else "")
-        return EpisodeRun(label, reader.meta, episode, name)
-    finally:
+        rows = reader.open_episode(index)
+        episode = summary(rows)
+    except BaseException:
         if owned:
             reader.close()
+        raise
+    name = Path(reader.path).name
+    label = f"{name} episode {index}" + (f" ({role})" if role else "")
+    return EpisodeRun(label, reader.meta, episode, name, rows, reader if owned else None)
 
 
 def read_compare(compare: Source, recorded: EpisodeRun) -> EpisodeRun:
@@ -63,14 +103,40 @@ def read_compare(compare: Source, recorded: EpisodeRun) -> EpisodeRun:
                 )
             index = have[0]
         run = read_run(reader, index, role="replayed")
-    finally:
+    except BaseException:
         if owned:
             reader.close()
+        raise
+    run.reader = reader if owned else None
+    try:
+        _check_comparable(run, recorded)
+    except BaseException:
+        run.close()
+        raise
+    return run
+
+
+def _in_summary(field: FieldSpec) -> bool:
+    if field.name.startswith("env_states/"):
+        return field.name.startswith("env_states/controller/")
+    return not field.per_state
+
+
+def summary(rows: EpisodeRows) -> Episode:
+    """The episode's per-step fields and controller states, read a block at a time (`EpisodeRun.episode`)."""
+    fields = [f for f in rows.fields if _in_summary(f)]
+    names = [f.name for f in fields]
+    steps = [StepBlock.of({n: block[n] for n in names}) for _, block in rows.blocks()]
+    reset = rows.reset()
+    reset = StepBlock.of({n: reset[n] for n in names if n in reset.arrays})
+    return Episode.from_fields(rows.meta, join_blocks(fields, reset, steps))
+
+
+def _check_comparable(run: EpisodeRun, recorded: EpisodeRun) -> None:
     if run.meta.env_id != recorded.meta.env_id:
         raise ViewError(
             f"--compare {run.label}: it is a recording of {run.meta.env_id}, not of {recorded.meta.env_id}; "
             "compare a replay of the same recording"
         )
-    if not set(run.episode.env_states) & set(recorded.episode.env_states):
+    if not run.state_keys & recorded.state_keys:
         raise ViewError(f"--compare {run.label}: no state key in common with {recorded.label}")
-    return run

@@ -42,8 +42,9 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--grpc-port", type=int, default=9876, help="gRPC port for --serve/--spawn (default 9876)")
     p.add_argument("--geometry", default="auto", choices=("auto", "visual", "collision"),
                    help="visual meshes (needs a render device), collision shapes, or auto (default)")
-    p.add_argument("--block-steps", type=int, default=256, metavar="N",
-                   help="steps logged per batch; bounds memory on long episodes (default 256)")
+    p.add_argument("--block-steps", type=int, default=None, metavar="N",
+                   help="steps read and logged per block; bounds memory on long episodes (default: about 4 MiB of "
+                        "rows)")
     p.add_argument("--overwrite", action="store_true", help="replace the .rrd file if it exists")
     add_import_option(p)
     p.set_defaults(run=run)
@@ -151,7 +152,7 @@ def _check_ports(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.block_steps < 1:
+    if args.block_steps is not None and args.block_steps < 1:
         raise UsageError(f"--block-steps must be ≥ 1, got {args.block_steps}")
     if args.save is not None and not args.save.lower().endswith(".rrd"):
         raise UsageError(f"--save {args.save}: the output must end in .rrd")
