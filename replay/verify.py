@@ -39,7 +39,7 @@ from simreel.replay.output import ReplayedWriter, ReplayOutput
 from simreel.replay.report import EpisodeReport, recording_limits
 from simreel.replay.report_log import LoggedRun, ReportLog, load_log, report_paths, tally_of_log, write_report
 from simreel.replay.tally import FileTally, ReplayReport, RunTally
-from simreel.replay.workers import EpisodeResult, ReplayJob, ReplayWorker, run_pool, start_pool, stop_pool
+from simreel.replay.workers import EpisodeResult, ReplayJob, ReplayWorker, pool_closing, run_pool, start_pool
 from simreel.replay.worklist import RecordingInfo, WorkItem, WorkList, build_worklist
 
 __all__ = ["ReplayOptions", "ReplayRun", "verify_recording"]
@@ -242,23 +242,17 @@ class ReplayRun:
         (a resumed run's includes the verdicts it found in the report). Raises the user errors (`SimreelError`)
         a strict run meets; Ctrl-C stops it with every verdict reached so far in the report."""
         worker = ReplayWorker(self._job())
-        pool = self._start_pool(worker.job)
         try:
-            if self.strict and self.worklist.items and self.options.ray is None:
-                worker.prepare(self.worklist.items[0])  # a bad env fails before anything is written
-            with self._log() as log, self._sink() as sink:
-                worker.output = sink if self.options.ray is None else None  # episodes replayed here stream into -o
-                self._dispatch(worker, self._collector(log, sink, progress), log, pool)
-                if log is not None:
-                    log.write({"type": "end"})
-        except BaseException:
-            if pool is not None:
-                stop_pool(pool)
-            raise
+            with pool_closing(self._start_pool(worker.job)) as pool:
+                if self.strict and self.worklist.items and self.options.ray is None:
+                    worker.prepare(self.worklist.items[0])  # a bad env fails before anything is written
+                with self._log() as log, self._sink() as sink:
+                    worker.output = sink if self.options.ray is None else None  # episodes replayed here stream into -o
+                    self._dispatch(worker, self._collector(log, sink, progress), log, pool)
+                    if log is not None:
+                        log.write({"type": "end"})
         finally:
             worker.close()
-            if pool is not None:
-                pool.shutdown(wait=True, cancel_futures=True)
             if self.report_log is not None and self.report_log.exists():
                 write_report(self.report_log, self.report_json, output=self.options.output)
         return self.tally

@@ -10,6 +10,7 @@ actors can build their own.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import multiprocessing
 import os
@@ -18,7 +19,7 @@ import socket
 import threading
 import time
 from collections import OrderedDict, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,7 +36,7 @@ from simreel.replay.report import EpisodeReport
 from simreel.replay.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports
 
-__all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "run_pool", "start_pool", "stop_pool"]
+__all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "run_pool", "start_pool", "stop_pool", "pool_closing"]
 
 _EPISODE_DATA_ERRORS = (RecordingFileError, EpisodeLayoutError, MetadataError)
 """Errors about one episode's data (damaged, missing, malformed); any other error is about the env its file
@@ -329,29 +330,44 @@ def run_pool(worker: Any, items: Iterable[WorkItem], workers: int, collect: Call
     """Replay `items` in `worker` (this process) and `workers - 1` worker processes (`pool`, from `start_pool`, or
     started here); `collect` each result here, as it arrives. `worker` is a `ReplayWorker`, or another with ``job``
     (whose ``open_worker()`` builds one in each process) and ``run(item) -> EpisodeResult``. When `collect` raises
-    (a strict run meeting an error, Ctrl-C), the queued items are dropped and the pool is shut down."""
-    queue = deque(items)
-    ahead = 2 * (workers - 1)  # items handed to the workers at a time; the rest stay for this process
+    (a strict run meeting an error, Ctrl-C), the queued items are dropped and the pool is shut down — by whoever
+    started it: here, or the caller that passed `pool`."""
+    with pool_closing(start_pool(worker.job, workers)) if pool is None else contextlib.nullcontext(pool) as owned:
+        _feed(worker, deque(items), workers, collect, owned)
+
+
+@contextlib.contextmanager
+def pool_closing(pool: ProcessPoolExecutor | None) -> Iterator[ProcessPoolExecutor | None]:
+    """Shut `pool` down when the block ends: at once (its processes ended, the episodes they were replaying not
+    waited for) when the block raised, a strict run's error or Ctrl-C. None: no pool, nothing to do."""
     if pool is None:
-        pool = start_pool(worker.job, workers)
-    pending: set[Any] = set()
+        yield None
+        return
     try:
-        while queue or pending:
-            while queue and len(pending) < ahead:
-                pending.add(pool.submit(_worker_run, queue.popleft()))
-            if queue:
-                collect(worker.run(queue.popleft()))
-                done = {fut for fut in pending if fut.done()}
-            else:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            pending -= done
-            for fut in done:
-                collect(fut.result())
+        yield pool
     except BaseException:
         stop_pool(pool)
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _feed(worker: Any, queue: deque[WorkItem], workers: int, collect: Callable[[EpisodeResult], Any],
+          pool: ProcessPoolExecutor) -> None:
+    """Hand `queue`'s items to `pool` a few at a time, replay the rest here, and `collect` every result."""
+    ahead = 2 * (workers - 1)  # items handed to the workers at a time; the rest stay for this process
+    pending: set[Any] = set()
+    while queue or pending:
+        while queue and len(pending) < ahead:
+            pending.add(pool.submit(_worker_run, queue.popleft()))
+        if queue:
+            collect(worker.run(queue.popleft()))
+            done = {fut for fut in pending if fut.done()}
+        else:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+        pending -= done
+        for fut in done:
+            collect(fut.result())
 
 
 def stop_pool(pool: ProcessPoolExecutor) -> None:
