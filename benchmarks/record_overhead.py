@@ -3,7 +3,7 @@ ManiSkill's own RecordEpisode on the same content.
 
 Usage: python benchmarks/record_overhead.py [--env PickCube-v1] [--episodes 100] [--steps 50]
                                            [--contacts auto|none] [--poses] [--format h5|mcap] [--no-storage]
-                                           [--without-fingerprints]
+                                           [--without-fingerprints] [--breakdown]
 
 Overhead: a bare env and a recorded one step the same actions from the same seeds, interleaved episode by
 episode so machine noise hits both alike. The step() ratio times step() alone; the end-to-end ratio adds the
@@ -14,6 +14,9 @@ Target (issue 17): end to end ≤ 1.05× for PickCube-v1, state obs, contacts on
 that rebuilds the scene, issue 14), interleaved with the other two: the fingerprints' cost is the difference between
 the two recorded rows (it shows in the resets of tasks that rebuild their scene, e.g. --env SimreelHeteroPick-v1,
 never in step()).
+
+`--breakdown` then records the same episodes once more with each part of the recorder timed (its methods wrapped in
+a clock, which adds a little to each): where the recorder's time per step goes, beside the env's own step and reset.
 
 Storage: 10 episodes of `--steps` steps recorded with the same seeds and actions by ManiSkill's RecordEpisode
 (record_env_state=True, state observations) and by RecordWrapper into .h5 and .mcap with the same content
@@ -127,6 +130,48 @@ def overhead(args: argparse.Namespace, folder: Path) -> None:
     print(f"  file size            {path.stat().st_size / ((args.episodes + 1) * args.steps):8.1f} bytes/step")
 
 
+_PARTS = {"contacts": ("_sampler", "sample"), "state read": (None, "_state"), "step fields": (None, "_step_rows"),
+          "action check": (None, "_actions"), "buffer push": ("_buffer", "push"),
+          "state row fields": (None, "_per_state_rows"), "episode end (commit)": (None, "_finish"),
+          "env.step": ("env", "step"), "env.reset": ("env", "reset")}
+"""What `--breakdown` times: label -> (attribute of the RecordWrapper holding the method, or None: its own; method)."""
+
+
+def breakdown(args: argparse.Namespace, folder: Path) -> None:
+    """Time each part of the recorder (and the env it wraps) over `args.episodes` recorded episodes."""
+    rec = RecordWrapper(make_env(args.env, obs_mode="state", max_episode_steps=args.steps),
+                        folder / f"breakdown.{args.format}", contacts=args.contacts, poses=args.poses)
+    actions = np.random.default_rng(0).uniform(-1, 1, size=(args.episodes, args.steps, *rec.action_space.shape))
+    seconds = dict.fromkeys(_PARTS, 0.0)
+    for label, (owner, name) in _PARTS.items():
+        target = rec if owner is None else getattr(rec, owner)
+        setattr(target, name, _clocked(getattr(target, name), seconds, label))
+    t = time.perf_counter()
+    for k in range(args.episodes):
+        _episode(rec, k, actions[k].astype(np.float32))
+    total = time.perf_counter() - t
+    rec.close()
+    steps = args.episodes * args.steps
+    env_time = seconds["env.step"] + seconds["env.reset"]
+    print(f"Where a recorded step's time goes ({args.episodes} episodes x {args.steps} steps, each part clocked; % of "
+          "the env's own step + reset):")
+    for label, s in sorted(seconds.items(), key=lambda kv: -kv[1]):
+        print(f"  {label:<22} {s / steps * 1e6:8.1f} µs/step  {s / env_time * 100:6.2f}%")
+    rest = total - sum(seconds.values())
+    print(f"  {'rest of the wrapper':<22} {rest / steps * 1e6:8.1f} µs/step  {rest / env_time * 100:6.2f}%")
+
+
+def _clocked(method, seconds: dict[str, float], label: str):
+    def clocked(*args, **kwargs):
+        t = time.perf_counter()
+        try:
+            return method(*args, **kwargs)
+        finally:
+            seconds[label] += time.perf_counter() - t
+
+    return clocked
+
+
 def _record_storage(env, steps: int) -> None:
     rng = np.random.default_rng(0)
     for k in range(_STORAGE_EPISODES):
@@ -166,6 +211,7 @@ def main() -> None:
     ap.add_argument("--no-storage", action="store_true", help="skip the file-size comparison with RecordEpisode")
     ap.add_argument("--without-fingerprints", action="store_true",
                     help="also time a recorder without per-episode scene fingerprints, interleaved")
+    ap.add_argument("--breakdown", action="store_true", help="then time each part of the recorder")
     args = ap.parse_args()
 
     import torch
@@ -173,6 +219,8 @@ def main() -> None:
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory(prefix="simreel-bench-") as tmp:
         overhead(args, Path(tmp))
+        if args.breakdown:
+            breakdown(args, Path(tmp))
         if not args.no_storage:
             storage(args, Path(tmp))
 
