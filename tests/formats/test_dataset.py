@@ -366,7 +366,7 @@ def test_maniskills_replay_trajectory_replays_a_merged_file_bit_exactly(record, 
     from the sidecar, reproduces every state of every renumbered episode."""
     from support.maniskill_files import replay_maniskill
 
-    first, second = record("PickCube-v1", 2, 20), record("PickCube-v1", 1, 8, "--seed", "30")
+    first, second = record("PickCube-v1", 2, 20), record("PickCube-v1", 1, 20, "--seed", "30")  # one time limit: one env
     merged = tmp_path / "merged.h5"
     merge([second, first], merged)
     replayed = replay_maniskill(merged, maniskill_env)
