@@ -143,6 +143,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._has_success = "success" in self.meta.info_layout
         self._info_fields = [(key, f"info/{key}", np.dtype(spec.dtype)) for key, spec in self.meta.info_layout.items()]
         self._info_keys = list(dict.fromkeys(("success", "fail", *self.meta.info_layout)))
+        absent = [("success", np.dtype(bool)), ("fail", np.dtype(bool))] + [(f, d) for _, f, d in self._info_fields]
+        self._absent = {name: _constant_zeros(self._n, dtype) for name, dtype in absent}
+        """What a step records for a flag or info entry the env did not give (read-only: the buffer copies it)."""
         self._next_index = 0
         self._scene_seed: list[int | None] = [None] * self._n
         self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
@@ -248,10 +251,10 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         }
         for flag in ("success", "fail"):
             a = scalars[flag]
-            fields[flag] = np.zeros(n, bool) if a is None else a
-        for key, name, dtype in self._info_fields:
+            fields[flag] = self._absent[flag] if a is None else a
+        for key, name, _ in self._info_fields:
             a = scalars[key]
-            fields[name] = np.zeros(n, dtype) if a is None else a
+            fields[name] = self._absent[name] if a is None else a
         return fields
 
     def _per_state_rows(self, state: dict[str, np.ndarray], obs: Any) -> dict[str, np.ndarray]:
@@ -370,6 +373,12 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return
         sink.commit(meta)
         self.episodes_committed.append(meta)
+
+
+def _constant_zeros(n: int, dtype: Any) -> np.ndarray:
+    a = np.zeros(n, dtype)
+    a.flags.writeable = False
+    return a
 
 
 def _constructor_options(opts: RecordOptions) -> dict[str, Any]:

@@ -107,6 +107,9 @@ class ContactSampler:
                     self._net_index.setdefault(objs[0]._bodies[0], []).append(c)
                 else:
                     self._pair_index[(objs[0]._bodies[0], objs[1]._bodies[0])] = c
+            self._hits: dict[tuple[Any, Any], list[tuple[int, float]]] = {}
+            self._zeros = np.zeros((1, len(self.channels), 3), np.float32)
+            self._zeros.flags.writeable = False
 
     def sample(self) -> np.ndarray:
         if not self.channels:
@@ -115,37 +118,48 @@ class ContactSampler:
             return self._sample_gpu(self._n)
         contacts = self._px.get_contacts()
         if not contacts:  # many steps of many tasks touch nothing
-            return np.zeros((1, len(self.channels), 3), np.float32)
-        out = [[0.0, 0.0, 0.0] for _ in self.channels]
+            return self._zeros
+        out = [0.0] * (3 * len(self.channels))
         self._add_impulses(out, contacts)
         timestep = self._px.timestep
-        return np.array([[[x / timestep, y / timestep, z / timestep] for x, y, z in out]], np.float32)
+        return np.frombuffer(array("f", [v / timestep for v in out]), np.float32).reshape(self._zeros.shape)
 
-    def _add_impulses(self, out: list[list[float]], contacts: list[Any]) -> None:
-        """Add each contact's impulse (the sum over its points) to the channels of its bodies, with ManiSkill's sign.
+    def _add_impulses(self, out: list[float], contacts: list[Any]) -> None:
+        """Add each contact's impulse (the sum over its points) to the channels of its bodies (`out`: x, y, z of
+        channel c at 3c), with ManiSkill's sign.
 
         In Python floats, not numpy: a step touches a few contacts, and each numpy call on arrays of 3 costs more
         than the arithmetic (~20 µs each right after a physics step). The numbers are numpy's, bit for bit: a
         contact's points are summed in float32 row by row (`_point_sum`), the channels add them up in float64, and
-        `sample` divides by the timestep in float64 and rounds to float32 (C's conversion, as numpy's).
+        `sample` divides by the timestep in float64 and rounds to float32 (through `array("f")`: C's conversion,
+        as numpy's).
         """
-        net, pairs = self._net_index, self._pair_index
+        hits_of = self._hits
         for contact in contacts:
+            b0, b1 = contact.bodies
+            hits = hits_of.get((b0, b1))
+            if hits is None:
+                hits = hits_of[(b0, b1)] = self._channels_of(b0, b1)
+            if not hits:  # a contact no channel records (between two static bodies, ...)
+                continue
             points = contact.points
             if not points:
                 continue
-            b0, b1 = contact.bodies
             x, y, z = _point_sum(points)
-            hits = [(c, 1.0) for c in net.get(b0, ())] + [(c, -1.0) for c in net.get(b1, ())]
-            for pair, sign in (((b0, b1), 1.0), ((b1, b0), -1.0)):
-                c = pairs.get(pair)
-                if c is not None:
-                    hits.append((c, sign))
-            for c, sign in hits:  # sign * x is exact, and a + (-b) is a - b
-                o = out[c]
-                o[0] += sign * x
-                o[1] += sign * y
-                o[2] += sign * z
+            for at, sign in hits:  # sign * x is exact, and a + (-b) is a - b
+                out[at] += sign * x
+                out[at + 1] += sign * y
+                out[at + 2] += sign * z
+
+    def _channels_of(self, b0: Any, b1: Any) -> list[tuple[int, float]]:
+        """Where a contact between bodies b0 and b1 adds its impulse: (3 × channel, sign), in ManiSkill's signs."""
+        net, pairs = self._net_index, self._pair_index
+        hits = [(c, 1.0) for c in net.get(b0, ())] + [(c, -1.0) for c in net.get(b1, ())]
+        for pair, sign in (((b0, b1), 1.0), ((b1, b0), -1.0)):
+            c = pairs.get(pair)
+            if c is not None:
+                hits.append((c, sign))
+        return [(3 * c, sign) for c, sign in hits]
 
 
 def _point_sum(points: list[Any]) -> tuple[float, float, float]:
