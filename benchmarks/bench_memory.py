@@ -7,6 +7,13 @@ command once per recording in a fresh process and reads that process's peak resi
     .venv/bin/python benchmarks/bench_memory.py                       # PickCube-v1, 200 vs 20,000 steps
     .venv/bin/python benchmarks/bench_memory.py --format mcap --folder /tmp/mem
     .venv/bin/python benchmarks/bench_memory.py --cameras             # also episodes with 128x128 rgb frames
+    .venv/bin/python benchmarks/bench_memory.py --output              # also `replay -o --workers 2`
+
+With `--output` two more recordings of two episodes each (`--short` and `--long` steps) are replayed with
+`-o OUT --workers 2`: both episodes go to the pool's worker process, so this measures what an episode replayed in
+another process costs the run. A pool's processes are measured together: the peak of the sum of the resident set
+sizes of the command's process and its descendants, read from /proc every 20 ms (shared pages count once per
+process, so the sum is above what the machine lends; the difference long - short is what a long episode adds).
 
 With `--cameras` (HDF5 only) the same two episodes are also written with camera frames: every state row gets the
 observations (128x128 rgb frame, agent and extra state) of a row of a real 30-step `--obs-mode rgb --record-obs`
@@ -82,6 +89,42 @@ def _peak_mib(argv: list[str]) -> tuple[float, float]:
     return usage.ru_maxrss / 1024, time.perf_counter() - t0
 
 
+def _tree_rss_kib(pid: int) -> int:
+    """Resident set size (KiB) of `pid` and every process below it, summed (0 for those already gone)."""
+    parents: dict[int, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parents[int(stat.parent.name)] = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+    tree, grown = {pid}, True
+    while grown:
+        below = {p for p, parent in parents.items() if parent in tree} - tree
+        tree |= below
+        grown = bool(below)
+    total = 0
+    for p in tree:
+        try:
+            status = Path(f"/proc/{p}/status").read_text()
+        except OSError:
+            continue
+        total += next((int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:")), 0)
+    return total
+
+
+def _tree_peak_mib(argv: list[str]) -> tuple[float, float]:
+    """Peak of the summed RSS (MiB) of one run of `argv` and its child processes, and its wall seconds."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    peak = 0
+    while proc.poll() is None:
+        peak = max(peak, _tree_rss_kib(proc.pid))
+        time.sleep(0.02)
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(argv)} failed ({proc.returncode}): {proc.stderr.read().decode()[-500:]}")
+    return peak / 1024, time.perf_counter() - t0
+
+
 def _commands(path: Path, scratch: Path) -> dict[str, list[str]]:
     sim = str(SIMREEL)
     return {
@@ -100,6 +143,7 @@ def main() -> int:
     p.add_argument("--format", default="h5", choices=("h5", "mcap"))
     p.add_argument("--folder", default="/tmp/simreel_bench_memory", help="where the recordings are kept")
     p.add_argument("--cameras", action="store_true", help="also episodes with camera frames (see above)")
+    p.add_argument("--output", action="store_true", help="also `replay -o --workers 2` of two episodes (see above)")
     args = p.parse_args()
 
     folder = Path(args.folder)
@@ -110,6 +154,8 @@ def main() -> int:
     print(f"{args.env}, one episode of {args.short} vs {args.long} steps, {args.format}")
     print(f"  {'command':<12} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}")
     _table(paths, _commands, folder)
+    if args.output:
+        _output_table(args, folder)
     if args.cameras:
         frames = folder / f"{args.env}.frames.h5"
         if not frames.exists():
@@ -123,6 +169,27 @@ def main() -> int:
         print(f"  {'command':<12} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}")
         _table(cams, _camera_commands, folder)
     return 0
+
+
+def _output_table(args: argparse.Namespace, folder: Path) -> None:
+    """`replay -o --workers 2` of two episodes of `--short` and of `--long` steps: the peak of the process tree."""
+    paths = {}
+    for steps in (args.short, args.long):
+        path = paths[steps] = folder / f"{args.env}.2x{steps}.{args.format}"
+        if not path.exists():
+            subprocess.run([str(SIMREEL), "record", args.env, "-o", str(path), "-n", "2", "--max-steps", str(steps),
+                            "--seed", "0", "-q"], check=True, stdout=subprocess.DEVNULL)
+    print(f"two episodes of {args.short} vs {args.long} steps, replay -o --workers 2 (peak of the summed RSS of the "
+          "process tree)")
+    print(f"  {'command':<12} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}  {'long - short MiB':>16}")
+    runs = {}
+    for steps, path in paths.items():
+        out = folder / f"{path.stem}.replayed.{args.format}"
+        runs[steps] = _tree_peak_mib([str(SIMREEL), "replay", str(path), "-q", "-o", str(out), "--workers", "2",
+                                      "--overwrite"])
+    (short, _), (long, seconds) = runs.values()
+    print(f"  {'replay -o':<12} {short:>10.0f} {long:>9.0f} {long / short:>6.2f}  {seconds:>7.0f}  "
+          f"{long - short:>16.0f}   [target <= 1.2]")
 
 
 def _camera_commands(path: Path, scratch: Path) -> dict[str, list[str]]:

@@ -1,12 +1,16 @@
 """`ReplayedWriter`: writes replayed episodes (``simreel replay -o``) as a simreel recording, in the order they
 were asked for, whatever order the workers finish them in. The episode that is next in that order and replayed in
-this process is written block by block as it is replayed (`ReplayedWriter.stream`: an `EpisodeStream`); one
-replayed in another process comes back whole and waits for its turn (`put`)."""
+this process is written block by block as it is replayed (`ReplayedWriter.stream`: an `EpisodeStream`). Any other
+one — replayed in a pool's worker process, or here while an earlier one is not written yet — is written block by
+block to a scratch recording of its own (`ScratchEpisode`, in the run's `ScratchFolder` beside the output); its
+path waits for its turn (`put`), and is then copied into the output a block of rows at a time and deleted. No
+process holds more than a block of a long episode. (A Ray actor's episode, and a conversion's, come back whole.)"""
 
 from __future__ import annotations
 
 import dataclasses
 import datetime
+import shutil
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -15,11 +19,14 @@ from typing import Any
 import numpy as np
 
 from simreel.episode import OPTIONAL_STEP_FIELDS, Episode, EpisodeMeta, RecordingMeta, StepBlock
+from simreel.errors import UsageError
 from simreel.formats import EpisodeSink, format_of
+from simreel.formats.lock import WriterLock, being_written
 from simreel.replay.engine import BlockSink
 from simreel.state_tree import layout_of
 
-__all__ = ["ReplayOutput", "ReplayedWriter", "EpisodeStream", "RecordedContacts", "output_pose_bodies"]
+__all__ = ["ReplayOutput", "ReplayedWriter", "EpisodeStream", "RecordedContacts", "output_pose_bodies",
+           "ScratchFolder", "ScratchEpisode", "scratch_folder"]
 
 _PRODUCED = ("versions", *OPTIONAL_STEP_FIELDS)
 """What a replay knows even where the recording did not hold it: this machine's versions, rewards and flags."""
@@ -62,17 +69,21 @@ class ReplayedWriter:
         self.spec = spec
         self.meta = meta
         self.order = deque(order)
-        self.waiting: dict[int, Episode] = {}
+        self.waiting: dict[int, Episode | Path | None] = {}
+        """Episodes replayed before their turn: a scratch recording's path (`ScratchEpisode`), or a whole episode."""
         self.writer: Any = None
 
-    def put(self, index: int, episode: Episode | None) -> None:
-        """Write episode `index` once those before it in the order are written; None: it has no replay (it could not
-        be replayed, or it was streamed), go on without it."""
+    def put(self, index: int, episode: Episode | Path | None) -> None:
+        """Write episode `index` once those before it in the order are written: a whole episode, or the scratch
+        recording at a path (copied a block at a time, then deleted); None: it has no replay (it could not be
+        replayed, or it was streamed), go on without it."""
         self.waiting[index] = episode
         while self.order and self.order[0] in self.waiting:
-            episode = self.waiting.pop(self.order.popleft())
-            if episode is not None:
-                self._write(episode)
+            replayed = self.waiting.pop(self.order.popleft())
+            if isinstance(replayed, Path):
+                self._copy(replayed)
+            elif replayed is not None:
+                self._write(replayed)
 
     def stream(self, meta: EpisodeMeta) -> EpisodeStream | None:
         """A sink writing the episode of `meta` block by block as it is replayed, when it is the next one to write
@@ -118,6 +129,23 @@ class ReplayedWriter:
         if episode.length:
             sink.append(episode.steps_block())
         sink.commit(ep_meta)
+
+    def _copy(self, path: Path) -> None:
+        """Write the one episode of the scratch recording `path` (a `ScratchEpisode`'s, committed with its final
+        metadata) a block of rows at a time, then delete the scratch recording."""
+        from simreel.formats import open_reader, remove_recording
+
+        with open_reader(path) as reader:
+            (meta,) = reader.episodes
+            rows = reader.open_episode(meta.index)
+            blocks = rows.blocks()
+            block = next(blocks, None)
+            sink = self.begin(meta, rows.reset(), block[1] if block else None)
+            while block is not None:
+                sink.append(block[1])
+                block = next(blocks, None)
+            sink.commit(meta)
+        remove_recording(path)
 
     def close(self) -> None:
         if self.writer is not None:
@@ -167,6 +195,70 @@ class EpisodeStream(BlockSink):
         if self._sink is not None:
             self._sink.discard()
             self._sink = None
+
+
+def scratch_folder(output: str | Path) -> Path:
+    """The hidden folder beside the output `output` where a run's scratch recordings go (`out.h5` →
+    `.out.h5.replay.partial`: on the output's file system, so a copy never crosses disks; skipped by the folder
+    searches of `replay`/`inspect`, as every `.partial` folder is)."""
+    output = Path(output)
+    return output.with_name(f".{output.name}.replay.partial")
+
+
+class ScratchFolder:
+    """The run's `scratch_folder`, held for as long as the run (a context manager): created empty when it starts,
+    removed with everything in it when it ends, however it ends (done, an error, Ctrl-C). A folder left by a run
+    that was killed (-9: nothing could remove it) holds only replays that run never finished; the next run writing
+    the same output removes it. One held by a live run (its lock) is refused with one line."""
+
+    def __init__(self, output: str | Path) -> None:
+        self.output = Path(output)
+        self.path = scratch_folder(output)
+        self._lock: WriterLock | None = None
+
+    def __enter__(self) -> ScratchFolder:
+        lock = self.path / "lock"
+        busy = UsageError(f"{self.output} is being written by another replay (it holds {self.path}); choose "
+                          "another output, or wait until that replay has finished")
+        if being_written(lock):
+            raise busy
+        shutil.rmtree(self.path, ignore_errors=True)  # a killed run's leftovers
+        try:
+            self.path.mkdir()
+            self._lock = WriterLock.acquire(lock, create=True)
+        except FileExistsError:  # another run claimed it between the check and here
+            raise busy from None
+        except OSError as e:
+            raise UsageError(f"cannot write {self.path}: {e.strerror or e}") from None
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        shutil.rmtree(self.path, ignore_errors=True)
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+
+class ScratchEpisode(EpisodeStream):
+    """One replayed episode written as it is replayed to a recording of its own in the run's scratch folder: the
+    output's metadata and field table (`spec` as the output's, with the scratch path), committed with the episode's
+    final metadata (verdict included), so that `ReplayedWriter` copies it into the output as if it were streamed
+    there. `discard` (the replay failed or was stopped) removes it."""
+
+    def __init__(self, folder: Path, spec: ReplayOutput, meta: RecordingMeta, episode: EpisodeMeta) -> None:
+        self.path = folder / f"episode_{episode.index}.h5"
+        scratch = dataclasses.replace(spec, path=str(self.path), overwrite=False, command="")
+        super().__init__(ReplayedWriter(scratch, meta, [episode.index]), episode)
+
+    def commit(self, meta: EpisodeMeta, length: int) -> None:
+        super().commit(meta, length)
+        self.output.close()
+
+    def discard(self) -> None:
+        super().discard()
+        if self.output.writer is not None:
+            self.output.writer.abort()
+            self.output.writer = None
 
 
 class RecordedContacts(BlockSink):

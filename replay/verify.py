@@ -35,7 +35,7 @@ from simreel.formats import check_writable, format_of, recording_files
 from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct, check_output
 from simreel.replay.engine import MODES
-from simreel.replay.output import ReplayedWriter, ReplayOutput
+from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchFolder
 from simreel.replay.report import EpisodeReport, recording_limits
 from simreel.replay.report_log import LoggedRun, ReportLog, load_log, report_paths, tally_of_log, write_report
 from simreel.replay.tally import FileTally, ReplayReport, RunTally
@@ -232,16 +232,31 @@ class ReplayRun:
         """Episodes this run replays."""
         return len(self.worklist.items)
 
-    def _job(self) -> ReplayJob:
+    def _job(self, scratch: str | None = None) -> ReplayJob:
         opts = self.options
         return ReplayJob(mode=opts.mode, resync=opts.resync, tolerances=self.tolerances, obs_mode=opts.obs_mode,
-                         sim_backend=opts.sim_backend, output=opts.output, imports=opts.imports)
+                         sim_backend=opts.sim_backend, output=opts.output, imports=opts.imports, scratch=scratch)
 
     def execute(self, progress: Progress | None = None) -> RunTally:
         """Replay every episode of the work list, calling `progress` as each finishes; returns the run's tally
         (a resumed run's includes the verdicts it found in the report). Raises the user errors (`SimreelError`)
         a strict run meets; Ctrl-C stops it with every verdict reached so far in the report."""
-        worker = ReplayWorker(self._job())
+        with self._scratch() as scratch:
+            return self._execute(ReplayWorker(self._job(scratch)), progress)
+
+    @contextlib.contextmanager
+    def _scratch(self) -> Iterator[str | None]:
+        """The run's scratch folder for `-o` (`ScratchFolder`), removed when the run ends, however it ends: the pool
+        is shut down inside it, so no worker writes there after. None without `-o`, and on Ray (its actors need not
+        share this file system: they return their episodes whole)."""
+        opts = self.options
+        if opts.output is None or opts.ray is not None:
+            yield None
+            return
+        with ScratchFolder(opts.output) as folder:
+            yield str(folder.path)
+
+    def _execute(self, worker: ReplayWorker, progress: Progress | None) -> RunTally:
         try:
             with pool_closing(self._start_pool(worker.job)) as pool:
                 if self.strict and self.worklist.items and self.options.ray is None:
@@ -302,7 +317,7 @@ class ReplayRun:
             if log is not None:
                 log.episode(item.path, report, warnings=result.warnings, worker=result.worker)
             if sink is not None:
-                sink.put(item.index, result.episode)
+                sink.put(item.index, result.scratch or result.episode)
             if progress is not None:
                 progress(item, report)
 

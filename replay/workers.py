@@ -22,16 +22,24 @@ from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from simreel.compare import BlockComparison, CompareScope, EpisodeComparison, Tolerances
-from simreel.episode import ContactChannel, Episode, RecordingMeta, StepBlock
+from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import EpisodeLayoutError, MetadataError, RecordingFileError, SimreelError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows
 from simreel.replay.engine import BlockSink, Collected, EpisodeReplayer, ReplayedEpisode, ReplayerOptions
 from simreel.replay.explain import ExplainContext, explain_divergence
-from simreel.replay.output import RecordedContacts, ReplayedWriter, output_pose_bodies
+from simreel.replay.output import (
+    EpisodeStream,
+    RecordedContacts,
+    ReplayedWriter,
+    ReplayOutput,
+    ScratchEpisode,
+    output_pose_bodies,
+)
 from simreel.replay.report import EpisodeReport
 from simreel.replay.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports
@@ -55,7 +63,12 @@ class ReplayJob:
     obs_mode: str | None = None
     sim_backend: str | None = None
     output: str | None = None
-    """Where the replayed episodes go (`-o`): workers then return them, with the bodies' poses it needs."""
+    """Where the replayed episodes go (`-o`): workers then write them (or return them), with the bodies' poses it
+    needs."""
+    scratch: str | None = None
+    """With `output`: the run's scratch folder (`simreel.replay.output.ScratchFolder`), where a worker writes, as
+    it replays it, each episode it cannot write into the output itself (`ScratchEpisode`), and returns its path.
+    None: such an episode is collected whole and returned (a Ray actor, which may not share this file system)."""
     imports: tuple[str, ...] = ()
     """`--import` specs given now: used instead of the recorded ones (`resolve_task_imports`)."""
     block_rows: int | None = None
@@ -81,12 +94,16 @@ class ReplayJob:
 
 @dataclass
 class EpisodeResult:
-    """What replaying one work item gave: its report (and the replayed arrays for `-o`), or the user error that
-    stopped it (an unreadable episode, an env that does not build), which the caller reports or raises."""
+    """What replaying one work item gave: its report (and for `-o` the scratch recording of the replay, or the
+    replayed arrays), or the user error that stopped it (an unreadable episode, an env that does not build),
+    which the caller reports or raises."""
 
     item: WorkItem
     report: EpisodeReport | None = None
     episode: Episode | None = None
+    """The replayed episode, whole: only where the job has no scratch folder (Ray)."""
+    scratch: Path | None = None
+    """The scratch recording holding the replayed episode (`ReplayJob.scratch`), for `ReplayedWriter.put`."""
     warnings: list[str] = field(default_factory=list)
     """What differs between the recording's machine and this one (`simreel.replay.fingerprint`); given with the
     first result of each file a worker replays."""
@@ -177,10 +194,12 @@ class ReplayWorker:
         try:
             reader = shipped if shipped is not None else self._readers.get(item.path)
             replayer = self._replayer_for(item, reader.meta)
-            report, episode = self._replay(reader, replayer, item.index)
+            report, replayed = self._replay(reader, replayer, item.index)
         except SimreelError as e:
             return EpisodeResult(item, error=e, worker=where)
-        return EpisodeResult(item, report, episode, self._warnings(item.path, reader.meta, replayer), worker=where)
+        episode, scratch = (None, replayed) if isinstance(replayed, Path) else (replayed, None)
+        return EpisodeResult(item, report, episode, scratch=scratch, worker=where,
+                             warnings=self._warnings(item.path, reader.meta, replayer))
 
     def prepare(self, item: WorkItem) -> None:
         """Open `item`'s file and build its env now; raises the `SimreelError` that stops that."""
@@ -201,15 +220,16 @@ class ReplayWorker:
             self._key = key
         return self._replayer
 
-    def _replay(self, reader: EpisodeReader, replayer: EpisodeReplayer, index: int) -> tuple[EpisodeReport, Episode | None]:
-        """Replay episode `index` block by block, comparing each block as it is replayed (and writing it to `-o` when
-        this process writes the output and the episode is next); only the per-key error curves outlive a block.
-        A replay for an output written elsewhere (another process's) is collected whole and returned."""
+    def _replay(self, reader: EpisodeReader, replayer: EpisodeReplayer,
+                index: int) -> tuple[EpisodeReport, Episode | Path | None]:
+        """Replay episode `index` block by block, comparing each block as it is replayed (and, for `-o`, writing it
+        where `_stream` says); only the per-key error curves outlive a block. Returns the report and, for `-o`, the
+        scratch recording the replay went to, or (no scratch folder) the replay collected whole."""
         job = self.job
         source = reader.open_episode(index)
         scope = CompareScope(initial=source.meta.initial_state_known,
                              obs=job.obs_mode is None or job.obs_mode == reader.meta.obs_mode)
-        stream = self.output.stream(source.meta) if self.output else None
+        stream = self._stream(reader.meta, source.meta)
         kept = Collected() if job.output is not None and stream is None else None
         written: BlockSink | None = stream or kept
         if written is not None and job.mode == "states":
@@ -225,10 +245,21 @@ class ReplayWorker:
         if stream is not None:
             stream.commit(dataclasses.replace(source.meta, verification=report.verification()), source.length)
         if kept is None:
-            return report, None
+            return report, stream.path if isinstance(stream, ScratchEpisode) else None
         episode = kept.episode(source.meta)
         meta = dataclasses.replace(episode.meta, verification=report.verification())
         return report, dataclasses.replace(episode, meta=meta)
+
+    def _stream(self, meta: RecordingMeta, episode: EpisodeMeta) -> EpisodeStream | None:
+        """Where the replay of `episode` (of the recording with `meta`) is written as it comes: into `-o` when this
+        process writes it and the episode is next; else, given a scratch folder, into a scratch recording of its
+        own; else nowhere (None: without `-o`, or collected whole)."""
+        job = self.job
+        stream = self.output.stream(episode) if self.output else None
+        if stream is None and job.output is not None and job.scratch is not None:
+            spec = ReplayOutput(job.output, obs_mode=job.obs_mode, pose_bodies=job.replayer_options(meta).pose_bodies)
+            stream = ScratchEpisode(Path(job.scratch), spec, meta, episode)
+        return stream
 
     def _report(self, reader: EpisodeReader, replayer: EpisodeReplayer, source: EpisodeRows,
                 replayed: ReplayedEpisode, comparison: Callable[[], EpisodeComparison]) -> EpisodeReport:

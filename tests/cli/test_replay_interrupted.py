@@ -1,6 +1,7 @@
 """A `simreel replay --report` run that is interrupted keeps every verdict it reached: killed with -9 (its worker
 processes end with it) or stopped with Ctrl-C, `--resume` then replays only the episodes without a verdict, and
-the report holds each episode exactly once."""
+the report holds each episode exactly once. A run writing its replays (-o) leaves no scratch recordings after Ctrl-C,
+and those a kill -9 left are cleared by the next run."""
 
 from __future__ import annotations
 
@@ -14,6 +15,9 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
+
+from simreel.formats import open_reader
+from simreel.replay.output import scratch_folder
 
 
 @pytest.fixture(scope="module")
@@ -104,3 +108,39 @@ def test_ctrl_c_writes_the_report_so_far_and_says_how_to_finish(long_run, tmp_pa
     assert f"{before} of 24 episodes have their verdict" in err
     _resume_and_check(report, 24, before)
     assert os.path.getsize(report) > 0
+
+
+def _wait_for_scratch(proc: subprocess.Popen, folder: Path) -> None:
+    """Until a worker has written a replayed episode to the run's scratch folder."""
+    deadline = time.monotonic() + 300
+    while not list(folder.glob("episode_*.h5")):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, f"nothing in {folder} after 300 s"
+        time.sleep(0.05)
+
+
+def test_ctrl_c_of_a_run_writing_replays_removes_its_scratch_folder(long_run, tmp_path):
+    out = tmp_path / "out.h5"
+    proc = _replay(str(long_run), "-o", str(out), "--workers", "2", "-q")
+    _wait_for_scratch(proc, scratch_folder(out))
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert not scratch_folder(out).exists()
+    assert {p.name for p in tmp_path.iterdir()} <= {"out.h5", "out.json"}
+
+
+def test_a_scratch_folder_left_by_kill_9_is_cleared_by_the_next_run(long_run, tmp_path):
+    out = tmp_path / "out.h5"
+    proc = _replay(str(long_run), "-o", str(out), "--workers", "2", "-q")
+    _wait_for_scratch(proc, scratch_folder(out))
+    proc.kill()
+    proc.wait()
+    time.sleep(1.0)  # its pool's process notices within 0.5 s and ends
+    assert scratch_folder(out).is_dir()  # nothing could remove it
+    done = subprocess.run([sys.executable, "-m", "simreel", "replay", str(long_run), "-o", str(out), "--workers", "2",
+                           "--overwrite", "-q"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert not scratch_folder(out).exists()
+    with open_reader(out) as reader:
+        assert [m.index for m in reader.episodes] == list(range(24))

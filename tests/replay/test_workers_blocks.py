@@ -11,6 +11,7 @@ import shutil
 import h5py
 import numpy as np
 import pytest
+from support.damage import corrupt_chunk
 from support.maniskill_files import record_maniskill
 
 from simreel.cli.main import main
@@ -99,14 +100,7 @@ def test_a_divergence_in_the_third_block_is_found_at_its_step(record, tmp_path):
 def test_a_corrupt_chunk_in_a_later_block_makes_the_episode_an_error(record, tmp_path):
     path = tmp_path / "damaged.h5"
     shutil.copy(record("PickCube-v1", 2, 20), path)
-    with h5py.File(path, "r+") as f:  # actions in chunks of 5 steps, each with its checksum
-        actions = f["traj_0/actions"][()]
-        del f["traj_0/actions"]
-        f.create_dataset("traj_0/actions", data=actions, chunks=(5, actions.shape[1]), fletcher32=True)
-        info = f["traj_0/actions"].id.get_chunk_info(3)  # steps 15-19: the third block of 7
-    data = bytearray(path.read_bytes())
-    data[info.byte_offset + info.size // 2] ^= 0x10
-    path.write_bytes(data)
+    corrupt_chunk(path, "traj_0/actions", 3)  # steps 15-19: the third block of 7
     with open_reader(path) as reader:  # the blocks before it read, the one holding the chunk does not
         rows = reader.open_episode(0)
         blocks = rows.blocks(BLOCK)

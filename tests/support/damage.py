@@ -16,7 +16,7 @@ from pathlib import Path
 
 from simreel.episode import Episode, RecordingMeta
 
-__all__ = ["stored_bytes", "write_format1", "sweep"]
+__all__ = ["stored_bytes", "corrupt_chunk", "write_format1", "sweep"]
 
 
 def stored_bytes(path: Path, dataset: str) -> tuple[int, int]:
@@ -29,6 +29,21 @@ def stored_bytes(path: Path, dataset: str) -> tuple[int, int]:
             info = ds.id.get_chunk_info(0)
             return info.byte_offset, info.size
         return ds.id.get_offset(), ds.id.get_storage_size()
+
+
+def corrupt_chunk(path: Path, dataset: str, chunk: int, rows: int = 5) -> None:
+    """Store `dataset` again in chunks of `rows` rows, each with its checksum, and flip one bit in the middle of
+    chunk `chunk` (rows `chunk * rows` on): the blocks before it read, the one holding it fails its checksum."""
+    import h5py
+
+    with h5py.File(path, "r+") as f:
+        data = f[dataset][()]
+        del f[dataset]
+        f.create_dataset(dataset, data=data, chunks=(rows, *data.shape[1:]), fletcher32=True)
+        info = f[dataset].id.get_chunk_info(chunk)
+    damaged = bytearray(path.read_bytes())
+    damaged[info.byte_offset + info.size // 2] ^= 0x10
+    path.write_bytes(damaged)
 
 
 def write_format1(path: Path, meta: RecordingMeta, episodes: list[Episode]) -> Path:

@@ -1,0 +1,105 @@
+"""`replay -o` with worker processes (`ReplayRun` with ``output`` and ``workers=2``): episodes replayed in the pool's
+process, or here out of their turn, go through scratch recordings and reach the output the same as with one worker
+(arrays, dtypes and metadata, apart from the time and command line), for HDF5 and MCAP outputs; the run's scratch
+folder is gone when it ends, also when an episode fails with an error or the env does not build; a folder left by
+a killed run is cleared by the next, one held by a live run is refused."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from support.damage import corrupt_chunk
+
+from simreel.errors import EnvBuildError, UsageError
+from simreel.formats import open_reader
+from simreel.formats.lock import WriterLock
+from simreel.replay.output import scratch_folder
+from simreel.replay.verify import verify_recording
+
+_RUN_ONLY = {"created_utc", "command"}
+"""Metadata of an output that says when and how it was made, not what it holds."""
+
+
+def _assert_same_output(a, b) -> None:
+    with open_reader(a) as one, open_reader(b) as two:
+        left, right = one.meta.to_json(), two.meta.to_json()
+        assert {k: v for k, v in left.items() if k not in _RUN_ONLY} == \
+            {k: v for k, v in right.items() if k not in _RUN_ONLY}
+        assert [m.to_json() for m in one.episodes] == [m.to_json() for m in two.episodes]
+        for m in one.episodes:
+            x, y = one.read_episode(m.index).fields(), two.read_episode(m.index).fields()
+            assert list(x) == list(y)
+            for name in x:
+                assert x[name].dtype == y[name].dtype, name
+                np.testing.assert_array_equal(x[name], y[name], err_msg=name)
+
+
+def _workers_of(report) -> set[str]:
+    lines = [json.loads(line) for line in report.with_name(report.name + "l").read_text().splitlines()]
+    return {e["worker"] for e in lines if e["type"] == "episode"}
+
+
+@pytest.mark.parametrize("fmt", ["h5", "mcap"])
+def test_output_of_two_workers_equals_output_of_one(record, tmp_path, fmt):
+    path = record("PickCube-v1", 4, 20)
+    one, two = tmp_path / f"one.{fmt}", tmp_path / f"two.{fmt}"
+    verify_recording(path, output=str(one))
+    report = verify_recording(path, output=str(two), workers=2, report=str(tmp_path / "r.json"))
+    assert [e.verdict for e in report.episodes] == ["exact"] * 4
+    assert len(_workers_of(tmp_path / "r.json")) == 2  # the pool's process replayed some of them
+    _assert_same_output(one, two)
+    with open_reader(two) as reader:
+        assert [m.verification["verdict"] for m in reader.episodes] == ["exact"] * 4
+    assert not scratch_folder(two).exists()
+    if fmt == "h5":  # ManiSkill's sidecar too, apart from the command line it names
+        sidecars = [json.loads(p.with_suffix(".json").read_text()) for p in (one, two)]
+        for doc in sidecars:
+            doc.pop("source_desc")
+        assert sidecars[0] == sidecars[1]
+
+
+def test_an_episode_that_fails_leaves_no_scratch_and_the_others_are_written(record, tmp_path):
+    path = tmp_path / "damaged.h5"
+    shutil.copy(record("PickCube-v1", 4, 20), path)
+    corrupt_chunk(path, "traj_1/actions", 2)
+    out = tmp_path / "out.h5"
+    report = verify_recording(path, output=str(out), workers=2)
+    assert [e.verdict for e in report.episodes] == ["exact", "error", "exact", "exact"]
+    with open_reader(out) as reader:
+        assert [m.index for m in reader.episodes] == [0, 2, 3]
+    assert not scratch_folder(out).exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.h5", "out.h5", "out.json"]
+
+
+def test_a_run_whose_env_does_not_build_leaves_no_scratch(record, tmp_path):
+    out = tmp_path / "out.h5"
+    with pytest.raises(EnvBuildError):
+        verify_recording(record("PickCube-v1", 4, 20), output=str(out), workers=2, imports=("no_such_module_13",))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_scratch_folder_left_by_a_killed_run_is_cleared_and_a_live_one_refused(record, tmp_path):
+    path = record("PickCube-v1", 2, 20)
+    out = tmp_path / "out.h5"
+    left = scratch_folder(out)
+    left.mkdir()
+    (left / "lock").touch()
+    (left / "episode_1.h5").write_bytes(b"\x89HDF\r\n\x1a\n half written")
+    verify_recording(path, output=str(out), workers=2)
+    assert not left.exists()
+    with open_reader(out) as reader:
+        assert [m.index for m in reader.episodes] == [0, 1]
+
+    busy = scratch_folder(tmp_path / "out2.h5")
+    busy.mkdir()
+    lock = WriterLock.acquire(busy / "lock", create=True)  # as a run writing the same output holds it
+    try:
+        with pytest.raises(UsageError, match=r"out2\.h5 is being written by another replay"):
+            verify_recording(path, output=str(tmp_path / "out2.h5"), workers=2)
+        assert (busy / "lock").exists()  # left to the run that holds it
+    finally:
+        lock.release()
+    assert not (tmp_path / "out2.h5").exists()
