@@ -257,7 +257,7 @@ class ReplayWorker:
         job = self.job
         stream = self.output.stream(episode) if self.output else None
         if stream is None and job.output is not None and job.scratch is not None:
-            spec = ReplayOutput(job.output, obs_mode=job.obs_mode, pose_bodies=job.replayer_options(meta).pose_bodies)
+            spec = ReplayOutput(job.output, obs_mode=job.obs_mode, pose_bodies=output_pose_bodies(meta, job.output))
             stream = ScratchEpisode(Path(job.scratch), spec, meta, episode)
         return stream
 
