@@ -130,11 +130,13 @@ def overhead(args: argparse.Namespace, folder: Path) -> None:
     print(f"  file size            {path.stat().st_size / ((args.episodes + 1) * args.steps):8.1f} bytes/step")
 
 
-_PARTS = {"contacts": ("_sampler", "sample"), "state read": (None, "_state"), "step fields": (None, "_step_rows"),
-          "action check": (None, "_actions"), "buffer push": ("_buffer", "push"),
-          "state row fields": (None, "_per_state_rows"), "episode end (commit)": (None, "_finish"),
-          "env.step": ("env", "step"), "env.reset": ("env", "reset")}
-"""What `--breakdown` times: label -> (attribute of the RecordWrapper holding the method, or None: its own; method)."""
+_PARTS = {"env.step": ("env", "step"), "env.reset": ("env", "reset"), "episode end (commit)": (None, "_finish"),
+          "  of which block conversion": ("_buffer", "_convert"), "contacts": ("_sampler", "capture"),
+          "state read": (None, "_state"), "step scalars": ("_scalars", "capture"), "buffer push": ("_buffer", "push"),
+          "action check": (None, "_actions"), "state row fields": (None, "_per_state_rows")}
+"""What `--breakdown` times: label -> (attribute of the RecordWrapper holding the method, or None: its own; method).
+A label that starts with spaces is timed inside the one before it (a block's captures are converted when its rows are
+taken: at the episode's end, for an episode shorter than a block)."""
 
 
 def breakdown(args: argparse.Namespace, folder: Path) -> None:
@@ -155,10 +157,10 @@ def breakdown(args: argparse.Namespace, folder: Path) -> None:
     env_time = seconds["env.step"] + seconds["env.reset"]
     print(f"Where a recorded step's time goes ({args.episodes} episodes x {args.steps} steps, each part clocked; % of "
           "the env's own step + reset):")
-    for label, s in sorted(seconds.items(), key=lambda kv: -kv[1]):
-        print(f"  {label:<22} {s / steps * 1e6:8.1f} µs/step  {s / env_time * 100:6.2f}%")
-    rest = total - sum(seconds.values())
-    print(f"  {'rest of the wrapper':<22} {rest / steps * 1e6:8.1f} µs/step  {rest / env_time * 100:6.2f}%")
+    for label, s in seconds.items():
+        print(f"  {label:<28} {s / steps * 1e6:8.1f} µs/step  {s / env_time * 100:6.2f}%")
+    rest = total - sum(s for label, s in seconds.items() if not label.startswith(" "))
+    print(f"  {'rest of the wrapper':<28} {rest / steps * 1e6:8.1f} µs/step  {rest / env_time * 100:6.2f}%")
     _dataset_creation(folder)
 
 

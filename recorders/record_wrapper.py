@@ -3,7 +3,9 @@
 Every parallel env's episode is its own episode on disk. An episode runs from a reset of its env to
 the next reset of that env (a partial reset `options={"env_idx": [...]}` ends only those envs'
 episodes) or to `close()`. Steps are buffered in blocks of `block_steps` and streamed to the writer,
-so memory does not grow with episode length; a finished episode is committed (durable) at once.
+so memory does not grow with episode length; a finished episode is committed (durable) at once. After
+each step the recorder copies out what it needs and converts a block of steps at once (`StepBuffer`):
+right after a physics step every numpy call costs several times its usual price.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from simreel.episode import EpisodeMeta, StepBlock, json_default
 from simreel.errors import ActionError, UsageError
 from simreel.formats import open_writer, records_poses_by_default
 from simreel.recorders.step_buffer import StepBuffer
+from simreel.recorders.step_scalars import StepScalars, scalar_info
 from simreel.sim.contacts import ContactSampler, contact_channels
 from simreel.sim.describe import flatten_obs, recording_meta
 from simreel.sim.fingerprint import fingerprint_changes, scene_fingerprint
@@ -34,7 +37,6 @@ from simreel.state_tree import layout_of, to_numpy
 
 __all__ = ["RecordWrapper", "RecordOptions"]
 
-_SKIPPED_INFO = ("reconfigure",)
 _PYTHON_CHECK_MAX = 256
 
 
@@ -71,32 +73,12 @@ class RecordOptions:
         object.__setattr__(self, "imports", tuple(self.imports))
 
 
-def _scalar_info(info: dict[str, Any], n: int) -> dict[str, np.ndarray]:
-    """Info entries that hold one scalar per env, as (n,) arrays; everything else is left out."""
-    out = {}
-    for key, value in info.items():
-        a = None if key in _SKIPPED_INFO else _scalar(value, n)
-        if a is not None:
-            out[key] = a
-    return out
-
-
 def _finite(a: np.ndarray) -> bool:
     """Whether every number in the float array `a` is finite; a small one is checked in Python floats (a numpy call
     right after a physics step costs several times more: caches are cold)."""
     if a.size <= _PYTHON_CHECK_MAX:
         return all(map(math.isfinite, a.reshape(-1).tolist()))
     return bool(np.isfinite(a).all())
-
-
-def _scalar(value: Any, n: int) -> np.ndarray | None:
-    """`value` as an (n,) numeric array when it holds one scalar per env, else None."""
-    if value is None or isinstance(value, dict):
-        return None
-    a = to_numpy(value)
-    if a.ndim == 0:
-        a = np.broadcast_to(a, (n,))
-    return a if a.shape == (n,) and a.dtype.kind in "biuf" else None
 
 
 class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -125,8 +107,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._fast: FastStateReader | None = None
         self._fast_unchecked = False
         self._fast_refuted = False
-        self._fast_scene: int | None = None
-        """id() of the PhysX scene whose fast reader passed the check after a step (None: none yet, or rebuilt)."""
+        self._fast_scene: Any = None
+        """The PhysX scene whose fast reader passed the check after a step (None: none yet, or rebuilt)."""
         self.meta = self._describe(env, path)  # refuses an action space other than a Box
         self._action_shape = tuple(u.single_action_space.shape)
         self._writer = open_writer(path, self.meta, overwrite=opts.overwrite, **opts.writer_options)
@@ -141,11 +123,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._success = np.zeros(self._n, bool)
         self._ever_success = np.zeros(self._n, bool)
         self._has_success = "success" in self.meta.info_layout
-        self._info_fields = [(key, f"info/{key}", np.dtype(spec.dtype)) for key, spec in self.meta.info_layout.items()]
-        self._info_keys = list(dict.fromkeys(("success", "fail", *self.meta.info_layout)))
-        absent = [("success", np.dtype(bool)), ("fail", np.dtype(bool))] + [(f, d) for _, f, d in self._info_fields]
-        self._absent = {name: _constant_zeros(self._n, dtype) for name, dtype in absent}
-        """What a step records for a flag or info entry the env did not give (read-only: the buffer copies it)."""
+        self._scalars = StepScalars(self._n, [(f"info/{k}", np.dtype(s.dtype)) for k, s in self.meta.info_layout.items()])
+        self._packed_states: _PackedStates | None = None
+        self._contact_rows = _ContactRows(self._sampler)
         self._next_index = 0
         self._scene_seed: list[int | None] = [None] * self._n
         self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
@@ -160,7 +140,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return recording_meta(
             env,
             contact_channels=self._sampler.channels,
-            info_layout=layout_of(_scalar_info(u.get_info(), self._n), batched=True),
+            info_layout=layout_of(scalar_info(u.get_info(), self._n), batched=True),
             obs_layout=obs_layout,
             pose_bodies=pose_body_names(u) if poses else [],
             imports=[recorded_spec(spec) for spec in opts.imports],  # a file by its absolute path
@@ -178,7 +158,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._buffer.rewind()
         obs, info = self.env.reset(seed=seed, options=options or None)
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
-        self._sampler.bind(self._u)
+        if reconfigured or self._sampler.px is not self._u.scene.px:
+            self._sampler.bind(self._u)
         state = read_state(self._u)
         check_same_layout(self.meta.env_id, self.meta.state_layout, layout_of(state, batched=True))
         self._bind_fast_reader(state, reconfigured)
@@ -210,11 +191,10 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise UsageError("RecordWrapper.step() before reset(): reset the env first so the episode has a start")
         actions = self._actions(action)
         obs, reward, terminated, truncated, info = self.env.step(action)
-        fields = self._step_rows(actions, reward, terminated, truncated, info)
-        fields.update(self._per_state_rows(self._state(), obs))
-        if self._sampler.channels:
-            fields["contact_forces"] = self._sampler.sample()
-        self._buffer.push(fields)
+        fields, captures = self._after_step(obs)
+        fields["actions"] = actions
+        captures.append((self._scalars, self._scalars.capture(reward, terminated, truncated, info)))
+        self._buffer.push(fields, tuple(captures))
         self._steps += 1
         if self._buffer.full:
             for i in range(self._n):
@@ -238,24 +218,19 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                               "ManiSkill refuses them")
         return a.astype(np.float32, copy=False).reshape(self._n, -1)
 
-    def _step_rows(self, actions: np.ndarray, reward: Any, terminated: Any, truncated: Any,
-                   info: Any) -> dict[str, np.ndarray]:
-        """This step's per-step fields for every env: action, reward, flags and scalar info."""
-        n = self._n
-        scalars = {key: _scalar(info.get(key), n) for key in self._info_keys}
-        fields: dict[str, np.ndarray] = {
-            "actions": actions,
-            "rewards": to_numpy(reward).astype(np.float32, copy=False).reshape(n),
-            "terminated": to_numpy(terminated).reshape(n),
-            "truncated": to_numpy(truncated).reshape(n),
-        }
-        for flag in ("success", "fail"):
-            a = scalars[flag]
-            fields[flag] = self._absent[flag] if a is None else a
-        for key, name, _ in self._info_fields:
-            a = scalars[key]
-            fields[name] = self._absent[name] if a is None else a
-        return fields
+    def _after_step(self, obs: Any) -> tuple[dict[str, np.ndarray], list[tuple[Any, Any]]]:
+        """The state, observations, poses and contact forces after a step: (fields read now, what is captured now
+        and converted with its block: `StepBuffer` row sources and their captures)."""
+        captures: list[tuple[Any, Any]] = []
+        state, packed = self._state()
+        if packed is not None:
+            captures.append((self._packed_states, packed))
+        fields = self._per_state_rows(state, obs)
+        if self._sampler.captures:
+            captures.append((self._contact_rows, self._sampler.capture()))
+        elif self._sampler.channels:
+            fields["contact_forces"] = self._sampler.sample()
+        return fields, captures
 
     def _per_state_rows(self, state: dict[str, np.ndarray], obs: Any) -> dict[str, np.ndarray]:
         """The per-state fields now, for every env: state, observations (when recorded) and body poses."""
@@ -323,28 +298,37 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         a reset most velocities are zero, a weaker check), and any difference retires it. Once a scene's reader has
         passed that check, the readers of its later episodes are checked at their reset instead, against `state` (the
         reset row just read through `get_state_dict()`): one fast read rather than one more `get_state_dict()` per
-        episode. A reader that differs there is checked after the first step again."""
+        episode. A reader that differs there is rebuilt and checked after the first step again."""
         if self._fast_refuted:
             return
+        px = self._u.scene.px
         if reconfigured:
             self._fast_scene = None
+        kept = self._fast is not None and self._fast.px is px and self._fast_scene is px
+        if kept and self._fast.equals(state):  # the scene's proven reader, checked again
+            self._fast_unchecked = False
+            return
         self._fast = FastStateReader.for_env(self._u)
-        proven = self._fast_scene == id(self._u.scene.px) and self._fast is not None and self._fast.equals(state)
-        self._fast_unchecked = self._fast is not None and not proven
+        self._packed_states = None if self._fast is None else _PackedStates(self._fast)
+        self._fast_unchecked = self._fast is not None
 
-    def _state(self) -> dict[str, np.ndarray]:
-        """The state dict after a step; through the fast CPU reader where it is proven equal (`_bind_fast_reader`)."""
+    def _state(self) -> tuple[dict[str, np.ndarray], bytes | None]:
+        """The state after a step: (state leaves read now, the packed rest for `_PackedStates` or None). Through the
+        fast CPU reader where it is proven equal (`_bind_fast_reader`), else all of it through `get_state_dict()`."""
         if self._fast is None:
-            return read_state(self._u)
+            return read_state(self._u), None
         if self._fast_unchecked:
             self._fast_unchecked = False
             if not self._fast.matches():
                 self._fast, self._fast_refuted = None, True
                 warnings.warn(f"simreel: the fast state reader disagrees with {self.meta.env_id}'s get_state_dict(); "
                               "recording through get_state_dict() from now on", RuntimeWarning, stacklevel=3)
-                return read_state(self._u)
-            self._fast_scene = id(self._u.scene.px)
-        return self._fast.read()
+                return read_state(self._u), None
+            self._fast_scene = self._u.scene.px
+        packed = self._fast.capture()
+        if packed is None:  # bodies were added or removed since the reader was built
+            return read_state(self._u), None
+        return self._fast.extras(), packed
 
     def _flush(self, i: int) -> None:
         """Hand env i's buffered steps to its episode's sink, noting whether the episode has succeeded."""
@@ -375,10 +359,24 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.episodes_committed.append(meta)
 
 
-def _constant_zeros(n: int, dtype: Any) -> np.ndarray:
-    a = np.zeros(n, dtype)
-    a.flags.writeable = False
-    return a
+class _ContactRows:
+    """The `StepBuffer` row source of the contact forces a sampler captured (`contact_forces`)."""
+
+    def __init__(self, sampler: ContactSampler) -> None:
+        self._sampler = sampler
+
+    def rows(self, captures: list[Any]) -> dict[str, np.ndarray]:
+        return {"contact_forces": self._sampler.rows(captures)}
+
+
+class _PackedStates:
+    """The `StepBuffer` row source of the state leaves a fast reader captured packed (`env_states/...` fields)."""
+
+    def __init__(self, reader: FastStateReader) -> None:
+        self._reader = reader
+
+    def rows(self, captures: list[bytes]) -> dict[str, np.ndarray]:
+        return {f"env_states/{key}": rows for key, rows in self._reader.unpack(captures).items()}
 
 
 def _constructor_options(opts: RecordOptions) -> dict[str, Any]:

@@ -1,17 +1,29 @@
 """A fixed-size block of batched steps, so recording writes in blocks and memory stays bounded.
 
-Each step is pushed once for all parallel envs (one array copy per field, whatever `num_envs` is).
+Each step is pushed once for all parallel envs: its arrays are copied into the block (one copy per field,
+whatever `num_envs` is), and what is cheaper to capture now and convert later (`RowSource`: Python lists of
+scalars, the physics engine's packed state bytes) is kept as captured and turned into rows for all the block's
+steps at once, when the rows are first taken. Right after a physics step the CPU's caches are cold and every
+numpy call costs several times its usual price; once per block the same conversions run on warm caches.
 Env i's rows since its episode started (or since the last flush) are `take(i)`: a `StepBlock` of slices,
 no copy.
 """
 
 from __future__ import annotations
 
+from typing import Any, Protocol
+
 import numpy as np
 
 from simreel.episode import StepBlock
 
-__all__ = ["StepBuffer"]
+__all__ = ["StepBuffer", "RowSource"]
+
+
+class RowSource(Protocol):
+    """Turns the captures of k steps (in step order) into those steps' fields, each (k, num_envs, ...)."""
+
+    def rows(self, captures: list[Any]) -> dict[str, np.ndarray]: ...
 
 
 class StepBuffer:
@@ -23,24 +35,43 @@ class StepBuffer:
         self.rows = 0
         self.start = np.zeros(num_envs, dtype=np.int64)
         self._arrays: dict[str, np.ndarray] = {}
+        self._captured: dict[RowSource, tuple[list[int], list[Any]]] = {}
+        """Per source, the rows it captured and not yet converted, and the captures (its own objects)."""
 
     @property
     def full(self) -> bool:
         return self.rows == self.capacity
 
-    def push(self, fields: dict[str, np.ndarray]) -> None:
-        """Store one step: each field has a leading num_envs dimension."""
+    def push(self, fields: dict[str, np.ndarray], captures: tuple[tuple[RowSource, Any], ...] = ()) -> None:
+        """Store one step: each field has a leading num_envs dimension; each capture becomes its source's fields
+        for this row when the rows are taken (a capture must not change after it is pushed)."""
         r = self.rows
         for name, value in fields.items():
-            buf = self._arrays.get(name)
-            if buf is None:
-                buf = np.empty((self.capacity, *value.shape), dtype=value.dtype)
-                self._arrays[name] = buf
-            buf[r] = value
+            self._row_buffer(name, value)[r] = value
+        for source, capture in captures:
+            rows, held = self._captured.setdefault(source, ([], []))
+            rows.append(r)
+            held.append(capture)
         self.rows = r + 1
+
+    def _row_buffer(self, name: str, row: np.ndarray) -> np.ndarray:
+        buf = self._arrays.get(name)
+        if buf is None:
+            buf = self._arrays[name] = np.empty((self.capacity, *row.shape), dtype=row.dtype)
+        return buf
+
+    def _convert(self) -> None:
+        """Turn every capture held into its rows (all sources at once: one conversion per block, not per step)."""
+        for source, (rows, held) in self._captured.items():
+            at = slice(rows[0], rows[-1] + 1) if rows[-1] - rows[0] == len(rows) - 1 else rows
+            for name, value in source.rows(held).items():
+                self._row_buffer(name, value[0])[at] = value
+        self._captured.clear()
 
     def take(self, env: int) -> StepBlock:
         """Env `env`'s rows not yet taken, as views valid until the next `push` into those rows."""
+        if self._captured:
+            self._convert()
         s, e = int(self.start[env]), self.rows
         self.start[env] = e
         return StepBlock({name: buf[s:e, env] for name, buf in self._arrays.items()}, e - s)
@@ -52,3 +83,4 @@ class StepBuffer:
         """Start over at row 0; every env's rows must have been taken."""
         self.rows = 0
         self.start[:] = 0
+        self._captured.clear()

@@ -21,6 +21,10 @@ __all__ = ["contact_channels", "ContactSampler", "parse_pairs"]
 
 _FINGER_HINTS = ("finger", "tip", "pad")
 
+Capture = tuple[list[tuple[list[tuple[int, float]], list[list[float]]]], float]
+"""A step's contacts as `ContactSampler.capture` copies them out: ([(where each adds its impulse: (3 × channel,
+sign), its points' impulses)], the timestep)."""
+
 
 def parse_pairs(spec: str) -> list[tuple[str, str]]:
     """`"panda/panda_leftfinger:cube,a:b"` → [("panda/panda_leftfinger", "cube"), ("a", "b")]."""
@@ -85,17 +89,21 @@ def contact_channels(unwrapped: Any, spec: str | None) -> list[ContactChannel]:
 class ContactSampler:
     """Samples every channel after a step: `sample()` → (num_envs, C, 3) float32 newtons.
 
-    Call `bind()` after each reset: a reconfiguring reset replaces the scene's bodies.
+    Call `bind()` after each reset: a reconfiguring reset replaces the scene's bodies. A recorder may instead
+    `capture()` a step's contacts as Python numbers and turn a block of captures into rows later (`rows`, a
+    `StepBuffer` row source): the same numbers, without numpy calls right after the physics step.
     """
 
     def __init__(self, channels: list[ContactChannel]) -> None:
         self.channels = channels
         self._u: Any = None
+        self.px: Any = None
+        """The PhysX system bound (`bind`)."""
 
     def bind(self, unwrapped: Any) -> None:
         self._u = unwrapped
         self._n = int(unwrapped.num_envs)
-        self._px = unwrapped.scene.px
+        self.px = unwrapped.scene.px
         bodies = named_bodies(unwrapped)
         self._objs = [[bodies[b] for b in ch.bodies] for ch in self.channels]
         self._gpu = bool(unwrapped.scene.gpu_sim_enabled)
@@ -111,45 +119,64 @@ class ContactSampler:
             self._zeros = np.zeros((1, len(self.channels), 3), np.float32)
             self._zeros.flags.writeable = False
 
+    @property
+    def captures(self) -> bool:
+        """Whether `capture` works here (the CPU sim with channels); else call `sample`."""
+        return bool(self.channels) and not self._gpu
+
     def sample(self) -> np.ndarray:
         if not self.channels:
             return np.zeros((self._n, 0, 3), np.float32)
         if self._gpu:
             return self._sample_gpu(self._n)
-        contacts = self._px.get_contacts()
+        return self.rows([self.capture()])[0]
+
+    def capture(self) -> Capture | None:
+        """This step's touching contacts, as (where each adds its impulse, its points' impulses) copied out in Python
+        floats, with the timestep; None where nothing touches a channel (CPU sim only: `captures`)."""
+        contacts = self.px.get_contacts()
         if not contacts:  # many steps of many tasks touch nothing
-            return self._zeros
-        out = [0.0] * (3 * len(self.channels))
-        self._add_impulses(out, contacts)
-        timestep = self._px.timestep
-        return np.frombuffer(array("f", [v / timestep for v in out]), np.float32).reshape(self._zeros.shape)
-
-    def _add_impulses(self, out: list[float], contacts: list[Any]) -> None:
-        """Add each contact's impulse (the sum over its points) to the channels of its bodies (`out`: x, y, z of
-        channel c at 3c), with ManiSkill's sign.
-
-        In Python floats, not numpy: a step touches a few contacts, and each numpy call on arrays of 3 costs more
-        than the arithmetic (~20 µs each right after a physics step). The numbers are numpy's, bit for bit: a
-        contact's points are summed in float32 row by row (`_point_sum`), the channels add them up in float64, and
-        `sample` divides by the timestep in float64 and rounds to float32 (through `array("f")`: C's conversion,
-        as numpy's).
-        """
-        hits_of = self._hits
+            return None
+        hits_of, touched = self._hits, []
         for contact in contacts:
             b0, b1 = contact.bodies
             hits = hits_of.get((b0, b1))
             if hits is None:
                 hits = hits_of[(b0, b1)] = self._channels_of(b0, b1)
-            if not hits:  # a contact no channel records (between two static bodies, ...)
-                continue
-            points = contact.points
-            if not points:
-                continue
-            x, y, z = _point_sum(points)
-            for at, sign in hits:  # sign * x is exact, and a + (-b) is a - b
-                out[at] += sign * x
-                out[at + 1] += sign * y
-                out[at + 2] += sign * z
+            if hits:  # else a contact no channel records (between two static bodies, ...)
+                points = contact.points
+                if points:
+                    touched.append((hits, [point.impulse.tolist() for point in points]))
+        return (touched, self.px.timestep) if touched else None
+
+    def rows(self, captures: list[Capture | None]) -> np.ndarray:
+        """The (steps, 1, C, 3) float32 forces of `captures`.
+
+        The numbers are numpy's, bit for bit, as the forces were first computed: a contact's points are summed in
+        float32 row by row (`_point_sum`), the channels add them up in float64 with ManiSkill's signs, and each is
+        divided by the timestep in float64 and rounded to float32. The sums run in Python floats: a step touches a
+        few contacts, and numpy calls on arrays of 3 cost more than the arithmetic."""
+        size = 3 * len(self.channels)
+        sums = array("d", bytes(8 * size * len(captures)))
+        for k, capture in enumerate(captures):
+            if capture is not None:
+                _add_channel_sums(sums, k * size, capture[0])
+        impulses = np.frombuffer(sums, np.float64).reshape(len(captures), size)
+        timesteps = np.array([1.0 if c is None else c[1] for c in captures], np.float64)
+        return (impulses / timesteps[:, None]).astype(np.float32).reshape(len(captures), *self._zeros.shape)
+
+    def _sample_gpu(self, n: int) -> np.ndarray:
+        scene = self._u.scene
+        cols = []
+        for ch, objs in zip(self.channels, self._objs, strict=True):
+            if ch.kind == "net":
+                f = objs[0].get_net_contact_forces()
+            else:
+                f = scene.get_pairwise_contact_forces(objs[0], objs[1])
+            full = np.zeros((n, 3), np.float32)
+            full[objs[0]._scene_idxs.cpu().numpy()] = f.detach().cpu().numpy()
+            cols.append(full)
+        return np.stack(cols, axis=1)
 
     def _channels_of(self, b0: Any, b1: Any) -> list[tuple[int, float]]:
         """Where a contact between bodies b0 and b1 adds its impulse: (3 × channel, sign), in ManiSkill's signs."""
@@ -162,12 +189,22 @@ class ContactSampler:
         return [(3 * c, sign) for c, sign in hits]
 
 
-def _point_sum(points: list[Any]) -> tuple[float, float, float]:
+def _add_channel_sums(out: array, base: int, touched: list[tuple[list[tuple[int, float]], list[list[float]]]]) -> None:
+    """Add each channel's impulse (x, y, z of channel c at base + 3c, float64) of one step: every touching contact's
+    point sum, with its sign."""
+    for hits, impulses in touched:
+        x, y, z = _point_sum(impulses)
+        for at, sign in hits:  # sign * x is exact, and a + (-b) is a - b
+            out[base + at] += sign * x
+            out[base + at + 1] += sign * y
+            out[base + at + 2] += sign * z
+
+
+def _point_sum(impulses: list[list[float]]) -> tuple[float, float, float]:
     """The impulses of a contact's points summed in float32 row by row, as numpy adds (3,) float32 arrays (and
     `np.sum(axis=0)` sums rows), held in Python floats: the double sum of two float32 values, rounded to float32
     (through `array("f")`, C's conversion), is their float32 sum, since a double has more than 2 × 24 + 2 bits."""
-    x, y, z = points[0].impulse.tolist()
-    for point in points[1:]:
-        a, b, c = point.impulse.tolist()
+    x, y, z = impulses[0]
+    for a, b, c in impulses[1:]:
         x, y, z = array("f", (x + a, y + b, z + c))
     return x, y, z

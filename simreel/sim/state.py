@@ -110,12 +110,35 @@ class FastStateReader:
         except (TypeError, AttributeError, IndexError, KeyError):
             return None
 
+    @property
+    def px(self) -> Any:
+        """The PhysX system this reader reads."""
+        return self._px
+
     def read(self) -> dict[str, np.ndarray]:
-        packed = self._px.pack()
-        if len(packed) != self._nbytes:  # bodies were added or removed since the reader was built
+        packed = self.capture()
+        if packed is None:  # bodies were added or removed since the reader was built
             return read_state(self.u)
-        flat = np.frombuffer(packed + _ZERO_F32, np.float32)[self._index]  # one gather: a new array per read
-        out: dict[str, np.ndarray] = {key: flat[None, a:b] for key, a, b in self._slices}
+        out = {key: rows[0] for key, rows in self.unpack([packed]).items()}
+        out.update(self.extras())
+        return out
+
+    def capture(self) -> bytes | None:
+        """The actors' and articulations' state now, packed (`unpack` makes leaves of it, later), or None where the
+        scene's bodies changed since the reader was built."""
+        packed = self._px.pack()
+        return packed if len(packed) == self._nbytes else None
+
+    def unpack(self, captures: list[bytes]) -> dict[str, np.ndarray]:
+        """The actor and articulation leaves of `len(captures)` packed states: key path → (k, 1, ...) float32, one
+        gather for all of them."""
+        joined = b"".join(part for packed in captures for part in (packed, _ZERO_F32))
+        flat = np.frombuffer(joined, np.float32).reshape(len(captures), -1)[:, self._index]
+        return {key: flat[:, None, a:b] for key, a, b in self._slices}
+
+    def extras(self) -> dict[str, np.ndarray]:
+        """The leaves `pack()` does not hold, read now: the controller's targets and the task's custom state."""
+        out: dict[str, np.ndarray] = {}
         if self._agent is not None:
             controller = self._controller_state()
             if controller:

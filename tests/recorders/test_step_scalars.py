@@ -1,0 +1,83 @@
+"""StepScalars: a step's rewards, flags and scalar info, copied out after the step and converted a block at a time,
+record exactly what the env reported — including values the env later changes in place and info entries that come
+and go or change shape."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from simreel.formats import open_reader
+from simreel.recorders import RecordWrapper
+from simreel.sim.make import make_env
+from simreel.state_tree import to_numpy
+
+_BIG = 2**60 + 1
+"""An int64 info value float64 cannot hold exactly."""
+
+
+@pytest.fixture(scope="module")
+def odd_info_task():
+    """PickCube whose info also holds a 0-d tensor, an int64 beyond float64, an entry present on even steps only and
+    one that changes shape at step 3."""
+    from mani_skill.envs.tasks.tabletop.pick_cube import PickCubeEnv
+    from mani_skill.utils.registration import register_env
+
+    @register_env("SimreelTestOddInfo-v1", max_episode_steps=8)
+    class OddInfo(PickCubeEnv):
+        def evaluate(self):
+            info = super().evaluate()
+            t = int(self._elapsed_steps[0]) if hasattr(self, "_elapsed_steps") else 0
+            info["bonus"] = torch.tensor(0.25 * t)
+            info["big"] = torch.tensor([_BIG + t], dtype=torch.int64)
+            if t % 2 == 0:
+                info["sometimes"] = torch.tensor([True])
+            info["shape_changes"] = torch.tensor([[1.0, 2.0]] if t == 3 else [1.5])
+            return info
+
+    return "SimreelTestOddInfo-v1"
+
+
+def test_odd_info_entries_are_recorded_by_the_per_step_rules(tmp_path, odd_info_task):
+    env = RecordWrapper(make_env(odd_info_task), tmp_path / "odd.h5", contacts="none")
+    env.reset(seed=0)
+    for _ in range(6):
+        env.step(np.zeros(env.action_space.shape, np.float32))
+    env.close()
+    with open_reader(tmp_path / "odd.h5") as r:
+        ep = r.read_episode(0)
+    steps = np.arange(1, 7)
+    np.testing.assert_array_equal(ep.info["bonus"], np.float32(0.25 * steps))  # a 0-d value: every env's
+    assert ep.info["big"].dtype == np.int64
+    np.testing.assert_array_equal(ep.info["big"], _BIG + steps)  # exact, not through float64
+    np.testing.assert_array_equal(ep.info["sometimes"], steps % 2 == 0)  # absent: False
+    np.testing.assert_array_equal(ep.info["shape_changes"], np.where(steps == 3, 0.0, 1.5))  # another shape: 0
+    np.testing.assert_array_equal(ep.info["elapsed_steps"], steps)  # ManiSkill updates this tensor in place
+
+
+def test_a_block_converts_to_what_each_step_reported(odd_info_task):
+    """The block conversion (one numpy call for all fields) equals converting each step's values on their own."""
+    from simreel.recorders.step_scalars import StepScalars, scalar_info
+
+    env = make_env("PickCube-v1")
+    env.reset(seed=3)
+    u = env.unwrapped
+    layout = scalar_info(u.get_info(), 1)
+    scalars = StepScalars(1, [(f"info/{k}", a.dtype) for k, a in layout.items()])
+    captures, reported = [], []
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        _, reward, terminated, truncated, info = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+        captures.append(scalars.capture(reward, terminated, truncated, info))
+        reported.append({"rewards": to_numpy(reward).astype(np.float32), "terminated": to_numpy(terminated).copy(),
+                         "truncated": to_numpy(truncated).copy(), "success": to_numpy(info["success"]).copy(),
+                         "fail": np.zeros(1, bool), **{f"info/{k}": to_numpy(info[k]).copy() for k in layout}})
+    env.close()
+    rows = scalars.rows(captures)
+    assert set(rows) == set(reported[0])
+    for name, got in rows.items():
+        want = np.stack([r[name] for r in reported])
+        assert got.dtype == (np.float32 if name == "rewards" else want.dtype), name
+        np.testing.assert_array_equal(got, want, err_msg=name)
+    assert rows["info/elapsed_steps"][-1, 0] == 20 and rows["info/elapsed_steps"][0, 0] == 1
