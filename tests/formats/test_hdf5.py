@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -15,7 +16,7 @@ import numpy as np
 import pytest
 
 from simreel import FORMAT_VERSION
-from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta, StepBlock
+from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta, StepBlock, episode_fields
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import open_reader, open_writer
 from simreel.formats.hdf5 import partial_dir, sidecar_path
@@ -263,6 +264,47 @@ def test_each_commit_gives_back_the_disk_space_it_reserved_but_did_not_use(tmp_p
     assert path.stat().st_size == _end_of_data(path)
     with h5py.File(path, "r") as f:
         assert f["traj_2/actions"].shape == (300, 2)
+
+
+def _wide_meta(leaves: int) -> RecordingMeta:
+    """A recording whose episodes hold `leaves` state datasets (a scene of many actors and articulations)."""
+    layout = {f"actors/a{k // 4}/leaf{k % 4}": LeafSpec((13,), "float32") for k in range(leaves)}
+    return dataclasses.replace(_meta(), state_layout=layout)
+
+
+def _fill(meta: RecordingMeta, index: int, T: int, rng: np.random.Generator) -> Episode:
+    arrays = {f.name: rng.standard_normal((f.row_count(T), *f.shape)).astype(f.dtype) for f in episode_fields(meta)}
+    return Episode.from_fields(EpisodeMeta(index=index, seed=index, length=T), arrays)
+
+
+@pytest.mark.parametrize("leaves", [2, 200])
+def test_a_commit_changes_no_earlier_byte_of_the_file_before_its_flush(tmp_path, leaves):
+    """The writer's metadata cache is bounded (so a commit does not slow down as the file grows) yet holds a whole
+    commit's metadata: until a commit's flush, every byte the file held after the previous commit is unchanged
+    (a commit only appends), also with 200 datasets per episode. A 16 KB cache rewrote root-group bytes mid-commit
+    with PickCube's 16 datasets, as a 64 KB cache did with 200."""
+    rng = np.random.default_rng(2)
+    meta = _wide_meta(leaves)
+    path = tmp_path / "r.h5"
+    changed = []
+    with open_writer(path, meta) as w:
+        flush = w._file.flush
+
+        def checked_flush() -> None:
+            now = path.read_bytes()[: len(before)]
+            changed.extend(i for i in np.flatnonzero(np.frombuffer(now, np.uint8) != np.frombuffer(before, np.uint8))
+                           if before[i] != 0)  # zeros: space HDF5 had allocated, now written
+            flush()
+
+        w._file.flush = checked_flush
+        for i in range(12):
+            before = path.read_bytes()
+            w.write_episode(_fill(meta, i, 20, rng))
+        max_size = w._file.id.get_mdc_size()[0]
+    assert not changed, f"bytes written before a commit's flush: {changed[:10]}"
+    assert max_size < 1 << 20, "the writer's metadata cache grows as HDF5's default does"
+    with open_reader(path) as r:
+        assert len(r) == 12 and len(r.read_episode(11).env_states) == leaves
 
 
 def test_a_short_episode_with_a_large_field_is_written_whole(tmp_path):
