@@ -163,6 +163,21 @@ class DatasetWriter:
         finally:
             ds.close()
 
+    def text_attribute(self, obj: Any, name: str, value: np.bytes_) -> None:
+        """Attach attribute `name` holding `value` (`simreel.formats.hdf5.layout.encode_text`) to `obj` (an h5py
+        object id): the fixed-length, null-padded ASCII string h5py's ``attrs[name] = value`` stores, written
+        directly (h5py creates it under a temporary name and renames it: twice the time)."""
+        from h5py import h5a, h5s, h5t
+
+        text_type = h5t.C_S1.copy()
+        text_type.set_size(max(1, len(value)))
+        text_type.set_strpad(h5t.STR_NULLPAD)
+        attr = h5a.create(obj, name.encode(), text_type, h5s.create(h5s.SCALAR))
+        try:
+            attr.write(np.asarray(value), mtype=text_type)
+        finally:
+            attr.close()
+
     def copy(self, group: Any, name: str, source: Any) -> None:
         """Create dataset `name` in `group` (an h5py object id) from the h5py dataset `source`, a few chunks at a
         time."""

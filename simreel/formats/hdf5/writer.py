@@ -157,6 +157,8 @@ class Hdf5Writer(EpisodeWriter):
                  compression: str | None = "gzip") -> None:
         super().__init__(path, meta)
         self._datasets = DatasetWriter(compression)
+        self._writes_obs = any(dataset_name(f.name, meta).split("/")[0] == OBS for f in self.fields)
+        """Whether an episode's datasets include `obs` (every commit writes every field, empty or not)."""
         self.compression = compression
         self.committed: list[EpisodeMeta] = []
         self._indices: set[int] = set()
@@ -251,9 +253,9 @@ class Hdf5Writer(EpisodeWriter):
                 with self._commit_lock.held():
                     group = self._datasets.group(self._file.id, group_name(meta.index))
                     fill(group)
-                    if OBS not in self._h5py.Group(group):  # ManiSkill's loader needs it; its obs_mode="none" files
+                    if not self._writes_obs:  # ManiSkill's loader needs the group; its obs_mode="none" files
                         self._datasets.group(group, OBS)  # have it empty
-                    self._h5py.Group(group).attrs[EPISODE_ATTR] = encode_text(json.dumps(meta.to_json()))
+                    self._datasets.text_attribute(group, EPISODE_ATTR, encode_text(json.dumps(meta.to_json())))
                     self._file.flush()
                     release_unused(self._fd, self._file.id.get_filesize())  # HDF5's end of allocated space
                 self._sidecar.append(meta)
@@ -261,12 +263,6 @@ class Hdf5Writer(EpisodeWriter):
                 raise self._fail(e, meta) from None
         self.committed.append(meta)
         self.episode_ended(meta.index)
-
-    @property
-    def _h5py(self) -> Any:
-        import h5py
-
-        return h5py
 
     # ---------------------------------------------------------------- failures
     def _fail(self, e: BaseException, meta: EpisodeMeta | None = None, lost: str = "") -> BaseException:
