@@ -240,6 +240,30 @@ def test_kill_9_keeps_every_committed_episode(tmp_path):
     assert f"episodes: {len(r)}," in out.stdout
 
 
+def test_the_journal_names_only_the_episodes_still_running(tmp_path):
+    """What a crash would leave (the file and its side folder copied mid-recording): the episodes the journal says
+    began, less those discarded and those committed, are named as unfinished; a line a crash cut short is skipped.
+    A closed recording leaves no side folder."""
+    rng = np.random.default_rng(3)
+    path, crashed = tmp_path / "r.h5", tmp_path / "crashed.h5"
+    with open_writer(path, _meta()) as w:
+        w.write_episode(_episode(0, 5, rng))
+        discarded = _episode(1, 5, rng)
+        w.begin_episode(discarded.meta, discarded.reset_block()).discard()
+        running = _episode(2, 5, rng)
+        sink = w.begin_episode(running.meta, running.reset_block())
+        sink.append(running.steps_block())
+        crashed.write_bytes(path.read_bytes())
+        partial_dir(crashed).mkdir()
+        journal = (partial_dir(path) / "running.jsonl").read_text()
+        (partial_dir(crashed) / "running.jsonl").write_text(journal + '{"began": 3, "env_id')
+        sink.discard()
+    with open_reader(crashed) as r:
+        assert [m.index for m in r.episodes] == [0]
+        assert r.unfinished == ["episode 2 (env 0, seed 102; its steps were in memory)"]
+    assert not partial_dir(path).exists()
+
+
 def _end_of_data(path: Path) -> int:
     """The end-of-address field of the file's version-0 superblock: where HDF5's allocated space ends."""
     head = path.read_bytes()[:48]

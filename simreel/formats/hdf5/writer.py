@@ -3,9 +3,9 @@ safe against `kill -9`, full disks, signals and concurrent readers.
 
 The writer keeps the file open for the whole recording but changes it only in commits. A running episode
 stays in memory (up to 8 MiB) or streams into its own scratch file `<name>.h5.partial/traj_N.h5`, and a
-marker `traj_N.running` there names it while it runs. A commit writes the finished episode in one go and
+line in the journal `running.jsonl` there names it when it begins. A commit writes the finished episode in one go and
 ends with a flush, after which the file on disk is whole again; between commits nothing is written. So a
-`kill -9` loses only the episodes still running (the markers name them). A commit
+`kill -9` loses only the episodes still running (the journal names them). A commit
 
 - first reserves the disk space it may need, so a full disk refuses it before the file is touched (the
   recording then stops with one line, every episode committed before readable);
@@ -50,8 +50,8 @@ from simreel.formats.hdf5.layout import (
     VERSION_ATTR,
     encode_text,
     group_name,
-    marker_path,
     partial_dir,
+    running_journal,
     scratch_path,
     sidecar_path,
 )
@@ -76,7 +76,7 @@ _CACHE_PER_DATASET = 4 << 10
 class _Hdf5Sink(EpisodeSink):
     """Holds an episode in memory up to `_SPILL_BYTES`, then streams it to a scratch file.
 
-    A short episode never touches the disk (but for its marker) until its commit writes it into the file in
+    A short episode never touches the disk (but for its line in the journal) until its commit writes it into the file in
     one go; a long one streams to `<name>.h5.partial/traj_N.h5` so memory stays bounded.
     """
 
@@ -136,7 +136,7 @@ class _Hdf5Sink(EpisodeSink):
             self._file.close()
             self._file = None
         self._scratch_path.unlink(missing_ok=True)
-        self._writer.episode_ended(self._index)
+        self._writer.episode_ended(self._index, committed=False)
 
 
 class Hdf5Writer(EpisodeWriter):
@@ -164,6 +164,7 @@ class Hdf5Writer(EpisodeWriter):
         self._indices: set[int] = set()
         """Indices of the episodes begun so far (they must be unique)."""
         self._running: set[int] = set()
+        self._journal_fd: int | None = None
         self._failed: StorageError | None = None
         self._closed = self._aborted = False
         self._target = RecordingTarget.claim(self.path, self.side_paths(self.path), overwrite=overwrite)
@@ -200,16 +201,24 @@ class Hdf5Writer(EpisodeWriter):
         return _Hdf5Sink(self, meta, reset)
 
     def episode_began(self, meta: EpisodeMeta) -> None:
-        """Leave the marker that names episode `meta.index` as running, for whoever finds the folder after a crash."""
-        doc = {"index": meta.index, "env_idx": meta.env_idx, "seed": meta.seed}
-        self.guard(lambda: marker_path(self.partial, meta.index).write_text(json.dumps(doc)),
-                   f"episode {meta.index} could not begin")
+        """Note in the journal that episode `meta.index` began, for whoever finds the folder after a crash."""
+        line = {"began": meta.index, "env_idx": meta.env_idx, "seed": meta.seed}
+        self.guard(lambda: self._journal(line), f"episode {meta.index} could not begin")
         self._indices.add(meta.index)
         self._running.add(meta.index)
 
-    def episode_ended(self, index: int) -> None:
+    def episode_ended(self, index: int, *, committed: bool = True) -> None:
+        """Episode `index` is no longer running: committed (the file says so) or discarded (the journal says so)."""
         self._running.discard(index)
-        marker_path(self.partial, index).unlink(missing_ok=True)
+        if not committed and self._journal_fd is not None and self._failed is None:
+            with contextlib.suppress(OSError):  # unnoted, a crash before close would name it as running: no loss
+                self._journal({"ended": index})
+
+    def _journal(self, line: dict[str, Any]) -> None:
+        """Append one line to the journal of running episodes (`running_journal`), opened at the first."""
+        if self._journal_fd is None:
+            self._journal_fd = os.open(running_journal(self.partial), os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        os.write(self._journal_fd, (json.dumps(line) + "\n").encode())
 
     def commit_arrays(self, meta: EpisodeMeta, arrays: dict[str, np.ndarray]) -> None:
         """Commit an episode held in memory: one dataset per field of `arrays`."""
@@ -344,9 +353,15 @@ class Hdf5Writer(EpisodeWriter):
         self._target.abandon([sidecar_path(self.path).name])
 
     def _clear_running(self) -> None:
+        """Remove what the running episodes left (they are not committed), the journal, and the side folder when
+        nothing else is in it."""
         for index in list(self._running):
             scratch_path(self.partial, index).unlink(missing_ok=True)
-            self.episode_ended(index)
+        self._running.clear()
+        if self._journal_fd is not None:
+            os.close(self._journal_fd)
+            self._journal_fd = None
+        running_journal(self.partial).unlink(missing_ok=True)
         if not self._target.staged and self.partial.is_dir() and not any(self.partial.iterdir()):
             shutil.rmtree(self.partial, ignore_errors=True)
 
