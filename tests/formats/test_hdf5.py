@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -15,7 +16,7 @@ import numpy as np
 import pytest
 
 from simreel import FORMAT_VERSION
-from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta, StepBlock
+from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta, StepBlock, episode_fields
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import open_reader, open_writer
 from simreel.formats.hdf5 import partial_dir, sidecar_path
@@ -239,6 +240,30 @@ def test_kill_9_keeps_every_committed_episode(tmp_path):
     assert f"episodes: {len(r)}," in out.stdout
 
 
+def test_the_journal_names_only_the_episodes_still_running(tmp_path):
+    """What a crash would leave (the file and its side folder copied mid-recording): the episodes the journal says
+    began, less those discarded and those committed, are named as unfinished; a line a crash cut short is skipped.
+    A closed recording leaves no side folder."""
+    rng = np.random.default_rng(3)
+    path, crashed = tmp_path / "r.h5", tmp_path / "crashed.h5"
+    with open_writer(path, _meta()) as w:
+        w.write_episode(_episode(0, 5, rng))
+        discarded = _episode(1, 5, rng)
+        w.begin_episode(discarded.meta, discarded.reset_block()).discard()
+        running = _episode(2, 5, rng)
+        sink = w.begin_episode(running.meta, running.reset_block())
+        sink.append(running.steps_block())
+        crashed.write_bytes(path.read_bytes())
+        partial_dir(crashed).mkdir()
+        journal = (partial_dir(path) / "running.jsonl").read_text()
+        (partial_dir(crashed) / "running.jsonl").write_text(journal + '{"began": 3, "env_id')
+        sink.discard()
+    with open_reader(crashed) as r:
+        assert [m.index for m in r.episodes] == [0]
+        assert r.unfinished == ["episode 2 (env 0, seed 102; its steps were in memory)"]
+    assert not partial_dir(path).exists()
+
+
 def _end_of_data(path: Path) -> int:
     """The end-of-address field of the file's version-0 superblock: where HDF5's allocated space ends."""
     head = path.read_bytes()[:48]
@@ -263,6 +288,47 @@ def test_each_commit_gives_back_the_disk_space_it_reserved_but_did_not_use(tmp_p
     assert path.stat().st_size == _end_of_data(path)
     with h5py.File(path, "r") as f:
         assert f["traj_2/actions"].shape == (300, 2)
+
+
+def _wide_meta(leaves: int) -> RecordingMeta:
+    """A recording whose episodes hold `leaves` state datasets (a scene of many actors and articulations)."""
+    layout = {f"actors/a{k // 4}/leaf{k % 4}": LeafSpec((13,), "float32") for k in range(leaves)}
+    return dataclasses.replace(_meta(), state_layout=layout)
+
+
+def _fill(meta: RecordingMeta, index: int, T: int, rng: np.random.Generator) -> Episode:
+    arrays = {f.name: rng.standard_normal((f.row_count(T), *f.shape)).astype(f.dtype) for f in episode_fields(meta)}
+    return Episode.from_fields(EpisodeMeta(index=index, seed=index, length=T), arrays)
+
+
+@pytest.mark.parametrize("leaves", [2, 200])
+def test_a_commit_changes_no_earlier_byte_of_the_file_before_its_flush(tmp_path, leaves):
+    """The writer's metadata cache is bounded (so a commit does not slow down as the file grows) yet holds a whole
+    commit's metadata: until a commit's flush, every byte the file held after the previous commit is unchanged
+    (a commit only appends), also with 200 datasets per episode. A 16 KB cache rewrote root-group bytes mid-commit
+    with PickCube's 16 datasets, as a 64 KB cache did with 200."""
+    rng = np.random.default_rng(2)
+    meta = _wide_meta(leaves)
+    path = tmp_path / "r.h5"
+    changed = []
+    with open_writer(path, meta) as w:
+        flush = w._file.flush
+
+        def checked_flush() -> None:
+            now = path.read_bytes()[: len(before)]
+            changed.extend(i for i in np.flatnonzero(np.frombuffer(now, np.uint8) != np.frombuffer(before, np.uint8))
+                           if before[i] != 0)  # zeros: space HDF5 had allocated, now written
+            flush()
+
+        w._file.flush = checked_flush
+        for i in range(12):
+            before = path.read_bytes()
+            w.write_episode(_fill(meta, i, 20, rng))
+        max_size = w._file.id.get_mdc_size()[0]
+    assert not changed, f"bytes written before a commit's flush: {changed[:10]}"
+    assert max_size < 1 << 20, "the writer's metadata cache grows as HDF5's default does"
+    with open_reader(path) as r:
+        assert len(r) == 12 and len(r.read_episode(11).env_states) == leaves
 
 
 def test_a_short_episode_with_a_large_field_is_written_whole(tmp_path):

@@ -10,7 +10,7 @@ built once cost about a third of h5py's `create_dataset`, which matters because 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -23,6 +23,8 @@ _COPY_CHUNKS = 16
 """Chunks copied at a time from a scratch file (a long episode never sits in memory whole)."""
 _MAX_DCPLS = 256
 """Creation property lists kept (one per chunk shape); past this many the cache starts over."""
+_MAX_PLANS = 4096
+"""Dataset plans kept (one per field and episode length, `DatasetWriter._plan`); past this many they start over."""
 
 
 _IMAGE_MIN_ELEMENTS = 1024
@@ -56,11 +58,21 @@ def chunk_rows(row_shape: tuple[int, ...], itemsize: int, rows: int) -> int:
     return int(max(1, min(rows, CHUNK_BYTES // row_bytes)))
 
 
+class _Plan(NamedTuple):
+    """What creating and writing one field of one episode length takes, in h5py's low-level objects."""
+
+    name: bytes
+    file_type: Any
+    space: Any
+    dcpl: Any
+    memory_type: Any
+
+
 class DatasetWriter:
     """Creates datasets in an open file with one compression; its property lists are built once and reused."""
 
     def __init__(self, compression: str | None) -> None:
-        from h5py import h5p
+        from h5py import h5d, h5g, h5p, h5s
 
         if compression not in COMPRESSIONS:
             raise ValueError(f"unknown HDF5 compression {compression!r}; use gzip, lzf or None")
@@ -72,8 +84,9 @@ class DatasetWriter:
         self._empty = h5p.create(h5p.DATASET_CREATE)
         self._empty.set_obj_track_times(False)
         self._chunked: dict[tuple[tuple[int, ...], int | None], Any] = {}
-        self._types: dict[np.dtype, Any] = {}
-        self._memory_types: dict[np.dtype, Any] = {}
+        self._plans: dict[tuple[str, tuple[int, ...], np.dtype], _Plan] = {}
+        # bound once: an import statement in the per-dataset calls costs ~2 us each, ~80 us per commit
+        self._new_dataset, self._new_group, self._whole = h5d.create, h5g.create, h5s.ALL
 
     def _dcpl(self, chunk: tuple[int, ...], image_level: int | None = None) -> Any:
         """The creation property list of a chunked, filtered dataset with this chunk shape (`image_level`: an
@@ -101,49 +114,65 @@ class DatasetWriter:
             self._chunked[key] = dcpl
         return dcpl
 
-    def _type(self, dtype: np.dtype) -> Any:
-        from h5py import h5t
-
-        tid = self._types.get(dtype)
-        if tid is None:
-            tid = self._types[dtype] = h5t.py_create(dtype, logical=True)
-        return tid
-
     def group(self, parent: Any, name: str) -> Any:
         """A new group `name` in `parent` (an h5py object id); returns its id."""
-        from h5py import h5g
+        return self._new_group(parent, name.encode(), gcpl=self._gcpl)
 
-        return h5g.create(parent, name.encode(), gcpl=self._gcpl)
+    def _plan(self, name: str, shape: tuple[int, ...], dtype: np.dtype) -> _Plan:
+        """How dataset `name` of this shape and dtype is created and written; worked out once per field and
+        episode length and kept (up to `_MAX_PLANS`), since every episode of a recording repeats the same few."""
+        key = (name, shape, dtype)
+        plan = self._plans.get(key)
+        if plan is None:
+            from h5py import h5s, h5t
+
+            if len(self._plans) >= _MAX_PLANS:
+                self._plans.clear()
+            image = image_storage(name, shape[1:], shape[0]) if shape[0] else None
+            if 0 in shape:
+                dcpl = self._empty  # nothing to chunk, filter or check
+            elif image is not None:
+                dcpl = self._dcpl(image["chunks"], image["compression_opts"])
+            else:
+                dcpl = self._dcpl((chunk_rows(shape[1:], dtype.itemsize, shape[0]), *shape[1:]))
+            # h5py's own write would build the same memory type for an array of `dtype`
+            plan = self._plans[key] = _Plan(name.encode(), h5t.py_create(dtype, logical=True), h5s.create_simple(shape),
+                                            dcpl, h5t.py_create(dtype))
+        return plan
 
     def create(self, group: Any, name: str, shape: tuple[int, ...], dtype: np.dtype) -> Any:
         """An empty dataset `name` (a path below `group`, intermediate groups created) laid out for `shape`;
         returns its id, to be written and closed by the caller."""
-        from h5py import h5d, h5s
+        return self._create(group, self._plan(name, shape, dtype))
 
-        space = h5s.create_simple(shape)
-        image = image_storage(name, shape[1:], shape[0]) if shape[0] else None
-        if 0 in shape:
-            dcpl = self._empty  # nothing to chunk, filter or check
-        elif image is not None:
-            dcpl = self._dcpl(image["chunks"], image["compression_opts"])
-        else:
-            dcpl = self._dcpl((chunk_rows(shape[1:], dtype.itemsize, shape[0]), *shape[1:]))
-        return h5d.create(group, name.encode(), self._type(dtype), space, dcpl=dcpl, lcpl=self._lcpl)
+    def _create(self, group: Any, plan: _Plan) -> Any:
+        return self._new_dataset(group, plan.name, plan.file_type, plan.space, dcpl=plan.dcpl, lcpl=self._lcpl)
 
     def write(self, group: Any, name: str, data: np.ndarray) -> None:
         """Create dataset `name` in `group` (an h5py object id) holding `data`."""
-        from h5py import h5s, h5t
-
         data = np.ascontiguousarray(data)
-        ds = self.create(group, name, data.shape, data.dtype)
+        plan = self._plan(name, data.shape, data.dtype)
+        ds = self._create(group, plan)
         try:
             if data.size:
-                mtype = self._memory_types.get(data.dtype)
-                if mtype is None:  # the type h5py's own write would build for `data`, built once
-                    mtype = self._memory_types[data.dtype] = h5t.py_create(data.dtype)
-                ds.write(h5s.ALL, h5s.ALL, data, mtype=mtype)
+                ds.write(self._whole, self._whole, data, mtype=plan.memory_type)
         finally:
             ds.close()
+
+    def text_attribute(self, obj: Any, name: str, value: np.bytes_) -> None:
+        """Attach attribute `name` holding `value` (`simreel.formats.hdf5.layout.encode_text`) to `obj` (an h5py
+        object id): the fixed-length, null-padded ASCII string h5py's ``attrs[name] = value`` stores, written
+        directly (h5py creates it under a temporary name and renames it: twice the time)."""
+        from h5py import h5a, h5s, h5t
+
+        text_type = h5t.C_S1.copy()
+        text_type.set_size(max(1, len(value)))
+        text_type.set_strpad(h5t.STR_NULLPAD)
+        attr = h5a.create(obj, name.encode(), text_type, h5s.create(h5s.SCALAR))
+        try:
+            attr.write(np.asarray(value), mtype=text_type)
+        finally:
+            attr.close()
 
     def copy(self, group: Any, name: str, source: Any) -> None:
         """Create dataset `name` in `group` (an h5py object id) from the h5py dataset `source`, a few chunks at a

@@ -11,8 +11,8 @@ Layout (ManiSkill-compatible where ManiSkill has a convention)::
         contact_forces                                           (T, C, 3)   C = len(meta.contact_channels)
         body_poses                                               (T+1, B, 7) B = len(meta.pose_bodies), optional
     <name>.json             ManiSkill's sidecar (env_info, episodes[]) for its own tools
-    <name>.h5.partial/      while recording: traj_N.running (one per running episode), traj_N.h5 (a long
-                            running episode's scratch file); <name>.h5 and <name>.json of a recording that
+    <name>.h5.partial/      while recording: running.jsonl (the episodes begun, `running_journal`), traj_N.h5
+                            (a long running episode's scratch file); <name>.h5 and <name>.json of a recording that
                             replaces an existing one (`simreel.formats.staging`)
 
 Datasets inside `traj_N` are the recording's fields (`simreel.episode.episode_fields`) under their flat names,
@@ -46,7 +46,7 @@ __all__ = [
     "group_name",
     "sidecar_path",
     "partial_dir",
-    "marker_path",
+    "running_journal",
     "scratch_path",
     "encode_text",
     "decode_text",
@@ -60,12 +60,15 @@ LIBVER = ("v110", "v110")
 """HDF5 format bounds objects are written with: the 1.10 format (checksummed metadata), readable by HDF5 >= 1.10."""
 
 partial_dir = side_folder
-"""Where running episodes leave their markers and scratch files (`x.h5` → `x.h5.partial`)."""
+"""Where the writer keeps its journal of running episodes and their scratch files (`x.h5` → `x.h5.partial`)."""
 
 
-def marker_path(folder: Path, index: int) -> Path:
-    """The file that says episode `index` is running (removed when it is committed or discarded)."""
-    return folder / f"{group_name(index)}.running"
+def running_journal(folder: Path) -> Path:
+    """The writer's journal of episodes: a JSON line ``{"began": N, "env_idx": ..., "seed": ...}`` when episode N
+    begins, ``{"ended": N}`` when it is discarded. The episodes it says began, neither ended nor in the file, were
+    running when the writer stopped. One appended line costs a fifth of a marker file created and removed per
+    episode. Removed when the writer closes."""
+    return folder / "running.jsonl"
 
 
 def scratch_path(folder: Path, index: int) -> Path:

@@ -36,8 +36,8 @@ from simreel.formats.hdf5.layout import (
     VERSION_ATTR,
     decode_text,
     group_name,
-    marker_path,
     partial_dir,
+    running_journal,
     scratch_path,
 )
 from simreel.formats.lock import CommitLock, being_written
@@ -216,9 +216,10 @@ class Hdf5Reader(EpisodeReader):
         if self.live:
             return [], ["being written by a running recording: these are the episodes committed so far"]
         folder = partial_dir(self.path)
-        unfinished = [_describe_marker(m) for m in sorted(folder.glob("traj_*.running"), key=_marker_index)]
-        unfinished += [f"episode {_marker_index(s)} (a scratch file, {_scratch_steps(s)} step(s))"
-                       for s in sorted(folder.glob("traj_*.h5")) if not marker_path(folder, _marker_index(s)).exists()]
+        running = _running_episodes(folder, committed={m.index for m in self.episodes})
+        unfinished = [_describe_running(folder, index, line) for index, line in sorted(running.items())]
+        unfinished += [f"episode {_scratch_index(s)} (a scratch file, {_scratch_steps(s)} step(s))"
+                       for s in sorted(folder.glob("traj_*.h5")) if _scratch_index(s) not in running]
         notes = []
         listed = sidecar_episodes(self.path)
         if listed is not None and listed < len(self.episodes):
@@ -306,21 +307,35 @@ def _datasets(group: Any) -> list[str]:
     return found
 
 
-def _marker_index(path: Path) -> int:
+def _scratch_index(path: Path) -> int:
     return group_index(path.name.split(".", 1)[0]) or 0
 
 
-def _describe_marker(marker: Path) -> str:
-    """What a killed writer's marker says about the episode it was running."""
-    index = _marker_index(marker)
+def _running_episodes(folder: Path, committed: set[int]) -> dict[int, dict[str, Any]]:
+    """The episodes a writer's journal (`running_journal`) says began, neither discarded nor committed: index ->
+    its line. A line cut short by a crash names no episode and is skipped."""
     try:
-        doc = json.loads(marker.read_text())
-        what = f"env {doc.get('env_idx', 0)}, seed {doc.get('seed')}"
-    except (OSError, ValueError, AttributeError):
-        what = "its marker is unreadable"
-    scratch = scratch_path(marker.parent, index)
+        lines = running_journal(folder).read_text(errors="replace").splitlines()
+    except OSError:
+        return {}
+    running: dict[int, dict[str, Any]] = {}
+    for text in lines:
+        try:
+            line = json.loads(text)
+            if "began" in line:
+                running[int(line["began"])] = line
+            else:
+                running.pop(int(line["ended"]), None)
+        except (ValueError, TypeError, KeyError):
+            continue
+    return {index: line for index, line in running.items() if index not in committed}
+
+
+def _describe_running(folder: Path, index: int, line: dict[str, Any]) -> str:
+    """What a killed writer's journal says about the episode it was running."""
+    scratch = scratch_path(folder, index)
     steps = f"{_scratch_steps(scratch)} step(s) in a scratch file" if scratch.exists() else "its steps were in memory"
-    return f"episode {index} ({what}; {steps})"
+    return f"episode {index} (env {line.get('env_idx', 0)}, seed {line.get('seed')}; {steps})"
 
 
 def _scratch_steps(scratch: Path) -> str:
