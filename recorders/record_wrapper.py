@@ -38,6 +38,7 @@ from simreel.state_tree import layout_of, to_numpy
 __all__ = ["RecordWrapper", "RecordOptions"]
 
 _PYTHON_CHECK_MAX = 256
+"""Actions of up to this many numbers are checked and copied out in Python floats (`RecordWrapper._actions`)."""
 
 
 @dataclass(frozen=True)
@@ -71,14 +72,6 @@ class RecordOptions:
         if self.block_steps < 1:
             raise UsageError(f"block_steps must be ≥ 1, got {self.block_steps}")
         object.__setattr__(self, "imports", tuple(self.imports))
-
-
-def _finite(a: np.ndarray) -> bool:
-    """Whether every number in the float array `a` is finite; a small one is checked in Python floats (a numpy call
-    right after a physics step costs several times more: caches are cold)."""
-    if a.size <= _PYTHON_CHECK_MAX:
-        return all(map(math.isfinite, a.reshape(-1).tolist()))
-    return bool(np.isfinite(a).all())
 
 
 class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -126,6 +119,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._scalars = StepScalars(self._n, [(f"info/{k}", np.dtype(s.dtype)) for k, s in self.meta.info_layout.items()])
         self._packed_states: _PackedStates | None = None
         self._contact_rows = _ContactRows(self._sampler)
+        self._action_rows = _ActionRows(self._n)
         self._next_index = 0
         self._scene_seed: list[int | None] = [None] * self._n
         self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
@@ -192,7 +186,10 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         actions = self._actions(action)
         obs, reward, terminated, truncated, info = self.env.step(action)
         fields, captures = self._after_step(obs)
-        fields["actions"] = actions
+        if isinstance(actions, list):
+            captures.append((self._action_rows, actions))
+        else:
+            fields["actions"] = actions
         captures.append((self._scalars, self._scalars.capture(reward, terminated, truncated, info)))
         self._buffer.push(fields, tuple(captures))
         self._steps += 1
@@ -202,9 +199,11 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._buffer.rewind()
         return obs, reward, terminated, truncated, info
 
-    def _actions(self, action: Any) -> np.ndarray:
-        """`action` as a (num_envs, A) float32 array, once it is checked to fit the action space and be finite;
-        `ActionError` (before the env steps) otherwise, since the recording could not hold it or replay it."""
+    def _actions(self, action: Any) -> list[Any] | np.ndarray:
+        """`action`'s numbers once they are checked to fit the action space and be finite: a small action as a flat
+        list (a copy, made into rows with its block by `_ActionRows`), a large one as a (num_envs, A) float32 array;
+        `ActionError` (before the env steps) otherwise, since the recording could not hold it or replay it. A small
+        action is checked in Python floats: a numpy call right after a physics step costs several times more."""
         single = self._action_shape
         a = None if action is None else to_numpy(action)
         if a is None or a.dtype.kind not in "biuf":
@@ -213,9 +212,13 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if a.shape != (self._n, *single) and not (self._n == 1 and a.shape == single):
             raise ActionError(f"an action of shape {a.shape}; {self.meta.env_id} takes shape "
                               f"{(self._n, *single) if self._n > 1 else single}")
-        if a.dtype.kind == "f" and not _finite(a):
-            raise ActionError(f"an action holding NaN or infinity ({a.reshape(-1)[~np.isfinite(a.reshape(-1))][:3]}); "
-                              "ManiSkill refuses them")
+        if a.size <= _PYTHON_CHECK_MAX:
+            values = a.reshape(-1).tolist()
+            if a.dtype.kind == "f" and not all(map(math.isfinite, values)):
+                raise _non_finite(a)
+            return values
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
+            raise _non_finite(a)
         return a.astype(np.float32, copy=False).reshape(self._n, -1)
 
     def _after_step(self, obs: Any) -> tuple[dict[str, np.ndarray], list[tuple[Any, Any]]]:
@@ -359,6 +362,16 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.episodes_committed.append(meta)
 
 
+class _ActionRows:
+    """The `StepBuffer` row source of the actions captured as flat lists (`actions`, float32)."""
+
+    def __init__(self, num_envs: int) -> None:
+        self._n = num_envs
+
+    def rows(self, captures: list[list[Any]]) -> dict[str, np.ndarray]:
+        return {"actions": np.array(captures, np.float32).reshape(len(captures), self._n, -1)}
+
+
 class _ContactRows:
     """The `StepBuffer` row source of the contact forces a sampler captured (`contact_forces`)."""
 
@@ -377,6 +390,11 @@ class _PackedStates:
 
     def rows(self, captures: list[bytes]) -> dict[str, np.ndarray]:
         return {f"env_states/{key}": rows for key, rows in self._reader.unpack(captures).items()}
+
+
+def _non_finite(a: np.ndarray) -> ActionError:
+    flat = a.reshape(-1)
+    return ActionError(f"an action holding NaN or infinity ({flat[~np.isfinite(flat)][:3]}); ManiSkill refuses them")
 
 
 def _constructor_options(opts: RecordOptions) -> dict[str, Any]:
