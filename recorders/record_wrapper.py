@@ -117,9 +117,6 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._ever_success = np.zeros(self._n, bool)
         self._has_success = "success" in self.meta.info_layout
         self._scalars = StepScalars(self._n, [(f"info/{k}", np.dtype(s.dtype)) for k, s in self.meta.info_layout.items()])
-        self._packed_states: _PackedStates | None = None
-        self._contact_rows = _ContactRows(self._sampler)
-        self._action_rows = _ActionRows(self._n)
         self._next_index = 0
         self._scene_seed: list[int | None] = [None] * self._n
         self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
@@ -190,7 +187,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             captures.append((self._action_rows, actions))
         else:
             fields["actions"] = actions
-        captures.append((self._scalars, self._scalars.capture(reward, terminated, truncated, info)))
+        captures.append((self._scalars.rows, self._scalars.capture(reward, terminated, truncated, info)))
         self._buffer.push(fields, tuple(captures))
         self._steps += 1
         if self._buffer.full:
@@ -227,7 +224,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         captures: list[tuple[Any, Any]] = []
         state, packed = self._state()
         if packed is not None:
-            captures.append((self._packed_states, packed))
+            captures.append((self._state_rows, packed))
         fields = self._per_state_rows(state, obs)
         if self._sampler.captures:
             captures.append((self._contact_rows, self._sampler.capture()))
@@ -312,11 +309,10 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._fast_unchecked = False
             return
         self._fast = FastStateReader.for_env(self._u)
-        self._packed_states = None if self._fast is None else _PackedStates(self._fast)
         self._fast_unchecked = self._fast is not None
 
     def _state(self) -> tuple[dict[str, np.ndarray], bytes | None]:
-        """The state after a step: (state leaves read now, the packed rest for `_PackedStates` or None). Through the
+        """The state after a step: (state leaves read now, the packed rest for `_state_rows` or None). Through the
         fast CPU reader where it is proven equal (`_bind_fast_reader`), else all of it through `get_state_dict()`."""
         if self._fast is None:
             return read_state(self._u), None
@@ -332,6 +328,17 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if packed is None:  # bodies were added or removed since the reader was built
             return read_state(self._u), None
         return self._fast.extras(), packed
+
+    # `StepBuffer` row sources of what a step captured: a block's captures are converted when its rows are first
+    # taken, which is always before a reset rebinds the fast reader or the sampler (`_finish` runs first)
+    def _action_rows(self, captures: list[list[Any]]) -> dict[str, np.ndarray]:
+        return {"actions": np.array(captures, np.float32).reshape(len(captures), self._n, -1)}
+
+    def _contact_rows(self, captures: list[Any]) -> dict[str, np.ndarray]:
+        return {"contact_forces": self._sampler.rows(captures)}
+
+    def _state_rows(self, captures: list[bytes]) -> dict[str, np.ndarray]:
+        return {f"env_states/{key}": rows for key, rows in self._fast.unpack(captures).items()}
 
     def _flush(self, i: int) -> None:
         """Hand env i's buffered steps to its episode's sink, noting whether the episode has succeeded."""
@@ -360,36 +367,6 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return
         sink.commit(meta)
         self.episodes_committed.append(meta)
-
-
-class _ActionRows:
-    """The `StepBuffer` row source of the actions captured as flat lists (`actions`, float32)."""
-
-    def __init__(self, num_envs: int) -> None:
-        self._n = num_envs
-
-    def rows(self, captures: list[list[Any]]) -> dict[str, np.ndarray]:
-        return {"actions": np.array(captures, np.float32).reshape(len(captures), self._n, -1)}
-
-
-class _ContactRows:
-    """The `StepBuffer` row source of the contact forces a sampler captured (`contact_forces`)."""
-
-    def __init__(self, sampler: ContactSampler) -> None:
-        self._sampler = sampler
-
-    def rows(self, captures: list[Any]) -> dict[str, np.ndarray]:
-        return {"contact_forces": self._sampler.rows(captures)}
-
-
-class _PackedStates:
-    """The `StepBuffer` row source of the state leaves a fast reader captured packed (`env_states/...` fields)."""
-
-    def __init__(self, reader: FastStateReader) -> None:
-        self._reader = reader
-
-    def rows(self, captures: list[bytes]) -> dict[str, np.ndarray]:
-        return {f"env_states/{key}": rows for key, rows in self._reader.unpack(captures).items()}
 
 
 def _non_finite(a: np.ndarray) -> ActionError:

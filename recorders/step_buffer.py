@@ -1,7 +1,7 @@
 """A fixed-size block of batched steps, so recording writes in blocks and memory stays bounded.
 
 Each step is pushed once for all parallel envs: its arrays are copied into the block (one copy per field,
-whatever `num_envs` is), and what is cheaper to capture now and convert later (`RowSource`: Python lists of
+whatever `num_envs` is), and what is cheaper to capture now and convert later (by a `RowSource`: Python lists of
 scalars, the physics engine's packed state bytes) is kept as captured and turned into rows for all the block's
 steps at once, when the rows are first taken. Right after a physics step the CPU's caches are cold and every
 numpy call costs several times its usual price; once per block the same conversions run on warm caches.
@@ -11,7 +11,8 @@ no copy.
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -20,10 +21,8 @@ from simreel.episode import StepBlock
 __all__ = ["StepBuffer", "RowSource"]
 
 
-class RowSource(Protocol):
-    """Turns the captures of k steps (in step order) into those steps' fields, each (k, num_envs, ...)."""
-
-    def rows(self, captures: list[Any]) -> dict[str, np.ndarray]: ...
+RowSource = Callable[[list[Any]], dict[str, np.ndarray]]
+"""Turns the captures of k steps (in step order) into those steps' fields, each (k, num_envs, ...)."""
 
 
 class StepBuffer:
@@ -64,7 +63,7 @@ class StepBuffer:
         """Turn every capture held into its rows (all sources at once: one conversion per block, not per step)."""
         for source, (rows, held) in self._captured.items():
             at = slice(rows[0], rows[-1] + 1) if rows[-1] - rows[0] == len(rows) - 1 else rows
-            for name, value in source.rows(held).items():
+            for name, value in source(held).items():
                 self._row_buffer(name, value[0])[at] = value
         self._captured.clear()
 

@@ -50,7 +50,7 @@ def _plain(value: Any) -> Any:
 
 class StepScalars:
     """Captures a step's scalar fields (`capture`) and converts the captures of a block of steps (`rows`, a
-    `StepBuffer` `RowSource`). An info entry the env did not give, or gave as anything but one number per env,
+    `StepBuffer` row source). An info entry the env did not give, or gave as anything but one number per env,
     is recorded as zeros (False), as are success and fail where the task reports neither.
 
     Args:

@@ -116,8 +116,6 @@ class ContactSampler:
                 else:
                     self._pair_index[(objs[0]._bodies[0], objs[1]._bodies[0])] = c
             self._hits: dict[tuple[Any, Any], list[tuple[int, float]]] = {}
-            self._zeros = np.zeros((1, len(self.channels), 3), np.float32)
-            self._zeros.flags.writeable = False
 
     @property
     def captures(self) -> bool:
@@ -163,7 +161,7 @@ class ContactSampler:
                 _add_channel_sums(sums, k * size, capture[0])
         impulses = np.frombuffer(sums, np.float64).reshape(len(captures), size)
         timesteps = np.array([1.0 if c is None else c[1] for c in captures], np.float64)
-        return (impulses / timesteps[:, None]).astype(np.float32).reshape(len(captures), *self._zeros.shape)
+        return (impulses / timesteps[:, None]).astype(np.float32).reshape(len(captures), 1, len(self.channels), 3)
 
     def _sample_gpu(self, n: int) -> np.ndarray:
         scene = self._u.scene

@@ -26,7 +26,7 @@ def test_envs_take_their_own_rows_across_partial_resets():
 
 
 class _Doubling:
-    """A row source: each capture (a list of one number per env) becomes row `2 * capture` of field "x"."""
+    """A row source (its `rows`): each capture (a list of one number per env) becomes row `2 * capture` of field "x"."""
 
     def __init__(self):
         self.calls = 0
@@ -39,15 +39,15 @@ class _Doubling:
 def test_captures_become_rows_once_per_block_in_their_own_rows():
     source = _Doubling()
     buf = StepBuffer(capacity=4, num_envs=2)
-    buf.push({"y": np.array([0, 1])}, ((source, [10, 11]),))
+    buf.push({"y": np.array([0, 1])}, ((source.rows, [10, 11]),))
     buf.push({"x": np.array([-1, -2]), "y": np.array([2, 3])})  # a step whose x was read at once
-    buf.push({"y": np.array([4, 5])}, ((source, [30, 31]),))
+    buf.push({"y": np.array([4, 5])}, ((source.rows, [30, 31]),))
     assert source.calls == 0  # nothing converted before the rows are taken
     np.testing.assert_array_equal(buf.take(0)["x"], [20, -1, 60])
     np.testing.assert_array_equal(buf.take(1)["x"], [22, -2, 62])
     assert source.calls == 1  # one conversion for the block, whoever takes first
-    buf.push({"y": np.array([6, 7])}, ((source, [40, 41]),))
+    buf.push({"y": np.array([6, 7])}, ((source.rows, [40, 41]),))
     np.testing.assert_array_equal(buf.take(1)["x"], [82])
     buf.rewind()
-    buf.push({"y": np.array([8, 9])}, ((source, [50, 51]),))
+    buf.push({"y": np.array([8, 9])}, ((source.rows, [50, 51]),))
     np.testing.assert_array_equal(buf.take(0)["x"], [100])  # a rewind drops what was captured before it
