@@ -149,6 +149,38 @@ def web_viewer_url(web_port: int, grpc_url: str) -> str:
     return f"http://localhost:{web_port}/?url={quote(grpc_url, safe=':/')}"
 
 
+def _listening(port: int) -> bool:
+    """Whether something accepts connections on ``port`` of this machine (the spawned viewer's gRPC server)."""
+    import socket
+
+    try:
+        socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+    except OSError:
+        return False
+    return True
+
+
+def _viewer_gone(why: str) -> ViewError:
+    return ViewError(f"the Rerun viewer did not take the session ({why}); its window may not have opened: use "
+                     "--save OUT.rrd and open it elsewhere, or --serve")
+
+
+def _flush_to_viewer(rec: rr.RecordingStream, port: int, *, wait_s: float = 1.0) -> None:
+    """Send everything logged to the viewer on ``port``, giving up once the viewer stops listening.
+
+    Rerun's own flush waits forever for a viewer that went away, inside Rust where Ctrl-C and SIGTERM are not
+    seen; waiting ``wait_s`` at a time lets signals through and checks the viewer between waits. A slow viewer
+    that still listens is waited for.
+    """
+    while True:
+        try:
+            rec.flush(timeout_sec=wait_s)
+            return
+        except RuntimeError as e:
+            if not _listening(port):
+                raise _viewer_gone(_first_line(e)) from e
+
+
 def _first_line(error: Exception) -> str:
     text = str(error).strip()
     return text.splitlines()[0] if text else type(error).__name__
@@ -280,22 +312,23 @@ class ViewSession:
     def spawn(self, *, port: int = 9876) -> None:
         """Open the native Rerun viewer (a separate process) and stream the session to it.
 
-        The viewer is the ``rerun`` executable on PATH, else the one beside this Python (a venv's bin/).
+        The viewer is the ``rerun`` executable on PATH, else the one beside this Python (a venv's bin/). A viewer
+        that cannot open its window binds its port and exits; it is refused before the stream connects, and one
+        that goes away while the session streams is noticed within a second (`_flush_to_viewer`).
         """
         import rerun as rr
 
         rec = self.new_stream()
         try:
-            rr.spawn(port=port, default_blueprint=self.blueprint(), recording=rec, executable_path=viewer_executable())
+            rr.spawn(port=port, connect=False, recording=rec, executable_path=viewer_executable())
         except RuntimeError as e:
             raise ViewError(f"could not start the Rerun viewer ({_first_line(e)}); use --save OUT.rrd and open it "
                             "elsewhere") from e
+        if not _listening(port):
+            raise _viewer_gone(f"nothing listens on port {port}")
+        rec.connect_grpc(f"rerun+http://127.0.0.1:{port}/proxy", default_blueprint=self.blueprint())
         self.log_to(rec)
-        try:
-            rec.flush()  # raises when the viewer never listened (it could not open its window)
-        except RuntimeError as e:
-            raise ViewError(f"the Rerun viewer did not take the session ({_first_line(e)}); its window may not have "
-                            "opened: use --save OUT.rrd and open it elsewhere, or --serve") from e
+        _flush_to_viewer(rec, port)
 
     def serve(self, *, web_port: int = 9090, grpc_port: int = 9876, open_browser: bool = False) -> str:
         """Serve the session: a gRPC server holding it, and the web viewer (HTML + Wasm) that connects to it.

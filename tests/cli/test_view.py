@@ -15,7 +15,7 @@ from urllib.request import urlopen
 
 import pytest
 from support.processes import DISPLAY_VARS, free_port, read_line, simreel_command, without_display
-from support.rrd import read_served
+from support.rrd import read_served, running_grpc_server
 from support.viewer_data import STEPS
 
 from simreel.cli.main import main
@@ -231,17 +231,54 @@ def test_spawn_without_a_display_builds_no_env(pickcube_h5, monkeypatch, capsys)
     assert "there is no display here" in capsys.readouterr().err
 
 
-@pytest.mark.slow
 def test_a_viewer_that_cannot_open_its_window_is_bad_input(pickcube_h5, tmp_path):
-    """A display is set but unusable (no X server there): the spawned viewer exits, and simreel says so in one
-    line, exit 2, instead of an internal error."""
+    """A display is set but unusable (no X server there): the spawned viewer binds its port and exits. simreel
+    says so in one line, exit 2, without waiting on it (Rerun's flush would wait forever, deaf to Ctrl-C)."""
     env = {**without_display(), "DISPLAY": f":{free_port()}"}  # a display number no X server has
     done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn", "--geometry", "collision",
                                           "--grpc-port", str(free_port())),
-                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr
     ours = [line for line in done.stderr.splitlines() if line.startswith("simreel view:")]
     assert len(ours) == 1 and ours[0].startswith("simreel view: error: the Rerun viewer did not take the session")
+    assert "Failed to flush" not in done.stderr  # no stream was connected, so Rerun has no flush to fail
+
+
+def test_spawn_sends_the_episode_to_the_viewer_listening_on_its_port(pickcube_h5, tmp_path):
+    """A viewer already listens on the port (as one left open does; here `rerun --serve-grpc`, a viewer without
+    its window): `--spawn` sends it the whole episode, says so and exits 0."""
+    port = free_port()
+    with running_grpc_server(port, tmp_path / "server.log") as url:
+        done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn", "--geometry", "collision",
+                                              "--grpc-port", str(port)),
+                              env={**without_display(), "DISPLAY": ":0"}, cwd=tmp_path, capture_output=True,
+                              text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.splitlines()[0] == "sent pickcube.h5#episode-0 to the Rerun viewer"
+        served = read_served(url, tmp_path / "served",
+                             lambda c: c.steps("/world/cube", "Transform3D:translation") == list(range(-1, STEPS)))
+    assert served.recording_ids == ["pickcube.h5#episode-0"] and served.blueprint_views
+
+
+def test_a_viewer_that_goes_away_is_reported_not_waited_for(tmp_path):
+    """The viewer ends after the stream connected: flushing to it fails within seconds with the one-line
+    error, where Rerun's own flush waits forever."""
+    import rerun as rr
+
+    from simreel.errors import ViewError
+    from simreel.viewers.session import _flush_to_viewer
+
+    port = free_port()
+    rec = rr.RecordingStream("simreel-test")
+    with running_grpc_server(port, tmp_path / "server.log") as url:
+        rec.connect_grpc(url)
+        rec.log("points", rr.Points3D([[0.0, 0.0, 0.0]]))
+        _flush_to_viewer(rec, port)  # delivered while it listens
+    rec.log("points", rr.Points3D([[1.0, 0.0, 0.0]]))
+    started = time.perf_counter()
+    with pytest.raises(ViewError, match="the Rerun viewer did not take the session"):
+        _flush_to_viewer(rec, port)
+    assert time.perf_counter() - started < 30
 
 
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])

@@ -1,15 +1,16 @@
 """Read a Rerun .rrd back with rerun-sdk's own reader (`rerun.chunk.RrdReader`), and what a gRPC server serves
-with the `rerun` command's own client (`rerun download`)."""
+with the `rerun` command's own client (`rerun download`); a `rerun` gRPC server to stand in for an open viewer."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RrdContents", "read_rrd", "read_served"]
+__all__ = ["RrdContents", "read_rrd", "read_served", "running_grpc_server"]
 
 
 @dataclasses.dataclass
@@ -121,3 +122,35 @@ def read_served(grpc_url: str, folder: Path, done: Callable[[RrdContents], bool]
         with contextlib.suppress(ProcessLookupError):
             os.killpg(client.pid, signal.SIGKILL)
         client.wait()
+
+
+@contextlib.contextmanager
+def running_grpc_server(port: int, log: Path, timeout: float = 60) -> Iterator[str]:
+    """A real ``rerun --serve-grpc`` on `port` (what an open Rerun viewer listens with, minus the window), its
+    output in `log`; yields its URL once it accepts connections and kills it at the end."""
+    import os
+    import signal
+    import socket
+    import subprocess
+    import time
+
+    from simreel.viewers.session import viewer_executable
+
+    with log.open("wb") as out:
+        server = subprocess.Popen([viewer_executable(), "--serve-grpc", "--port", str(port)],
+                                  stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                if server.poll() is not None or time.monotonic() > deadline:
+                    raise AssertionError(f"rerun --serve-grpc never listened: {log.read_text()[-2000:]}") from None
+                time.sleep(0.2)
+        yield f"rerun+http://127.0.0.1:{port}/proxy"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(server.pid, signal.SIGKILL)
+        server.wait()
