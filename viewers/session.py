@@ -161,8 +161,8 @@ def _listening(port: int) -> bool:
 
 
 def _viewer_gone(why: str) -> ViewError:
-    return ViewError(f"the Rerun viewer did not take the session ({why}); its window may not have opened: use "
-                     "--save OUT.rrd and open it elsewhere, or --serve")
+    return ViewError(f"the Rerun viewer did not take the session ({why}): it could not open its window, or it "
+                     "closed; use --save OUT.rrd and open it elsewhere, or --serve")
 
 
 def _flush_to_viewer(rec: rr.RecordingStream, port: int, *, wait_s: float = 1.0) -> None:
