@@ -1,8 +1,10 @@
-"""Peak memory of `simreel inspect`, `replay` and `view` on a long episode against a short one (target ≤ 1.2×).
+"""Peak memory of `simreel inspect`, `replay`, `view` and `convert` on a long episode against a short one (target
+≤ 1.2×).
 
 Records one `--short`-step and one `--long`-step episode of `--env` (random actions, the CLI's defaults, the
 time limit set by --max-steps) into `--folder` (kept and reused when it already holds them), then runs each
-command once per recording in a fresh process and reads that process's peak resident set size (`wait4`):
+command once per recording in a fresh process and reads that process's peak resident set size (`wait4`);
+`convert` writes the other format (HDF5 → MCAP, MCAP → HDF5):
 
     .venv/bin/python benchmarks/bench_memory.py                       # PickCube-v1, 200 vs 20,000 steps
     .venv/bin/python benchmarks/bench_memory.py --format mcap --folder /tmp/mem
@@ -132,6 +134,7 @@ def _commands(path: Path, scratch: Path) -> dict[str, list[str]]:
         "replay": [sim, "replay", str(path), "-q", "--report", str(scratch / f"{path.stem}.report.json"),
                    "--overwrite"],
         "view --save": [sim, "view", str(path), "--save", str(scratch / f"{path.stem}.rrd"), "--overwrite"],
+        "convert": _convert_command(path, scratch),
     }
 
 
@@ -199,7 +202,13 @@ def _camera_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
         "replay": [sim, "replay", str(path), "-q", "--obs-mode", "state", "--report",
                    str(scratch / f"{path.stem}.report.json"), "--overwrite"],
         "view --save": [sim, "view", str(path), "--save", str(scratch / f"{path.stem}.rrd"), "--overwrite"],
+        "convert": _convert_command(path, scratch),
     }
+
+
+def _convert_command(path: Path, scratch: Path) -> list[str]:
+    other = ".mcap" if path.suffix == ".h5" else ".h5"
+    return [str(SIMREEL), "convert", str(path), str(scratch / f"{path.stem}.converted{other}"), "-q", "--overwrite"]
 
 
 def _table(paths: dict[int, Path], commands, scratch: Path) -> None:

@@ -112,12 +112,24 @@ class EpisodeWriter(ABC):
         (`env_states/...`, `obs/...` and `body_poses` as the recording's field table lists them)."""
 
     def write_episode(self, episode: Episode) -> None:
-        """Write a whole in-memory episode (convert, `replay -o`)."""
+        """Write a whole in-memory episode (`merge`, `filter`, `recover`, a converted one)."""
         episode.check_shapes()
         sink = self.begin_episode(episode.meta, episode.reset_block())
         if episode.length:
             sink.append(episode.steps_block())
         sink.commit(episode.meta)
+
+    def write_rows(self, rows: EpisodeRows) -> None:
+        """Write an episode read from a file a block of rows at a time (`convert`): only one block is in memory.
+        A block that fails to read discards what was begun of the episode and raises."""
+        sink = self.begin_episode(rows.meta, rows.reset())
+        try:
+            for _, block in rows.blocks():
+                sink.append(block)
+        except BaseException:
+            sink.discard()
+            raise
+        sink.commit(rows.meta)
 
     committed: list[EpisodeMeta]
     _failed: StorageError | None = None

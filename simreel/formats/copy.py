@@ -16,7 +16,7 @@ from typing import Protocol, TypeVar
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, open_writer
-from simreel.formats.base import EpisodeReader, EpisodeWriter
+from simreel.formats.base import EpisodeReader, EpisodeRows, EpisodeWriter
 from simreel.formats.staging import replacement_note
 
 __all__ = ["EpisodeTransform", "CopyReport", "RecoveryReport", "convert", "recover"]
@@ -93,10 +93,11 @@ class Target:
     overwrite: bool
 
 
-def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, Episode]]) -> list[int]:
+def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, Episode | EpisodeRows]]) -> list[int]:
     """Write each (target number, episode) of `episodes` to `targets[number]`, all of them new recordings; returns
-    the steps written to each. Every target is created before the first episode is read; any failure (Ctrl-C
-    included) drops every target (`EpisodeWriter.abort`: a recording a target was to replace stays as it was).
+    the steps written to each. An episode still in its file (`EpisodeRows`) is copied a block at a time. Every
+    target is created before the first episode is read; any failure (Ctrl-C included) drops every target
+    (`EpisodeWriter.abort`: a recording a target was to replace stays as it was).
 
     A writer that refuses its target (it exists, another recording writes it) has created nothing, and what is
     there is not this call's to delete; the targets created before it are dropped."""
@@ -106,7 +107,10 @@ def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, Epis
             writers.append(open_writer(target.path, target.meta, overwrite=target.overwrite))
         steps = [0] * len(targets)
         for k, episode in episodes:
-            writers[k].write_episode(episode)
+            if isinstance(episode, EpisodeRows):
+                writers[k].write_rows(episode)
+            else:
+                writers[k].write_episode(episode)
             steps[k] += episode.length
         for writer in writers:
             writer.close()
@@ -129,11 +133,18 @@ def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target
           change: EpisodeTransform | None = None, *, salvage: bool = False) -> _Copied:
     """Write `episodes` of `reader` (through `change`, when given) to a new recording `target`. A failure drops the
     new recording (an output it was to replace stays); with `salvage`, an episode that cannot be read is named in
-    `lost` and the copy goes on."""
+    `lost` and the copy goes on.
+
+    A plain copy streams each episode a block at a time (memory bounded whatever its length). A transform takes
+    whole episodes, and so does `salvage`, which must find a damaged episode before any of it is written."""
     copied = _Copied()
 
-    def read() -> Iterator[tuple[int, Episode]]:
+    def read() -> Iterator[tuple[int, Episode | EpisodeRows]]:
         for m in episodes:
+            if change is None and not salvage:
+                copied.episodes += 1
+                yield 0, reader.open_episode(m.index)
+                continue
             try:
                 episode = reader.read_episode(m.index)
             except RecordingFileError as e:
