@@ -314,7 +314,7 @@ class ViewSession:
 
         The viewer is the ``rerun`` executable on PATH, else the one beside this Python (a venv's bin/). A viewer
         that cannot open its window binds its port and exits; it is refused before the stream connects, and one
-        that goes away while the session streams is noticed within a second (`_flush_to_viewer`).
+        that goes away while the session streams is reported, not waited on forever (`_flush_to_viewer`).
         """
         import rerun as rr
 

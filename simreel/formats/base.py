@@ -120,8 +120,9 @@ class EpisodeWriter(ABC):
         sink.commit(episode.meta)
 
     def write_rows(self, rows: EpisodeRows) -> None:
-        """Write an episode read from a file a block of rows at a time (`convert`): only one block is in memory.
-        A block that fails to read discards what was begun of the episode and raises."""
+        """Write an episode read from a file a block of rows at a time (`convert`): it is read one block at a time
+        (the writer may hold a few MiB of it before its commit). A block that fails to read discards what was
+        begun of the episode and raises."""
         sink = self.begin_episode(rows.meta, rows.reset())
         try:
             for _, block in rows.blocks():
