@@ -154,10 +154,10 @@ def _listening(port: int) -> bool:
     import socket
 
     try:
-        socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+        with socket.create_connection(("127.0.0.1", port), timeout=1.0) as s:
+            return s.getsockname() != s.getpeername()  # a free port in the ephemeral range can connect to itself
     except OSError:
         return False
-    return True
 
 
 def _viewer_gone(why: str) -> ViewError:
@@ -170,15 +170,19 @@ def _flush_to_viewer(rec: rr.RecordingStream, port: int, *, wait_s: float = 1.0)
 
     Rerun's own flush waits forever for a viewer that went away, inside Rust where Ctrl-C and SIGTERM are not
     seen; waiting ``wait_s`` at a time lets signals through and checks the viewer between waits. A slow viewer
-    that still listens is waited for.
+    that still listens is waited for. A flush can also succeed into the socket of a viewer that just died, so
+    the viewer must still listen after it for the session to count as sent.
     """
     while True:
         try:
             rec.flush(timeout_sec=wait_s)
-            return
         except RuntimeError as e:
             if not _listening(port):
                 raise _viewer_gone(_first_line(e)) from e
+            continue
+        if not _listening(port):
+            raise _viewer_gone(f"nothing listens on port {port} any more")
+        return
 
 
 def _first_line(error: Exception) -> str:

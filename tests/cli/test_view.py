@@ -262,8 +262,7 @@ def test_spawn_sends_the_episode_to_the_viewer_listening_on_its_port(pickcube_h5
 
 def test_a_viewer_that_goes_away_is_reported_not_waited_for(tmp_path):
     """The viewer ends after the stream connected: flushing to it fails within seconds with the one-line
-    error, where Rerun's own flush waits forever. (The first write after the viewer died may still be taken by
-    the dead connection's socket and look delivered, so a few are tried.)"""
+    error, where Rerun's own flush waits forever or, into the dead viewer's socket, reports success."""
     import rerun as rr
 
     from simreel.errors import ViewError
@@ -275,11 +274,10 @@ def test_a_viewer_that_goes_away_is_reported_not_waited_for(tmp_path):
         rec.connect_grpc(url)
         rec.log("points", rr.Points3D([[0.0, 0.0, 0.0]]))
         _flush_to_viewer(rec, port)  # delivered while it listens
+    rec.log("points", rr.Points3D([[1.0, 0.0, 0.0]]))
     started = time.perf_counter()
     with pytest.raises(ViewError, match="the Rerun viewer did not take the session"):
-        for x in range(10):
-            rec.log("points", rr.Points3D([[float(x), 0.0, 0.0]]))
-            _flush_to_viewer(rec, port)
+        _flush_to_viewer(rec, port)
     assert time.perf_counter() - started < 30
 
 

@@ -127,10 +127,10 @@ def read_served(grpc_url: str, folder: Path, done: Callable[[RrdContents], bool]
 @contextlib.contextmanager
 def running_grpc_server(port: int, log: Path, timeout: float = 60) -> Iterator[str]:
     """A real ``rerun --serve-grpc`` on `port` (what an open Rerun viewer listens with, minus the window), its
-    output in `log`; yields its URL once it accepts connections and kills it at the end."""
+    output in `log`; yields its URL once it accepts connections, and at the end kills it and waits until nothing
+    listens on `port` any more (its process group can outlive the process waited for by a moment)."""
     import os
     import signal
-    import socket
     import subprocess
     import time
 
@@ -141,16 +141,26 @@ def running_grpc_server(port: int, log: Path, timeout: float = 60) -> Iterator[s
                                   stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
     try:
         deadline = time.monotonic() + timeout
-        while True:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                if server.poll() is not None or time.monotonic() > deadline:
-                    raise AssertionError(f"rerun --serve-grpc never listened: {log.read_text()[-2000:]}") from None
-                time.sleep(0.2)
+        while not _accepts(port):
+            if server.poll() is not None or time.monotonic() > deadline:
+                raise AssertionError(f"rerun --serve-grpc never listened: {log.read_text()[-2000:]}")
+            time.sleep(0.2)
         yield f"rerun+http://127.0.0.1:{port}/proxy"
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(server.pid, signal.SIGKILL)
         server.wait()
+        deadline = time.monotonic() + timeout
+        while _accepts(port) and time.monotonic() < deadline:
+            time.sleep(0.05)
+
+
+def _accepts(port: int) -> bool:
+    """Whether a server accepts TCP connections on `port` of this machine."""
+    import socket
+
+    try:
+        socket.create_connection(("127.0.0.1", port), timeout=1).close()
+    except OSError:
+        return False
+    return True
