@@ -86,9 +86,24 @@ def test_every_block_says_what_it_is():
     assert all(b.skip for b in BLOCKS if b.skip is not None), "a skipped block must say why"
 
 
+@dataclass
+class Scratch:
+    """The folder the blocks run in, and which blocks have run there."""
+
+    folder: Path
+    ran: set[int]
+
+
 @pytest.fixture(scope="module")
-def scratch(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("readme")
+def scratch(tmp_path_factory) -> Scratch:
+    return Scratch(tmp_path_factory.mktemp("readme"), set())
+
+
+def needs(block: Block) -> list[Block]:
+    """The earlier blocks whose files `block` may use: the runnable ones before it in the scratch folder, slow
+    ones only for a slow block (the default run never needs them)."""
+    return [b for b in BLOCKS[: BLOCKS.index(block)]
+            if b.language != "text" and not b.skip and not b.repo and (block.slow or not b.slow)]
 
 
 def _environment() -> dict[str, str]:
@@ -175,8 +190,18 @@ def _params() -> list:
 
 
 @pytest.mark.parametrize("block", _params())
-def test_readme_block_runs(block: Block, scratch: Path):
-    _run(block, REPO if block.repo else scratch)
+def test_readme_block_runs(block: Block, scratch: Scratch):
+    """The block succeeds after the blocks before it, which run first if this run left them out (`-m slow`,
+    `-k`), as a reader following the README from the top would have run them."""
+    if block.repo:
+        _run(block, REPO)
+        return
+    for earlier in needs(block):
+        if earlier.line not in scratch.ran:
+            scratch.ran.add(earlier.line)
+            _run(earlier, scratch.folder)
+    scratch.ran.add(block.line)  # tried: a failed block fails its own test, not every later one again
+    _run(block, scratch.folder)
 
 
 @pytest.mark.parametrize(
