@@ -1,10 +1,11 @@
-"""Peak memory of `simreel inspect`, `replay`, `view` and `convert` on a long episode against a short one (target
-≤ 1.2×).
+"""Peak memory of `simreel inspect`, `replay`, `view`, `convert`, `merge` and `filter` on a long episode against a
+short one (target ≤ 1.2×).
 
 Records one `--short`-step and one `--long`-step episode of `--env` (random actions, the CLI's defaults, the
 time limit set by --max-steps) into `--folder` (kept and reused when it already holds them), then runs each
 command once per recording in a fresh process and reads that process's peak resident set size (`wait4`);
-`convert` writes the other format (HDF5 → MCAP, MCAP → HDF5):
+`convert` and `merge` (of the recording alone) write the other format (HDF5 → MCAP, MCAP → HDF5), `filter` (its
+episode 0) the same:
 
     .venv/bin/python benchmarks/bench_memory.py                       # PickCube-v1, 200 vs 20,000 steps
     .venv/bin/python benchmarks/bench_memory.py --format mcap --folder /tmp/mem
@@ -134,7 +135,7 @@ def _commands(path: Path, scratch: Path) -> dict[str, list[str]]:
         "replay": [sim, "replay", str(path), "-q", "--report", str(scratch / f"{path.stem}.report.json"),
                    "--overwrite"],
         "view --save": [sim, "view", str(path), "--save", str(scratch / f"{path.stem}.rrd"), "--overwrite"],
-        "convert": _convert_command(path, scratch),
+        **_copy_commands(path, scratch),
     }
 
 
@@ -202,13 +203,20 @@ def _camera_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
         "replay": [sim, "replay", str(path), "-q", "--obs-mode", "state", "--report",
                    str(scratch / f"{path.stem}.report.json"), "--overwrite"],
         "view --save": [sim, "view", str(path), "--save", str(scratch / f"{path.stem}.rrd"), "--overwrite"],
-        "convert": _convert_command(path, scratch),
+        **_copy_commands(path, scratch),
     }
 
 
-def _convert_command(path: Path, scratch: Path) -> list[str]:
-    other = ".mcap" if path.suffix == ".h5" else ".h5"
-    return [str(SIMREEL), "convert", str(path), str(scratch / f"{path.stem}.converted{other}"), "-q", "--overwrite"]
+def _copy_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
+    """`convert` and `merge` (of the recording alone) to the other format, `filter` (its episode 0) to the same."""
+    sim, other = str(SIMREEL), ".mcap" if path.suffix == ".h5" else ".h5"
+    return {
+        "convert": [sim, "convert", str(path), str(scratch / f"{path.stem}.converted{other}"), "-q", "--overwrite"],
+        "merge": [sim, "merge", str(path), "-o", str(scratch / f"{path.stem}.merged{other}"), "-q",
+                  "--overwrite"],
+        "filter": [sim, "filter", str(path), "-o", str(scratch / f"{path.stem}.filtered{path.suffix}"), "--episodes",
+                   "0", "-q", "--overwrite"],
+    }
 
 
 def _table(paths: dict[int, Path], commands, scratch: Path) -> None:

@@ -1,10 +1,11 @@
 """Dataset operations: `merge` recordings of one env into one file, `filter_recording` (and split) a recording's
 episodes by index, final success, length or a replay's verdicts.
 
-Both are lossless and proven. Episodes are read one at a time and written through `simreel.formats.copy`'s
-writer loop (a failure or Ctrl-C removes every output); the outputs are then read back and every episode is
-checked against what was read from its source: each array's name, dtype, shape and bytes, and the episode's
-metadata (BLAKE2b-256 digests of both, taken as the source was read). A difference is simreel's bug:
+Both are lossless and proven. Episodes are copied one at a time, a block of rows at a time (memory bounded
+whatever an episode's length), through `simreel.formats.copy`'s writer loop (a failure or Ctrl-C removes every
+output); the outputs are then read back, a block at a time too, and every episode is checked against what was
+read from its source: each array's name, dtype, shape and bytes, and the episode's metadata (BLAKE2b-256
+digests of both, taken as the source was read: `HashedRows`). A difference is simreel's bug:
 `OutputCheckError`, and the outputs are removed.
 
 Inputs may be simreel HDF5 or MCAP recordings or ManiSkill trajectory files, mixed; the output's suffix picks
@@ -32,16 +33,17 @@ from typing import Any, TypeVar
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import Episode, EpisodeMeta, RecordingMeta
+from simreel.episode import Episode, EpisodeMeta, FieldSpec, RecordingMeta, StepBlock
 from simreel.errors import OutputCheckError, RecordingFileError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
+from simreel.formats.base import EpisodeRows
 from simreel.formats.copy import Target, write_episodes
 from simreel.formats.inputs import file_identity
 from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.targets import check_distinct
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
-           "episode_digest", "describe_provenance", "describe_origin", "VERIFIED", "DIVERGED", "report_verdicts"]
+           "HashedRows", "episode_digest", "describe_provenance", "describe_origin", "VERIFIED", "DIVERGED", "report_verdicts"]
 
 VERIFIED = ("exact", "within_tolerance")
 """The verdicts `filter --verified` keeps: the episodes a replay verified."""
@@ -248,16 +250,70 @@ def _canonical(value: Any) -> bytes:
     return json.dumps(value, sort_keys=True, separators=(",", ":")).encode()
 
 
-def episode_digest(episode: Episode) -> bytes:
-    """BLAKE2b-256 of an episode's metadata and of every array's name, dtype, shape and bytes: equal digests mean
-    equal episodes (but for a collision of a 256-bit hash)."""
-    h = hashlib.blake2b(digest_size=32)
-    h.update(_canonical(episode.meta.to_json()))
-    for name, array in sorted(episode.fields().items()):
-        a = np.ascontiguousarray(array)
-        h.update(f"\0{name}\0{a.dtype.str}\0{a.shape}\0".encode())
-        h.update(a.reshape(-1).view(np.uint8) if a.size else b"")
-    return h.digest()
+class HashedRows(EpisodeRows):
+    """An episode's rows (under new metadata, when given), hashed as a reader passes through them: the reset row
+    first, then the steps in order, as `EpisodeWriter.write_rows` reads them. `digest()`, once every row has
+    passed, is BLAKE2b-256 of the metadata and of every array's name, dtype, row shape, row count and bytes: equal
+    digests mean equal episodes (but for a collision of a 256-bit hash), however the rows were split in blocks."""
+
+    def __init__(self, rows: EpisodeRows, meta: EpisodeMeta | None = None) -> None:
+        super().__init__(meta or rows.meta, rows.fields)
+        self._rows = rows
+        self._hashes = {f.name: hashlib.blake2b(digest_size=32) for f in self.fields}
+        self._row_kinds: dict[str, str] = {}
+        self._counts = dict.fromkeys(self._hashes, 0)
+        self._next: int | None = None
+        """The next step to hash; None before the reset row."""
+
+    def reset(self) -> StepBlock:
+        block = self._rows.reset()
+        if self._next is None:
+            self._hash(block, [f for f in self.fields if f.per_state])
+            self._next = 0
+        return block
+
+    def steps(self, start: int, stop: int) -> StepBlock:
+        return self._hashed(start, self._rows.steps(start, stop))
+
+    def blocks(self, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
+        """The blocks of the rows read (a format reads them front to back faster than `steps` by `steps`)."""
+        for start, block in self._rows.blocks(rows):
+            yield start, self._hashed(start, block)
+
+    def _hashed(self, start: int, block: StepBlock) -> StepBlock:
+        if start != self._next:
+            raise RuntimeError(f"episode {self.meta.index}: steps {start}.. read before step {self._next} was hashed")
+        self._hash(block, self.fields)
+        self._next = start + block.rows
+        return block
+
+    def digest(self) -> bytes:
+        if self._next != self.length:
+            raise RuntimeError(f"episode {self.meta.index}: digest taken at step {self._next} of {self.length}")
+        h = hashlib.blake2b(_canonical(self.meta.to_json()), digest_size=32)
+        for name in sorted(self._hashes):
+            h.update(f"\0{name}\0{self._counts[name]}\0".encode())
+            h.update(self._hashes[name].digest())
+        return h.digest()
+
+    def _hash(self, block: StepBlock, fields: Sequence[FieldSpec]) -> None:
+        for f in fields:
+            a = np.ascontiguousarray(block[f.name])
+            kind = f"\0{a.dtype.str}\0{a.shape[1:]}\0"
+            if self._row_kinds.get(f.name) != kind:  # once per field, unless a block changes its dtype or row shape
+                self._row_kinds[f.name] = kind
+                self._hashes[f.name].update(kind.encode())
+            self._hashes[f.name].update(a.reshape(-1).view(np.uint8) if a.size else b"")
+            self._counts[f.name] += len(a)
+
+
+def episode_digest(rows: EpisodeRows) -> bytes:
+    """`HashedRows.digest` of an episode, read a block at a time."""
+    hashed = HashedRows(rows)
+    hashed.reset()
+    for _ in hashed.blocks():
+        pass
+    return hashed.digest()
 
 
 # ---------------------------------------------------------------------------------------------------- the plan
@@ -295,24 +351,25 @@ def _origin(source: _Source, meta: EpisodeMeta) -> dict[str, Any]:
 
 
 def _read(items: Sequence[_Item], sources: Sequence[_Source], decide: Decide,
-          digests: list[list[bytes]]) -> Iterator[tuple[int, Episode]]:
-    """Each item's episode, renumbered with its origin, source by source (one reader open at a time); its digest
-    goes to `digests[target]`. The decision is made again on the episode as read (a ManiSkill file's reader
-    corrects a length the sidecar misstates): a different one is an error, not a silent change."""
+          digests: list[list[bytes]]) -> Iterator[tuple[int, HashedRows]]:
+    """Each item's episode, renumbered with its origin, to be read a block at a time, source by source (one
+    reader open at a time); once it has been read, its digest goes to `digests[target]`. The decision is made
+    again on the episode as opened (a ManiSkill file's reader corrects a length the sidecar misstates): a
+    different one is an error, not a silent change."""
     for k, group in groupby(items, key=lambda item: item.source):
         source = sources[k]
         with source.reopen() as reader:
             for item in group:
-                episode = reader.read_episode(item.index)
-                if decide(source, episode.meta) != item.target:
+                rows = reader.open_episode(item.index)
+                if decide(source, rows.meta) != item.target:
                     raise RecordingFileError(
                         source.label, f"episode {item.index} is listed as {_episode_meta(source, item.index).length} "
-                        f"steps but holds {episode.length}: selected by a length its file misstates; select it by "
+                        f"steps but holds {rows.length}: selected by a length its file misstates; select it by "
                         "index or fix the file's listing")
-                meta = dataclasses.replace(episode.meta, index=item.new_index, origin=_origin(source, episode.meta))
-                out = dataclasses.replace(episode, meta=meta)
-                digests[item.target].append(episode_digest(out))
-                yield item.target, out
+                meta = dataclasses.replace(rows.meta, index=item.new_index, origin=_origin(source, rows.meta))
+                hashed = HashedRows(rows, meta)
+                yield item.target, hashed
+                digests[item.target].append(hashed.digest())
 
 
 # ---------------------------------------------------------------------------------------------------- outputs
@@ -424,13 +481,14 @@ def _check(output: _Output, sources: Sequence[_Source], options: DatasetOptions)
         if indices != list(range(len(digests))):
             raise OutputCheckError(f"{name}: holds episodes {indices[:10]}, expected 0..{len(digests) - 1}")
         for m in options.progress(reader.episodes, f"check {name.name}"):
-            episode = reader.read_episode(m.index)
-            if episode_digest(episode) != digests[m.index]:
+            if episode_digest(reader.open_episode(m.index)) != digests[m.index]:
+                episode = reader.read_episode(m.index)
                 raise OutputCheckError(f"{name}: episode {m.index} {_difference(episode, output.items[m.index], sources)}")
 
 
 def _difference(got: Episode, item: _Item, sources: Sequence[_Source]) -> str:
-    """What differs between an output episode and its source, read again (the rare path of a failed check)."""
+    """What differs between an output episode and its source, read again, both whole (the rare path of a failed
+    check)."""
     source = sources[item.source]
     with source.reopen() as reader:
         want = reader.read_episode(item.index)

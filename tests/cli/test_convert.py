@@ -6,7 +6,7 @@ from pathlib import Path
 
 import h5py
 import pytest
-from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
+from support.mcap_samples import assert_same_episode, long_sample, synthetic_episode, synthetic_meta, write
 
 from simreel.cli.main import main
 from simreel.formats import open_reader
@@ -98,21 +98,9 @@ def test_an_episode_that_does_not_fit_the_layout_is_one_line_and_leaves_no_outpu
     assert sorted(p.name for p in tmp_path.iterdir()) == ["src.h5", "src.json"]
 
 
-def _long_source(tmp_path: Path) -> tuple[Path, list]:
-    """A recording whose episode 1 spans three blocks of rows (`block_rows`), the unit `convert` copies at a time."""
-    from simreel.formats.base import block_rows
-
-    meta = synthetic_meta()
-    episodes = [synthetic_episode(meta, 0, 3), synthetic_episode(meta, 1, 9000), synthetic_episode(meta, 2, 5)]
-    src = write(tmp_path / "src.h5", meta, episodes)
-    with open_reader(src) as r:
-        assert 2 * block_rows(r.open_episode(1).fields) < 9000
-    return src, episodes
-
-
 @pytest.mark.parametrize("suffix", [".mcap", ".h5"])
 def test_convert_copies_an_episode_of_many_blocks_bit_exact(tmp_path, suffix):
-    src, episodes = _long_source(tmp_path)
+    src, episodes = long_sample(tmp_path / "src.h5")
     out = tmp_path / f"out{suffix}"
     assert main(["convert", str(src), str(out), "-q"]) == 0
     with open_reader(out) as r:
@@ -127,7 +115,7 @@ def test_a_block_that_fails_its_checksum_mid_episode_leaves_no_output(tmp_path, 
     the damage, exit 2, and no output file (nor side files) left."""
     from support.damage import corrupt_chunk
 
-    src, _ = _long_source(tmp_path)
+    src, _ = long_sample(tmp_path / "src.h5")
     corrupt_chunk(src, "traj_1/actions", chunk=8, rows=1000)  # rows 8000-8999
     before = sorted(p.name for p in tmp_path.iterdir())
     assert main(["convert", str(src), str(tmp_path / f"out{suffix}"), "-q"]) == 2

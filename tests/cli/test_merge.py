@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from support.mcap_samples import synthetic_episode, synthetic_meta, write
+from support.mcap_samples import long_sample, synthetic_episode, synthetic_meta, write
 
 from simreel.cli.main import main
 from simreel.formats import open_reader, recording_files
@@ -130,3 +130,17 @@ def test_an_episode_a_killed_recording_left_uncommitted_is_named_and_not_copied(
     assert (f"note: {inputs[0]}: episode 3 (a scratch file, ? step(s)) was never committed (a killed recording) "
             "and is not copied\n") in out  # an empty scratch file: its steps cannot be counted
     assert "merged 2 file(s): 5 episode(s)" in out
+
+
+def test_a_block_that_fails_its_checksum_mid_episode_leaves_no_output(inputs, tmp_path, capsys):
+    """An input episode damaged in its third block of rows, after two were copied: one line naming the damage,
+    exit 2, and neither OUT nor its staging files left."""
+    from support.damage import corrupt_chunk
+
+    src, _ = long_sample(tmp_path / "long.h5")
+    corrupt_chunk(src, "traj_1/actions", chunk=8, rows=1000)  # rows 8000-8999
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert main(["merge", str(inputs[0]), str(src), "-o", str(tmp_path / "out.mcap"), "-q"]) == 2
+    [line] = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"simreel merge: error: {src}: ") and "traj_1/actions" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == before

@@ -13,7 +13,7 @@ import h5py
 import numpy as np
 import pytest
 from support.maniskill_files import record_maniskill
-from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
+from support.mcap_samples import assert_same_episode, long_sample, synthetic_episode, synthetic_meta, write
 
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta
 from simreel.errors import EnvMismatchError, OutputCheckError, RecordingFileError, UsageError
@@ -82,6 +82,50 @@ def test_merge_copies_every_array_and_its_metadata_bit_exactly(synthetic, tmp_pa
     assert prov["inputs"][0]["size"] == a.stat().st_size and prov["inputs"][1]["mtime_ns"] == b.stat().st_mtime_ns
     assert prov["inputs"][1]["kind"] == "simreel MCAP recording (format 1)" and prov["inputs"][1]["episodes"] == 2
     assert prov["inputs"][0]["meta_digest"] == prov["inputs"][1]["meta_digest"]  # both written with one meta
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".mcap"])
+def test_episodes_of_many_blocks_merge_and_filter_bit_exactly(tmp_path, suffix):
+    """An episode of three blocks of rows (the unit both copy and check at a time) comes through whole."""
+    a, long = long_sample(tmp_path / "a.h5")
+    meta = synthetic_meta()
+    b = write(tmp_path / "b.mcap", meta, [synthetic_episode(meta, 0, 7, seed=4)])
+    merged = tmp_path / f"merged{suffix}"
+    report = merge([a, b], merged)
+    assert (report.checked, report.outputs[0].steps) == (4, 9015)
+    sources = [(a, e) for e in long] + [(b, e) for e in _episodes(b)]
+    assert_copied(_episodes(merged), sources)
+    filter_recording(merged, tmp_path / f"long{suffix}", EpisodeCriteria(min_steps=100))
+    [got] = _episodes(tmp_path / f"long{suffix}")
+    assert got.meta.origin == {"file": str(merged.resolve()), "index": 1, "origin": {"file": str(a.resolve()), "index": 1}}
+    assert_same_episode(dataclasses.replace(got, meta=long[1].meta), long[1])
+
+
+def test_the_episode_digest_covers_every_byte_however_the_rows_are_split(tmp_path):
+    """`HashedRows` hashes an episode as a writer reads it, a block at a time: blocks of any size give one
+    digest; one ulp of one reward, or other metadata, give another; rows read out of order are our bug."""
+    from simreel.formats.dataset import HashedRows, episode_digest
+
+    a, long = long_sample(tmp_path / "a.h5")
+    changed = dataclasses.replace(long[1], rewards=long[1].rewards.copy())
+    changed.rewards[8500] = np.nextafter(changed.rewards[8500], np.float32(np.inf))
+    b = write(tmp_path / "b.h5", synthetic_meta(), [changed])
+    with open_reader(a) as r, open_reader(b) as other:
+        digests = set()
+        for rows in (1000, 4096, 9000):
+            hashed = HashedRows(r.open_episode(1))
+            hashed.reset()
+            for _ in hashed.blocks(rows):
+                pass
+            digests.add(hashed.digest())
+        assert digests == {episode_digest(r.open_episode(1))}
+        assert episode_digest(other.open_episode(1)) not in digests
+        renumbered = dataclasses.replace(r.episode_meta(1), index=7)
+        assert episode_digest(HashedRows(r.open_episode(1), renumbered)) not in digests
+        skipping = HashedRows(r.open_episode(1))
+        skipping.reset()
+        with pytest.raises(RuntimeError, match="steps 10.. read before step 0 was hashed"):
+            skipping.steps(10, 20)
 
 
 def test_filter_and_its_rest_split_the_input_and_keep_each_origin(synthetic, tmp_path):
@@ -250,14 +294,14 @@ def test_an_interruption_removes_every_output_and_leaves_the_inputs(synthetic, t
 
     a, _ = synthetic
     before = a.read_bytes()
-    real = Hdf5Reader.read_episode
+    real = Hdf5Reader.open_episode
 
     def interrupted(self, index):
         if index == 2:
             raise KeyboardInterrupt
         return real(self, index)
 
-    monkeypatch.setattr(Hdf5Reader, "read_episode", interrupted)
+    monkeypatch.setattr(Hdf5Reader, "open_episode", interrupted)
     with pytest.raises(KeyboardInterrupt):
         filter_recording(a, tmp_path / "out.h5", EpisodeCriteria(episodes=(0,)), rest=tmp_path / "rest.mcap")
     assert _leftovers(tmp_path, "out.h5", "rest.mcap") == []
@@ -267,16 +311,26 @@ def test_an_interruption_removes_every_output_and_leaves_the_inputs(synthetic, t
 def test_an_output_that_does_not_read_back_as_its_source_is_our_bug_and_is_removed(synthetic, tmp_path, monkeypatch):
     """The check after writing is real: a writer that changed one value of one array is caught, named, and its
     output removed."""
+    from simreel.episode import StepBlock
     from simreel.formats.base import EpisodeWriter
 
-    real = EpisodeWriter.write_episode
+    real = EpisodeWriter.write_rows
 
-    def off_by_one_ulp(self, episode):
-        if episode.meta.index == 1:
-            episode.rewards[3] = np.nextafter(episode.rewards[3], np.float32(np.inf))
-        real(self, episode)
+    def off_by_one_ulp(self, rows):
+        read_blocks = rows.blocks
 
-    monkeypatch.setattr(EpisodeWriter, "write_episode", off_by_one_ulp)
+        def altered(n=None):
+            for start, block in read_blocks(n):
+                if rows.meta.index == 1 and start <= 3 < start + block.rows:
+                    rewards = block["rewards"].copy()
+                    rewards[3 - start] = np.nextafter(rewards[3 - start], np.float32(np.inf))
+                    block = StepBlock.of({**block.arrays, "rewards": rewards})
+                yield start, block
+
+        rows.blocks = altered
+        real(self, rows)
+
+    monkeypatch.setattr(EpisodeWriter, "write_rows", off_by_one_ulp)
     a, b = synthetic
     with pytest.raises(OutputCheckError, match=r"merged.mcap: episode 1 does not read back as episode 1 of "
                                                r".*a.h5: rewards is float32 \(250,\) here, float32 \(250,\) there"):

@@ -1,6 +1,6 @@
 """Child process of the Ctrl-C test of `simreel merge`: runs the real command, paused in the middle of the copy.
 
-Usage: python interrupted_merge.py IN... -o OUT. Runs `simreel merge` on the arguments; when the copy reads its
+Usage: python interrupted_merge.py IN... -o OUT. Runs `simreel merge` on the arguments; when the copy opens its
 third episode it prints `copying` (the first two are written by then) and sleeps, for the parent to send SIGINT.
 Exits with the command's status.
 """
@@ -15,7 +15,7 @@ def main(argv: list[str]) -> int:
     from simreel.cli.main import main as simreel
     from simreel.formats.hdf5.reader import Hdf5Reader
 
-    read = Hdf5Reader.read_episode
+    open_episode = Hdf5Reader.open_episode
     calls = []
 
     def paused(self, index):
@@ -23,9 +23,9 @@ def main(argv: list[str]) -> int:
         if len(calls) == 3:
             print("copying", flush=True)
             time.sleep(300)  # interrupted here
-        return read(self, index)
+        return open_episode(self, index)
 
-    Hdf5Reader.read_episode = paused
+    Hdf5Reader.open_episode = paused
     return simreel(["merge", *argv, "-q"])
 
 

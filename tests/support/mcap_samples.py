@@ -1,4 +1,4 @@
-"""Synthetic recordings for the MCAP and convert tests: arrays a float formatter would damage, no env."""
+"""Synthetic recordings for the MCAP, convert and dataset tests: arrays a float formatter would damage, no env."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta
-from simreel.formats import open_writer
+from simreel.formats import open_reader, open_writer
 from simreel.state_tree import LeafSpec
 
 ARRAYS = ("actions", "rewards", "terminated", "truncated", "success", "fail", "contact_forces", "body_poses")
@@ -91,6 +91,19 @@ def sample(path: Path, n: int = 3, **options) -> tuple[Path, list[Episode]]:
     meta = synthetic_meta(poses=False)
     episodes = [synthetic_episode(meta, i, 6) for i in range(n)]
     return write(path, meta, episodes, **options), episodes
+
+
+def long_sample(path: Path, seed: int = 0) -> tuple[Path, list[Episode]]:
+    """Episodes of 3, 9000 and 5 steps written to `path`: episode 1 spans three blocks of rows (`block_rows`),
+    the unit `convert`, `merge` and `filter` copy at a time."""
+    from simreel.formats.base import block_rows
+
+    meta = synthetic_meta()
+    episodes = [synthetic_episode(meta, i, T, seed=seed) for i, T in enumerate((3, 9000, 5))]
+    write(path, meta, episodes)
+    with open_reader(path) as r:
+        assert 2 * block_rows(r.open_episode(1).fields) < 9000
+    return path, episodes
 
 
 def only_this_episode_fails(path: Path, episodes: list[Episode], bad: int) -> Exception:
