@@ -43,7 +43,8 @@ from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.targets import check_distinct
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
-           "HashedRows", "episode_digest", "describe_provenance", "describe_origin", "VERIFIED", "DIVERGED", "report_verdicts"]
+           "HashedRows", "episode_digest", "describe_provenance", "describe_origin", "VERIFIED", "DIVERGED",
+           "report_verdicts"]
 
 VERIFIED = ("exact", "within_tolerance")
 """The verdicts `filter --verified` keeps: the episodes a replay verified."""
@@ -276,7 +277,8 @@ class HashedRows(EpisodeRows):
         return self._hashed(start, self._rows.steps(start, stop))
 
     def blocks(self, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
-        """The blocks of the rows read (a format reads them front to back faster than `steps` by `steps`)."""
+        """The reader's own blocks, hashed as they pass (an MCAP episode is read front to back once; block by
+        block through `steps` it would be scanned from its start for every block)."""
         for start, block in self._rows.blocks(rows):
             yield start, self._hashed(start, block)
 
