@@ -165,20 +165,31 @@ def _viewer_gone(why: str) -> ViewError:
                      "closed; use --save OUT.rrd and open it elsewhere, or --serve")
 
 
+def _refused(port: int, why: str) -> ViewError:
+    return ViewError(f"what listens on port {port} refused the session ({why}): it is not a Rerun viewer, or one "
+                     "that dropped the connection; use --grpc-port with a free port, or --save OUT.rrd")
+
+
 def _flush_to_viewer(rec: rr.RecordingStream, port: int, *, wait_s: float = 1.0) -> None:
-    """Send everything logged to the viewer on ``port``, giving up once the viewer stops listening.
+    """Send everything logged to the viewer on ``port``, giving up once the viewer stops listening or the
+    connection fails.
 
     Rerun's own flush waits forever for a viewer that went away, inside Rust where Ctrl-C and SIGTERM are not
     seen; waiting ``wait_s`` at a time lets signals through and checks the viewer between waits. A slow viewer
-    that still listens is waited for. A flush can also succeed into the socket of a viewer that just died, so
-    the viewer must still listen after it for the session to count as sent.
+    that still listens is waited for; a flush that fails before its time is up is a connection that failed for
+    good (another server on the port, a viewer that dropped it) and is not tried again. A flush can also succeed
+    into the socket of a viewer that just died, so the viewer must still listen after it for the session to count
+    as sent.
     """
     while True:
+        started = time.monotonic()
         try:
             rec.flush(timeout_sec=wait_s)
         except RuntimeError as e:
             if not _listening(port):
                 raise _viewer_gone(_first_line(e)) from e
+            if time.monotonic() - started < wait_s / 2:
+                raise _refused(port, _first_line(e)) from e
             continue
         if not _listening(port):
             raise _viewer_gone(f"nothing listens on port {port} any more")

@@ -281,6 +281,32 @@ def test_a_viewer_that_goes_away_is_reported_not_waited_for(tmp_path):
     assert time.perf_counter() - started < 30
 
 
+def test_a_port_held_by_another_server_is_reported_not_waited_on(pickcube_h5, tmp_path):
+    """Something that is not a Rerun viewer (an HTTP server) listens on the port: Rerun takes it for an open
+    viewer and its gRPC stream fails at once, for good. One line naming the port and what to do, exit 2; before,
+    simreel retried in a tight loop while the port listened, until the machine ran out of ephemeral ports and
+    that was taken for a viewer that had closed."""
+    import http.server
+    import threading
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), http.server.SimpleHTTPRequestHandler)
+    port = server.server_address[1]
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn", "--geometry", "collision",
+                                              "--grpc-port", str(port)),
+                              env={**without_display(), "DISPLAY": ":0"}, cwd=tmp_path, capture_output=True,
+                              text=True, timeout=120)
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert done.returncode == 2, done.stderr
+    ours = [line for line in done.stderr.splitlines() if line.startswith("simreel view:")]
+    assert len(ours) == 1 and ours[0].startswith(f"simreel view: error: what listens on port {port} refused the "
+                                                 "session ("), done.stderr
+    assert "--grpc-port" in ours[0]
+
+
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_serve_serves_the_episode_until_stopped(pickcube_h5, tmp_path, rrd_reader, stop):
     """A real `simreel view --serve` on free ports: the page loads, the gRPC server named in the printed URL
