@@ -1,11 +1,11 @@
-"""Peak memory of `simreel inspect`, `replay`, `view`, `convert`, `merge` and `filter` on a long episode against a
-short one (target ≤ 1.2×).
+"""Peak memory of `simreel inspect`, `replay`, `view`, `convert`, `merge`, `filter` and `recover` on a long episode
+against a short one (target ≤ 1.2×).
 
 Records one `--short`-step and one `--long`-step episode of `--env` (random actions, the CLI's defaults, the
 time limit set by --max-steps) into `--folder` (kept and reused when it already holds them), then runs each
 command once per recording in a fresh process and reads that process's peak resident set size (`wait4`);
-`convert` and `merge` (of the recording alone) write the other format (HDF5 → MCAP, MCAP → HDF5), `filter` (its
-episode 0) the same:
+`convert`, `merge` (of the recording alone) and `recover` (of the intact recording, which copies it) write the
+other format (HDF5 → MCAP, MCAP → HDF5), `filter` (its episode 0) the same:
 
     .venv/bin/python benchmarks/bench_memory.py                       # PickCube-v1, 200 vs 20,000 steps
     .venv/bin/python benchmarks/bench_memory.py --format mcap --folder /tmp/mem
@@ -208,7 +208,8 @@ def _camera_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
 
 
 def _copy_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
-    """`convert` and `merge` (of the recording alone) to the other format, `filter` (its episode 0) to the same."""
+    """`convert`, `merge` (of the recording alone) and `recover` (of the intact recording, which copies it) to the
+    other format, `filter` (its episode 0) to the same."""
     sim, other = str(SIMREEL), ".mcap" if path.suffix == ".h5" else ".h5"
     return {
         "convert": [sim, "convert", str(path), str(scratch / f"{path.stem}.converted{other}"), "-q", "--overwrite"],
@@ -216,6 +217,7 @@ def _copy_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
                   "--overwrite"],
         "filter": [sim, "filter", str(path), "-o", str(scratch / f"{path.stem}.filtered{path.suffix}"), "--episodes",
                    "0", "-q", "--overwrite"],
+        "recover": [sim, "recover", str(path), "-o", str(scratch / f"{path.stem}.recovered{other}"), "--overwrite"],
     }
 
 

@@ -135,31 +135,37 @@ def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target
     new recording (an output it was to replace stays); with `salvage`, an episode that cannot be read is named in
     `lost` and the copy goes on.
 
-    A plain copy streams each episode a block at a time (memory bounded whatever its length). A transform takes
-    whole episodes, and so does `salvage`, which must find a damaged episode before any of it is written."""
+    Without a transform an episode is copied a block of rows at a time (memory bounded whatever its length);
+    `salvage` reads each one through first, a block at a time too, so that a damaged episode is found before any
+    of it is written. A transform takes whole episodes."""
     copied = _Copied()
 
     def read() -> Iterator[tuple[int, Episode | EpisodeRows]]:
         for m in episodes:
-            if change is None and not salvage:
-                copied.episodes += 1
-                yield 0, reader.open_episode(m.index)
-                continue
             try:
-                episode = reader.read_episode(m.index)
+                if salvage:
+                    _read_through(reader.open_episode(m.index))
+                episode = change(reader.read_episode(m.index)) if change is not None else reader.open_episode(m.index)
             except RecordingFileError as e:
                 if not salvage:
                     raise
                 copied.lost.append(f"episode {m.index} ({e.problem})")
                 continue
             copied.episodes += 1
-            yield 0, change(episode) if change is not None else episode
+            yield 0, episode
 
     try:
         copied.steps = write_episodes([target], read())[0]
     except StorageError as e:
         raise _nothing_written(e, target, reader) from None
     return copied
+
+
+def _read_through(rows: EpisodeRows) -> None:
+    """Read every row of an episode, a block at a time, for the checks reading makes (checksums, row counts)."""
+    rows.reset()
+    for _ in rows.blocks():
+        pass
 
 
 def _nothing_written(e: StorageError, target: Target, reader: EpisodeReader) -> StorageError:

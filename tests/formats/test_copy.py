@@ -5,7 +5,8 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
-from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
+import pytest
+from support.mcap_samples import assert_same_episode, long_sample, synthetic_episode, synthetic_meta, write
 
 from simreel.formats import open_reader
 from simreel.formats.copy import recover
@@ -72,3 +73,23 @@ def test_recover_of_a_complete_file_changes_nothing(tmp_path):
         before = path.read_bytes()
         report = recover(path)
         assert report.complete and report.output is None and path.read_bytes() == before
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".mcap"])
+def test_recover_finds_damage_in_a_late_block_before_writing_any_of_that_episode(tmp_path, suffix):
+    """Episode 1 spans three blocks of rows and its third fails its checksum: recover names it lost and copies
+    episodes 0 and 2, and nothing of episode 1 reaches the output (no rows, no discarded-episode record)."""
+    from support.damage import corrupt_chunk
+
+    src, episodes = long_sample(tmp_path / "src.h5")
+    corrupt_chunk(src, "traj_1/actions", chunk=8, rows=1000)  # rows 8000-8999
+    out = tmp_path / f"saved{suffix}"
+    report = recover(src, out)
+    assert (report.episodes, report.steps) == (2, 8)
+    [lost] = report.damaged
+    assert lost.startswith("episode 1 (") and "traj_1/actions" in lost
+    with open_reader(out) as r:
+        assert [m.index for m in r.episodes] == [0, 2] and r.damaged == [] and r.unfinished == [] and r.notes == []
+        for i in (0, 2):
+            assert_same_episode(r.read_episode(i), episodes[i])
+    assert out.stat().st_size < 50_000  # episode 1's 9000 rows would be several MB
