@@ -4,8 +4,8 @@ against a short one (target ≤ 1.2×).
 Records one `--short`-step and one `--long`-step episode of `--env` (random actions, the CLI's defaults, the
 time limit set by --max-steps) into `--folder` (kept and reused when it already holds them), then runs each
 command once per recording in a fresh process and reads that process's peak resident set size (`wait4`);
-`convert`, `merge` (of the recording alone) and `recover` (of the intact recording, which copies it) write the
-other format (HDF5 → MCAP, MCAP → HDF5), `filter` (its episode 0) the same:
+`convert` (with and without `--poses`), `merge` (of the recording alone) and `recover` (of the intact recording,
+which copies it) write the other format (HDF5 → MCAP, MCAP → HDF5), `filter` (its episode 0) the same:
 
     .venv/bin/python benchmarks/bench_memory.py                       # PickCube-v1, 200 vs 20,000 steps
     .venv/bin/python benchmarks/bench_memory.py --format mcap --folder /tmp/mem
@@ -156,7 +156,7 @@ def main() -> int:
     for steps, path in paths.items():
         _record(args.env, steps, path)
     print(f"{args.env}, one episode of {args.short} vs {args.long} steps, {args.format}")
-    print(f"  {'command':<12} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}")
+    print(f"  {'command':<15} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}")
     _table(paths, _commands, folder)
     if args.output:
         _output_table(args, folder)
@@ -170,7 +170,7 @@ def main() -> int:
             _with_frames(path, frames, cams[n])
         size = cams[args.long].stat().st_size / 2**20
         print(f"the same episodes with a 128x128 rgb camera frame per state row (the long one {size:.0f} MiB on disk)")
-        print(f"  {'command':<12} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}")
+        print(f"  {'command':<15} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}")
         _table(cams, _camera_commands, folder)
     return 0
 
@@ -185,14 +185,14 @@ def _output_table(args: argparse.Namespace, folder: Path) -> None:
                             "--seed", "0", "-q"], check=True, stdout=subprocess.DEVNULL)
     print(f"two episodes of {args.short} vs {args.long} steps, replay -o --workers 2 (peak of the summed RSS of the "
           "process tree)")
-    print(f"  {'command':<12} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}  {'long - short MiB':>16}")
+    print(f"  {'command':<15} {'short MiB':>10} {'long MiB':>9} {'ratio':>6}  {'long s':>7}  {'long - short MiB':>16}")
     runs = {}
     for steps, path in paths.items():
         out = folder / f"{path.stem}.replayed.{args.format}"
         runs[steps] = _tree_peak_mib([str(SIMREEL), "replay", str(path), "-q", "-o", str(out), "--workers", "2",
                                       "--overwrite"])
     (short, _), (long, seconds) = runs.values()
-    print(f"  {'replay -o':<12} {short:>10.0f} {long:>9.0f} {long / short:>6.2f}  {seconds:>7.0f}  "
+    print(f"  {'replay -o':<15} {short:>10.0f} {long:>9.0f} {long / short:>6.2f}  {seconds:>7.0f}  "
           f"{long - short:>16.0f}   [target <= 1.2]")
 
 
@@ -208,11 +208,13 @@ def _camera_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
 
 
 def _copy_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
-    """`convert`, `merge` (of the recording alone) and `recover` (of the intact recording, which copies it) to the
-    other format, `filter` (its episode 0) to the same."""
+    """`convert` (with and without `--poses`), `merge` (of the recording alone) and `recover` (of the intact
+    recording, which copies it) to the other format, `filter` (its episode 0) to the same."""
     sim, other = str(SIMREEL), ".mcap" if path.suffix == ".h5" else ".h5"
     return {
         "convert": [sim, "convert", str(path), str(scratch / f"{path.stem}.converted{other}"), "-q", "--overwrite"],
+        "convert --poses": [sim, "convert", str(path), str(scratch / f"{path.stem}.posed{other}"), "--poses", "-q",
+                            "--overwrite"],
         "merge": [sim, "merge", str(path), "-o", str(scratch / f"{path.stem}.merged{other}"), "-q",
                   "--overwrite"],
         "filter": [sim, "filter", str(path), "-o", str(scratch / f"{path.stem}.filtered{path.suffix}"), "--episodes",
@@ -226,7 +228,7 @@ def _table(paths: dict[int, Path], commands, scratch: Path) -> None:
     short_path, long_path = paths.values()
     for name in commands(short_path, scratch):
         (short, _), (long, seconds) = (_peak_mib(commands(path, scratch)[name]) for path in (short_path, long_path))
-        print(f"  {name:<12} {short:>10.0f} {long:>9.0f} {long / short:>6.2f}  {seconds:>7.0f}   [target <= 1.2]")
+        print(f"  {name:<15} {short:>10.0f} {long:>9.0f} {long / short:>6.2f}  {seconds:>7.0f}   [target <= 1.2]")
 
 
 if __name__ == "__main__":

@@ -114,18 +114,17 @@ def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto", imports: Sequenc
     `imports` (``--import``) if given, else the recorded imports, found also beside `recording` (its path)
     (`simreel.sim.user_code.resolve_task_imports`).
     """
-    from simreel.sim.rebuild import env_from_meta
+    from simreel.sim.rebuild import env_from_meta, state_only_kwargs
     from simreel.sim.user_code import resolve_task_imports
 
     found = resolve_task_imports(meta.imports, explicit=imports, recording=recording)
-    env_kwargs = {k: v for k, v in meta.env_kwargs.items() if k not in ("render_mode", "num_envs")}
     return env_from_meta(
         dataclasses.replace(meta, imports=found),
         num_envs=1,
         sim_backend="physx_cpu",
         obs_mode="state",
         render_backend="none" if geometry == "collision" else "auto",
-        env_kwargs=env_kwargs,
+        env_kwargs=state_only_kwargs(meta),
     )
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, TypeVar
 
-from simreel.episode import Episode, EpisodeMeta, RecordingMeta
+from simreel.episode import EpisodeMeta, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, open_writer
 from simreel.formats.base import EpisodeReader, EpisodeRows, EpisodeWriter
@@ -25,12 +25,13 @@ _T = TypeVar("_T")
 
 
 class EpisodeTransform(Protocol):
-    """Changes every episode on its way to the output (e.g. adds body poses computed in a rebuilt env)."""
+    """Changes every episode on its way to the output (e.g. adds body poses computed in a rebuilt env): it takes
+    an episode's rows as opened and returns the rows to write, changed as they are read, a block at a time."""
 
     meta: RecordingMeta
     """The output recording's metadata."""
 
-    def __call__(self, episode: Episode) -> Episode: ...
+    def __call__(self, rows: EpisodeRows) -> EpisodeRows: ...
 
     def close(self) -> None: ...
 
@@ -93,11 +94,11 @@ class Target:
     overwrite: bool
 
 
-def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, Episode | EpisodeRows]]) -> list[int]:
+def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, EpisodeRows]]) -> list[int]:
     """Write each (target number, episode) of `episodes` to `targets[number]`, all of them new recordings; returns
-    the steps written to each. An episode still in its file (`EpisodeRows`) is copied a block at a time. Every
-    target is created before the first episode is read; any failure (Ctrl-C included) drops every target
-    (`EpisodeWriter.abort`: a recording a target was to replace stays as it was).
+    the steps written to each. Each episode is copied a block of rows at a time. Every target is created before
+    the first episode is read; any failure (Ctrl-C included) drops every target (`EpisodeWriter.abort`: a
+    recording a target was to replace stays as it was).
 
     A writer that refuses its target (it exists, another recording writes it) has created nothing, and what is
     there is not this call's to delete; the targets created before it are dropped."""
@@ -107,10 +108,7 @@ def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, Epis
             writers.append(open_writer(target.path, target.meta, overwrite=target.overwrite))
         steps = [0] * len(targets)
         for k, episode in episodes:
-            if isinstance(episode, EpisodeRows):
-                writers[k].write_rows(episode)
-            else:
-                writers[k].write_episode(episode)
+            writers[k].write_rows(episode)
             steps[k] += episode.length
         for writer in writers:
             writer.close()
@@ -135,17 +133,18 @@ def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target
     new recording (an output it was to replace stays); with `salvage`, an episode that cannot be read is named in
     `lost` and the copy goes on.
 
-    Without a transform an episode is copied a block of rows at a time (memory bounded whatever its length);
-    `salvage` reads each one through first, a block at a time too, so that a damaged episode is found before any
-    of it is written. A transform takes whole episodes."""
+    An episode is copied a block of rows at a time (memory bounded whatever its length); `salvage` reads each one
+    through first, a block at a time too, so that a damaged episode is found before any of it is written."""
     copied = _Copied()
 
-    def read() -> Iterator[tuple[int, Episode | EpisodeRows]]:
+    def read() -> Iterator[tuple[int, EpisodeRows]]:
         for m in episodes:
             try:
                 if salvage:
                     _read_through(reader.open_episode(m.index))
-                episode = change(reader.read_episode(m.index)) if change is not None else reader.open_episode(m.index)
+                episode = reader.open_episode(m.index)
+                if change is not None:
+                    episode = change(episode)
             except RecordingFileError as e:
                 if not salvage:
                     raise

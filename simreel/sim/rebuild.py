@@ -65,6 +65,12 @@ def env_from_meta(meta: RecordingMeta, **overrides: Any) -> gym.Env:
     return make_env(meta.env_id, EnvConfig.from_meta(meta), **overrides)
 
 
+def state_only_kwargs(meta: RecordingMeta) -> dict[str, Any]:
+    """The recorded task keyword arguments an env rebuilt only to restore states takes: without ``render_mode``
+    (it would need a render device) and ``num_envs`` (such an env has one sub-scene)."""
+    return {k: v for k, v in meta.env_kwargs.items() if k not in ("render_mode", "num_envs")}
+
+
 def import_task_code(meta: RecordingMeta) -> None:
     """Import ``meta.imports`` (the user code registering the recorded task), as `env_from_meta` does first."""
     from simreel.sim.user_code import import_user_code

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import subprocess
@@ -12,6 +13,7 @@ import numpy as np
 import pytest
 from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
 
+from simreel.episode import Episode, episode_fields
 from simreel.errors import EpisodeLayoutError, RecordingFileError, SimreelError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.copy import convert, recover
@@ -489,12 +491,15 @@ def test_kill_9_then_recover_keeps_every_committed_episode(tmp_path, monkeypatch
             assert ep.env_states["actors/cube"].shape == (13, 13) and ep.body_poses.shape[0] == 13
 
 
-def test_convert_with_poses_computes_the_recorded_link_poses(pickcube_h5, tmp_path):
-    """An HDF5 file without body poses → MCAP with every link's pose, computed in the rebuilt env."""
+@pytest.mark.parametrize("obs_mode", ["state", "rgb"])
+def test_convert_with_poses_computes_the_recorded_link_poses(pickcube_h5, tmp_path, obs_mode):
+    """An HDF5 file without body poses → MCAP with every link's pose, computed in the rebuilt env, which renders
+    nothing whatever the recording's observation mode (before, an rgb recording was refused for want of a render
+    device the poses do not need)."""
     with open_reader(pickcube_h5) as r:
         meta, episodes = r.meta, [r.read_episode(m.index) for m in r.episodes]
     recorded = [ep.body_poses for ep in episodes]
-    stripped = type(meta).from_json({**meta.to_json(), "pose_bodies": []})
+    stripped = type(meta).from_json({**meta.to_json(), "pose_bodies": [], "obs_mode": obs_mode})
     for ep in episodes:
         ep.body_poses = None
     write(tmp_path / "no_poses.h5", stripped, episodes)
@@ -505,3 +510,30 @@ def test_convert_with_poses_computes_the_recorded_link_poses(pickcube_h5, tmp_pa
         assert r.meta.pose_bodies == meta.pose_bodies
         for m, want in zip(r.episodes, recorded, strict=True):
             np.testing.assert_allclose(r.read_episode(m.index).body_poses, want, atol=1e-6)
+
+
+def test_convert_with_poses_streams_an_episode_of_many_blocks(pickcube_h5, tmp_path):
+    """`convert --poses` adds the poses a block of rows at a time: a real 30-step PickCube episode repeated to
+    9,000 steps (three blocks) gets, on every row, the link poses recorded with the state it repeats."""
+    from simreel.formats.base import block_rows
+    from simreel.sim.poses import LinkPoses
+
+    with open_reader(pickcube_h5) as r:
+        meta, episode = r.meta, r.read_episode(r.episodes[0].index)
+    times = -(-9000 // episode.length)
+    arrays = {f.name: np.concatenate([a[:1], np.tile(a[1:], (times,) + (1,) * (a.ndim - 1))]) if f.per_state
+              else np.tile(a, (times,) + (1,) * (a.ndim - 1))
+              for f in episode_fields(meta) if (a := episode.fields().get(f.name)) is not None}
+    recorded = arrays.pop("body_poses")
+    long = Episode.from_fields(dataclasses.replace(episode.meta, length=episode.length * times), arrays)
+    stripped = type(meta).from_json({**meta.to_json(), "pose_bodies": []})
+    write(tmp_path / "long.h5", stripped, [long])
+    with open_reader(tmp_path / "long.h5") as r:
+        assert 2 * block_rows(r.open_episode(long.meta.index).fields) < long.length
+
+    convert(tmp_path / "long.h5", tmp_path / "poses.mcap", transform=LinkPoses)
+    with open_reader(tmp_path / "poses.mcap") as r:
+        got = r.read_episode(long.meta.index)
+    assert got.body_poses.shape == recorded.shape
+    np.testing.assert_allclose(got.body_poses, recorded, atol=1e-6)
+    np.testing.assert_array_equal(got.env_states["actors/cube"], long.env_states["actors/cube"])
