@@ -203,6 +203,8 @@ def _camera_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
         "replay": [sim, "replay", str(path), "-q", "--obs-mode", "state", "--report",
                    str(scratch / f"{path.stem}.report.json"), "--overwrite"],
         "view --save": [sim, "view", str(path), "--save", str(scratch / f"{path.stem}.rrd"), "--overwrite"],
+        "video --camera": [sim, "video", str(path), "--camera", "base_camera", "--size", "128x128", "-o", str(scratch),
+                           "-q", "--overwrite"],
         **_copy_commands(path, scratch),
     }
 

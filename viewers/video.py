@@ -117,12 +117,14 @@ class VideoRun:
             frames.close()
 
     def _episode(self, frames: _FrameSource, index: int, progress: Callable[[int], None] | None) -> EpisodeVideo:
+        """One video. The episodes are read without their observations; recorded camera frames are read a block
+        at a time as they are encoded."""
         with open_reader(self.path) as r:
-            left = r.read_episode(index)
+            left = r.open_episode(index).episode(obs=False)
         right = None
         if self.options.compare is not None:
             with open_reader(self.options.compare) as other:
-                right = other.read_episode(_compare_meta(other, index).index)
+                right = other.open_episode(_compare_meta(other, index).index).episode(obs=False)
         labels = _labels(left, right, self.meta, self.options)
         out = video_path(self.folder, self.path, index)
         count = _encode(out, self._frames(frames, left, right, labels, progress), self._fps())
@@ -132,8 +134,8 @@ class VideoRun:
                 progress: Callable[[int], None] | None) -> Iterator[np.ndarray]:
         width, height = self.options.size
         half = (width // 2, height) if right is not None else (width, height)
-        lefts = frames.of(left, half)
-        rights = frames.of(right, half) if right is not None else None
+        lefts = frames.of(self.path, left, half)
+        rights = frames.of(self.options.compare, right, half) if right is not None else None
         last_right = None
         for row, image in enumerate(lefts):
             if rights is not None:
@@ -167,9 +169,10 @@ class _FrameSource:
         self.size: tuple[int, int] | None = None
         self.scene_seed: Any = None
 
-    def of(self, episode: Episode, size: tuple[int, int]) -> Iterator[np.ndarray]:
+    def of(self, path: str | Path, episode: Episode, size: tuple[int, int]) -> Iterator[np.ndarray]:
+        """The frames of `episode` (read from the recording `path`) at `size`."""
         if self.options.camera is not None:
-            return (_resize(a, size) for a in episode.obs[f"sensor_data/{self.options.camera}/rgb"])
+            return (_resize(a, size) for a in _recorded_frames(path, episode.meta.index, self.options.camera))
         return self._rendered(episode, size)
 
     def _rendered(self, episode: Episode, size: tuple[int, int]) -> Iterator[np.ndarray]:
@@ -204,6 +207,19 @@ class _FrameSource:
         if self.env is not None:
             self.env.close()
             self.env = None
+
+
+def _recorded_frames(path: str | Path, index: int, camera: str) -> Iterator[np.ndarray]:
+    """The `camera`'s rgb observation of every state row of episode `index` of `path`, read a block at a time."""
+    key = f"obs/sensor_data/{camera}/rgb"
+    with open_reader(path) as r:
+        rows = r.open_episode(index)
+        reset = rows.reset()
+        if key not in reset.arrays:
+            raise UsageError(f"{path} holds no rgb observations of camera {camera!r}")
+        yield from reset[key]
+        for _, block in rows.blocks():
+            yield from block[key]
 
 
 def _to_image(rendered: Any, size: tuple[int, int]) -> np.ndarray:

@@ -51,6 +51,36 @@ def test_a_video_per_episode_has_a_frame_per_state_at_the_size_asked(camera_reco
         assert (frames, size) == (steps + 1, (80, 60)) and first.shape == (60, 80, 3)
 
 
+def test_recorded_frames_of_a_long_episode_are_read_a_block_at_a_time_in_order(tmp_path):
+    """2,500 steps of a 40 x 30 camera span three blocks of rows: every frame is in the video, in order (a bright
+    column at x = row % 32 * 2, found again in frames of the first and the last block)."""
+    from simreel.formats import open_reader
+    from simreel.formats.base import block_rows
+
+    meta = dataclasses.replace(synthetic_meta(), obs_layout={"sensor_data/cam/rgb": LeafSpec((30, 40, 3), "uint8")})
+    T = 2500
+    frames = np.zeros((T + 1, 30, 40, 3), np.uint8)
+    for row in range(T + 1):
+        frames[row, :, row % 32 * 2 : row % 32 * 2 + 4] = 255
+    path = write(tmp_path / "long.h5", meta, [dataclasses.replace(synthetic_episode(meta, 0, T),
+                                                                  obs={"sensor_data/cam/rgb": frames})])
+    with open_reader(path) as r:
+        assert 2 * block_rows(r.open_episode(0).fields) < T
+    [video] = VideoRun(path, tmp_path, camera="cam", size=(40, 30)).execute()
+    assert video.frames == T + 1
+
+    import imageio.v2 as imageio
+
+    reader = imageio.get_reader(video.path)
+    try:
+        assert reader.count_frames() == T + 1
+        for row in (5, 2470):
+            column = reader.get_data(row)[:, :, 0].mean(axis=0)
+            assert abs(int(np.argmax(column)) - (row % 32 * 2 + 1.5)) <= 2, (row, column.round())
+    finally:
+        reader.close()
+
+
 def test_side_by_side_with_a_replay_draws_the_verdict(camera_recording, tmp_path):
     folder = tmp_path / "videos"
     folder.mkdir()
