@@ -17,7 +17,7 @@ import numpy as np
 
 from simreel.compare import BlockComparison, Divergence, EpisodeComparison, Tolerances
 from simreel.divergence import Explanation, describe_divergence
-from simreel.episode import ContactChannel, Episode
+from simreel.episode import ContactChannel, Episode, StepBlock
 from simreel.formats.base import EpisodeRows, block_rows
 
 __all__ = ["ViewComparison", "compare_for_view", "divergence_row", "explain_for_view", "DEFAULT_MODE"]
@@ -75,7 +75,9 @@ def compare_for_view(
 ) -> ViewComparison:
     """Compare with `simreel.compare.BlockComparison` (the rule `simreel replay` judges by; default tolerances:
     those of `DEFAULT_MODE`) over the steps both episodes have, reading both `rows` steps at a time (None:
-    `simreel.formats.base.block_rows` of the recording): only a block of each and the per-row error curves are held."""
+    `simreel.formats.base.block_rows` of the recording): only a block of each and the per-row error curves are held.
+    Both are read front to back once, block beside block (an MCAP episode read by `steps` is scanned from its
+    start for every block)."""
     recorded, replayed = _rows(recorded), _rows(replayed)
     steps = min(recorded.length, replayed.length)
     note = ""
@@ -83,11 +85,17 @@ def compare_for_view(
         note = f"the replay has {replayed.length} steps, the recording {recorded.length}: compared the first {steps}"
     blocks = BlockComparison(tolerances or Tolerances.for_mode(DEFAULT_MODE), channels=channels)
     blocks.reset(recorded.reset(), replayed.reset())
+    if steps == 0:  # an episode of no steps still compares its (empty) per-step keys
+        blocks.steps(recorded.steps(0, 0), replayed.steps(0, 0))
     rows = rows or block_rows(recorded.fields)
-    for start in range(0, steps, rows) or [0]:  # an episode of no steps still compares its (empty) per-step keys
-        stop = min(steps, start + rows)
-        blocks.steps(recorded.steps(start, stop), replayed.steps(start, stop))
+    for (start, ours), (_, theirs) in zip(recorded.blocks(rows), replayed.blocks(rows), strict=False):  # to the shorter
+        blocks.steps(_first_rows(ours, steps - start), _first_rows(theirs, steps - start))
     return ViewComparison(blocks.comparison(), steps, note)
+
+
+def _first_rows(block: StepBlock, n: int) -> StepBlock:
+    """`block`, or its first `n` rows when it has more (the last block compared of the longer episode)."""
+    return block if block.rows <= n else StepBlock.of({k: a[:n] for k, a in block.arrays.items()})
 
 
 def explain_for_view(recorded: Episode, replayed: Episode, comparison: ViewComparison,

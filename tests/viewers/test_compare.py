@@ -62,3 +62,19 @@ def test_an_exact_replay_still_plots_its_state_keys():
     assert c.comparison.verdict == "exact"
     assert c.plotted_keys() == ["env_states/actors/cube[p]", "env_states/actors/cube[q]",
                                 "env_states/actors/cube[v]", "env_states/actors/cube[w]"]
+
+
+def test_blocks_of_any_size_give_one_comparison():
+    """Read in blocks of 2, 3 or all rows, with the replay shorter than the recording and parting in a late
+    block, the comparison is the same; an episode of no steps still compares."""
+    rec, rep = _episode(10), _episode(7)
+    rep.env_states["actors/cube"][6, 0] += 0.5  # state row 6: the outcome of step 5
+    results = []
+    for rows in (2, 3, None):
+        c = compare_for_view(rec, rep, rows=rows)
+        d = c.divergence
+        errors = {k: (list(r), err.tolist()) for k, (r, err, _) in c.error_rows().items()}
+        results.append((c.steps, d.step, d.key, c.comparison.verdict, errors))
+    assert results[0] == results[1] == results[2]
+    assert results[0][:4] == (7, 5, "env_states/actors/cube[p]", "diverged")
+    assert compare_for_view(_episode(0), _episode(0)).comparison.verdict == "exact"
