@@ -20,6 +20,8 @@ from simreel.state_tree import to_numpy, unflatten
 
 __all__ = ["pose_body_names", "sample_body_poses", "body_poses_from_states", "entity_poses", "LinkPoses"]
 
+_STATES = "env_states/"
+
 
 def pose_body_names(unwrapped: Any) -> list[str]:
     """Every registry actor (static ones too: they are drawn) and every articulation link."""
@@ -115,9 +117,6 @@ class LinkPoses:
 
     def close(self) -> None:
         self._env.close()
-
-
-_STATES = "env_states/"
 
 
 class _WithPoses(EpisodeRows):
