@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
+from support.mcap_samples import assert_same_episode, long_sample, synthetic_episode, synthetic_meta, write
 
 from simreel.episode import Episode, episode_fields
 from simreel.errors import EpisodeLayoutError, RecordingFileError, SimreelError, UsageError
@@ -537,3 +537,28 @@ def test_convert_with_poses_streams_an_episode_of_many_blocks(pickcube_h5, tmp_p
     assert got.body_poses.shape == recorded.shape
     np.testing.assert_allclose(got.body_poses, recorded, atol=1e-6)
     np.testing.assert_array_equal(got.env_states["actors/cube"], long.env_states["actors/cube"])
+
+
+def test_steps_asked_for_in_order_read_each_chunk_once(tmp_path, monkeypatch):
+    """`McapRows.steps` block after block reads the episode's chunks once, as `blocks()` does (it used to scan
+    from the episode's start on every call); steps asked for again, or out of order, are the same rows."""
+    import simreel.formats.mcap.reader as mcap_reader
+
+    path, episodes = long_sample(tmp_path / "long.mcap")
+    want = episodes[1]
+    reads = []
+    real = mcap_reader._read_chunk
+    monkeypatch.setattr(mcap_reader, "_read_chunk", lambda fh, offset: reads.append(offset) or real(fh, offset))
+    with open_reader(path) as r:
+        rows = r.open_episode(1)
+        for _ in rows.blocks(700):
+            pass
+        by_blocks = len(reads)
+        reads.clear()
+        got = [rows.steps(start, min(start + 700, want.length)) for start in range(0, want.length, 700)]
+        assert len(reads) == by_blocks
+        np.testing.assert_array_equal(np.concatenate([b["actions"] for b in got]), want.actions)
+        np.testing.assert_array_equal(np.concatenate([b["env_states/actors/cube"] for b in got]),
+                                      want.env_states["actors/cube"][1:])
+        for start, stop in ((8990, 9000), (10, 20), (15, 4000), (0, 1)):
+            np.testing.assert_array_equal(rows.steps(start, stop)["actions"], want.actions[start:stop])

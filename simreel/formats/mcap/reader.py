@@ -411,6 +411,7 @@ class McapRows(EpisodeRows):
         super().__init__(meta, reader.fields)
         self._reader = reader
         self._span = span
+        self._cursor: _RunCursor | None = None
 
     def _messages(self) -> Iterator[tuple[str, int, bytes | None]]:
         span = self._span
@@ -464,17 +465,47 @@ class McapRows(EpisodeRows):
             yield start, _cut(pending, held)[0]
 
     def steps(self, start: int, stop: int) -> StepBlock:
+        """Steps `start`..`stop - 1`. A call that starts where the one before stopped, or later, reads on from
+        there (each message once however the steps are asked for in order); one that starts before reads the
+        episode from its start again."""
+        if self._cursor is None or start < self._cursor.row:
+            self._cursor = _RunCursor(self._runs())
+        block, _ = _cut(self._cursor.take(start, stop), stop - start)
+        if block.rows != stop - start:
+            raise self._error(f"steps {start}–{stop - 1} asked for, the file holds {self.length}")
+        return block
+
+
+class _RunCursor:
+    """An episode's step messages read front to back, the message that reaches past the last rows taken kept for
+    the next `take`."""
+
+    def __init__(self, runs: Iterator[tuple[int, int, dict[str, np.ndarray]]]) -> None:
+        self._runs = runs
+        self._held: tuple[int, int, dict[str, np.ndarray]] | None = None
+        self.row = 0
+        """The first row a `take` can still give."""
+
+    def take(self, start: int, stop: int) -> list[dict[str, np.ndarray]]:
+        """The parts of the messages that hold rows `start`..`stop - 1` (`start` >= `row`), in order."""
         parts = []
-        for first, n, arrays in self._runs():
+        while True:
+            if self._held is None:
+                self._held = next(self._runs, None)
+                if self._held is None:
+                    break
+            first, n, arrays = self._held
             if first >= stop:
                 break
             if first + n > start:
                 lo, hi = max(start, first) - first, min(stop, first + n) - first
                 parts.append({k: a[lo:hi] for k, a in arrays.items()})
-        block, _ = _cut(parts, stop - start)
-        if block.rows != stop - start:
-            raise self._error(f"steps {start}–{stop - 1} asked for, the file holds {self.length}")
-        return block
+            if first + n > stop:
+                break
+            self._held, self.row = None, first + n
+        if self._held is not None:
+            self.row = self._held[0]
+        return parts
 
 
 def _native(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
