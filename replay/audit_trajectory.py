@@ -52,12 +52,13 @@ class Trajectory:
 
 
 def recorded_trajectories(path: str, indices: list[int] | None = None) -> Iterator[Trajectory]:
-    """The episodes of the recording at `path` (all, or `indices`), each with its recorded actions."""
+    """The episodes of the recording at `path` (all, or `indices`), each with its recorded actions (read one episode
+    at a time, without its observations: camera frames are never held)."""
     from simreel.formats import open_reader
 
     with open_reader(path) as reader:
         for index in indices if indices is not None else [m.index for m in reader.episodes]:
-            episode = reader.read_episode(index)
+            episode = reader.open_episode(index).episode(obs=False)
             actions = episode.actions
 
             def act(env: Any, obs: Any, t: int, actions: np.ndarray = actions) -> Any:
