@@ -185,9 +185,12 @@ def _flush_to_viewer(rec: rr.RecordingStream, port: int, *, wait_s: float = 1.0)
         try:
             rec.flush(timeout_sec=wait_s)
         except RuntimeError as e:
+            failed_at_once = time.monotonic() - started < wait_s / 2
+            if failed_at_once:
+                time.sleep(wait_s / 2)  # a viewer that is closing can still listen for a moment
             if not _listening(port):
                 raise _viewer_gone(_first_line(e)) from e
-            if time.monotonic() - started < wait_s / 2:
+            if failed_at_once:
                 raise _refused(port, _first_line(e)) from e
             continue
         if not _listening(port):
