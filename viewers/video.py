@@ -189,13 +189,13 @@ class _FrameSource:
             yield _to_image(env.render(), size)
 
     def _env(self, size: tuple[int, int]) -> Any:
-        from simreel.sim.rebuild import GYM_MAKE_SEED, env_from_meta
+        from simreel.sim.rebuild import GYM_MAKE_SEED, env_from_meta, state_only_kwargs
         from simreel.sim.user_code import resolve_task_imports
 
         if self.env is not None and self.size == size:
             return self.env
         self.close()
-        kwargs = {k: v for k, v in self.meta.env_kwargs.items() if k not in ("render_mode", "num_envs")}
+        kwargs = state_only_kwargs(self.meta)
         kwargs.update(render_mode="rgb_array", human_render_camera_configs={"width": size[0], "height": size[1]})
         found = resolve_task_imports(self.meta.imports, explicit=self.options.imports, recording=self.path)
         self.env = env_from_meta(dataclasses.replace(self.meta, imports=found), num_envs=1, sim_backend="physx_cpu",

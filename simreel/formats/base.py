@@ -214,6 +214,12 @@ class EpisodeRows(ABC):
         for start in range(0, self.length, rows):
             yield start, self.steps(start, min(self.length, start + rows))
 
+    def read_through(self) -> None:
+        """Read every row, a block at a time, keeping none: for the checks reading makes (checksums, row counts)."""
+        self.reset()
+        for _ in self.blocks():
+            pass
+
     def episode(self, rows: int | None = None, *, obs: bool = True) -> Episode:
         """The whole episode, put together from its blocks (`join_blocks`); `obs=False` leaves the observations out,
         reading them a block at a time (camera frames of a long episode never sit in memory whole)."""
@@ -231,6 +237,34 @@ class EpisodeRows(ABC):
     def of(episode: Episode) -> EpisodeRows:
         """An episode already in memory, read like one in a file (a shipped episode, an explanation's replays)."""
         return _MemoryRows(episode)
+
+
+class PassedRows(EpisodeRows):
+    """Another episode's rows (under other metadata or fields, when given), each block handed to `passed` and the
+    reset row to `passed_reset` as it is read: what a copy changes or checks on the way. It walks the inner rows'
+    own `blocks()` (an MCAP episode is read front to back once)."""
+
+    def __init__(self, rows: EpisodeRows, meta: EpisodeMeta | None = None,
+                 fields: Sequence[FieldSpec] | None = None) -> None:
+        super().__init__(meta or rows.meta, rows.fields if fields is None else fields)
+        self._rows = rows
+
+    def reset(self) -> StepBlock:
+        return self.passed_reset(self._rows.reset())
+
+    def steps(self, start: int, stop: int) -> StepBlock:
+        return self.passed(start, self._rows.steps(start, stop))
+
+    def blocks(self, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
+        for start, block in self._rows.blocks(rows):
+            yield start, self.passed(start, block)
+
+    def passed_reset(self, block: StepBlock) -> StepBlock:
+        return block
+
+    def passed(self, start: int, block: StepBlock) -> StepBlock:
+        """The block of steps from `start` as this episode gives it."""
+        return block
 
 
 class _MemoryRows(EpisodeRows):

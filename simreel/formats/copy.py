@@ -141,7 +141,7 @@ def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target
         for m in episodes:
             try:
                 if salvage:
-                    _read_through(reader.open_episode(m.index))
+                    reader.open_episode(m.index).read_through()
                 episode = reader.open_episode(m.index)
                 if change is not None:
                     episode = change(episode)
@@ -158,13 +158,6 @@ def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target
     except StorageError as e:
         raise _nothing_written(e, target, reader) from None
     return copied
-
-
-def _read_through(rows: EpisodeRows) -> None:
-    """Read every row of an episode, a block at a time, for the checks reading makes (checksums, row counts)."""
-    rows.reset()
-    for _ in rows.blocks():
-        pass
 
 
 def _nothing_written(e: StorageError, target: Target, reader: EpisodeReader) -> StorageError:

@@ -36,7 +36,7 @@ from simreel import FORMAT_VERSION
 from simreel.episode import Episode, EpisodeMeta, FieldSpec, RecordingMeta, StepBlock
 from simreel.errors import OutputCheckError, RecordingFileError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
-from simreel.formats.base import EpisodeRows
+from simreel.formats.base import EpisodeRows, PassedRows
 from simreel.formats.copy import Target, write_episodes
 from simreel.formats.inputs import file_identity
 from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS, check_same_env
@@ -251,38 +251,27 @@ def _canonical(value: Any) -> bytes:
     return json.dumps(value, sort_keys=True, separators=(",", ":")).encode()
 
 
-class HashedRows(EpisodeRows):
+class HashedRows(PassedRows):
     """An episode's rows (under new metadata, when given), hashed as a reader passes through them: the reset row
     first, then the steps in order, as `EpisodeWriter.write_rows` reads them. `digest()`, once every row has
     passed, is BLAKE2b-256 of the metadata and of every array's name, dtype, row shape, row count and bytes: equal
     digests mean equal episodes (but for a collision of a 256-bit hash), however the rows were split in blocks."""
 
     def __init__(self, rows: EpisodeRows, meta: EpisodeMeta | None = None) -> None:
-        super().__init__(meta or rows.meta, rows.fields)
-        self._rows = rows
+        super().__init__(rows, meta)
         self._hashes = {f.name: hashlib.blake2b(digest_size=32) for f in self.fields}
         self._row_kinds: dict[str, str] = {}
         self._counts = dict.fromkeys(self._hashes, 0)
         self._next: int | None = None
         """The next step to hash; None before the reset row."""
 
-    def reset(self) -> StepBlock:
-        block = self._rows.reset()
+    def passed_reset(self, block: StepBlock) -> StepBlock:
         if self._next is None:
             self._hash(block, [f for f in self.fields if f.per_state])
             self._next = 0
         return block
 
-    def steps(self, start: int, stop: int) -> StepBlock:
-        return self._hashed(start, self._rows.steps(start, stop))
-
-    def blocks(self, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
-        """The reader's own blocks, hashed as they pass (an MCAP episode is read front to back once; block by
-        block through `steps` it would be scanned from its start for every block)."""
-        for start, block in self._rows.blocks(rows):
-            yield start, self._hashed(start, block)
-
-    def _hashed(self, start: int, block: StepBlock) -> StepBlock:
+    def passed(self, start: int, block: StepBlock) -> StepBlock:
         if start != self._next:
             raise RuntimeError(f"episode {self.meta.index}: steps {start}.. read before step {self._next} was hashed")
         self._hash(block, self.fields)
@@ -312,9 +301,7 @@ class HashedRows(EpisodeRows):
 def episode_digest(rows: EpisodeRows) -> bytes:
     """`HashedRows.digest` of an episode, read a block at a time."""
     hashed = HashedRows(rows)
-    hashed.reset()
-    for _ in hashed.blocks():
-        pass
+    hashed.read_through()
     return hashed.digest()
 
 

@@ -8,13 +8,13 @@ convert). Rows are `[x, y, z, qw, qx, qy, qz]` (SAPIEN's wxyz), float32, per sub
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from simreel.episode import RecordingMeta, StepBlock, episode_fields
-from simreel.formats.base import EpisodeRows
+from simreel.formats.base import EpisodeRows, PassedRows
 from simreel.sim.describe import named_bodies
 from simreel.state_tree import to_numpy, unflatten
 
@@ -119,21 +119,16 @@ class LinkPoses:
         self._env.close()
 
 
-class _WithPoses(EpisodeRows):
+class _WithPoses(PassedRows):
     """An episode's rows with `body_poses` added to its reset row and to every block, as they are read (the
     episode's scene already set up by `LinkPoses`)."""
 
     def __init__(self, rows: EpisodeRows, poses: LinkPoses) -> None:
-        super().__init__(rows.meta, episode_fields(poses.meta))
-        self._rows = rows
+        super().__init__(rows, fields=episode_fields(poses.meta))
         self._poses = poses
 
-    def reset(self) -> StepBlock:
-        return self._poses.poses_of(self._rows.reset())
+    def passed_reset(self, block: StepBlock) -> StepBlock:
+        return self._poses.poses_of(block)
 
-    def steps(self, start: int, stop: int) -> StepBlock:
-        return self._poses.poses_of(self._rows.steps(start, stop))
-
-    def blocks(self, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
-        for start, block in self._rows.blocks(rows):
-            yield start, self._poses.poses_of(block)
+    def passed(self, start: int, block: StepBlock) -> StepBlock:
+        return self._poses.poses_of(block)

@@ -134,14 +134,14 @@ def running_grpc_server(port: int, log: Path, timeout: float = 60) -> Iterator[s
     import subprocess
     import time
 
-    from simreel.viewers.session import viewer_executable
+    from simreel.viewers.session import _listening, viewer_executable
 
     with log.open("wb") as out:
         server = subprocess.Popen([viewer_executable(), "--serve-grpc", "--port", str(port)],
                                   stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
     try:
         deadline = time.monotonic() + timeout
-        while not _accepts(port):
+        while not _listening(port):
             if server.poll() is not None or time.monotonic() > deadline:
                 raise AssertionError(f"rerun --serve-grpc never listened: {log.read_text()[-2000:]}")
             time.sleep(0.2)
@@ -151,16 +151,5 @@ def running_grpc_server(port: int, log: Path, timeout: float = 60) -> Iterator[s
             os.killpg(server.pid, signal.SIGKILL)
         server.wait()
         deadline = time.monotonic() + timeout
-        while _accepts(port) and time.monotonic() < deadline:
+        while _listening(port) and time.monotonic() < deadline:
             time.sleep(0.05)
-
-
-def _accepts(port: int) -> bool:
-    """Whether a server accepts TCP connections on `port` of this machine."""
-    import socket
-
-    try:
-        socket.create_connection(("127.0.0.1", port), timeout=1).close()
-    except OSError:
-        return False
-    return True
