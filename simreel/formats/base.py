@@ -112,7 +112,7 @@ class EpisodeWriter(ABC):
         (`env_states/...`, `obs/...` and `body_poses` as the recording's field table lists them)."""
 
     def write_episode(self, episode: Episode) -> None:
-        """Write a whole in-memory episode (`merge`, `filter`, `recover`, a converted one)."""
+        """Write a whole in-memory episode (one a user made or edited; simreel's own copies use `write_rows`)."""
         episode.check_shapes()
         sink = self.begin_episode(episode.meta, episode.reset_block())
         if episode.length:
@@ -120,9 +120,9 @@ class EpisodeWriter(ABC):
         sink.commit(episode.meta)
 
     def write_rows(self, rows: EpisodeRows) -> None:
-        """Write an episode read from a file a block of rows at a time (`convert`): it is read one block at a time
-        (the writer may hold a few MiB of it before its commit). A block that fails to read discards what was
-        begun of the episode and raises."""
+        """Write an episode read from a file a block of rows at a time (`convert`, `merge`, `filter`, `recover`):
+        it is read one block at a time (the writer may hold a few MiB of it before its commit). A block that fails
+        to read discards what was begun of the episode and raises."""
         sink = self.begin_episode(rows.meta, rows.reset())
         try:
             for _, block in rows.blocks():
