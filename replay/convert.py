@@ -5,7 +5,8 @@ same trajectory: what `simreel convert IN OUT --obs-mode ... --control-mode ...`
   observations are computed from it (`EpisodeReplayer`, mode ``states``). The output keeps the input's states,
   actions, rewards and flags as they are (it adds only what the input lacks: rewards, success, fail recomputed
   from the states); the check: each restored state reads back within the ``states`` tolerances (a restore
-  changes a state by <= 1.5e-8) and the recomputed rewards and flags agree; after writing, the output's states
+  changes a state by <= 1.5e-8), the recomputed rewards and flags agree, and so do the recorded contact forces
+  with those of one step simulated from the state (``states`` mode's 20 N); after writing, the output's states
   and actions are read back and must equal the input's exactly.
 - **Control mode** (with or without a new observation mode): each recorded action is converted one step for
   one (`simreel.replay.control`) and the converted actions are stepped from the episode's reset; the resulting
@@ -17,6 +18,12 @@ Filters: `episodes`, `count` (the first N of those), `keep` (``verified``, ``suc
 episodes are written). The output's metadata says where it came from (`RecordingMeta.provenance`: source file,
 episodes, the conversion, the tolerances) and each episode's verdict (`EpisodeMeta.provenance`). Episodes run in
 this process and ``workers - 1`` more (`simreel.replay.workers.run_pool`).
+
+A re-render reads, restores, renders, checks and writes an episode a block of rows at a time (the camera frames of a
+long episode never sit in memory whole): into the output when the episode is next in its order, else into a scratch
+recording of its own (`simreel.replay.output.ScratchEpisode`), copied in at its turn. A control-mode conversion holds
+each episode whole. Every written episode is read back a block at a time and its arrays' digests compared with
+those of what was written (`simreel.formats.dataset.FieldHashes`).
 """
 
 from __future__ import annotations
@@ -29,18 +36,20 @@ from typing import Any
 
 import numpy as np
 
-from simreel.compare import CompareScope, Tolerances, compare_episode, format_number
-from simreel.episode import Episode, RecordingMeta
+from simreel.compare import CompareScope, Tolerances, format_number
+from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import SimreelError, UsageError
 from simreel.formats import EpisodeReader, check_writable, format_of, open_reader, recording_files
+from simreel.formats.base import EpisodeRows
+from simreel.formats.dataset import FieldHashes, field_digests
 from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct
 from simreel.replay.control import check_pair
-from simreel.replay.engine import GPU_SIM_BACKENDS, EpisodeReplayer, ReplayerOptions
-from simreel.replay.output import ReplayedWriter, ReplayOutput
+from simreel.replay.engine import GPU_SIM_BACKENDS, BlockSink, Collected, EpisodeReplayer, ReplayerOptions
+from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchEpisode, ScratchFolder
 from simreel.replay.report import EpisodeReport, episode_lines, recording_limits
 from simreel.replay.tracking import Commands, EndEffector, track_episode, tracking_tolerances
-from simreel.replay.workers import EpisodeResult, run_pool
+from simreel.replay.workers import EpisodeResult, VerifySink, run_pool
 from simreel.replay.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports
 
@@ -73,6 +82,8 @@ class ConvertOptions:
         converter: the factory of the action converter, called as `simreel.replay.control.converter_for` is
             (``(source_mode, target_mode, unwrapped, source_controller) -> ActionConverter``): bring your own for a
             robot or mode pair simreel does not convert, and it is verified the same way. Picklable for workers.
+        block_rows: steps a re-render reads, restores, checks and writes at a time (None: the input reader's
+            `simreel.formats.base.block_rows`).
     """
 
     obs_mode: str | None = None
@@ -89,6 +100,7 @@ class ConvertOptions:
     overwrite: bool = False
     command: str = ""
     converter: Callable[..., Any] | None = None
+    block_rows: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("episodes", "keep", "imports", "camera_size"):
@@ -106,6 +118,8 @@ class ConvertOptions:
             raise UsageError(f"--keep {','.join(unknown)}: expected any of {', '.join(KEEP)}")
         if self.workers < 1 or (self.count is not None and self.count < 1):
             raise UsageError(f"--workers and --count must be >= 1 (got {self.workers}, {self.count})")
+        if self.block_rows is not None and self.block_rows < 1:
+            raise UsageError(f"block_rows must be >= 1, got {self.block_rows}")
         if self.camera_size is not None and (len(self.camera_size) != 2 or min(self.camera_size) < 1):
             raise UsageError(f"--camera-size must be WIDTHxHEIGHT, got {self.camera_size}")
 
@@ -131,6 +145,13 @@ class ConvertJob:
     sim_backend: str | None = None
     imports: tuple[str, ...] = ()
     converter: Callable[..., Any] | None = None
+    keep: tuple[str, ...] = ()
+    output: ReplayOutput | None = None
+    """The output's spec (path, metadata changes): what a scratch episode is written as."""
+    scratch: str | None = None
+    """The run's scratch folder (`ScratchFolder`), where a worker writes an episode that is not next in the output's
+    order; None: such an episode comes back whole."""
+    block_rows: int | None = None
 
     def open_worker(self) -> ConvertWorker:
         """The worker a pool process converts episodes in (`run_pool` calls it in each process)."""
@@ -141,6 +162,17 @@ def _states_tolerances() -> Tolerances:
     return Tolerances.for_mode("states")
 
 
+@dataclass
+class ConvertResult(EpisodeResult):
+    """What converting one episode gave (`EpisodeResult`: its report, and the converted episode whole, or the scratch
+    recording holding it, or neither: it was written as it was converted), and what the worker decided: why `keep`
+    leaves it out ("": it is written) and, when written, its arrays' `FieldHashes` digests, to check the output
+    against."""
+
+    left_out: str = ""
+    digests: dict[str, str] = field(default_factory=dict)
+
+
 class ConvertWorker:
     """One reader and the envs that convert its episodes: the replayer (target modes) and, for a control-mode
     conversion, a state-only env in the recorded control mode whose controller splits recorded actions."""
@@ -149,6 +181,9 @@ class ConvertWorker:
         self.job = job
         self.reader = reader if reader is not None else open_reader(job.path)
         self.source_env: Any = None
+        self.output: ReplayedWriter | None = None
+        """The output when this process writes it: a re-rendered episode next in its order is written as it is
+        re-rendered."""
         try:
             meta = self.reader.meta
             self.meta = dataclasses.replace(meta, imports=resolve_task_imports(meta.imports, explicit=job.imports,
@@ -188,33 +223,68 @@ class ConvertWorker:
                 "action_space": action_space_json(self.meta.env_id, u.single_action_space),
                 "env_kwargs": {**self.meta.env_kwargs, **self.job.env_kwargs}}
 
-    def run(self, item: WorkItem) -> EpisodeResult:
+    def run(self, item: WorkItem) -> ConvertResult:
         """Convert and check episode `item.index` of this worker's file; a `SimreelError` comes back in the result."""
         try:
-            recorded = self.reader.read_episode(item.index)
-            convert = self._convert_actions if self.converter is not None else self._render
-            report, episode = convert(recorded)
+            return self._convert_actions(item) if self.converter is not None else self._render(item)
         except SimreelError as e:
-            return EpisodeResult(item, error=e)
-        return EpisodeResult(item, report, episode)
+            return ConvertResult(item, error=e)
 
-    def _convert_actions(self, recorded: Episode) -> tuple[EpisodeReport, Episode]:
+    def _convert_actions(self, item: WorkItem) -> ConvertResult:
+        recorded = self.reader.read_episode(item.index)
         run = self.replayer.replay_converted(recorded, self.converter)
         commands = None if run.commands is None else Commands(run.commands, tuple(run.clipped))
         cmp = track_episode(recorded, run.episode, EndEffector(self.replayer.u), self.job.tolerances, commands)
         report = EpisodeReport.from_comparison(recorded, cmp, notes=run.notes, limits=run.limits, seconds=run.seconds)
         report.checked = _tracked(list(cmp.errors))
         report.per_step = {k: [float(x) for x in e] for k, e in cmp.errors.items()}
-        converted = dataclasses.replace(run.episode, meta=dataclasses.replace(run.episode.meta, initial_state_known=True))
-        return report, _with_provenance(converted, report, clipped=len(run.clipped))
+        episode = run.episode
+        why = _left_out(report, _last_flags(episode.success, episode.truncated), self.job.keep)
+        if why:
+            return ConvertResult(item, report, left_out=why)
+        meta = _provenance_meta(dataclasses.replace(episode.meta, initial_state_known=True), report,
+                                clipped=len(run.clipped))
+        episode = dataclasses.replace(episode, meta=meta)
+        return ConvertResult(item, report, episode, digests=field_digests(EpisodeRows.of(episode)))
 
-    def _render(self, recorded: Episode) -> tuple[EpisodeReport, Episode]:
-        run = self.replayer.replay(recorded, mode="states")
-        scope = CompareScope(initial=recorded.meta.initial_state_known, obs=False, contacts=run.compare_contacts)
-        cmp = compare_episode(recorded, run.episode, _states_tolerances(), channels=self.meta.contact_channels,
-                              scope=scope)
-        report = EpisodeReport.from_comparison(recorded, cmp, notes=run.notes, limits=run.limits, seconds=run.seconds)
-        return report, _with_provenance(_rendered(recorded, run.episode), report)
+    def _render(self, item: WorkItem) -> ConvertResult:
+        """Re-render episode `item.index` a block of rows at a time: each recorded block's states are restored and
+        checked, its observations rendered, and the output's rows written (`_Rendered`) as they come."""
+        source = self.reader.open_episode(item.index)
+        stream = self._stream(source.meta)
+        kept = Collected() if stream is None else None
+        rendered = _Rendered(stream or kept)
+        scope = CompareScope(initial=source.meta.initial_state_known, obs=False)
+        verify = VerifySink(_states_tolerances(), self.meta.contact_channels, scope, rendered)
+        try:
+            run = self.replayer.replay_rows(source, verify, mode="states", rows=self.job.block_rows)
+            report = EpisodeReport.from_comparison(source, verify.comparison(), notes=run.notes, limits=run.limits,
+                                                   seconds=run.seconds)
+            why = _left_out(report, rendered.last, self.job.keep)
+        except BaseException:
+            if stream is not None:
+                stream.discard()
+            raise
+        if why:
+            if stream is not None:
+                stream.discard()
+            return ConvertResult(item, report, left_out=why)
+        meta = _provenance_meta(source.meta, report)
+        digests = rendered.hashes.digests()
+        if kept is not None:
+            return ConvertResult(item, report, kept.episode(meta), digests=digests)
+        stream.commit(meta, source.length)
+        scratch = stream.path if isinstance(stream, ScratchEpisode) else None
+        return ConvertResult(item, report, scratch=scratch, digests=digests)
+
+    def _stream(self, episode: EpisodeMeta) -> BlockSink | None:
+        """Where a re-render of `episode` is written as it comes: into the output when this process writes it and
+        the episode is next; else into a scratch recording of its own (given a scratch folder); else nowhere (None:
+        it is collected whole)."""
+        stream = self.output.stream(episode) if self.output is not None else None
+        if stream is None and self.job.scratch is not None and self.job.output is not None:
+            stream = ScratchEpisode(Path(self.job.scratch), self.job.output, self.reader.meta, episode)
+        return stream
 
     def close(self) -> None:
         for closing in (getattr(self, "replayer", None), self.source_env, self.reader):
@@ -228,15 +298,54 @@ def _tracked(keys: list[str]) -> list[str]:
     return [name for prefix, name in groups.items() if any(k.split("/", 1)[0].split("[", 1)[0] == prefix for k in keys)]
 
 
-def _rendered(recorded: Episode, replayed: Episode) -> Episode:
-    """The output of a re-render: the recorded episode as it is, with the new observations, and the rewards and
-    flags the recording lacks taken from the replay (recomputed from the restored states)."""
-    fill = {name: getattr(replayed, name) for name in ("rewards", "success", "fail") if getattr(recorded, name) is None}
-    return dataclasses.replace(recorded, obs=replayed.obs, meta=dataclasses.replace(recorded.meta), **fill)
+class _Rendered(BlockSink):
+    """The output rows of a re-render as they are replayed: the recorded rows as they are, with the replay's
+    observations in place of the recorded ones, and the rewards and flags the recording lacks taken from the replay
+    (recomputed from the restored states). Each block is handed on to `then` (the output, a scratch recording or a
+    `Collected` episode) and hashed (`hashes`) for the check of what is written; `last` is (success, truncated) at
+    the last step so far (None: no step yet, or no success flag), for `keep`."""
+
+    _FILLED = ("rewards", "success", "fail")
+
+    def __init__(self, then: BlockSink) -> None:
+        self.then = then
+        self.start()
+
+    def start(self) -> None:
+        self.hashes = FieldHashes()
+        self.last: tuple[bool | None, bool | None] = (None, None)
+        self.then.start()
+
+    def reset(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        block = self._output(recorded, replayed, ())
+        self.hashes.add(block, block.arrays)
+        self.then.reset(recorded, block)
+
+    def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
+        block = self._output(recorded, replayed, self._FILLED)
+        self.hashes.add(block, block.arrays)
+        if block.rows:
+            self.last = _last_flags(block.get("success"), block["truncated"])
+        self.then.steps(first, recorded, block)
+
+    @staticmethod
+    def _output(recorded: StepBlock, replayed: StepBlock, filled: tuple[str, ...]) -> StepBlock:
+        arrays = {k: a for k, a in recorded.arrays.items() if not k.startswith("obs/")}
+        arrays.update({k: a for k, a in replayed.arrays.items()
+                       if k.startswith("obs/") or (k in filled and k not in arrays)})
+        return StepBlock(arrays, recorded.rows)
 
 
-def _with_provenance(episode: Episode, report: EpisodeReport, *, clipped: int | None = None) -> Episode:
-    meta = dataclasses.replace(episode.meta, notes=[])
+def _last_flags(success: np.ndarray | None, truncated: np.ndarray) -> tuple[bool | None, bool | None]:
+    """(success, truncated) at the last of these steps; None where there is no step (or no success flag)."""
+    if not len(truncated):
+        return None, None
+    return (None if success is None else bool(success[-1])), bool(truncated[-1])
+
+
+def _provenance_meta(meta: EpisodeMeta, report: EpisodeReport, *, clipped: int | None = None) -> EpisodeMeta:
+    """The converted episode's metadata: `meta` with the conversion's verdict as its provenance."""
+    meta = dataclasses.replace(meta, notes=[])
     meta.provenance = {
         "source_episode": report.index,
         "verdict": report.verdict,
@@ -245,7 +354,7 @@ def _with_provenance(episode: Episode, report: EpisodeReport, *, clipped: int | 
         "max_error": {k: float(v) if np.isfinite(v) else str(v) for k, v in report.max_abs_error.items()},
         **({"clipped_steps": clipped} if clipped is not None else {}),
     }
-    return dataclasses.replace(episode, meta=meta)
+    return meta
 
 
 # ------------------------------------------------------------------------------------------------ the report
@@ -404,11 +513,17 @@ class ConversionRun:
             unknown = [u for u in unknown if u in _TRACKING_LIMITS]
         return recording_limits(unknown)
 
-    def _job(self) -> ConvertJob:
+    def _job(self, output: ReplayOutput | None = None, scratch: str | None = None) -> ConvertJob:
         opts = self.options
         return ConvertJob(path=self.path, obs_mode=opts.obs_mode, control_mode=opts.control_mode,
                           env_kwargs=opts.env_kwargs(), tolerances=self.tolerances, sim_backend=opts.sim_backend,
-                          imports=tuple(opts.imports), converter=opts.converter)
+                          imports=tuple(opts.imports), converter=opts.converter, keep=tuple(opts.keep),
+                          output=output, scratch=scratch, block_rows=opts.block_rows)
+
+    def _output_spec(self, worker: ConvertWorker) -> ReplayOutput:
+        poses = () if self.options.control_mode else tuple(self.reader.meta.pose_bodies)  # a re-render keeps them
+        return ReplayOutput(self.output, self.options.overwrite, pose_bodies=poses, command=self.options.command,
+                            changes={**worker.output_changes(), "provenance": self._provenance()})
 
     def _conversion(self) -> dict[str, Any]:
         opts, meta = self.options, self.reader.meta
@@ -418,8 +533,10 @@ class ConversionRun:
         if opts.control_mode is not None:
             changed["control_mode"] = [meta.control_mode, opts.control_mode]
         checked = ("per step, the converted run against the recorded one: commanded and reached tool-centre pose, "
-                   "object poses, success timing" if opts.control_mode else "per step, each restored state read back within the 'states' "
-                   "tolerances, recomputed rewards and flags; the output's states and actions equal the input's")
+                   "object poses, success timing" if opts.control_mode else
+                   "per step, each restored state read back within the 'states' tolerances, recomputed rewards and "
+                   "flags, recorded contact forces against one step simulated from the state; the output's states and "
+                   "actions equal the input's")
         return {**changed, **opts.env_kwargs(), "checked": checked}
 
     def _provenance(self) -> dict[str, Any]:
@@ -439,28 +556,31 @@ class ConversionRun:
         writer = None
         try:
             report.warnings = _fingerprint_warnings(worker)
-            poses = () if self.options.control_mode else tuple(meta.pose_bodies)  # a re-render keeps them
-            spec = ReplayOutput(self.output, self.options.overwrite, pose_bodies=poses, command=self.options.command,
-                                changes={**worker.output_changes(), "provenance": self._provenance()})
-            writer = ReplayedWriter(spec, meta, list(self.indices))
-            collector = _Collector(report, writer, self.options.keep, progress)
-            self._run(worker, collector)
+            spec = self._output_spec(worker)
+            writer = worker.output = ReplayedWriter(spec, meta, list(self.indices))
+            collector = _Collector(report, writer, progress)
+            self._run(worker, spec, collector)
         finally:
             if writer is not None:
-                writer.close()
+                writer.close() if report.written else writer.abort()
             worker.close()
         order = {i: k for k, i in enumerate(self.indices)}
         report.episodes.sort(key=lambda e: order[e.index])
+        report.written.sort(key=order.__getitem__)  # the input's order, as the output has them, however workers finished
         _check_written(self.path, report, collector.digests, states_too=self.options.control_mode is None)
         return report
 
-    def _run(self, worker: ConvertWorker, collect: Callable[[EpisodeResult], None]) -> None:
+    def _run(self, worker: ConvertWorker, spec: ReplayOutput, collect: Callable[[ConvertResult], None]) -> None:
+        """Convert every episode here, or here and in `workers - 1` pool processes, which write each re-rendered
+        episode to the run's scratch folder (removed when the run ends, however it ends)."""
         workers = min(self.options.workers, len(self.indices))
         items = [WorkItem(key=self.reader.meta.env_id, path=self.path, index=i) for i in self.indices]
         if workers == 1:
             for item in items:
                 collect(worker.run(item))
-        else:
+            return
+        with ScratchFolder(self.output) as scratch:
+            worker.job = self._job(spec, str(scratch.path))
             run_pool(worker, items, workers, collect)
 
 
@@ -471,69 +591,59 @@ def _fingerprint_warnings(worker: ConvertWorker) -> list[str]:
 
 
 class _Collector:
-    """Takes each episode's result: its report into the run's report, the episode to the writer unless a `keep`
-    filter leaves it out."""
+    """Takes each episode's result: its report into the run's report, and to the writer the episode (whole, in a
+    scratch recording, or already written as it was converted) unless `keep` left it out."""
 
-    def __init__(self, report: ConversionReport, writer: ReplayedWriter, keep: tuple[str, ...],
+    def __init__(self, report: ConversionReport, writer: ReplayedWriter,
                  progress: Callable[[EpisodeReport], None] | None) -> None:
-        self.report, self.writer, self.keep, self.progress = report, writer, keep, progress
+        self.report, self.writer, self.progress = report, writer, progress
         self.digests: dict[int, dict[str, str]] = {}
         """Episode -> its arrays' digests as handed to the writer (checked when read back)."""
 
-    def __call__(self, result: EpisodeResult) -> None:
+    def __call__(self, result: ConvertResult) -> None:
         raise_if_stopped()  # a Ctrl-C that landed in a finalizer was printed and dropped by Python
         if result.error is not None:  # an episode that cannot be read, an env that does not build here
             raise result.error
-        episode_report, episode = result.report, result.episode
+        episode_report = result.report
+        index = episode_report.index
         self.report.episodes.append(episode_report)
-        why = _left_out(episode_report, episode, self.keep)
-        if why:
-            self.report.dropped[episode_report.index] = why
-            self.writer.put(episode_report.index, None)
+        if result.left_out:
+            self.report.dropped[index] = result.left_out
+            self.writer.put(index, None)
         else:
-            self.report.written.append(episode_report.index)
-            self.digests[episode_report.index] = _digest(episode)
-            self.writer.put(episode_report.index, episode)
+            self.report.written.append(index)
+            self.digests[index] = result.digests
+            self.writer.put(index, result.episode if result.episode is not None else result.scratch)
         if self.progress is not None:
             self.progress(episode_report)
 
 
-def _left_out(report: EpisodeReport, episode: Episode | None, keep: tuple[str, ...]) -> str:
-    """Why `keep` leaves the episode out ("" to write it)."""
+def _left_out(report: EpisodeReport, last: tuple[bool | None, bool | None], keep: tuple[str, ...]) -> str:
+    """Why `keep` leaves the episode out ("" to write it), given (success, truncated) at its last step
+    (`_last_flags`)."""
+    success, truncated = last
     if "verified" in keep and not report.ok:
         return f"not verified ({report.verdict})"
-    last = episode.length - 1 if episode is not None else -1
-    if "success" in keep and (last < 0 or episode.success is None or not episode.success[last]):
+    if "success" in keep and not success:
         return "no success at its last step"
-    if "not_truncated" in keep and last >= 0 and episode.truncated[last]:
+    if "not_truncated" in keep and truncated:
         return "truncated (time limit)"
     return ""
 
 
-def _digest(episode: Episode) -> dict[str, str]:
-    """Field name -> sha256 of its dtype, shape and bytes."""
-    import hashlib
-
-    out = {}
-    for name, array in episode.fields().items():
-        a = np.ascontiguousarray(array)
-        out[name] = hashlib.sha256(f"{a.dtype.str}{a.shape}".encode() + a.tobytes()).hexdigest()
-    return out
-
-
 def _check_written(src: str, report: ConversionReport, digests: Mapping[int, dict[str, str]], *,
                    states_too: bool) -> None:
-    """Read every written episode back: its arrays must be byte for byte those that were written (`digests`), and
-    for a re-render its states and actions those of the input."""
+    """Read every written episode back, a block at a time: its arrays must be byte for byte those that were written
+    (`digests`), and for a re-render its states and actions those of the input."""
     if not report.written:
         report.written_check = "nothing written"
         return
     with open_reader(src) as source, open_reader(report.output) as out:
         for index in sorted(report.written):
-            written = out.read_episode(index)
-            same = _digest(written) == digests[index]
+            written = field_digests(out.open_episode(index))
+            same = written == digests[index]
             if same and states_too:
-                same = _same_states_and_actions(source.read_episode(index), written)
+                same = _states_and_actions(field_digests(source.open_episode(index))) == _states_and_actions(written)
             if not same:
                 report.written_mismatch.append(index)
     report.written_check = (f"every written episode read back byte-identical to the {'re-rendered' if states_too else 'converted'} "
@@ -542,10 +652,9 @@ def _check_written(src: str, report: ConversionReport, digests: Mapping[int, dic
         report.written_check = f"episodes {report.written_mismatch} read back differ from what was written"
 
 
-def _same_states_and_actions(source: Episode, written: Episode) -> bool:
-    return (source.env_states.keys() == written.env_states.keys()
-            and all(np.array_equal(a, written.env_states[k]) for k, a in source.env_states.items())
-            and np.array_equal(source.actions, written.actions))
+def _states_and_actions(digests: Mapping[str, str]) -> dict[str, str]:
+    """The digests of an episode's states and actions, of all its `field_digests`."""
+    return {k: d for k, d in digests.items() if k.startswith("env_states/") or k == "actions"}
 
 
 def convert_recording(src: str | Path, dst: str | Path, options: ConvertOptions | None = None, *,

@@ -151,6 +151,12 @@ class ReplayedWriter:
         if self.writer is not None:
             self.writer.close()
 
+    def abort(self) -> None:
+        """Drop the output instead of finishing it (`EpisodeWriter.abort`: an old file it was to replace stays)."""
+        if self.writer is not None:
+            self.writer.abort()
+            self.writer = None
+
 
 class EpisodeStream(BlockSink):
     """Writes one replayed episode to the output as its blocks are replayed; `commit` with the verdict, or `discard`

@@ -44,7 +44,8 @@ from simreel.replay.report import EpisodeReport
 from simreel.replay.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports
 
-__all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "run_pool", "start_pool", "stop_pool", "pool_closing"]
+__all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "VerifySink", "run_pool", "start_pool", "stop_pool",
+           "pool_closing"]
 
 _EPISODE_DATA_ERRORS = (RecordingFileError, EpisodeLayoutError, MetadataError)
 """Errors about one episode's data (damaged, missing, malformed); any other error is about the env its file
@@ -117,7 +118,7 @@ class EpisodeResult:
         return self.error is not None and not isinstance(self.error, _EPISODE_DATA_ERRORS)
 
 
-class _Verify(BlockSink):
+class VerifySink(BlockSink):
     """Compares each replayed block with its recorded one as it comes (`simreel.compare.BlockComparison`), and hands
     both on to `then` (the `-o` output, or a `Collected` replay) when given."""
 
@@ -234,7 +235,7 @@ class ReplayWorker:
         written: BlockSink | None = stream or kept
         if written is not None and job.mode == "states":
             written = RecordedContacts(written)
-        verify = _Verify(job.tolerances, reader.meta.contact_channels, scope, written)
+        verify = VerifySink(job.tolerances, reader.meta.contact_channels, scope, written)
         try:
             replayed = replayer.replay_rows(source, verify, mode=job.mode, resync=job.resync, rows=job.block_rows)
             report = self._report(reader, replayer, source, replayed, verify.comparison)

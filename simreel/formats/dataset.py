@@ -33,7 +33,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import Episode, EpisodeMeta, FieldSpec, RecordingMeta, StepBlock
+from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import OutputCheckError, RecordingFileError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
 from simreel.formats.base import EpisodeRows, PassedRows
@@ -43,8 +43,8 @@ from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.targets import check_distinct
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
-           "HashedRows", "episode_digest", "describe_provenance", "describe_origin", "VERIFIED", "DIVERGED",
-           "report_verdicts"]
+           "FieldHashes", "HashedRows", "episode_digest", "field_digests", "describe_provenance", "describe_origin",
+           "VERIFIED", "DIVERGED", "report_verdicts"]
 
 VERIFIED = ("exact", "within_tolerance")
 """The verdicts `filter --verified` keeps: the episodes a replay verified."""
@@ -251,51 +251,73 @@ def _canonical(value: Any) -> bytes:
     return json.dumps(value, sort_keys=True, separators=(",", ":")).encode()
 
 
+class FieldHashes:
+    """BLAKE2b-256 of each field's rows as blocks of them pass (`add`, in row order): the field's dtype and row
+    shape, its row count and its bytes. Equal digests mean equal arrays (but for a collision of a 256-bit hash),
+    however the rows were split in blocks: what a copy or a conversion hashes as it writes an episode, to check
+    against the same hashes of what it reads back."""
+
+    def __init__(self) -> None:
+        self._hashes: dict[str, Any] = {}
+        self._row_kinds: dict[str, str] = {}
+        self._counts: dict[str, int] = {}
+
+    def add(self, block: StepBlock, names: Iterable[str]) -> None:
+        """Hash the rows of the fields `names` in `block`, after the rows hashed before them."""
+        for name in names:
+            a = np.ascontiguousarray(block[name])
+            if name not in self._hashes:
+                self._hashes[name], self._counts[name] = hashlib.blake2b(digest_size=32), 0
+            kind = f"\0{a.dtype.str}\0{a.shape[1:]}\0"
+            if self._row_kinds.get(name) != kind:  # once per field, unless a block changes its dtype or row shape
+                self._row_kinds[name] = kind
+                self._hashes[name].update(kind.encode())
+            self._hashes[name].update(a.reshape(-1).view(np.uint8) if a.size else b"")
+            self._counts[name] += len(a)
+
+    def digests(self) -> dict[str, str]:
+        """Field name -> the hex digest of its rows and row count, by name."""
+        return {name: hashlib.blake2b(f"\0{name}\0{self._counts[name]}\0".encode() + h.digest(),
+                                      digest_size=32).hexdigest()
+                for name, h in sorted(self._hashes.items())}
+
+
 class HashedRows(PassedRows):
     """An episode's rows (under new metadata, when given), hashed as a reader passes through them: the reset row
     first, then the steps in order, as `EpisodeWriter.write_rows` reads them. `digest()`, once every row has
-    passed, is BLAKE2b-256 of the metadata and of every array's name, dtype, row shape, row count and bytes: equal
-    digests mean equal episodes (but for a collision of a 256-bit hash), however the rows were split in blocks."""
+    passed, is BLAKE2b-256 of the metadata and of every array's `FieldHashes` digest: equal digests mean equal
+    episodes, however the rows were split in blocks."""
 
     def __init__(self, rows: EpisodeRows, meta: EpisodeMeta | None = None) -> None:
         super().__init__(rows, meta)
-        self._hashes = {f.name: hashlib.blake2b(digest_size=32) for f in self.fields}
-        self._row_kinds: dict[str, str] = {}
-        self._counts = dict.fromkeys(self._hashes, 0)
+        self._fields = FieldHashes()
         self._next: int | None = None
         """The next step to hash; None before the reset row."""
 
     def passed_reset(self, block: StepBlock) -> StepBlock:
         if self._next is None:
-            self._hash(block, [f for f in self.fields if f.per_state])
+            self._fields.add(block, [f.name for f in self.fields if f.per_state])
             self._next = 0
         return block
 
     def passed(self, start: int, block: StepBlock) -> StepBlock:
         if start != self._next:
             raise RuntimeError(f"episode {self.meta.index}: steps {start}.. read before step {self._next} was hashed")
-        self._hash(block, self.fields)
+        self._fields.add(block, [f.name for f in self.fields])
         self._next = start + block.rows
         return block
 
-    def digest(self) -> bytes:
+    def field_digests(self) -> dict[str, str]:
+        """`FieldHashes.digests` of the episode's arrays, once every row has passed."""
         if self._next != self.length:
             raise RuntimeError(f"episode {self.meta.index}: digest taken at step {self._next} of {self.length}")
-        h = hashlib.blake2b(_canonical(self.meta.to_json()), digest_size=32)
-        for name in sorted(self._hashes):
-            h.update(f"\0{name}\0{self._counts[name]}\0".encode())
-            h.update(self._hashes[name].digest())
-        return h.digest()
+        return self._fields.digests()
 
-    def _hash(self, block: StepBlock, fields: Sequence[FieldSpec]) -> None:
-        for f in fields:
-            a = np.ascontiguousarray(block[f.name])
-            kind = f"\0{a.dtype.str}\0{a.shape[1:]}\0"
-            if self._row_kinds.get(f.name) != kind:  # once per field, unless a block changes its dtype or row shape
-                self._row_kinds[f.name] = kind
-                self._hashes[f.name].update(kind.encode())
-            self._hashes[f.name].update(a.reshape(-1).view(np.uint8) if a.size else b"")
-            self._counts[f.name] += len(a)
+    def digest(self) -> bytes:
+        h = hashlib.blake2b(_canonical(self.meta.to_json()), digest_size=32)
+        for name, field_digest in self.field_digests().items():
+            h.update(f"\0{name}\0{field_digest}".encode())
+        return h.digest()
 
 
 def episode_digest(rows: EpisodeRows) -> bytes:
@@ -303,6 +325,13 @@ def episode_digest(rows: EpisodeRows) -> bytes:
     hashed = HashedRows(rows)
     hashed.read_through()
     return hashed.digest()
+
+
+def field_digests(rows: EpisodeRows) -> dict[str, str]:
+    """`HashedRows.field_digests` of an episode (its arrays, not its metadata), read a block at a time."""
+    hashed = HashedRows(rows)
+    hashed.read_through()
+    return hashed.field_digests()
 
 
 # ---------------------------------------------------------------------------------------------------- the plan
