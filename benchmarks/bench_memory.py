@@ -5,8 +5,9 @@ Records one `--short`-step and one `--long`-step episode of `--env` (random acti
 time limit set by --max-steps) into `--folder` (kept and reused when it already holds them), then runs each
 command once per recording in a fresh process and reads that process's peak resident set size (`wait4`);
 `convert` (with and without `--poses`), `merge` (of the recording alone) and `recover` (of the intact recording,
-which copies it) write the other format (HDF5 → MCAP, MCAP → HDF5), `filter` (its episode 0) and `convert --obs-mode
-state` (a re-render: every state restored and checked, its observations computed) the same:
+which copies it) write the other format (HDF5 → MCAP, MCAP → HDF5), `filter` (its episode 0), `convert --obs-mode
+state` (a re-render: every state restored and checked, its observations computed) and `convert --control-mode
+pd_joint_pos --obs-mode state` (the recording's pd_joint_delta_pos actions converted, stepped and tracked) the same:
 
     .venv/bin/python benchmarks/bench_memory.py                       # PickCube-v1, 200 vs 20,000 steps
     .venv/bin/python benchmarks/bench_memory.py --format mcap --folder /tmp/mem
@@ -217,8 +218,9 @@ def _camera_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
 
 def _copy_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
     """`convert` (with and without `--poses`), `merge` (of the recording alone) and `recover` (of the intact
-    recording, which copies it) to the other format, `filter` (its episode 0) and a re-render (`convert --obs-mode
-    state`: every state restored, its observations computed and checked) to the same."""
+    recording, which copies it) to the other format, `filter` (its episode 0), a re-render (`convert --obs-mode
+    state`: every state restored, its observations computed and checked) and a control-mode conversion (to
+    pd_joint_pos, with state observations) to the same."""
     sim, other = str(SIMREEL), ".mcap" if path.suffix == ".h5" else ".h5"
     return {
         "convert": [sim, "convert", str(path), str(scratch / f"{path.stem}.converted{other}"), "-q", "--overwrite"],
@@ -226,6 +228,8 @@ def _copy_commands(path: Path, scratch: Path) -> dict[str, list[str]]:
                             "--overwrite"],
         "convert --obs-mode": [sim, "convert", str(path), str(scratch / f"{path.stem}.rerendered{path.suffix}"),
                                "--obs-mode", "state", "-q", "--overwrite"],
+        "convert --control-mode": [sim, "convert", str(path), str(scratch / f"{path.stem}.joint{path.suffix}"),
+                                   "--control-mode", "pd_joint_pos", "--obs-mode", "state", "-q", "--overwrite"],
         "merge": [sim, "merge", str(path), "-o", str(scratch / f"{path.stem}.merged{other}"), "-q",
                   "--overwrite"],
         "filter": [sim, "filter", str(path), "-o", str(scratch / f"{path.stem}.filtered{path.suffix}"), "--episodes",

@@ -19,11 +19,12 @@ episodes are written). The output's metadata says where it came from (`Recording
 episodes, the conversion, the tolerances) and each episode's verdict (`EpisodeMeta.provenance`). Episodes run in
 this process and ``workers - 1`` more (`simreel.replay.workers.run_pool`).
 
-A re-render reads, restores, renders, checks and writes an episode a block of rows at a time (the camera frames of a
-long episode never sit in memory whole): into the output when the episode is next in its order, else into a scratch
-recording of its own (`simreel.replay.output.ScratchEpisode`), copied in at its turn. A control-mode conversion holds
-each episode whole. Every written episode is read back a block at a time and its arrays' digests compared with
-those of what was written (`simreel.formats.dataset.FieldHashes`).
+Both read, convert, check and write an episode a block of rows at a time (the camera frames of a long episode never
+sit in memory whole): into the output when the episode is next in its order, else into a scratch recording of its
+own (`simreel.replay.output.ScratchEpisode`), copied in at its turn. What outlives a block is per-row errors, a
+control-mode conversion's commanded poses and success flags (a few dozen bytes a step). Every written episode is
+read back a block at a time and its arrays' digests compared with those of what was written
+(`simreel.formats.dataset.FieldHashes`).
 """
 
 from __future__ import annotations
@@ -40,15 +41,14 @@ from simreel.compare import CompareScope, Tolerances, format_number
 from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import SimreelError, UsageError
 from simreel.formats import EpisodeReader, check_writable, format_of, open_reader, recording_files
-from simreel.formats.base import EpisodeRows
 from simreel.formats.dataset import FieldHashes, field_digests
 from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct
 from simreel.replay.control import check_pair
 from simreel.replay.engine import GPU_SIM_BACKENDS, BlockSink, Collected, EpisodeReplayer, ReplayerOptions
-from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchEpisode, ScratchFolder
+from simreel.replay.output import EpisodeStream, ReplayedWriter, ReplayOutput, ScratchEpisode, ScratchFolder
 from simreel.replay.report import EpisodeReport, episode_lines, recording_limits
-from simreel.replay.tracking import Commands, EndEffector, track_episode, tracking_tolerances
+from simreel.replay.tracking import Commands, EndEffector, TrackingBlocks, tracking_tolerances
 from simreel.replay.workers import EpisodeResult, VerifySink, run_pool
 from simreel.replay.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports
@@ -82,7 +82,7 @@ class ConvertOptions:
         converter: the factory of the action converter, called as `simreel.replay.control.converter_for` is
             (``(source_mode, target_mode, unwrapped, source_controller) -> ActionConverter``): bring your own for a
             robot or mode pair simreel does not convert, and it is verified the same way. Picklable for workers.
-        block_rows: steps a re-render reads, restores, checks and writes at a time (None: the input reader's
+        block_rows: steps read, converted, checked and written at a time (None: the input reader's
             `simreel.formats.base.block_rows`).
     """
 
@@ -231,54 +231,46 @@ class ConvertWorker:
             return ConvertResult(item, error=e)
 
     def _convert_actions(self, item: WorkItem) -> ConvertResult:
-        recorded = self.reader.read_episode(item.index)
-        run = self.replayer.replay_converted(recorded, self.converter)
-        commands = None if run.commands is None else Commands(run.commands, tuple(run.clipped))
-        cmp = track_episode(recorded, run.episode, EndEffector(self.replayer.u), self.job.tolerances, commands)
-        report = EpisodeReport.from_comparison(recorded, cmp, notes=run.notes, limits=run.limits, seconds=run.seconds)
-        report.checked = _tracked(list(cmp.errors))
-        report.per_step = {k: [float(x) for x in e] for k, e in cmp.errors.items()}
-        episode = run.episode
-        why = _left_out(report, _last_flags(episode.success, episode.truncated), self.job.keep)
-        if why:
-            return ConvertResult(item, report, left_out=why)
-        meta = _provenance_meta(dataclasses.replace(episode.meta, initial_state_known=True), report,
-                                clipped=len(run.clipped))
-        episode = dataclasses.replace(episode, meta=meta)
-        return ConvertResult(item, report, episode, digests=field_digests(EpisodeRows.of(episode)))
+        """Convert episode `item.index`'s actions a block of rows at a time: each recorded block's actions are
+        converted and stepped, the run's tracking errors taken (`_Tracked`) and its rows written as they come."""
+        source = self.reader.open_episode(item.index)
+        stream = self._stream(source.meta)
+        written = _Written(stream or Collected())
+        tracked = _Tracked(self.replayer, self.job.tolerances, source.meta.initial_state_known, written)
+        try:
+            run = self.replayer.replay_converted_rows(source, self.converter, tracked, rows=self.job.block_rows)
+            commands = None if run.commands is None else Commands(run.commands, tuple(run.clipped))
+            cmp = tracked.blocks.comparison(commands)
+            report = EpisodeReport.from_comparison(source, cmp, notes=run.notes, limits=run.limits,
+                                                   seconds=run.seconds)
+            report.checked = _tracked(list(cmp.errors))
+            report.per_step = {k: [float(x) for x in e] for k, e in cmp.errors.items()}
+        except BaseException:
+            written.discard()
+            raise
+        meta = dataclasses.replace(source.meta, initial_state_known=True)
+        return written.finish(item, report, _provenance_meta(meta, report, clipped=len(run.clipped)), source.length,
+                              self.job.keep)
 
     def _render(self, item: WorkItem) -> ConvertResult:
         """Re-render episode `item.index` a block of rows at a time: each recorded block's states are restored and
-        checked, its observations rendered, and the output's rows written (`_Rendered`) as they come."""
+        checked, its observations rendered, and the output's rows (`_Rendered`) written as they come."""
         source = self.reader.open_episode(item.index)
         stream = self._stream(source.meta)
-        kept = Collected() if stream is None else None
-        rendered = _Rendered(stream or kept)
+        written = _Written(stream or Collected())
         scope = CompareScope(initial=source.meta.initial_state_known, obs=False)
-        verify = VerifySink(_states_tolerances(), self.meta.contact_channels, scope, rendered)
+        verify = VerifySink(_states_tolerances(), self.meta.contact_channels, scope, _Rendered(written))
         try:
             run = self.replayer.replay_rows(source, verify, mode="states", rows=self.job.block_rows)
             report = EpisodeReport.from_comparison(source, verify.comparison(), notes=run.notes, limits=run.limits,
                                                    seconds=run.seconds)
-            why = _left_out(report, rendered.last, self.job.keep)
         except BaseException:
-            if stream is not None:
-                stream.discard()
+            written.discard()
             raise
-        if why:
-            if stream is not None:
-                stream.discard()
-            return ConvertResult(item, report, left_out=why)
-        meta = _provenance_meta(source.meta, report)
-        digests = rendered.hashes.digests()
-        if kept is not None:
-            return ConvertResult(item, report, kept.episode(meta), digests=digests)
-        stream.commit(meta, source.length)
-        scratch = stream.path if isinstance(stream, ScratchEpisode) else None
-        return ConvertResult(item, report, scratch=scratch, digests=digests)
+        return written.finish(item, report, _provenance_meta(source.meta, report), source.length, self.job.keep)
 
-    def _stream(self, episode: EpisodeMeta) -> BlockSink | None:
-        """Where a re-render of `episode` is written as it comes: into the output when this process writes it and
+    def _stream(self, episode: EpisodeMeta) -> EpisodeStream | None:
+        """Where the conversion of `episode` is written as it comes: into the output when this process writes it and
         the episode is next; else into a scratch recording of its own (given a scratch folder); else nowhere (None:
         it is collected whole)."""
         stream = self.output.stream(episode) if self.output is not None else None
@@ -298,16 +290,12 @@ def _tracked(keys: list[str]) -> list[str]:
     return [name for prefix, name in groups.items() if any(k.split("/", 1)[0].split("[", 1)[0] == prefix for k in keys)]
 
 
-class _Rendered(BlockSink):
-    """The output rows of a re-render as they are replayed: the recorded rows as they are, with the replay's
-    observations in place of the recorded ones, and the rewards and flags the recording lacks taken from the replay
-    (recomputed from the restored states). Each block is handed on to `then` (the output, a scratch recording or a
-    `Collected` episode) and hashed (`hashes`) for the check of what is written; `last` is (success, truncated) at
-    the last step so far (None: no step yet, or no success flag), for `keep`."""
+class _Written(BlockSink):
+    """Hands each converted block on to `then` (an `EpisodeStream` into the output or a scratch recording, or a
+    `Collected` episode), hashing it (`hashes`) for the check of what is written and noting (success, truncated) at
+    the last step so far (`last`), for `keep`; `finish` then commits the episode or leaves it out."""
 
-    _FILLED = ("rewards", "success", "fail")
-
-    def __init__(self, then: BlockSink) -> None:
+    def __init__(self, then: EpisodeStream | Collected) -> None:
         self.then = then
         self.start()
 
@@ -317,16 +305,54 @@ class _Rendered(BlockSink):
         self.then.start()
 
     def reset(self, recorded: StepBlock, replayed: StepBlock) -> None:
-        block = self._output(recorded, replayed, ())
-        self.hashes.add(block, block.arrays)
-        self.then.reset(recorded, block)
+        self.hashes.add(replayed, replayed.arrays)
+        self.then.reset(recorded, replayed)
 
     def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
-        block = self._output(recorded, replayed, self._FILLED)
-        self.hashes.add(block, block.arrays)
-        if block.rows:
-            self.last = _last_flags(block.get("success"), block["truncated"])
-        self.then.steps(first, recorded, block)
+        self.hashes.add(replayed, replayed.arrays)
+        if replayed.rows:
+            self.last = _last_flags(replayed.get("success"), replayed["truncated"])
+        self.then.steps(first, recorded, replayed)
+
+    def discard(self) -> None:
+        """Drop what was written of the episode (an error or Ctrl-C stopped its conversion)."""
+        if isinstance(self.then, EpisodeStream):
+            self.then.discard()
+
+    def finish(self, item: WorkItem, report: EpisodeReport, meta: EpisodeMeta, length: int,
+               keep: tuple[str, ...]) -> ConvertResult:
+        """The episode's result: left out by `keep` (what was written of it discarded), or committed with `meta`
+        (the scratch recording's path with it), or collected whole."""
+        why = _left_out(report, self.last, keep)
+        if why:
+            self.discard()
+            return ConvertResult(item, report, left_out=why)
+        digests = self.hashes.digests()
+        if isinstance(self.then, Collected):
+            return ConvertResult(item, report, self.then.episode(meta), digests=digests)
+        self.then.commit(meta, length)
+        scratch = self.then.path if isinstance(self.then, ScratchEpisode) else None
+        return ConvertResult(item, report, scratch=scratch, digests=digests)
+
+
+class _Rendered(BlockSink):
+    """The output rows of a re-render as they are replayed, handed on to `then`: the recorded rows as they are,
+    with the replay's observations in place of the recorded ones, and the rewards and flags the recording lacks
+    taken from the replay (recomputed from the restored states)."""
+
+    _FILLED = ("rewards", "success", "fail")
+
+    def __init__(self, then: BlockSink) -> None:
+        self.then = then
+
+    def start(self) -> None:
+        self.then.start()
+
+    def reset(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        self.then.reset(recorded, self._output(recorded, replayed, ()))
+
+    def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
+        self.then.steps(first, recorded, self._output(recorded, replayed, self._FILLED))
 
     @staticmethod
     def _output(recorded: StepBlock, replayed: StepBlock, filled: tuple[str, ...]) -> StepBlock:
@@ -334,6 +360,28 @@ class _Rendered(BlockSink):
         arrays.update({k: a for k, a in replayed.arrays.items()
                        if k.startswith("obs/") or (k in filled and k not in arrays)})
         return StepBlock(arrays, recorded.rows)
+
+
+class _Tracked(BlockSink):
+    """Takes the tracking errors of each block of a control-mode conversion (`TrackingBlocks`, bound to the
+    replayer's end effector when the episode's replay starts, after its reset) and hands the block on to `then`."""
+
+    def __init__(self, replayer: EpisodeReplayer, tolerances: Tolerances, initial: bool, then: BlockSink) -> None:
+        self._args = (replayer, tolerances, initial)
+        self.then = then
+
+    def start(self) -> None:
+        replayer, tolerances, initial = self._args
+        self.blocks = TrackingBlocks(EndEffector(replayer.u), tolerances, initial=initial)
+        self.then.start()
+
+    def reset(self, recorded: StepBlock, replayed: StepBlock) -> None:
+        self.blocks.reset(recorded, replayed)
+        self.then.reset(recorded, replayed)
+
+    def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
+        self.blocks.steps(recorded, replayed)
+        self.then.steps(first, recorded, replayed)
 
 
 def _last_flags(success: np.ndarray | None, truncated: np.ndarray) -> tuple[bool | None, bool | None]:

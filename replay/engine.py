@@ -310,42 +310,51 @@ class EpisodeReplayer:
         return out
 
     def replay_converted(self, episode: Episode, converter: Any) -> ReplayedEpisode:
-        """Reproduce `episode`'s reset, then step, for each recorded action, the action `converter` turns it into
-        (`simreel.replay.control`: bound to this env after the reset, called with each recorded action, returning
-        the target mode's action and whether it was clipped). The replayed episode holds the converted actions;
-        its notes say at which steps the target mode's limits clipped them. Works on a whole episode in memory
-        (a conversion judges and writes each episode whole)."""
+        """`replay_converted_rows` of `episode` (in memory), the replayed episode collected whole."""
+        collected = Collected()
+        out = self.replay_converted_rows(EpisodeRows.of(episode), converter, collected)
+        out.episode = collected.episode(episode.meta)
+        return out
+
+    def replay_converted_rows(self, source: EpisodeRows, converter: Any, sink: BlockSink, *,
+                              rows: int | None = None) -> ReplayedEpisode:
+        """Reproduce episode `source`'s reset, then step, for each recorded action, the action `converter` turns it
+        into (`simreel.replay.control`: bound to this env after the reset, called with each recorded action,
+        returning the target mode's action and whether it was clipped), a block of `rows` recorded steps at a time
+        (None: the reader's `block_rows`), each block handed to `sink` with its replay (which holds the converted
+        actions). The result's notes say at which steps the target mode's limits clipped the action; its `commands`
+        hold per step the tool-centre pose each action commanded (12 floats a step, kept whole)."""
         import torch
 
         start = time.perf_counter()
-        done = self.reset_for(episode.meta)
+        done = self.reset_for(source.meta)
         self._check_layout()
         converter.bind(self.u)
-        recorded = EpisodeRows.of(episode)
-        recorded_reset, recorded_steps = recorded.reset(), recorded.steps(0, episode.length)
-        reset = self._reset_row(recorded_reset)
-        buf = self._block(recorded_steps, np.zeros((episode.length, *self.u.single_action_space.shape), np.float32))
-        clipped = []
-        commands = np.full((episode.length, 2, 7), np.nan)
+        sink.start()
+        recorded = source.reset()
+        sink.reset(recorded, self._reset_row(recorded))
+        clipped: list[int] = []
+        commands = np.full((source.length, 2, 7), np.nan)
         commanded = getattr(converter, "commanded", lambda: None)  # optional for converters of one's own
+        shape = self.u.single_action_space.shape
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            for t in range(episode.length):
-                converted = converter(episode.actions[t])
-                buf.actions[t] = converted.action
-                clipped += [t] if converted.clipped else []
-                self._after_step(buf, t, self._step(torch.from_numpy(buf.actions[t]).to(self.u.device)))
-                _put(commands[t], getattr(converted, "wanted", None), commanded())
-        notes = [*done.notes, *episode.meta.notes, *done.limits]
+            for first, block in source.blocks(rows):
+                buf = self._block(block, np.zeros((block.rows, *shape), np.float32))
+                for i, action in enumerate(block["actions"]):
+                    converted = converter(action)
+                    buf.actions[i] = converted.action
+                    clipped += [first + i] if converted.clipped else []
+                    self._after_step(buf, i, self._step(torch.from_numpy(buf.actions[i]).to(self.u.device)))
+                    _put(commands[first + i], getattr(converted, "wanted", None), commanded())
+                sink.steps(first, block, buf.block())
+        notes = [*done.notes, *source.meta.notes, *done.limits]
         if clipped:
             notes.append(f"the {converter.target_mode} action was clipped to its limits at {len(clipped)} step(s) "
                          f"(first: step {clipped[0]}): the recorded target was out of one step's reach; their commands "
                          "are not compared, the trajectory is")
-        collected = Collected()
-        collected.reset(recorded_reset, reset)
-        collected.steps(0, recorded_steps, buf.block())
-        out = ReplayedEpisode(collected.episode(episode.meta), notes, limits=[*episode.meta.notes, *done.limits],
-                              clipped=clipped, commands=commands)
+        out = ReplayedEpisode(None, notes, limits=[*source.meta.notes, *done.limits], clipped=clipped,
+                              commands=commands)
         out.compare_contacts = self._contacts is not None
         out.seconds = time.perf_counter() - start
         return out

@@ -61,11 +61,11 @@ from simreel.compare import (
     component_error,
     components_of,
 )
-from simreel.episode import Episode
+from simreel.episode import Episode, StepBlock
 from simreel.errors import UsageError
 
 __all__ = ["TRACKING_GROUPS", "DEFAULT_TRACKING_TOLERANCES", "Commands", "EndEffector", "tracking_tolerances",
-           "track_episode", "success_timing"]
+           "TrackingBlocks", "track_episode", "success_timing"]
 
 TRACKING_GROUPS = ("cmd_pos", "cmd_rot", "ee_pos", "ee_rot", "obj_pos", "obj_rot", "obj_qpos", "success")
 DEFAULT_TRACKING_TOLERANCES: dict[str, float] = {
@@ -128,13 +128,12 @@ def success_timing(original: np.ndarray, converted: np.ndarray) -> np.ndarray:
     return out
 
 
-def _pose_errors(table: ErrorTable, key: str, poses: tuple[np.ndarray, np.ndarray], groups: tuple[str, str], *,
-                 per_state: bool) -> None:
-    """Position and rotation errors of two (N, 7) pose arrays under `key[p]` and `key[q]`."""
+def _pose_errors(key: str, poses: tuple[np.ndarray, np.ndarray],
+                 groups: tuple[str, str]) -> list[tuple[str, np.ndarray, str]]:
+    """(key, per-row error, group) of the position and rotation errors of two (N, 7) pose arrays: `key[p]`, `key[q]`."""
     a, b = poses
-    table.add(f"{key}[p]", component_error(a, b, Component(f"{key}[p]", groups[0], 0, 3)), groups[0], per_state=per_state)
-    table.add(f"{key}[q]", component_error(a, b, Component(f"{key}[q]", groups[1], 3, 7, quat=True)), groups[1],
-              per_state=per_state)
+    return [(f"{key}[p]", component_error(a, b, Component(f"{key}[p]", groups[0], 0, 3)), groups[0]),
+            (f"{key}[q]", component_error(a, b, Component(f"{key}[q]", groups[1], 3, 7, quat=True)), groups[1])]
 
 
 @dataclass(frozen=True)
@@ -147,29 +146,82 @@ class Commands:
     clipped: tuple[int, ...] = ()
 
 
+class TrackingBlocks:
+    """The tracking errors of a converted run against its original, a block of rows at a time (`reset`, then `steps`
+    for each block in order, each the original's rows and the converted run's): each block's per-row errors are kept
+    (the original's and the run's rows are not), and the success flags (a bool a step: success timing looks along
+    the whole episode). `comparison(commands)` judges them all with the commands, as `track_episode` does a whole
+    episode. `ee`: bound to the converted run's env after its reset."""
+
+    def __init__(self, ee: EndEffector, tolerances: Tolerances, *, initial: bool = True) -> None:
+        self.ee, self.tolerances, self.initial = ee, tolerances, initial
+        self._parts: dict[str, tuple[str, list[np.ndarray]]] = {}
+        """State row errors: key -> (group, the errors of each block so far)."""
+        self._success: tuple[list[np.ndarray], list[np.ndarray]] | None = ([], [])
+        """The original's and the run's success flags so far; None when either lacks them."""
+
+    def reset(self, original: StepBlock, converted: StepBlock) -> None:
+        """Row 0: the states right after the reset."""
+        self._states(original, converted)
+
+    def steps(self, original: StepBlock, converted: StepBlock) -> None:
+        """The next block of steps (its state rows: after those steps)."""
+        if original.rows != converted.rows:
+            raise ValueError(f"a block of {original.rows} original steps was converted as {converted.rows}")
+        self._states(original, converted)
+        flags = original.get("success"), converted.get("success")
+        if self._success is not None and all(f is not None for f in flags):
+            for kept, rows in zip(self._success, flags, strict=True):
+                kept.append(np.asarray(rows, bool))
+        else:
+            self._success = None
+
+    def _states(self, original: StepBlock, converted: StepBlock) -> None:
+        rec, conv = _env_states(original), _env_states(converted)
+        ee, errors = self.ee, []
+        if ee.robot_key in rec and ee.robot_key in conv:
+            errors += _pose_errors(ee.key, (ee.poses(rec[ee.robot_key]), ee.poses(conv[ee.robot_key])),
+                                   ("ee_pos", "ee_rot"))
+        for path, rows in rec.items():
+            if path == ee.robot_key or path.startswith("controller/") or path not in conv:
+                continue
+            for comp in components_of(path, rows.shape[1:]):
+                group = _OBJECT_GROUPS.get(comp.group)
+                if group is not None:
+                    errors.append((comp.key, component_error(rows, conv[path], comp), group))
+        for key, err, group in errors:
+            self._parts.setdefault(key, (group, []))[1].append(err)
+
+    def comparison(self, commands: Commands | None = None) -> EpisodeComparison:
+        """The judged errors of every block so far, with the commands' (`commands`: of the whole episode)."""
+        table = ErrorTable(self.tolerances, CompareScope(initial=self.initial))
+        if commands is not None and not np.isnan(commands.poses).any():
+            judged = commands.poses.copy()
+            judged[list(commands.clipped), 1] = judged[list(commands.clipped), 0]
+            for key, err, group in _pose_errors(f"command/{self.ee.link_name}", (judged[:, 0], judged[:, 1]),
+                                                ("cmd_pos", "cmd_rot")):
+                table.add(key, err, group, per_state=False)
+        for key, (group, parts) in self._parts.items():
+            table.add(key, np.concatenate(parts), group, per_state=True)
+        if self._success is not None:
+            original, converted = (np.concatenate(flags) if flags else np.zeros(0, bool) for flags in self._success)
+            table.add("success", success_timing(original, converted), "success", per_state=False)
+        return table.comparison()
+
+
+def _env_states(block: StepBlock) -> dict[str, np.ndarray]:
+    """A block's state rows by their key path below ``env_states/``."""
+    return {k[len("env_states/"):]: a for k, a in block.arrays.items() if k.startswith("env_states/")}
+
+
 def track_episode(original: Episode, converted: Episode, ee: EndEffector, tolerances: Tolerances,
                   commands: Commands | None = None) -> EpisodeComparison:
-    """Judge `converted` against `original` (same length) by the tracking errors of the module docstring."""
+    """Judge `converted` against `original` (same length) by the tracking errors of the module docstring: a
+    `TrackingBlocks` of the two episodes in one block."""
     if converted.length != original.length:
         raise ValueError(f"episode {original.meta.index}: conversion has {converted.length} steps, original "
                          f"{original.length}")
-    table = ErrorTable(tolerances, CompareScope(initial=original.meta.initial_state_known))
-    if commands is not None and not np.isnan(commands.poses).any():
-        judged = commands.poses.copy()
-        judged[list(commands.clipped), 1] = judged[list(commands.clipped), 0]
-        _pose_errors(table, f"command/{ee.link_name}", (judged[:, 0], judged[:, 1]), ("cmd_pos", "cmd_rot"),
-                     per_state=False)
-    rec, conv = original.env_states, converted.env_states
-    if ee.robot_key in rec and ee.robot_key in conv:
-        _pose_errors(table, ee.key, (ee.poses(rec[ee.robot_key]), ee.poses(conv[ee.robot_key])), ("ee_pos", "ee_rot"),
-                     per_state=True)
-    for path, rows in rec.items():
-        if path == ee.robot_key or path.startswith("controller/") or path not in conv:
-            continue
-        for comp in components_of(path, rows.shape[1:]):
-            group = _OBJECT_GROUPS.get(comp.group)
-            if group is not None:
-                table.add(comp.key, component_error(rows, conv[path], comp), group, per_state=True)
-    if original.success is not None and converted.success is not None:
-        table.add("success", success_timing(original.success, converted.success), "success", per_state=False)
-    return table.comparison()
+    blocks = TrackingBlocks(ee, tolerances, initial=original.meta.initial_state_known)
+    blocks.reset(original.reset_block(), converted.reset_block())
+    blocks.steps(original.steps_block(), converted.steps_block())
+    return blocks.comparison(commands)

@@ -77,3 +77,29 @@ def test_a_re_render_never_reads_an_episode_whole(demos, tmp_path, monkeypatch):
     monkeypatch.setattr(EpisodeRows, "episode", whole)
     report = convert_recording(demos, tmp_path / "blocks.h5", obs_mode="state", block_rows=BLOCK)
     assert report.written == [0, 1, 2] and not report.written_mismatch
+
+
+def _judged(report) -> dict:
+    """An episode's report but for its timing."""
+    return {k: v for k, v in report.to_json().items() if k != "seconds"}
+
+
+def test_a_control_mode_conversion_in_blocks_is_the_one_made_whole(demos, tmp_path, monkeypatch):
+    """Tracking errors taken a block at a time are those of the whole episode, and the files are the same."""
+    whole = convert_recording(demos, tmp_path / "whole.h5", control_mode="pd_ee_delta_pose")
+    two = convert_recording(demos, tmp_path / "two.h5", control_mode="pd_ee_delta_pose", block_rows=BLOCK,
+                            workers=2)
+
+    def read_whole(self, *args, **kwargs):
+        raise AssertionError(f"episode {self.meta.index} read whole")
+
+    monkeypatch.setattr(EpisodeRows, "episode", read_whole)
+    blocks = convert_recording(demos, tmp_path / "blocks.h5", control_mode="pd_ee_delta_pose", block_rows=BLOCK)
+    assert whole.ok and whole.written == [0, 1, 2] and not whole.written_mismatch
+    for report in (blocks, two):
+        assert [_judged(e) for e in report.episodes] == [_judged(e) for e in whole.episodes]
+        assert report.written == whole.written and not report.written_mismatch
+    assert max(whole.episodes[0].per_step["ee/panda_hand_tcp[p]"]) > 0  # an ee controller reaches it another way
+    assert len(whole.episodes[0].per_step["success"]) == STEPS
+    assert _digests(tmp_path / "blocks.h5") == _digests(tmp_path / "whole.h5") == _digests(tmp_path / "two.h5")
+    assert not scratch_folder(tmp_path / "two.h5").exists()
