@@ -4,7 +4,8 @@ this process is written block by block as it is replayed (`ReplayedWriter.stream
 one — replayed in a pool's worker process, or here while an earlier one is not written yet — is written block by
 block to a scratch recording of its own (`ScratchEpisode`, in the run's `ScratchFolder` beside the output); its
 path waits for its turn (`put`), and is then copied into the output a block of rows at a time and deleted. No
-process holds more than a block of a long episode. (A Ray actor's episode, and a conversion's, come back whole.)"""
+process holds more than a block of a long episode. (A Ray actor's episode comes back whole.) `simreel convert`
+writes its converted episodes the same way."""
 
 from __future__ import annotations
 
@@ -224,8 +225,8 @@ class ScratchFolder:
 
     def __enter__(self) -> ScratchFolder:
         lock = self.path / "lock"
-        busy = UsageError(f"{self.output} is being written by another replay (it holds {self.path}); choose "
-                          "another output, or wait until that replay has finished")
+        busy = UsageError(f"{self.output} is being written by another replay or conversion (it holds {self.path}); "
+                          "choose another output, or wait until that run has finished")
         if being_written(lock):
             raise busy
         shutil.rmtree(self.path, ignore_errors=True)  # a killed run's leftovers

@@ -119,15 +119,34 @@ def _wait_for_scratch(proc: subprocess.Popen, folder: Path) -> None:
         time.sleep(0.05)
 
 
-def test_ctrl_c_of_a_run_writing_replays_removes_its_scratch_folder(long_run, tmp_path):
-    out = tmp_path / "out.h5"
-    proc = _replay(str(long_run), "-o", str(out), "--workers", "2", "-q")
+def _ctrl_c_once_scratch_is_written(proc: subprocess.Popen, out: Path) -> None:
+    """Ctrl-C `proc` once its scratch folder holds an episode: it stops (130) and nothing of the folder stays."""
     _wait_for_scratch(proc, scratch_folder(out))
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     assert not scratch_folder(out).exists()
-    assert {p.name for p in tmp_path.iterdir()} <= {"out.h5", "out.json"}
+    assert {p.name for p in out.parent.iterdir()} <= {"out.h5", "out.json"}
+
+
+def test_ctrl_c_of_a_run_writing_replays_removes_its_scratch_folder(long_run, tmp_path):
+    out = tmp_path / "out.h5"
+    _ctrl_c_once_scratch_is_written(_replay(str(long_run), "-o", str(out), "--workers", "2", "-q"), out)
+
+
+def test_ctrl_c_of_a_conversion_with_workers_removes_its_scratch_folder(long_run, tmp_path):
+    """`convert --workers 2` writes episodes converted ahead of their turn to the same scratch folder as replay -o:
+    Ctrl-C removes it, and what the output holds is readable, its episodes in the input's order."""
+    out = tmp_path / "out.h5"
+    proc = subprocess.Popen([sys.executable, "-m", "simreel", "convert", str(long_run), str(out), "--obs-mode", "state",
+                             "--workers", "2", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _ctrl_c_once_scratch_is_written(proc, out)
+    if out.exists():
+        with open_reader(out) as reader:
+            indices = [m.index for m in reader.episodes]
+            assert indices == list(range(len(indices)))
+            for index in indices:
+                reader.open_episode(index).read_through()
 
 
 def test_a_scratch_folder_left_by_kill_9_is_cleared_by_the_next_run(long_run, tmp_path):
