@@ -62,7 +62,7 @@ class ReplayerOptions:
         pose_bodies: also sample the world pose of these bodies after reset and every step (for ``-o``).
         render_backend: None: ``"none"`` unless the observation mode needs cameras, then ``"auto"``.
         sim_backend: None: the recorded one.
-        control_mode: None: the recorded one (another one to replay converted actions: `replay_converted`).
+        control_mode: None: the recorded one (another one to replay converted actions: `replay_converted_rows`).
         env_kwargs: ``gym.make`` arguments added to the recorded ones (camera size, shader).
     """
 
@@ -89,10 +89,10 @@ class ReplayedEpisode:
     limits: list[str] = field(default_factory=list)
     """What was not checked or not reproduced ("contacts not compared: ...", "... has no seed ...")."""
     clipped: list[int] = field(default_factory=list)
-    """Steps whose converted action the target mode's limits clipped (`EpisodeReplayer.replay_converted`)."""
+    """Steps whose converted action the target mode's limits clipped (`EpisodeReplayer.replay_converted_rows`)."""
     commands: np.ndarray | None = None
     """(T, 2, 7) per step: the tool-centre pose the recorded action commanded, and the one the converted action
-    commanded (`EpisodeReplayer.replay_converted`; NaN where unknown)."""
+    commanded (`EpisodeReplayer.replay_converted_rows`; NaN where unknown)."""
     scene_differences: list[SceneDifference] | None = None
     """Where the replaying scene differs from the episode's recorded scene fingerprint, found at the reset, before
     any step (empty: the same scene; None: not compared, the recording has no fingerprint)."""
@@ -307,13 +307,6 @@ class EpisodeReplayer:
                                 f"({type(exc).__name__}: {exc})")
         out.compare_contacts = self._contacts is not None
         out.seconds = time.perf_counter() - start
-        return out
-
-    def replay_converted(self, episode: Episode, converter: Any) -> ReplayedEpisode:
-        """`replay_converted_rows` of `episode` (in memory), the replayed episode collected whole."""
-        collected = Collected()
-        out = self.replay_converted_rows(EpisodeRows.of(episode), converter, collected)
-        out.episode = collected.episode(episode.meta)
         return out
 
     def replay_converted_rows(self, source: EpisodeRows, converter: Any, sink: BlockSink, *,

@@ -61,11 +61,11 @@ from simreel.compare import (
     component_error,
     components_of,
 )
-from simreel.episode import Episode, StepBlock
+from simreel.episode import StepBlock
 from simreel.errors import UsageError
 
 __all__ = ["TRACKING_GROUPS", "DEFAULT_TRACKING_TOLERANCES", "Commands", "EndEffector", "tracking_tolerances",
-           "TrackingBlocks", "track_episode", "success_timing"]
+           "TrackingBlocks", "success_timing"]
 
 TRACKING_GROUPS = ("cmd_pos", "cmd_rot", "ee_pos", "ee_rot", "obj_pos", "obj_rot", "obj_qpos", "success")
 DEFAULT_TRACKING_TOLERANCES: dict[str, float] = {
@@ -150,8 +150,8 @@ class TrackingBlocks:
     """The tracking errors of a converted run against its original, a block of rows at a time (`reset`, then `steps`
     for each block in order, each the original's rows and the converted run's): each block's per-row errors are kept
     (the original's and the run's rows are not), and the success flags (a bool a step: success timing looks along
-    the whole episode). `comparison(commands)` judges them all with the commands, as `track_episode` does a whole
-    episode. `ee`: bound to the converted run's env after its reset."""
+    the whole episode). `comparison(commands)` judges them all with the commands. `ee`: bound to the converted
+    run's env after its reset."""
 
     def __init__(self, ee: EndEffector, tolerances: Tolerances, *, initial: bool = True) -> None:
         self.ee, self.tolerances, self.initial = ee, tolerances, initial
@@ -212,16 +212,3 @@ class TrackingBlocks:
 def _env_states(block: StepBlock) -> dict[str, np.ndarray]:
     """A block's state rows by their key path below ``env_states/``."""
     return {k[len("env_states/"):]: a for k, a in block.arrays.items() if k.startswith("env_states/")}
-
-
-def track_episode(original: Episode, converted: Episode, ee: EndEffector, tolerances: Tolerances,
-                  commands: Commands | None = None) -> EpisodeComparison:
-    """Judge `converted` against `original` (same length) by the tracking errors of the module docstring: a
-    `TrackingBlocks` of the two episodes in one block."""
-    if converted.length != original.length:
-        raise ValueError(f"episode {original.meta.index}: conversion has {converted.length} steps, original "
-                         f"{original.length}")
-    blocks = TrackingBlocks(ee, tolerances, initial=original.meta.initial_state_known)
-    blocks.reset(original.reset_block(), converted.reset_block())
-    blocks.steps(original.steps_block(), converted.steps_block())
-    return blocks.comparison(commands)
