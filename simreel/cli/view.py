@@ -51,10 +51,58 @@ def add_parser(sub: Any) -> None:
 
 
 def has_display() -> bool:
-    """Whether a window can open here: macOS and Windows always; elsewhere an X11 or Wayland display is set."""
+    """Whether a window can open here: macOS and Windows always; elsewhere an X11 or Wayland display that answers."""
+    return display_problem() is None
+
+
+def display_problem() -> str | None:
+    """Why no window can open here (None: one can). A display that is set is probed: a viewer spawned onto a display
+    nothing serves would bind its port and exit, which is only seen after a race with the stream."""
     if sys.platform in ("darwin", "win32"):
+        return None
+    x11, wayland = os.environ.get("DISPLAY"), os.environ.get("WAYLAND_DISPLAY")
+    if os.environ.get("WAYLAND_SOCKET") or (wayland and _wayland_answers(wayland)) or (x11 and _x11_answers(x11)):
+        return None
+    if not x11 and not wayland:
+        return "there is no display here (DISPLAY and WAYLAND_DISPLAY are unset)"
+    shown = ", ".join(f"{name}={value}" for name, value in (("DISPLAY", x11), ("WAYLAND_DISPLAY", wayland)) if value)
+    return f"no display server answers at {shown}"
+
+
+def _x11_answers(display: str) -> bool:
+    """Whether an X server accepts connections for `display` ("[host]:N[.screen]"): its Unix socket, Linux's abstract
+    one, or TCP port 6000+N on the host."""
+    import socket
+
+    host, _, number = display.rpartition(":")
+    number = number.split(".")[0]
+    if not number.isdigit():
+        return True  # a form this probe does not know: let the viewer try
+    if host in ("", "unix"):
+        targets = [(socket.AF_UNIX, f"/tmp/.X11-unix/X{number}"), (socket.AF_UNIX, f"\0/tmp/.X11-unix/X{number}")]
+    else:
+        targets = [(socket.AF_INET, (host, 6000 + int(number)))]
+    return any(_accepts(family, address) for family, address in targets)
+
+
+def _wayland_answers(name: str) -> bool:
+    """Whether a Wayland compositor accepts connections on socket `name` (in $XDG_RUNTIME_DIR unless absolute)."""
+    import socket
+
+    folder = os.environ.get("XDG_RUNTIME_DIR", "")
+    return _accepts(socket.AF_UNIX, name if name.startswith("/") else os.path.join(folder, name))
+
+
+def _accepts(family: int, address: object) -> bool:
+    import socket
+
+    try:
+        with socket.socket(family, socket.SOCK_STREAM) as s:
+            s.settimeout(1.0)
+            s.connect(address)
         return True
-    return any(os.environ.get(name) for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
+    except OSError:
+        return False
 
 
 def viewer_available() -> bool:
@@ -68,10 +116,10 @@ def _check_spawn() -> None:
     """`--spawn` without a display or without the viewer is bad input, refused before any work."""
     from simreel.viewers.session import viewer_executable
 
-    if not has_display():
-        raise UsageError("--spawn opens the Rerun viewer in a window, and there is no display here (DISPLAY and "
-                         "WAYLAND_DISPLAY are unset); write the session with --save OUT.rrd and open it where there "
-                         "is one, or serve it to a browser with --serve")
+    problem = display_problem()
+    if problem is not None:
+        raise UsageError(f"--spawn opens the Rerun viewer in a window, and {problem}; write the session with --save "
+                         "OUT.rrd and open it where there is one, or serve it to a browser with --serve")
     if viewer_executable() is None:
         raise UsageError("--spawn: the Rerun viewer (`rerun`, installed with rerun-sdk) is neither on PATH nor "
                          f"beside {sys.executable}; write the session with --save OUT.rrd, or use --serve")

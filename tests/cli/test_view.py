@@ -14,7 +14,14 @@ from urllib.parse import parse_qs, urlparse
 from urllib.request import urlopen
 
 import pytest
-from support.processes import DISPLAY_VARS, free_port, read_line, simreel_command, without_display
+from support.processes import (
+    DISPLAY_VARS,
+    answering_display,
+    free_port,
+    read_line,
+    simreel_command,
+    without_display,
+)
 from support.rrd import read_served, running_grpc_server
 from support.viewer_data import STEPS
 
@@ -231,28 +238,47 @@ def test_spawn_without_a_display_builds_no_env(pickcube_h5, monkeypatch, capsys)
     assert "there is no display here" in capsys.readouterr().err
 
 
-def test_a_viewer_that_cannot_open_its_window_is_bad_input(pickcube_h5, tmp_path):
-    """A display is set but unusable (no X server there): the spawned viewer binds its port and exits. simreel
-    says so in one line, exit 2, without waiting on it (Rerun's flush would wait forever, deaf to Ctrl-C)."""
-    env = {**without_display(), "DISPLAY": f":{free_port()}"}  # a display number no X server has
+def test_a_display_nothing_serves_is_refused_before_the_viewer_starts(pickcube_h5, tmp_path):
+    """DISPLAY is set but no X server answers there: a viewer spawned onto it would bind its port and exit, seen
+    only after a race with the stream (Rerun then printed its own flush errors). simreel probes the display first:
+    one line, exit 2, no viewer started, nothing written."""
+    display = f":{free_port()}"  # a display number no X server has
+    started = time.perf_counter()
     done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn", "--geometry", "collision",
                                           "--grpc-port", str(free_port())),
-                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+                          env={**without_display(), "DISPLAY": display}, cwd=tmp_path, capture_output=True,
+                          text=True, timeout=120)
     assert done.returncode == 2, done.stderr
-    ours = [line for line in done.stderr.splitlines() if line.startswith("simreel view:")]
-    assert len(ours) == 1 and ours[0].startswith("simreel view: error: the Rerun viewer did not take the session")
-    assert "Failed to flush" not in done.stderr  # no stream was connected, so Rerun has no flush to fail
+    [line] = done.stderr.splitlines()
+    assert line.startswith(f"simreel view: error: --spawn opens the Rerun viewer in a window, and no display server "
+                           f"answers at DISPLAY={display}; write the session with --save OUT.rrd")
+    assert time.perf_counter() - started < 10 and not list(tmp_path.iterdir())
+
+
+def test_the_display_probe_asks_the_server(monkeypatch):
+    """A display counts only where something accepts connections: X11 by TCP (host:N, port 6000+N) or Unix socket
+    (:N), Wayland by its socket."""
+    from simreel.cli.view import display_problem, has_display
+
+    for name in DISPLAY_VARS:
+        monkeypatch.delenv(name, raising=False)
+    assert display_problem() == "there is no display here (DISPLAY and WAYLAND_DISPLAY are unset)"
+    with answering_display() as env:
+        monkeypatch.setenv("DISPLAY", env["DISPLAY"])
+        assert has_display()
+    assert not has_display()  # the same display once nothing listens there
+    monkeypatch.setenv("DISPLAY", f":{free_port()}")
+    assert display_problem() == f"no display server answers at DISPLAY={os.environ['DISPLAY']}"
 
 
 def test_spawn_sends_the_episode_to_the_viewer_listening_on_its_port(pickcube_h5, tmp_path):
     """A viewer already listens on the port (as one left open does; here `rerun --serve-grpc`, a viewer without
     its window): `--spawn` sends it the whole episode, says so and exits 0."""
     port = free_port()
-    with running_grpc_server(port, tmp_path / "server.log") as url:
+    with running_grpc_server(port, tmp_path / "server.log") as url, answering_display() as env:
         done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn", "--geometry", "collision",
                                               "--grpc-port", str(port)),
-                              env={**without_display(), "DISPLAY": ":0"}, cwd=tmp_path, capture_output=True,
-                              text=True, timeout=120)
+                              env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
         assert done.returncode == 0, done.stderr
         assert done.stdout.splitlines()[0] == "sent pickcube.h5#episode-0 to the Rerun viewer"
         served = read_served(url, tmp_path / "served",
@@ -293,10 +319,10 @@ def test_a_port_held_by_another_server_is_reported_not_waited_on(pickcube_h5, tm
     port = server.server_address[1]
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
-        done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn", "--geometry", "collision",
-                                              "--grpc-port", str(port)),
-                              env={**without_display(), "DISPLAY": ":0"}, cwd=tmp_path, capture_output=True,
-                              text=True, timeout=120)
+        with answering_display() as env:
+            done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn", "--geometry", "collision",
+                                                  "--grpc-port", str(port)),
+                                  env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
     finally:
         server.shutdown()
         server.server_close()

@@ -9,9 +9,10 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 
-__all__ = ["DISPLAY_VARS", "free_port", "read_line", "simreel_command", "without_display"]
+__all__ = ["DISPLAY_VARS", "answering_display", "free_port", "read_line", "simreel_command", "without_display"]
 
 DISPLAY_VARS = ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")
 """The variables through which a process finds an X11 or Wayland display."""
@@ -25,6 +26,33 @@ def simreel_command(*args: str) -> list[str]:
 def without_display(env: Mapping[str, str] | None = None) -> dict[str, str]:
     """`env` (default os.environ) with no display: what a headless machine or an ssh session without -X has."""
     return {k: v for k, v in (os.environ if env is None else env).items() if k not in DISPLAY_VARS}
+
+
+@contextmanager
+def answering_display() -> Iterator[dict[str, str]]:
+    """An environment whose DISPLAY answers simreel's probe (a TCP listener where an X server of that display number
+    would listen; it draws nothing, and hangs up on whoever connects, so an X client fails at once as on a display
+    that refused it): for tests of `--spawn` when a viewer already listens on the port, where Rerun starts none."""
+    import threading
+
+    listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    listener.bind(("127.0.0.1", 0))
+    listener.listen()
+
+    def hang_up() -> None:
+        while True:
+            try:
+                connection, _ = listener.accept()
+            except OSError:  # the listener was closed
+                return
+            connection.close()
+
+    threading.Thread(target=hang_up, daemon=True).start()
+    try:
+        yield {**without_display(), "DISPLAY": f"127.0.0.1:{listener.getsockname()[1] - 6000}"}
+    finally:
+        listener.shutdown(socket.SHUT_RDWR)
+        listener.close()
 
 
 def free_port() -> int:
