@@ -5,12 +5,14 @@ Usage: python benchmarks/record_overhead.py [--env PickCube-v1] [--episodes 100]
                                            [--contacts auto|none] [--poses] [--format h5|mcap] [--no-storage]
                                            [--without-fingerprints] [--breakdown]
 
-Overhead: a bare env and a recorded one step the same actions from the same seeds, interleaved episode by
-episode so machine noise hits both alike. The step() ratio times step() alone; the end-to-end ratio adds the
-resets, where the recorder commits each finished episode to the file (the commit's own mean time is printed).
+Overhead: a bare env and recorded ones step the same actions from the same seeds, interleaved episode by
+episode so machine noise hits all alike: the default recorder, whose writer runs in a child process and commits each
+finished episode while the env resets, and one writing in its own process (`writer_process=False`, whose commit's
+mean time is printed). The step() ratio times step() alone; the end-to-end ratio adds the resets, which end with
+the episode committed either way. CPU ratios are this process's; the writer process's own CPU is printed beside them.
 Target (issue 17): end to end ≤ 1.05× for PickCube-v1, state obs, contacts on.
 
-`--without-fingerprints` adds a third env, recorded without the per-episode scene fingerprints (taken at every reset
+`--without-fingerprints` adds another env, recorded without the per-episode scene fingerprints (taken at every reset
 that rebuilds the scene, issue 14), interleaved with the other two: the fingerprints' cost is the difference between
 the two recorded rows (it shows in the resets of tasks that rebuild their scene, e.g. --env SimreelHeteroPick-v1,
 never in step()).
@@ -92,46 +94,59 @@ def _ratios(label: str, bare: np.ndarray, rec: np.ndarray, steps: int, per_episo
           "commit episodes, included; target ≤ 1.05×)")
 
 
+def _recorders(args: argparse.Namespace, folder: Path) -> dict[str, RecordWrapper]:
+    """The recorders timed beside the bare env, by label: the default one (its writer in a child process), one writing
+    in its own process, and with `--without-fingerprints` one without scene fingerprints."""
+    kinds = {"recorded step": (RecordWrapper, {}), "writer in-process": (RecordWrapper, {"writer_process": False})}
+    if args.without_fingerprints:
+        kinds["without fingerprints"] = (_WithoutFingerprints, {})
+    return {label: kind(make_env(args.env, obs_mode="state", max_episode_steps=args.steps),
+                        folder / f"overhead{i}.{args.format}", contacts=args.contacts, poses=args.poses, **options)
+            for i, (label, (kind, options)) in enumerate(kinds.items())}
+
+
 def overhead(args: argparse.Namespace, folder: Path) -> None:
     bare = make_env(args.env, obs_mode="state", max_episode_steps=args.steps)
     shape = bare.action_space.shape
     actions = np.random.default_rng(0).uniform(-1, 1, size=(args.episodes, args.steps, *shape)).astype(np.float32)
-    path = folder / f"overhead.{args.format}"
-    kinds = [RecordWrapper] + ([_WithoutFingerprints] if args.without_fingerprints else [])
-    recs = [kind(make_env(args.env, obs_mode="state", max_episode_steps=args.steps),
-                 path if i == 0 else folder / f"without_fingerprints.{args.format}", contacts=args.contacts,
-                 poses=args.poses) for i, kind in enumerate(kinds)]
-    for env in (bare, *recs):  # warm-up: first steps build caches, the first commit creates the file's layout
+    recs = _recorders(args, folder)
+    for env in (bare, *recs.values()):  # warm-up: first steps build caches, the first commit creates the file's layout
         _episode(env, 10_000, actions[0])
-    clock = _CommitClock(recs[0])
+    clock = _CommitClock(recs["writer in-process"])
     totals = np.zeros((1 + len(recs), 4))
     per_episode: list[list[float]] = [[] for _ in recs]
     for k in range(args.episodes):  # interleaved episode by episode, so machine noise hits all alike
         b = _episode(bare, k, actions[k])
         totals[0] += b
-        for i, rec in enumerate(recs):
+        for i, rec in enumerate(recs.values()):
             r = _episode(rec, k, actions[k])
             totals[1 + i] += r
             per_episode[i].append(r[0] / b[0])
-    t = time.perf_counter()
-    recs[0].close()
-    close = time.perf_counter() - t
-    for rec in recs[1:]:
+    closes = {}
+    for label, rec in recs.items():
+        t = time.perf_counter()
         rec.close()
+        closes[label] = time.perf_counter() - t
     steps = args.episodes * args.steps
     bw, bc = totals[0][:2]
     print(f"{args.env}, state obs, contacts={args.contacts}, poses={args.poses}, format={args.format}: "
           f"{args.episodes} episodes × {args.steps} steps, bare and recorded interleaved per episode")
     print(f"  bare env.step        {bw / steps * 1e6:8.1f} µs/step wall, {bc / steps * 1e6:8.1f} µs/step CPU")
-    for i, label in enumerate(["recorded step", "without fingerprints"][: len(recs)]):
+    for i, label in enumerate(recs):
         _ratios(label, totals[0], totals[1 + i], steps, per_episode[i])
-    print(f"  commit               {statistics.mean(clock.seconds) * 1e3:8.2f} ms/episode mean "
-          f"(median {statistics.median(clock.seconds) * 1e3:.2f}); close {close * 1e3:.0f} ms incl. env.close")
+    writer = recs["recorded step"]._writer
+    print(f"  writer process CPU   {writer.child_cpu_seconds / (args.episodes + 1) * 1e3:8.2f} ms/episode (writing, "
+          "warm-up episode included, start-up left out; not in the CPU ratios above, which are this process's)")
+    print(f"  commit in-process    {statistics.mean(clock.seconds) * 1e3:8.2f} ms/episode mean "
+          f"(median {statistics.median(clock.seconds) * 1e3:.2f}); close {closes['recorded step'] * 1e3:.0f} ms "
+          "incl. env.close")
+    path = recs["recorded step"].path
     print(f"  file size            {path.stat().st_size / ((args.episodes + 1) * args.steps):8.1f} bytes/step")
 
 
-_PARTS = {"env.step": ("env", "step"), "env.reset": ("env", "reset"), "episode end (commit)": (None, "_finish"),
-          "  of which block conversion": ("_buffer", "_convert"), "contacts": ("_sampler", "capture"),
+_PARTS = {"env.step": ("env", "step"), "env.reset": ("env", "reset"), "episode end (sent to commit)": (None, "_finish"),
+          "  of which block conversion": ("_buffer", "_convert"), "wait for the commit": (None, "_settle"),
+          "contacts": ("_sampler", "capture"),
           "state read": (None, "_state"), "step scalars": ("_scalars", "capture"), "buffer push": ("_buffer", "push"),
           "action check": (None, "_actions"), "state row fields": (None, "_per_state_rows")}
 """What `--breakdown` times: label -> (attribute of the RecordWrapper holding the method, or None: its own; method).

@@ -3,7 +3,8 @@
 Every parallel env's episode is its own episode on disk. An episode runs from a reset of its env to
 the next reset of that env (a partial reset `options={"env_idx": [...]}` ends only those envs'
 episodes) or to `close()`. Steps are buffered in blocks of `block_steps` and streamed to the writer,
-so memory does not grow with episode length; a finished episode is committed (durable) at once. After
+so memory does not grow with episode length. The writer runs in a child process (`simreel.formats.writer_process`)
+and commits the episodes a reset ends while the env resets; `reset()` returns once they are durable. After
 each step the recorder copies out what it needs and converts a block of steps at once (`StepBuffer`):
 right after a physics step every numpy call costs several times its usual price.
 """
@@ -25,6 +26,7 @@ import numpy as np
 from simreel.episode import EpisodeMeta, StepBlock, json_default
 from simreel.errors import ActionError, UsageError
 from simreel.formats import open_writer, records_poses_by_default
+from simreel.formats.writer_process import ProcessWriter
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.recorders.step_scalars import StepScalars, scalar_info
 from simreel.sim.contacts import ContactSampler, contact_channels
@@ -57,6 +59,9 @@ class RecordOptions:
             its absolute path: `simreel.sim.user_code.recorded_spec`).
         command: the command line, stored for provenance.
         writer_options: keyword options for the format's writer (e.g. HDF5 `compression`).
+        writer_process: write the file from a child process (`simreel.formats.writer_process`), so an episode's
+            commit runs beside the env's reset; `reset()` still returns only once the episodes it ended are
+            committed. False: write in this process (one process less; each commit then adds to the reset).
     """
 
     contacts: str | None = "auto"
@@ -67,6 +72,7 @@ class RecordOptions:
     imports: tuple[str, ...] = ()
     command: str = ""
     writer_options: Mapping[str, Any] = field(default_factory=dict)
+    writer_process: bool = True
 
     def __post_init__(self) -> None:
         if self.block_steps < 1:
@@ -92,6 +98,16 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.Wrapper.__init__(self, env)
         _refuse_reshaping_wrappers(env, opts.record_obs)
         self.options = opts
+        starting = ProcessWriter() if opts.writer_process else None  # its imports run while the env is described
+        try:
+            self._setup(env, path, starting)
+        except BaseException:
+            if starting is not None:
+                starting.cancel()
+            raise
+
+    def _setup(self, env: gym.Env, path: str | Path, starting: ProcessWriter | None) -> None:
+        opts = self.options
         u = env.unwrapped
         self._u = u
         self._n = int(u.num_envs)
@@ -104,7 +120,10 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """The PhysX scene whose fast reader passed the check after a step (None: none yet, or rebuilt)."""
         self.meta = self._describe(env, path)  # refuses an action space other than a Box
         self._action_shape = tuple(u.single_action_space.shape)
-        self._writer = open_writer(path, self.meta, overwrite=opts.overwrite, **opts.writer_options)
+        if starting is not None:
+            self._writer = starting.open(path, self.meta, overwrite=opts.overwrite, **opts.writer_options)
+        else:
+            self._writer = open_writer(path, self.meta, overwrite=opts.overwrite, **opts.writer_options)
         self._buffer = StepBuffer(opts.block_steps, self._n)
         self._sinks: list[Any] = [None] * self._n
         self._episodes: list[EpisodeMeta | None] = [None] * self._n
@@ -122,6 +141,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
         self._fingerprint_scenes(range(1, self._n))  # sub-scene 0's is the recording's own
         self.episodes_committed: list[EpisodeMeta] = []
+        """Episodes the writer has committed (durable), in the order they ended."""
+        self._committing: list[EpisodeMeta] = []
+        """Episodes handed to the writer's commit, not yet known to be committed (`_settle`)."""
         self._closed = False
 
     def _describe(self, env: gym.Env, path: str | Path) -> Any:
@@ -166,7 +188,15 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                                reconfigured=reconfigured, scene_seed=self._scene_seed[i],
                                scene_changes=self._scene_changes[i])
             self._start(i, meta, StepBlock({k: a[i : i + 1] for k, a in reset_rows.items()}, 1))
+        self._settle()
         return obs, info
+
+    def _settle(self) -> None:
+        """Wait until the writer has committed the episodes handed to it (a writer process commits them while the env
+        resets); raises what the writer met, e.g. a full disk."""
+        self._writer.settle()
+        self.episodes_committed.extend(self._committing)
+        self._committing.clear()
 
     def _start(self, i: int, meta: EpisodeMeta, reset: StepBlock) -> None:
         self._next_index += 1
@@ -260,6 +290,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                     self._finish(i)
             finally:
                 self._writer.close()
+            self.episodes_committed.extend(self._committing)
+            self._committing.clear()
         self.env.close()
 
     # ------------------------------------------------------------------ internals
@@ -366,7 +398,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             sink.discard()
             return
         sink.commit(meta)
-        self.episodes_committed.append(meta)
+        self._committing.append(meta)
 
 
 def _non_finite(a: np.ndarray) -> ActionError:

@@ -166,6 +166,10 @@ class EpisodeWriter(ABC):
         """How the episodes committed before a failed write stay readable, for its error ("" when as they are)."""
         return ""
 
+    def settle(self) -> None:  # noqa: B027 - optional hook
+        """Wait until everything handed to the writer is written. A writer in the caller's process writes as it is
+        called, so there is nothing to wait for (`simreel.formats.writer_process` has a writer that does wait)."""
+
     @abstractmethod
     def close(self) -> None:
         """Finish the file (a staged recording replaces the old one now) and give up its lock."""

@@ -14,6 +14,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from support.children import child_pids, wait_ended
 
 from simreel import FORMAT_VERSION
 from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta, StepBlock, episode_fields
@@ -224,8 +225,11 @@ def test_kill_9_keeps_every_committed_episode(tmp_path):
                 committed = len(json.loads(side.read_text())["episodes"])
         time.sleep(0.03)  # most likely in the middle of an episode now
     finally:
+        writers = child_pids(child.pid)
         os.kill(child.pid, signal.SIGKILL)
         child.wait()
+    assert len(writers) == 1
+    wait_ended(writers)  # the writer process ends with its recorder
     with open_reader(path) as r:
         assert len(r) >= committed
         assert [m.index for m in r.episodes] == list(range(len(r)))

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.children import child_pids, wait_ended
 from support.mcap_samples import assert_same_episode, long_sample, synthetic_episode, synthetic_meta, write
 
 from simreel.episode import Episode, episode_fields
@@ -463,11 +464,13 @@ def test_kill_9_then_recover_keeps_every_committed_episode(tmp_path, monkeypatch
             lines.append(line.strip())
             if line.strip() == "running":
                 break
+        writers = child_pids(child.pid)
         child.send_signal(signal.SIGKILL)
     finally:
         child.kill()
         child.wait(timeout=60)
     assert lines == ["committed 3", "running"] and child.returncode == -signal.SIGKILL
+    wait_ended(writers)  # the writer process ends with its recorder, leaving the file as the kill found it
 
     with pytest.raises(RecordingFileError, match="run `simreel recover"):
         open_reader(out)

@@ -102,9 +102,9 @@ def test_long_episode_streams_in_blocks(tmp_path, monkeypatch):
     """An episode longer than the block and the in-memory limit streams to a scratch file and reads back whole."""
     import simreel.formats.hdf5.writer as hdf5
 
-    monkeypatch.setattr(hdf5, "_SPILL_BYTES", 4096)
+    monkeypatch.setattr(hdf5, "_SPILL_BYTES", 4096)  # in this process: the writer must write here to see it
     env = RecordWrapper(make_env("PickCube-v1", max_episode_steps=300), tmp_path / "long.h5", block_steps=16,
-                        contacts="none")
+                        contacts="none", writer_process=False)
     env.reset(seed=0)
     states = []
     for _ in range(70):

@@ -18,6 +18,33 @@ def simreel(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "simreel", *args], capture_output=True, text=True, timeout=timeout)
 
 
+def child_pids(pid: int) -> list[int]:
+    """The processes `pid` started that are still running (a recorder's writer process, `simreel.formats.
+    writer_process`)."""
+    found = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        found += [int(p) for p in (task / "children").read_text().split()]
+    return found
+
+
+def wait_ended(pids: list[int], timeout: float = 30) -> None:
+    """Wait until every process of `pids` has ended (a zombie nobody reaps counts as ended); AssertionError if one
+    is still running after `timeout` seconds: a writer process must not outlive its recorder."""
+    deadline = time.monotonic() + timeout
+    for pid in pids:
+        while _running(pid):
+            assert time.monotonic() < deadline, f"process {pid} still runs {timeout} s after its recorder ended"
+            time.sleep(0.01)
+
+
+def _running(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rpartition(")")[2].split()[0] != "Z"
+
+
 class RecordingChild:
     """`record_child.py` (or `simreel` itself, with `cli=True`) running in its own process."""
 
@@ -52,9 +79,13 @@ class RecordingChild:
         return self.committed
 
     def signal(self, sig: int = signal.SIGKILL, timeout: float = 120) -> int:
-        """Send `sig`, wait for the end; returns the exit status (negative: killed by that signal)."""
+        """Send `sig` to the recording process (not to its writer process), wait for the end of both; returns the
+        recording process's exit status (negative: killed by that signal)."""
+        writers = child_pids(self.proc.pid)
         os.kill(self.proc.pid, sig)
-        return self.wait(timeout)
+        status = self.wait(timeout)
+        wait_ended(writers)
+        return status
 
     def wait(self, timeout: float = 300) -> int:
         try:

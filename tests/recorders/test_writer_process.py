@@ -1,0 +1,115 @@
+"""The recorder's writer process (`simreel.formats.writer_process`): the same file as a writer in the recorder's own
+process, committed by the time `reset()` returns, and every way it can end — with the recorder, killed on its own,
+on Ctrl-C to the whole process group, refused at the start — leaves the committed episodes readable and says what
+happened in one line. (A full disk met in the writer process: tests/formats/test_durable.py.)"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from support.children import child_pids, wait_ended
+
+from simreel.errors import UsageError
+from simreel.formats import open_reader
+from simreel.formats.hdf5.layout import sidecar_path
+from simreel.recorders import RecordWrapper
+from simreel.sim.make import make_env
+
+
+def _record(path, writer_process: bool, seen: list[int] | None = None) -> None:
+    """Three PickCube episodes of 6 steps (the second ended by a reset with a new seed, the last by close); `seen`
+    gets how many episodes a reader finds in the file right after each reset returned."""
+    rng = np.random.default_rng(0)
+    rec = RecordWrapper(make_env("PickCube-v1"), path, writer_process=writer_process)
+    for k in range(3):
+        rec.reset(seed=k)
+        if seen is not None:
+            with open_reader(path) as r:
+                seen.append(len(r))
+        for _ in range(6):
+            rec.step(rng.uniform(-1, 1, rec.action_space.shape).astype(np.float32))
+    rec.close()
+    assert [m.index for m in rec.episodes_committed] == [0, 1, 2]
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".mcap"])
+def test_the_writer_process_writes_what_the_recorder_would_and_commits_before_reset_returns(tmp_path, suffix):
+    seen: list[int] | None = [] if suffix == ".h5" else None  # an MCAP file is read once it is finished
+    _record(tmp_path / f"process{suffix}", True, seen)
+    _record(tmp_path / f"inline{suffix}", False)
+    assert seen in ([0, 1, 2], None)  # each reset returned with the episode it ended readable by another reader
+    with open_reader(tmp_path / f"process{suffix}") as a, open_reader(tmp_path / f"inline{suffix}") as b:
+        assert len(a) == len(b) == 3 and a.damaged == b.damaged == []
+        for m in a.episodes:
+            x, y = a.read_episode(m.index), b.read_episode(m.index)
+            assert x.meta.to_json() == y.meta.to_json()
+            for name in ("actions", "rewards", "success", "contact_forces"):
+                assert np.array_equal(getattr(x, name), getattr(y, name)), name
+            assert x.env_states.keys() == y.env_states.keys()
+            for key in x.env_states:
+                assert np.array_equal(x.env_states[key], y.env_states[key]), key
+
+
+def _recording(tmp_path, **popen):
+    out = tmp_path / "rec.h5"
+    proc = subprocess.Popen([sys.executable, "-m", "simreel", "record", "PickCube-v1", "-o", str(out), "-n", "1000",
+                             "--max-steps", "10", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            **popen)
+    deadline = time.monotonic() + 180
+    while not sidecar_path(out).exists() or len(json.loads(sidecar_path(out).read_text())["episodes"]) < 2:
+        assert proc.poll() is None, proc.communicate()[1]
+        assert time.monotonic() < deadline, "fewer than 2 episodes committed in 180 s"
+        time.sleep(0.05)
+    return proc, out
+
+
+def _committed_episodes_read(out, last_cut_short: bool = False) -> int:
+    """How many episodes `out` holds, each read whole: 10 steps, but for the last one where the recording was
+    stopped (Ctrl-C commits the running episode's steps so far)."""
+    with open_reader(out) as r:
+        for m in r.episodes:
+            length = r.read_episode(m.index).length
+            assert length == 10 or (last_cut_short and m.index == len(r) - 1 and 1 <= length < 10)
+        return len(r)
+
+
+def test_a_writer_process_killed_on_its_own_stops_the_recording_with_one_line(tmp_path):
+    proc, out = _recording(tmp_path)
+    [writer] = child_pids(proc.pid)
+    os.kill(writer, signal.SIGKILL)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2, err
+    [line] = err.splitlines()
+    assert line.startswith(f"simreel record: error: {out}: the writer process (pid {writer}) ended (exit status -9); "
+                           "the episodes committed before it did are in the file")
+    assert _committed_episodes_read(out) >= 2
+
+
+def test_ctrl_c_to_the_whole_process_group_is_handled_by_the_recorder(tmp_path):
+    """A terminal's Ctrl-C reaches the writer process too: it ignores it and commits what the recorder tells it."""
+    proc, out = _recording(tmp_path, start_new_session=True)
+    writers = child_pids(proc.pid)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    wait_ended(writers)
+    assert _committed_episodes_read(out, last_cut_short=True) >= 2
+    assert not (tmp_path / "rec.h5.partial").exists()  # closed properly: nothing left beside the file
+
+
+def test_a_recorder_that_refuses_its_target_leaves_no_writer_process(tmp_path):
+    path = tmp_path / "taken.h5"
+    path.write_bytes(b"someone's file")
+    before = child_pids(os.getpid())
+    env = make_env("PickCube-v1")
+    with pytest.raises(UsageError, match="already exists"):  # the writer's own error, from its process
+        RecordWrapper(env, path)
+    env.close()
+    assert child_pids(os.getpid()) == before and path.read_bytes() == b"someone's file"
