@@ -33,6 +33,10 @@ from simreel.formats.durable import deferred_signals
 
 __all__ = ["ProcessWriter"]
 
+_START_SECONDS = 120
+"""A child that has not opened the writer this long after it was started (~0.4 s on an idle machine) is ended:
+`sys.executable` may not be a Python that runs simreel (an application that embeds Python)."""
+
 
 class ProcessWriter:
     """The writer `open_writer(path, meta, **options)` would give, run in a child process; see the module docstring.
@@ -60,6 +64,8 @@ class ProcessWriter:
         """CPU time the child spent writing, from the writer's opening to its close (its start-up, ~0.35 s of imports
         once, left out); known once `close` has returned. Benchmarks print it beside the recorder's own."""
         self._opened_cpu = 0.0
+        self._target: Path | None = None
+        """The file asked for (`path` is the one the writer opened)."""
         self._lost: RecordingFileError | None = None
         """Set once the child has gone away unasked: every later write raises it; cleanup (discard, close) is quiet."""
         self._closed = False
@@ -67,9 +73,10 @@ class ProcessWriter:
     def open(self, path: str | Path, meta: RecordingMeta, **options: Any) -> ProcessWriter:
         self.fields = episode_fields(meta)
         self.reset_fields = [f for f in self.fields if f.per_state]
+        self._target = Path(path)
         try:
             self._send(("open", str(path), meta, options))
-            opened, self._opened_cpu = self._reply()
+            opened, self._opened_cpu = self._reply(timeout=_START_SECONDS)
             self.path = Path(opened)
         except BaseException:
             self.cancel()
@@ -127,8 +134,13 @@ class ProcessWriter:
         except OSError:
             raise self._gone() from None
 
-    def _reply(self) -> Any:
+    def _reply(self, timeout: float | None = None) -> Any:
+        """The child's answer to the last message sent; `timeout`: seconds after which a child that has not answered
+        is ended and taken for gone."""
         try:
+            if timeout is not None and not self._recv_conn.poll(timeout):
+                self._child.kill()
+                raise self._gone(f"did not answer in {timeout:.0f} s")
             status, value = self._recv_conn.recv()
         except (EOFError, OSError):
             raise self._gone() from None
@@ -136,12 +148,16 @@ class ProcessWriter:
             raise _rebuilt(value)
         return value
 
-    def _gone(self) -> RecordingFileError:
+    def _gone(self, how: str = "") -> RecordingFileError:
         try:
             code = self._child.wait(timeout=5)
         except subprocess.TimeoutExpired:
             code = None
-        how = "stopped answering" if code is None else f"ended (exit status {code})"
+        how = how or ("stopped answering" if code is None else f"ended (exit status {code})")
+        if self.path is None:  # it never opened the writer
+            return RecordingFileError(self._target, f"the writer process ({sys.executable} -m simreel.formats."
+                                      f"writer_process) {how} before it opened the file; record with "
+                                      "writer_process=False to write in this process")
         self._lost = RecordingFileError(self.path or "the recording", f"the writer process (pid {self._child.pid}) "
                                         f"{how}; the episodes committed before it did are in the file")
         return self._lost

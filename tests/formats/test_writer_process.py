@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from support.children import child_pids, wait_ended
 
-from simreel.errors import UsageError
+from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.hdf5.layout import sidecar_path
 from simreel.recorders import RecordWrapper
@@ -113,3 +113,28 @@ def test_a_recorder_that_refuses_its_target_leaves_no_writer_process(tmp_path):
         RecordWrapper(env, path)
     env.close()
     assert child_pids(os.getpid()) == before and path.read_bytes() == b"someone's file"
+
+
+@pytest.mark.parametrize("hangs", [False, True], ids=["exits", "hangs"])
+def test_a_python_that_cannot_run_the_writer_is_one_clear_error(tmp_path, monkeypatch, hangs):
+    """An application that embeds Python has another program as `sys.executable`: the writer process cannot start,
+    and the recorder says so, and how to write in this process instead, rather than wait forever."""
+    import re
+
+    import simreel.formats.writer_process as writer_process
+
+    program = tmp_path / "not-python"
+    program.write_text("#!/bin/sh\nexec sleep 60\n" if hangs else "#!/bin/sh\nexit 1\n")
+    program.chmod(0o755)
+    env = make_env("PickCube-v1")  # before: simreel's Vulkan probe runs sys.executable too
+    monkeypatch.setattr(sys, "executable", str(program))
+    monkeypatch.setattr(writer_process, "_START_SECONDS", 1)
+    out = tmp_path / "out" / "rec.h5"
+    out.parent.mkdir()
+    how = "did not answer in 1 s" if hangs else "ended (exit status 1)"
+    with pytest.raises(RecordingFileError, match=re.escape(
+            f"{out}: the writer process ({program} -m simreel.formats.writer_process) {how} before it opened the "
+            "file; record with writer_process=False to write in this process")):
+        RecordWrapper(env, out)
+    env.close()
+    assert not list(out.parent.iterdir())
