@@ -98,7 +98,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.Wrapper.__init__(self, env)
         _refuse_reshaping_wrappers(env, opts.record_obs)
         self.options = opts
-        starting = ProcessWriter() if opts.writer_process else None  # its imports run while the env is described
+        starting = ProcessWriter(path) if opts.writer_process else None  # its imports run while the env is described
         try:
             self._setup(env, path, starting)
         except BaseException:
@@ -121,7 +121,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.meta = self._describe(env, path)  # refuses an action space other than a Box
         self._action_shape = tuple(u.single_action_space.shape)
         if starting is not None:
-            self._writer = starting.open(path, self.meta, overwrite=opts.overwrite, **opts.writer_options)
+            self._writer = starting.open(self.meta, overwrite=opts.overwrite, **opts.writer_options)
         else:
             self._writer = open_writer(path, self.meta, overwrite=opts.overwrite, **opts.writer_options)
         self._buffer = StepBuffer(opts.block_steps, self._n)
@@ -140,10 +140,6 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._scene_seed: list[int | None] = [None] * self._n
         self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
         self._fingerprint_scenes(range(1, self._n))  # sub-scene 0's is the recording's own
-        self.episodes_committed: list[EpisodeMeta] = []
-        """Episodes the writer has committed (durable), in the order they ended."""
-        self._committing: list[EpisodeMeta] = []
-        """Episodes handed to the writer's commit, not yet known to be committed (`_settle`)."""
         self._closed = False
 
     def _describe(self, env: gym.Env, path: str | Path) -> Any:
@@ -195,8 +191,12 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """Wait until the writer has committed the episodes handed to it (a writer process commits them while the env
         resets); raises what the writer met, e.g. a full disk."""
         self._writer.settle()
-        self.episodes_committed.extend(self._committing)
-        self._committing.clear()
+
+    @property
+    def episodes_committed(self) -> list[EpisodeMeta]:
+        """The episodes committed (durable) so far, in the order they were committed; a writer process reports them
+        when the recorder settles (at the end of each reset) and at `close`."""
+        return self._writer.committed
 
     def _start(self, i: int, meta: EpisodeMeta, reset: StepBlock) -> None:
         self._next_index += 1
@@ -290,8 +290,6 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                     self._finish(i)
             finally:
                 self._writer.close()
-            self.episodes_committed.extend(self._committing)
-            self._committing.clear()
         self.env.close()
 
     # ------------------------------------------------------------------ internals
@@ -398,7 +396,6 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             sink.discard()
             return
         sink.commit(meta)
-        self._committing.append(meta)
 
 
 def _non_finite(a: np.ndarray) -> ActionError:

@@ -4,21 +4,24 @@ checksums, HDF5's object headers: ~4 ms an HDF5 episode) runs beside the env's o
 The recorder keeps the writer's interface: `begin_episode` gives a sink, whose `append`, `commit` and `discard`
 are sent to the child in order and return at once; each block is checked against the field table here first, so
 a bad block still fails where it is appended. `settle` waits until the child has done everything sent so far and
-raises the error the child met first, if any (the same error, e.g. the one-line `StorageError` of a full disk). A
-recorder settles at the end of every reset and `close` settles too, so once `reset()` returns the episodes it ended
-are committed, as with a writer in the same process.
+raises the error the child met first, if any (the same error, e.g. the one-line `StorageError` of a full disk);
+`committed` lists the episodes the child has reported committed. A recorder settles at the end of every reset and
+`close` settles too, so once `reset()` returns the episodes it ended are committed, as with a writer in the same
+process. An error stops the writer for good, as it stops a writer in the recorder's process: the child writes
+nothing more, and every later write here raises the error again.
 
 The child holds the file's locks and writes where the format's writer says, as that writer would in the recorder's
 own process. It ignores SIGINT and SIGTERM: the recorder handles them and tells it what to keep. If the recorder
 dies (`kill -9`), the child does what it was sent before and then exits at once, as the recorder would have: the
 running episodes are not committed and a staged `--overwrite` replaces nothing.
 
-Run as `python -m simreel.formats.writer_process READ_FD WRITE_FD` by `ProcessWriter` only.
+Run by `ProcessWriter` only (`_BOOTSTRAP`).
 """
 
 from __future__ import annotations
 
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -34,8 +37,10 @@ from simreel.formats.durable import deferred_signals
 __all__ = ["ProcessWriter"]
 
 _START_SECONDS = 120
-"""A child that has not opened the writer this long after it was started (~0.4 s on an idle machine) is ended:
+"""A child that has not said it is ready this long after it was started (~0.4 s on an idle machine) is ended:
 `sys.executable` may not be a Python that runs simreel (an application that embeds Python)."""
+_PARENT_CHECK_SECONDS = 1.0
+"""How often an idle child checks that its recorder still runs (a forked process may hold the pipe open)."""
 
 
 class ProcessWriter:
@@ -46,39 +51,53 @@ class ProcessWriter:
     that will not be opened.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, path: str | Path) -> None:
+        self._target = Path(path)
+        """The file asked for (`path` is the one the writer opened)."""
+        self.path: Path | None = None
         to_child, to_child_writes = os.pipe()
         from_child_reads, from_child = os.pipe()
-        self._child = subprocess.Popen(
-            [sys.executable, "-m", "simreel.formats.writer_process", str(to_child), str(from_child)],
-            pass_fds=(to_child, from_child), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-        )
-        os.close(to_child)
-        os.close(from_child)
+        try:
+            self._child = subprocess.Popen(
+                [sys.executable, "-P", "-c", _BOOTSTRAP, _simreel_root(), str(to_child), str(from_child)],
+                pass_fds=(to_child, from_child), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+            )
+        except (OSError, ValueError) as e:
+            for fd in (to_child_writes, from_child_reads):
+                os.close(fd)
+            raise self._not_started(f"could not start: {e}") from None
+        finally:
+            os.close(to_child)
+            os.close(from_child)
         self._send_conn = Connection(to_child_writes, readable=False)
         self._recv_conn = Connection(from_child_reads, writable=False)
-        self.path: Path | None = None
         self.fields: list[Any] = []
         self.reset_fields: list[Any] = []
+        self.committed: list[EpisodeMeta] = []
+        """The episodes the child has committed, in the order it committed them (known at each settle and close)."""
+        self._committing: dict[int, EpisodeMeta] = {}
+        """Episodes sent to be committed, by index, until the child reports them committed."""
+        self._owed = 0
+        """Answers the child owes (a Ctrl-C can interrupt the wait for one: it is read before the next)."""
         self.child_cpu_seconds = 0.0
         """CPU time the child spent writing, from the writer's opening to its close (its start-up, ~0.35 s of imports
         once, left out); known once `close` has returned. Benchmarks print it beside the recorder's own."""
         self._opened_cpu = 0.0
-        self._target: Path | None = None
-        """The file asked for (`path` is the one the writer opened)."""
-        self._lost: RecordingFileError | None = None
-        """Set once the child has gone away unasked: every later write raises it; cleanup (discard, close) is quiet."""
+        self._failed: BaseException | None = None
+        """The error that stopped the writer (the child's, or the child gone unasked): every later write raises it;
+        cleanup (discard, close) is quiet."""
         self._closed = False
 
-    def open(self, path: str | Path, meta: RecordingMeta, **options: Any) -> ProcessWriter:
+    def open(self, meta: RecordingMeta, **options: Any) -> ProcessWriter:
         self.fields = episode_fields(meta)
         self.reset_fields = [f for f in self.fields if f.per_state]
-        self._target = Path(path)
         try:
-            self._send(("open", str(path), meta, options))
-            opened, self._opened_cpu = self._reply(timeout=_START_SECONDS)
+            self._wait_ready()
+            opened, self._opened_cpu = self._request(("open", str(self._target), meta, options))
             self.path = Path(opened)
         except BaseException:
+            if self._owed and self._failed is None:  # interrupted while the child opens: it must drop what it made
+                self._last("abort", quiet=True)
             self.cancel()
             raise
         return self
@@ -94,13 +113,12 @@ class ProcessWriter:
         return _ProcessSink(self, meta.index)
 
     def settle(self) -> None:
-        """Wait until the child has done everything sent so far; raise the first error it met since the last settle."""
-        self._send(("settle",))
-        self._reply()
+        """Wait until the child has done everything sent so far; raise the error it met, if any."""
+        self._request(("settle",))
 
     def close(self) -> None:
         """Settle, close the writer in the child (a staged recording replaces the old one now) and wait for the child
-        to exit. Raises the child's first error not yet raised, or the one closing met."""
+        to exit. Raises the child's error not yet raised, or the one closing met."""
         cpu = self._last("close")
         if cpu is not None:
             self.child_cpu_seconds = cpu - self._opened_cpu
@@ -109,58 +127,84 @@ class ProcessWriter:
         """Drop the whole recording (the format writer's `abort`) and end the child."""
         self._last("abort")
 
-    def _last(self, op: str) -> Any:
+    def _last(self, op: str, quiet: bool = False) -> Any:
         """Send the child its last message, `op` ("close" or "abort"), and wait for it to exit; its answer (None when
-        the child was gone already, or had ended before)."""
+        the child was gone already, or had ended before). `quiet`: raise nothing (cleaning up after another error)."""
         if self._closed:
             return None
         self._closed = True
         try:
-            if self._lost is None:
-                self._send((op,))
-                return self._reply()
+            if not isinstance(self._failed, _Gone):
+                return self._request((op,), after_failure=True)
+            return None
+        except BaseException:
+            if not quiet:
+                raise
             return None
         finally:
             self._end_child()
 
     # ------------------------------------------------------------------ the pipe
-    def _send(self, message: tuple[Any, ...]) -> None:
-        """Send one message whole: a signal in the middle of one would leave the child reading half of it."""
-        if self._lost is not None:
-            raise self._lost
+    def _send(self, message: tuple[Any, ...], after_failure: bool = False, answered: bool = False) -> None:
+        """Send one message whole (a signal in the middle of one would leave the child reading half of it); for a
+        message the child answers (`answered`), count the answer owed before any signal is let through."""
+        if self._failed is not None and not after_failure:
+            raise self._failed
         try:
             with deferred_signals():
                 self._send_conn.send(message)
+                self._owed += answered
         except OSError:
             raise self._gone() from None
 
-    def _reply(self, timeout: float | None = None) -> Any:
-        """The child's answer to the last message sent; `timeout`: seconds after which a child that has not answered
-        is ended and taken for gone."""
+    def _request(self, message: tuple[Any, ...], after_failure: bool = False) -> Any:
+        """Send `message` and return the child's answer to it, after reading the answers owed to earlier requests
+        (a Ctrl-C may have cut the wait for one); raises the first error among them."""
+        self._send(message, after_failure, answered=True)
+        error = answer = None
+        while self._owed:
+            status, answer, committed = self._receive()
+            self._owed -= 1
+            self.committed += [self._committing.pop(i) for i in committed]
+            if status == "error" and error is None:
+                error = _rebuilt(answer)
+        if error is not None:
+            self._failed = self._failed or error
+            raise error
+        return answer
+
+    def _receive(self) -> tuple[str, Any, list[int]]:
         try:
-            if timeout is not None and not self._recv_conn.poll(timeout):
-                self._child.kill()
-                raise self._gone(f"did not answer in {timeout:.0f} s")
-            status, value = self._recv_conn.recv()
+            return self._recv_conn.recv()
         except (EOFError, OSError):
             raise self._gone() from None
-        if status == "error":
-            raise _rebuilt(value)
-        return value
 
-    def _gone(self, how: str = "") -> RecordingFileError:
+    def _wait_ready(self) -> None:
+        """Wait for the child's first word, said once it runs (a program that is not our child never says it)."""
         try:
-            code = self._child.wait(timeout=5)
+            if not self._recv_conn.poll(_START_SECONDS):
+                self._child.kill()
+                raise self._not_started(f"did not answer in {_START_SECONDS:.0f} s")
+            self._recv_conn.recv()
+        except (EOFError, OSError):
+            raise self._not_started(f"ended (exit status {self._exit_status()})") from None
+
+    def _not_started(self, how: str) -> RecordingFileError:
+        return RecordingFileError(self._target, f"the writer process ({sys.executable}) {how} before it opened the "
+                                  "file; record with writer_process=False to write in this process")
+
+    def _gone(self) -> RecordingFileError:
+        code = self._exit_status()
+        how = "stopped answering" if code is None else f"ended (exit status {code})"
+        self._failed = _Gone(self.path or self._target, f"the writer process (pid {self._child.pid}) {how}; the "
+                             "episodes committed before it did are in the file")
+        return self._failed
+
+    def _exit_status(self) -> int | None:
+        try:
+            return self._child.wait(timeout=5)
         except subprocess.TimeoutExpired:
-            code = None
-        how = how or ("stopped answering" if code is None else f"ended (exit status {code})")
-        if self.path is None:  # it never opened the writer
-            return RecordingFileError(self._target, f"the writer process ({sys.executable} -m simreel.formats."
-                                      f"writer_process) {how} before it opened the file; record with "
-                                      "writer_process=False to write in this process")
-        self._lost = RecordingFileError(self.path or "the recording", f"the writer process (pid {self._child.pid}) "
-                                        f"{how}; the episodes committed before it did are in the file")
-        return self._lost
+            return None
 
     def _end_child(self) -> None:
         self._hang_up()
@@ -169,6 +213,11 @@ class ProcessWriter:
         except subprocess.TimeoutExpired:
             self._child.kill()
             self._child.wait()
+
+    def _hang_up(self) -> None:
+        """Close both ends of the pipe (the child reads the end of its input and exits)."""
+        self._send_conn.close()
+        self._recv_conn.close()
 
     def __enter__(self) -> ProcessWriter:
         return self
@@ -182,10 +231,9 @@ class ProcessWriter:
         if not getattr(self, "_closed", True):
             self._hang_up()
 
-    def _hang_up(self) -> None:
-        """Close both ends of the pipe (the child reads the end of its input and exits)."""
-        self._send_conn.close()
-        self._recv_conn.close()
+
+class _Gone(RecordingFileError):
+    """The writer process ended (or stopped answering) without being asked to."""
 
 
 class _ProcessSink:
@@ -201,17 +249,45 @@ class _ProcessSink:
 
     def commit(self, meta: EpisodeMeta) -> None:
         self._writer._send(("commit", self._index, meta))
+        self._writer._committing[meta.index] = meta
 
     def discard(self) -> None:
-        if self._writer._lost is None:  # a child that is gone keeps nothing of it anyway
-            self._writer._send(("discard", self._index))
+        if not isinstance(self._writer._failed, _Gone):  # a child that is gone keeps nothing of it anyway
+            self._writer._send(("discard", self._index), after_failure=True)
+
+
+_BOOTSTRAP = (
+    "import sys\n"
+    "root, read_fd, write_fd = sys.argv[1:]\n"
+    "if root not in sys.path:\n"
+    "    sys.path.insert(0, root)\n"
+    "from simreel.formats.writer_process import _main\n"
+    "_main(int(read_fd), int(write_fd))\n"
+)
+"""The child's program: it imports the simreel this process runs, from the folder this process imported it from
+(`-P` keeps the working directory, and whatever lies there, off its path)."""
+
+
+def _simreel_root() -> str:
+    import simreel
+
+    return str(Path(simreel.__file__).resolve().parent.parent)
 
 
 # ---------------------------------------------------------------------- errors across the pipe
 def _portable(e: BaseException) -> tuple[str, str, tuple[Any, ...], dict[str, Any]]:
     """`e` as (module, class name, args, attributes): simreel's errors take other arguments than their message, so
-    pickle could not rebuild them."""
-    return type(e).__module__, type(e).__qualname__, e.args, dict(getattr(e, "__dict__", {}))
+    pickle could not rebuild them; an OSError's args carry its errno, message and file names. What cannot be pickled
+    travels as a RuntimeError with the error's text."""
+    args = e.args
+    if isinstance(e, OSError) and e.errno is not None:
+        args = (e.errno, e.strerror, e.filename, None, e.filename2)
+    portable = (type(e).__module__, type(e).__qualname__, args, dict(getattr(e, "__dict__", {})))
+    try:
+        pickle.dumps(portable)
+    except Exception:  # noqa: BLE001 - anything may fail to pickle
+        return "builtins", "RuntimeError", (f"{type(e).__name__}: {e}",), {}
+    return portable
 
 
 def _rebuilt(portable: tuple[str, str, tuple[Any, ...], dict[str, Any]]) -> BaseException:
@@ -220,6 +296,8 @@ def _rebuilt(portable: tuple[str, str, tuple[Any, ...], dict[str, Any]]) -> Base
     module, name, args, attributes = portable
     try:
         cls = getattr(importlib.import_module(module), name)
+        if issubclass(cls, OSError):
+            return cls(*args)
         e = cls.__new__(cls)
         BaseException.__init__(e, *args)
         e.__dict__.update(attributes)
@@ -230,37 +308,67 @@ def _rebuilt(portable: tuple[str, str, tuple[Any, ...], dict[str, Any]]) -> Base
 
 # ---------------------------------------------------------------------- the child
 class _Child:
-    """Carries out what the recorder sends, in order; after an error, only what cleans up (discard, close, abort),
-    until a settle has reported it."""
+    """Carries out what the recorder sends, in order. After an error nothing more is written (the writer is stopped,
+    as it would be in the recorder's process); only what cleans up (discard, close, abort) still runs."""
 
     def __init__(self, recv: Connection, send: Connection) -> None:
         self._recv, self._send = recv, send
+        self._parent = os.getppid()
         self._writer: Any = None
         self._sinks: dict[int, Any] = {}
         self._error: BaseException | None = None
+        """The error to report at the next answer."""
+        self._stopped = False
+        self._committed: list[int] = []
+        """Episodes committed since the last answer."""
 
     def run(self) -> None:
+        self._answer_raw(("ready", None, []))
         while True:
-            try:
-                message = self._recv.recv()
-            except (EOFError, OSError):  # the recorder is gone without closing: leave everything as a crash would
-                os._exit(0)
+            message = self._next()
             op, args = message[0], message[1:]
             getattr(self, f"_{op}")(*args)
             if op in ("close", "abort"):
                 return
 
-    def _reply(self, value: Any = None) -> None:
-        error, self._error = self._error, None
-        self._send.send(("error", _portable(error)) if error is not None else ("ok", value))
+    def _next(self) -> tuple[Any, ...]:
+        """The next message; at the end of the input (the recorder is gone without closing), exit at once, leaving
+        everything as a crash of the recorder would."""
+        try:
+            while not self._recv.poll(_PARENT_CHECK_SECONDS):
+                if os.getppid() != self._parent:  # the recorder died; a process it forked holds the pipe open
+                    os._exit(0)
+            return self._recv.recv()
+        except (EOFError, OSError):
+            os._exit(0)
 
-    def _guarded(self, work: Any, *args: Any) -> None:
-        if self._error is not None:
-            return
+    def _answer(self, value: Any = None) -> None:
+        error, self._error = self._error, None
+        committed, self._committed = self._committed, []
+        self._answer_raw(("error", _portable(error), committed) if error is not None else ("ok", value, committed))
+
+    def _answer_raw(self, answer: tuple[str, Any, list[int]]) -> None:
+        try:
+            self._send.send(answer)
+        except OSError:  # the recorder is gone
+            os._exit(0)
+
+    def _guarded(self, work: Any, *args: Any) -> bool:
+        """Run a write unless the writer has stopped; an error stops it (reported at the next answer)."""
+        if self._stopped:
+            return False
         try:
             work(*args)
+            return True
         except Exception as e:  # noqa: BLE001 - every error goes back to the recorder, which raises it
-            self._error = e
+            self._error, self._stopped = e, True
+            return False
+
+    def _cleanup(self, work: Any) -> None:
+        try:
+            work()
+        except Exception as e:  # noqa: BLE001
+            self._error = self._error or e
 
     def _open(self, path: str, meta: RecordingMeta, options: dict[str, Any]) -> None:
         from simreel.formats import open_writer
@@ -269,7 +377,7 @@ class _Child:
             self._writer = open_writer(path, meta, **options)
 
         self._guarded(opened)
-        self._reply((str(self._writer.path), time.process_time()) if self._writer is not None else None)
+        self._answer((str(self._writer.path), time.process_time()) if self._writer is not None else None)
         if self._writer is None:
             os._exit(0)
 
@@ -286,40 +394,28 @@ class _Child:
 
     def _commit(self, index: int, meta: EpisodeMeta) -> None:
         sink = self._sinks.pop(index, None)
-        if sink is not None:
-            self._guarded(sink.commit, meta)
+        if sink is not None and self._guarded(sink.commit, meta):
+            self._committed.append(index)
 
     def _discard(self, index: int) -> None:
         sink = self._sinks.pop(index, None)
         if sink is not None:
-            try:
-                sink.discard()
-            except Exception as e:  # noqa: BLE001
-                self._error = self._error or e
+            self._cleanup(sink.discard)
 
     def _settle(self) -> None:
-        self._reply()
+        self._answer()
 
     def _close(self) -> None:
-        try:
-            self._writer.close()
-        except Exception as e:  # noqa: BLE001
-            self._error = self._error or e
-        self._reply(time.process_time())
+        self._cleanup(self._writer.close)
+        self._answer(time.process_time())
 
     def _abort(self) -> None:
-        try:
-            self._writer.abort()
-        except Exception as e:  # noqa: BLE001
-            self._error = self._error or e
-        self._reply()
+        if self._writer is not None:
+            self._cleanup(self._writer.abort)
+        self._answer()
 
 
 def _main(read_fd: int, write_fd: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _Child(Connection(read_fd, writable=False), Connection(write_fd, readable=False)).run()
-
-
-if __name__ == "__main__":
-    _main(int(sys.argv[1]), int(sys.argv[2]))

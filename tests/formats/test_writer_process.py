@@ -10,15 +10,18 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
-from support.children import child_pids, wait_ended
+from support.children import child_pids, running, wait_ended
 
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.hdf5.layout import sidecar_path
+from simreel.formats.writer_process import ProcessWriter
 from simreel.recorders import RecordWrapper
 from simreel.sim.make import make_env
 
@@ -99,20 +102,80 @@ def test_ctrl_c_to_the_whole_process_group_is_handled_by_the_recorder(tmp_path):
     os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
+    assert "Traceback" not in err
     wait_ended(writers)
     assert _committed_episodes_read(out, last_cut_short=True) >= 2
     assert not (tmp_path / "rec.h5.partial").exists()  # closed properly: nothing left beside the file
 
 
+def _writer_processes() -> list[int]:
+    """The writer processes this process started that still run."""
+    found = []
+    for pid in child_pids(os.getpid()):
+        try:
+            if b"writer_process" in Path(f"/proc/{pid}/cmdline").read_bytes() and running(pid):
+                found.append(pid)
+        except OSError:
+            continue
+    return found
+
+
 def test_a_recorder_that_refuses_its_target_leaves_no_writer_process(tmp_path):
     path = tmp_path / "taken.h5"
     path.write_bytes(b"someone's file")
-    before = child_pids(os.getpid())
     env = make_env("PickCube-v1")
     with pytest.raises(UsageError, match="already exists"):  # the writer's own error, from its process
         RecordWrapper(env, path)
     env.close()
-    assert child_pids(os.getpid()) == before and path.read_bytes() == b"someone's file"
+    assert _writer_processes() == [] and path.read_bytes() == b"someone's file"
+
+
+def _interrupt_the_next_wait(monkeypatch) -> None:
+    """Make the recorder's next wait for an answer from its writer process end in KeyboardInterrupt, as a Ctrl-C
+    that lands there does (the answer is left in the pipe)."""
+    receive = ProcessWriter._receive
+
+    def interrupted(self):
+        monkeypatch.setattr(ProcessWriter, "_receive", receive)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ProcessWriter, "_receive", interrupted)
+
+
+def test_ctrl_c_while_a_reset_waits_for_its_commit_does_not_leave_later_resets_a_step_behind(tmp_path, monkeypatch):
+    """The answer a Ctrl-C left unread is read before the next one: the next reset still returns only once the
+    episode it ended is committed (here the writer is held stopped for a second, so a stale answer would let it
+    return first)."""
+    path = tmp_path / "rec.h5"
+    rec = RecordWrapper(make_env("PickCube-v1"), path)
+    zero = np.zeros(rec.action_space.shape, np.float32)
+    rec.reset(seed=0)
+    rec.step(zero)
+    _interrupt_the_next_wait(monkeypatch)
+    with pytest.raises(KeyboardInterrupt):
+        rec.reset(seed=1)
+    rec.step(zero)
+    writer = rec._writer._child.pid
+    os.kill(writer, signal.SIGSTOP)
+    threading.Timer(1.0, os.kill, (writer, signal.SIGCONT)).start()
+    rec.reset(seed=2)
+    with open_reader(path) as r:
+        assert [m.index for m in r.episodes] == [0, 1]
+    assert [m.index for m in rec.episodes_committed] == [0, 1]
+    rec.close()
+
+
+def test_ctrl_c_while_the_writer_opens_its_file_leaves_nothing(tmp_path, monkeypatch):
+    """Interrupted between asking the writer process to open the file and its answer: the child opened it, so it
+    is told to drop it; no file, side file or child process stays (a later recording there is not refused)."""
+    path = tmp_path / "rec.h5"
+    env = make_env("PickCube-v1")
+    _interrupt_the_next_wait(monkeypatch)
+    with pytest.raises(KeyboardInterrupt):
+        RecordWrapper(env, path)
+    assert list(tmp_path.iterdir()) == [] and _writer_processes() == []
+    RecordWrapper(env, path).close()
+    assert path.exists()
 
 
 @pytest.mark.parametrize("hangs", [False, True], ids=["exits", "hangs"])
@@ -128,13 +191,13 @@ def test_a_python_that_cannot_run_the_writer_is_one_clear_error(tmp_path, monkey
     program.chmod(0o755)
     env = make_env("PickCube-v1")  # before: simreel's Vulkan probe runs sys.executable too
     monkeypatch.setattr(sys, "executable", str(program))
-    monkeypatch.setattr(writer_process, "_START_SECONDS", 1)
+    monkeypatch.setattr(writer_process, "_START_SECONDS", 1 if hangs else 60)
     out = tmp_path / "out" / "rec.h5"
     out.parent.mkdir()
     how = "did not answer in 1 s" if hangs else "ended (exit status 1)"
     with pytest.raises(RecordingFileError, match=re.escape(
-            f"{out}: the writer process ({program} -m simreel.formats.writer_process) {how} before it opened the "
-            "file; record with writer_process=False to write in this process")):
+            f"{out}: the writer process ({program}) {how} before it opened the file; record with "
+            "writer_process=False to write in this process")):
         RecordWrapper(env, out)
     env.close()
     assert not list(out.parent.iterdir())

@@ -23,7 +23,10 @@ def child_pids(pid: int) -> list[int]:
     writer_process`)."""
     found = []
     for task in Path(f"/proc/{pid}/task").iterdir():
-        found += [int(p) for p in (task / "children").read_text().split()]
+        try:
+            found += [int(p) for p in (task / "children").read_text().split()]
+        except OSError:  # the thread ended meanwhile
+            continue
     return found
 
 
@@ -32,12 +35,12 @@ def wait_ended(pids: list[int], timeout: float = 30) -> None:
     is still running after `timeout` seconds: a writer process must not outlive its recorder."""
     deadline = time.monotonic() + timeout
     for pid in pids:
-        while _running(pid):
+        while running(pid):
             assert time.monotonic() < deadline, f"process {pid} still runs {timeout} s after its recorder ended"
             time.sleep(0.01)
 
 
-def _running(pid: int) -> bool:
+def running(pid: int) -> bool:
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()
     except OSError:
