@@ -59,7 +59,7 @@ class ProcessWriter:
         from_child_reads, from_child = os.pipe()
         try:
             self._child = subprocess.Popen(
-                [sys.executable, "-P", "-c", _BOOTSTRAP, _simreel_root(), str(to_child), str(from_child)],
+                [sys.executable, "-c", _BOOTSTRAP, _simreel_root(), str(to_child), str(from_child), str(os.getpid())],
                 pass_fds=(to_child, from_child), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
             )
         except (OSError, ValueError) as e:
@@ -159,25 +159,30 @@ class ProcessWriter:
 
     def _request(self, message: tuple[Any, ...], after_failure: bool = False) -> Any:
         """Send `message` and return the child's answer to it, after reading the answers owed to earlier requests
-        (a Ctrl-C may have cut the wait for one); raises the first error among them."""
+        (a Ctrl-C may have cut the wait for one); raises the writer's error if an answer carried one."""
+        failed_before = self._failed
         self._send(message, after_failure, answered=True)
-        error = answer = None
+        answer = None
         while self._owed:
-            status, answer, committed = self._receive()
-            self._owed -= 1
-            self.committed += [self._committing.pop(i) for i in committed]
-            if status == "error" and error is None:
-                error = _rebuilt(answer)
-        if error is not None:
-            self._failed = self._failed or error
-            raise error
+            answer = self._receive()
+        if self._failed is not None and (not after_failure or self._failed is not failed_before):
+            raise self._failed
         return answer
 
-    def _receive(self) -> tuple[str, Any, list[int]]:
+    def _receive(self) -> Any:
+        """Wait for the next answer (a signal may cut the wait), then read it and note what it says with signals held,
+        so an answer is never half read or read and forgotten. Returns its value (None for an error)."""
         try:
-            return self._recv_conn.recv()
+            self._recv_conn.poll(None)
+            with deferred_signals():
+                status, answer, committed = self._recv_conn.recv()
+                self._owed -= 1
+                self.committed += [self._committing.pop(i) for i in committed]
+                if status == "error" and self._failed is None:
+                    self._failed = _rebuilt(answer)
         except (EOFError, OSError):
             raise self._gone() from None
+        return answer if status == "ok" else None
 
     def _wait_ready(self) -> None:
         """Wait for the child's first word, said once it runs (a program that is not our child never says it)."""
@@ -248,8 +253,8 @@ class _ProcessSink:
         self._writer._send(("append", self._index, StepBlock(arrays, block.rows)))
 
     def commit(self, meta: EpisodeMeta) -> None:
+        self._writer._committing[meta.index] = meta  # first: a Ctrl-C held during the send is raised right after it
         self._writer._send(("commit", self._index, meta))
-        self._writer._committing[meta.index] = meta
 
     def discard(self) -> None:
         if not isinstance(self._writer._failed, _Gone):  # a child that is gone keeps nothing of it anyway
@@ -258,20 +263,25 @@ class _ProcessSink:
 
 _BOOTSTRAP = (
     "import sys\n"
-    "root, read_fd, write_fd = sys.argv[1:]\n"
-    "if root not in sys.path:\n"
-    "    sys.path.insert(0, root)\n"
+    "if sys.path and sys.path[0] == '':\n"
+    "    del sys.path[0]\n"
+    "from importlib.machinery import PathFinder\n"
+    "from importlib.util import module_from_spec\n"
+    "root, read_fd, write_fd, parent = sys.argv[1:]\n"
+    "spec = PathFinder.find_spec('simreel', [root])\n"
+    "sys.modules['simreel'] = module_from_spec(spec)\n"
+    "spec.loader.exec_module(sys.modules['simreel'])\n"
     "from simreel.formats.writer_process import _main\n"
-    "_main(int(read_fd), int(write_fd))\n"
+    "_main(int(read_fd), int(write_fd), int(parent))\n"
 )
-"""The child's program: it imports the simreel this process runs, from the folder this process imported it from
-(`-P` keeps the working directory, and whatever lies there, off its path)."""
+"""The child's program: it runs the simreel this process runs, loaded from the folder this process loaded it from,
+without putting that folder (or the working directory, and whatever lies there) on its path."""
 
 
 def _simreel_root() -> str:
     import simreel
 
-    return str(Path(simreel.__file__).resolve().parent.parent)
+    return os.path.dirname(os.path.dirname(os.path.abspath(simreel.__file__)))
 
 
 # ---------------------------------------------------------------------- errors across the pipe
@@ -311,13 +321,13 @@ class _Child:
     """Carries out what the recorder sends, in order. After an error nothing more is written (the writer is stopped,
     as it would be in the recorder's process); only what cleans up (discard, close, abort) still runs."""
 
-    def __init__(self, recv: Connection, send: Connection) -> None:
+    def __init__(self, recv: Connection, send: Connection, parent: int) -> None:
         self._recv, self._send = recv, send
-        self._parent = os.getppid()
+        self._parent = parent
         self._writer: Any = None
         self._sinks: dict[int, Any] = {}
         self._error: BaseException | None = None
-        """The error to report at the next answer."""
+        """The first error met (every answer carries it)."""
         self._stopped = False
         self._committed: list[int] = []
         """Episodes committed since the last answer."""
@@ -343,7 +353,9 @@ class _Child:
             os._exit(0)
 
     def _answer(self, value: Any = None) -> None:
-        error, self._error = self._error, None
+        """Answer with `value`, the episodes committed since the last answer, and the error that stopped the writer
+        (in every answer from then on: the recorder may have been interrupted before it read the first)."""
+        error = self._error
         committed, self._committed = self._committed, []
         self._answer_raw(("error", _portable(error), committed) if error is not None else ("ok", value, committed))
 
@@ -415,7 +427,7 @@ class _Child:
         self._answer()
 
 
-def _main(read_fd: int, write_fd: int) -> None:
+def _main(read_fd: int, write_fd: int, parent: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _Child(Connection(read_fd, writable=False), Connection(write_fd, readable=False)).run()
+    _Child(Connection(read_fd, writable=False), Connection(write_fd, readable=False), parent).run()

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from support.children import child_pids, running, wait_ended
+from support.mcap_samples import synthetic_episode, synthetic_meta
 
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import open_reader
@@ -130,16 +131,19 @@ def test_a_recorder_that_refuses_its_target_leaves_no_writer_process(tmp_path):
     assert _writer_processes() == [] and path.read_bytes() == b"someone's file"
 
 
-def _interrupt_the_next_wait(monkeypatch) -> None:
-    """Make the recorder's next wait for an answer from its writer process end in KeyboardInterrupt, as a Ctrl-C
-    that lands there does (the answer is left in the pipe)."""
+def _interrupt_waits(monkeypatch, *which: int) -> None:
+    """Make the recorder's waits for an answer from its writer process number `which` (1: the next one) end in
+    KeyboardInterrupt, as a Ctrl-C that lands there does (the answer is left in the pipe); the others read as usual."""
     receive = ProcessWriter._receive
+    calls = []
 
-    def interrupted(self):
-        monkeypatch.setattr(ProcessWriter, "_receive", receive)
-        raise KeyboardInterrupt
+    def maybe_interrupted(self):
+        calls.append(None)
+        if len(calls) in which:
+            raise KeyboardInterrupt
+        return receive(self)
 
-    monkeypatch.setattr(ProcessWriter, "_receive", interrupted)
+    monkeypatch.setattr(ProcessWriter, "_receive", maybe_interrupted)
 
 
 def test_ctrl_c_while_a_reset_waits_for_its_commit_does_not_leave_later_resets_a_step_behind(tmp_path, monkeypatch):
@@ -151,7 +155,7 @@ def test_ctrl_c_while_a_reset_waits_for_its_commit_does_not_leave_later_resets_a
     zero = np.zeros(rec.action_space.shape, np.float32)
     rec.reset(seed=0)
     rec.step(zero)
-    _interrupt_the_next_wait(monkeypatch)
+    _interrupt_waits(monkeypatch, 1)
     with pytest.raises(KeyboardInterrupt):
         rec.reset(seed=1)
     rec.step(zero)
@@ -170,7 +174,7 @@ def test_ctrl_c_while_the_writer_opens_its_file_leaves_nothing(tmp_path, monkeyp
     is told to drop it; no file, side file or child process stays (a later recording there is not refused)."""
     path = tmp_path / "rec.h5"
     env = make_env("PickCube-v1")
-    _interrupt_the_next_wait(monkeypatch)
+    _interrupt_waits(monkeypatch, 1)
     with pytest.raises(KeyboardInterrupt):
         RecordWrapper(env, path)
     assert list(tmp_path.iterdir()) == [] and _writer_processes() == []
@@ -201,3 +205,33 @@ def test_a_python_that_cannot_run_the_writer_is_one_clear_error(tmp_path, monkey
         RecordWrapper(env, out)
     env.close()
     assert not list(out.parent.iterdir())
+
+
+def _write(w: ProcessWriter, episode) -> None:
+    sink = w.begin_episode(episode.meta, episode.reset_block())
+    sink.append(episode.steps_block())
+    sink.commit(episode.meta)
+
+
+def test_an_error_the_writer_met_is_not_lost_to_a_ctrl_c_and_stops_it_for_good(tmp_path, monkeypatch):
+    """The writer process refuses a write (here: a second episode 0); the settle that would report it is cut by a
+    Ctrl-C, and so is the next one, after it read that answer: a later settle still raises the error, and so does
+    every later write, as a writer in one process would."""
+    meta = synthetic_meta(poses=False)
+    first = synthetic_episode(meta, 0, 5)
+    w = ProcessWriter(tmp_path / "r.h5").open(meta)
+    _write(w, first)
+    w.begin_episode(first.meta, first.reset_block())  # the same index again: refused in the child
+    _interrupt_waits(monkeypatch, 1, 3)  # the first settle's wait, and the second's for its own answer
+    with pytest.raises(KeyboardInterrupt):
+        w.settle()
+    with pytest.raises(KeyboardInterrupt):
+        w.settle()  # read the first settle's answer (the error), then was cut
+    with pytest.raises(UsageError, match="episode 0 was already written"):
+        w.settle()
+    with pytest.raises(UsageError, match="episode 0 was already written"):
+        _write(w, synthetic_episode(meta, 1, 5))
+    w.close()
+    assert [m.index for m in w.committed] == [0]
+    with open_reader(tmp_path / "r.h5") as r:
+        assert [m.index for m in r.episodes] == [0]
