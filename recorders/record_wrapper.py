@@ -102,7 +102,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         try:
             self._setup(env, path, starting)
         except BaseException:
-            if starting is not None:
+            if hasattr(self, "_writer"):  # opened, then setting up failed: drop the new recording
+                self._writer.abort()
+            elif starting is not None:
                 starting.cancel()
             raise
 
@@ -282,15 +284,18 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._buffer.rewind()
 
     def close(self) -> None:
-        """Commit the running episodes that have at least one step, close the file and the env."""
-        if not self._closed:
-            self._closed = True
-            try:
-                for i in range(self._n):
-                    self._finish(i)
-            finally:
-                self._writer.close()
-        self.env.close()
+        """Commit the running episodes that have at least one step, close the file and the env (the env also when
+        the writer raises: e.g. the error that stopped it, raised again by the commit)."""
+        try:
+            if not self._closed:
+                self._closed = True
+                try:
+                    for i in range(self._n):
+                        self._finish(i)
+                finally:
+                    self._writer.close()
+        finally:
+            self.env.close()
 
     # ------------------------------------------------------------------ internals
     @property

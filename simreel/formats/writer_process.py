@@ -11,7 +11,8 @@ process. An error stops the writer for good, as it stops a writer in the recorde
 nothing more, and every later write here raises the error again.
 
 The child holds the file's locks and writes where the format's writer says, as that writer would in the recorder's
-own process. It ignores SIGINT and SIGTERM: the recorder handles them and tells it what to keep. If the recorder
+own process. It runs in a session of its own and ignores SIGINT and SIGTERM: the recorder handles them and tells it
+what to keep. If the recorder
 dies (`kill -9`), the child does what it was sent before and then exits at once, as the recorder would have: the
 running episodes are not committed and a staged `--overwrite` replaces nothing.
 
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import os
 import pickle
-import signal
 import subprocess
 import sys
 import time
@@ -59,10 +59,12 @@ class ProcessWriter:
         from_child_reads, from_child = os.pipe()
         try:
             self._child = subprocess.Popen(
-                [sys.executable, "-c", _BOOTSTRAP, _simreel_root(), str(to_child), str(from_child), str(os.getpid())],
+                [sys.executable, *subprocess._args_from_interpreter_flags(), "-c", _BOOTSTRAP, _simreel_root(),
+                 str(to_child), str(from_child), str(os.getpid())],
                 pass_fds=(to_child, from_child), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                start_new_session=True,  # a terminal's Ctrl-C reaches the recorder only, which tells the child
             )
-        except (OSError, ValueError) as e:
+        except (OSError, ValueError, TypeError) as e:  # TypeError: sys.executable is None
             for fd in (to_child_writes, from_child_reads):
                 os.close(fd)
             raise self._not_started(f"could not start: {e}") from None
@@ -85,7 +87,8 @@ class ProcessWriter:
         self._opened_cpu = 0.0
         self._failed: BaseException | None = None
         """The error that stopped the writer (the child's, or the child gone unasked): every later write raises it;
-        cleanup (discard, close) is quiet."""
+        cleanup (discard, close) raises it only if it was never raised (a Ctrl-C may have cut in first)."""
+        self._failure_raised = False
         self._closed = False
 
     def open(self, meta: RecordingMeta, **options: Any) -> ProcessWriter:
@@ -133,22 +136,24 @@ class ProcessWriter:
         if self._closed:
             return None
         self._closed = True
-        try:
-            if not isinstance(self._failed, _Gone):
-                return self._request((op,), after_failure=True)
-            return None
-        except BaseException:
-            if not quiet:
-                raise
-            return None
-        finally:
-            self._end_child()
+        with deferred_signals():  # like a writer's own close: a Ctrl-C now is handled once the file is finished
+            try:
+                if not isinstance(self._failed, _Gone):
+                    return self._request((op,), after_failure=True)
+                return None
+            except BaseException:
+                if not quiet:
+                    raise
+                return None
+            finally:
+                self._end_child()
 
     # ------------------------------------------------------------------ the pipe
     def _send(self, message: tuple[Any, ...], after_failure: bool = False, answered: bool = False) -> None:
         """Send one message whole (a signal in the middle of one would leave the child reading half of it); for a
         message the child answers (`answered`), count the answer owed before any signal is let through."""
         if self._failed is not None and not after_failure:
+            self._failure_raised = True
             raise self._failed
         try:
             with deferred_signals():
@@ -160,12 +165,12 @@ class ProcessWriter:
     def _request(self, message: tuple[Any, ...], after_failure: bool = False) -> Any:
         """Send `message` and return the child's answer to it, after reading the answers owed to earlier requests
         (a Ctrl-C may have cut the wait for one); raises the writer's error if an answer carried one."""
-        failed_before = self._failed
         self._send(message, after_failure, answered=True)
         answer = None
         while self._owed:
             answer = self._receive()
-        if self._failed is not None and (not after_failure or self._failed is not failed_before):
+        if self._failed is not None and (not after_failure or not self._failure_raised):
+            self._failure_raised = True
             raise self._failed
         return answer
 
@@ -262,7 +267,9 @@ class _ProcessSink:
 
 
 _BOOTSTRAP = (
-    "import sys\n"
+    "import signal, sys\n"
+    "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+    "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
     "if sys.path and sys.path[0] == '':\n"
     "    del sys.path[0]\n"
     "from importlib.machinery import PathFinder\n"
@@ -274,8 +281,9 @@ _BOOTSTRAP = (
     "from simreel.formats.writer_process import _main\n"
     "_main(int(read_fd), int(write_fd), int(parent))\n"
 )
-"""The child's program: it runs the simreel this process runs, loaded from the folder this process loaded it from,
-without putting that folder (or the working directory, and whatever lies there) on its path."""
+"""The child's program: it ignores SIGINT and SIGTERM (the recorder handles them and tells it what to keep) and runs
+the simreel this process runs, loaded from the folder this process loaded it from, without putting that folder (or the
+working directory, and whatever lies there) on its path."""
 
 
 def _simreel_root() -> str:
@@ -428,6 +436,5 @@ class _Child:
 
 
 def _main(read_fd: int, write_fd: int, parent: int) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    """The child's life (SIGINT and SIGTERM are ignored from its first line on, `_BOOTSTRAP`)."""
     _Child(Connection(read_fd, writable=False), Connection(write_fd, readable=False), parent).run()

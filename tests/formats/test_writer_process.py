@@ -97,7 +97,8 @@ def test_a_writer_process_killed_on_its_own_stops_the_recording_with_one_line(tm
 
 
 def test_ctrl_c_to_the_whole_process_group_is_handled_by_the_recorder(tmp_path):
-    """A terminal's Ctrl-C reaches the writer process too: it ignores it and commits what the recorder tells it."""
+    """A terminal's Ctrl-C goes to the recorder's whole process group; the writer process, in a session of its own,
+    is not in it: the recorder handles it and tells the writer what to keep."""
     proc, out = _recording(tmp_path, start_new_session=True)
     writers = child_pids(proc.pid)
     os.killpg(proc.pid, signal.SIGINT)
@@ -203,6 +204,9 @@ def test_a_python_that_cannot_run_the_writer_is_one_clear_error(tmp_path, monkey
             f"{out}: the writer process ({program}) {how} before it opened the file; record with "
             "writer_process=False to write in this process")):
         RecordWrapper(env, out)
+    monkeypatch.setattr(sys, "executable", None)  # what some embedding applications leave it
+    with pytest.raises(RecordingFileError, match="the writer process \\(None\\) could not start"):
+        RecordWrapper(env, out)
     env.close()
     assert not list(out.parent.iterdir())
 
@@ -235,3 +239,49 @@ def test_an_error_the_writer_met_is_not_lost_to_a_ctrl_c_and_stops_it_for_good(t
     assert [m.index for m in w.committed] == [0]
     with open_reader(tmp_path / "r.h5") as r:
         assert [m.index for m in r.episodes] == [0]
+
+
+@pytest.mark.parametrize("writer_process", [True, False], ids=["writer process", "in-process"])
+def test_a_recorder_interrupted_after_its_file_was_opened_leaves_nothing(tmp_path, monkeypatch, writer_process):
+    """Setting up goes on after the writer opened the file (scene fingerprints: seconds with many envs); a Ctrl-C
+    there drops the new recording, so the next run is not refused."""
+    path = tmp_path / "rec.h5"
+    env = make_env("PickCube-v1")
+
+    def interrupted(self, envs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(RecordWrapper, "_fingerprint_scenes", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            RecordWrapper(env, path, writer_process=writer_process)
+    assert list(tmp_path.iterdir()) == [] and _writer_processes() == []
+    RecordWrapper(env, path, writer_process=writer_process).close()
+    assert path.exists()
+
+
+def test_an_error_read_as_a_ctrl_c_lands_is_raised_by_close(tmp_path, monkeypatch):
+    """A Ctrl-C held while an error answer is read comes out of that settle instead of the error; the error is
+    raised by close, never swallowed (a full disk must not end as a silent exit 130)."""
+    import signal
+
+    import simreel.formats.writer_process as writer_process
+
+    meta = synthetic_meta(poses=False)
+    first = synthetic_episode(meta, 0, 5)
+    w = ProcessWriter(tmp_path / "r.h5").open(meta)
+    _write(w, first)
+    w.begin_episode(first.meta, first.reset_block())  # refused in the child
+    rebuilt = writer_process._rebuilt
+
+    def rebuilt_as_ctrl_c_lands(portable):
+        signal.raise_signal(signal.SIGINT)  # held until the answer is noted
+        return rebuilt(portable)
+
+    monkeypatch.setattr(writer_process, "_rebuilt", rebuilt_as_ctrl_c_lands)
+    with pytest.raises(KeyboardInterrupt):
+        w.settle()
+    monkeypatch.setattr(writer_process, "_rebuilt", rebuilt)
+    with pytest.raises(UsageError, match="episode 0 was already written"):
+        w.close()
+    assert [m.index for m in w.committed] == [0]
