@@ -11,6 +11,7 @@ right after a physics step every numpy call costs several times its usual price.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -103,7 +104,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._setup(env, path, starting)
         except BaseException:
             if hasattr(self, "_writer"):  # opened, then setting up failed: drop the new recording
-                self._writer.abort()
+                with contextlib.suppress(Exception):  # the error that stopped the setup is the one to raise
+                    self._writer.abort()
             elif starting is not None:
                 starting.cancel()
             raise

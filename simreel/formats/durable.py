@@ -42,27 +42,36 @@ def is_storage_error(e: BaseException) -> bool:
 
 
 @contextmanager
-def deferred_signals() -> Iterator[None]:
-    """Hold SIGINT and SIGTERM until the block has finished, then handle them as they would have been.
+def deferred_signals() -> Iterator[list[int]]:
+    """Hold SIGINT and SIGTERM until the block has finished, then handle them as they would have been; yields the
+    list of the signals held so far (a block that waits can give up waiting once one is there).
 
-    Only the main thread can handle signals; elsewhere (and for a handler Python did not install) nothing is
-    deferred.
+    When the block raises, its own error wins: a held signal is noted for `raise_if_stopped` instead of raising over
+    it (a KeyboardInterrupt must not hide, say, the full disk that stopped a commit). Only the main thread can
+    handle signals; elsewhere (and for a handler Python did not install) nothing is deferred.
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
     caught: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield caught
+        return
     previous = {s: signal.getsignal(s) for s in _DEFERRED}
     held = [s for s, handler in previous.items() if handler is not None]
     for s in held:
         signal.signal(s, lambda signum, frame: caught.append(signum))
+    failed = False
     try:
-        yield
+        yield caught
+    except BaseException:
+        failed = True
+        raise
     finally:
         for s in held:
             signal.signal(s, previous[s])
-        for s in caught:
-            signal.raise_signal(s)
+        if failed:
+            _received.extend(caught)
+        else:
+            for s in caught:
+                signal.raise_signal(s)
 
 
 # ------------------------------------------------------------------ signals that must stop a command

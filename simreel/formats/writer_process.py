@@ -39,6 +39,8 @@ __all__ = ["ProcessWriter"]
 _START_SECONDS = 120
 """A child that has not said it is ready this long after it was started (~0.4 s on an idle machine) is ended:
 `sys.executable` may not be a Python that runs simreel (an application that embeds Python)."""
+_STOP_SECONDS = 30
+"""How long a child that does not answer is waited for once the recorder has been asked to stop (Ctrl-C, SIGTERM)."""
 _PARENT_CHECK_SECONDS = 1.0
 """How often an idle child checks that its recorder still runs (a forked process may hold the pipe open)."""
 
@@ -59,7 +61,7 @@ class ProcessWriter:
         from_child_reads, from_child = os.pipe()
         try:
             self._child = subprocess.Popen(
-                [sys.executable, *subprocess._args_from_interpreter_flags(), "-c", _BOOTSTRAP, _simreel_root(),
+                [sys.executable, *_interpreter_flags(), "-c", _BOOTSTRAP, _simreel_root(),
                  str(to_child), str(from_child), str(os.getpid())],
                 pass_fds=(to_child, from_child), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                 start_new_session=True,  # a terminal's Ctrl-C reaches the recorder only, which tells the child
@@ -136,10 +138,10 @@ class ProcessWriter:
         if self._closed:
             return None
         self._closed = True
-        with deferred_signals():  # like a writer's own close: a Ctrl-C now is handled once the file is finished
+        with deferred_signals() as held:  # like a writer's own close: a Ctrl-C now is handled once the file is finished
             try:
                 if not isinstance(self._failed, _Gone):
-                    return self._request((op,), after_failure=True)
+                    return self._request((op,), after_failure=True, held=held)
                 return None
             except BaseException:
                 if not quiet:
@@ -162,23 +164,33 @@ class ProcessWriter:
         except OSError:
             raise self._gone() from None
 
-    def _request(self, message: tuple[Any, ...], after_failure: bool = False) -> Any:
+    def _request(self, message: tuple[Any, ...], after_failure: bool = False, held: list[int] | None = None) -> Any:
         """Send `message` and return the child's answer to it, after reading the answers owed to earlier requests
-        (a Ctrl-C may have cut the wait for one); raises the writer's error if an answer carried one."""
+        (a Ctrl-C may have cut the wait for one); raises the writer's error if an answer carried one. `held`: the
+        signals the caller holds (`_receive`)."""
         self._send(message, after_failure, answered=True)
         answer = None
         while self._owed:
-            answer = self._receive()
+            answer = self._receive(held)
         if self._failed is not None and (not after_failure or not self._failure_raised):
             self._failure_raised = True
             raise self._failed
         return answer
 
-    def _receive(self) -> Any:
+    def _receive(self, held: list[int] | None = None) -> Any:
         """Wait for the next answer (a signal may cut the wait), then read it and note what it says with signals held,
-        so an answer is never half read or read and forgotten. Returns its value (None for an error)."""
+        so an answer is never half read or read and forgotten. Returns its value (None for an error).
+
+        A caller that holds signals passes the list of those held (`deferred_signals`): once one is there, the child
+        gets `_STOP_SECONDS` more to answer, then is killed (a stopped or stuck child must not make Ctrl-C and
+        SIGTERM useless); the file is then as a kill -9 of the child leaves it."""
         try:
-            self._recv_conn.poll(None)
+            asked_to_stop = None
+            while not self._recv_conn.poll(1.0):
+                if held:
+                    asked_to_stop = asked_to_stop or time.monotonic()
+                    if time.monotonic() - asked_to_stop > _STOP_SECONDS:
+                        self._child.kill()
             with deferred_signals():
                 status, answer, committed = self._recv_conn.recv()
                 self._owed -= 1
@@ -284,6 +296,18 @@ _BOOTSTRAP = (
 """The child's program: it ignores SIGINT and SIGTERM (the recorder handles them and tells it what to keep) and runs
 the simreel this process runs, loaded from the folder this process loaded it from, without putting that folder (or the
 working directory, and whatever lies there) on its path."""
+
+
+def _interpreter_flags() -> list[str]:
+    """This interpreter's flags (-W, -X, -E, -I, -O, ...) for the child, less -S (without `site` the child would
+    not find the packages it imports) and -X importtime (pages of timings from the child)."""
+    flags = subprocess._args_from_interpreter_flags()
+    out = []
+    for flag, after in zip(flags, [*flags[1:], None], strict=True):
+        if flag == "-S" or flag.startswith("importtime") or (flag == "-X" and after and after.startswith("importtime")):
+            continue
+        out.append(flag)
+    return out
 
 
 def _simreel_root() -> str:

@@ -9,7 +9,7 @@ import weakref
 import pytest
 
 from simreel.errors import Terminated
-from simreel.formats.durable import raise_if_stopped, stopping_signals
+from simreel.formats.durable import deferred_signals, raise_if_stopped, stopping_signals
 
 
 class _Thing:
@@ -38,3 +38,20 @@ def test_a_signal_swallowed_in_a_finalizer_is_raised_again(signum, exception):
 def test_without_a_signal_nothing_is_raised():
     with stopping_signals():
         raise_if_stopped()
+
+
+def test_a_signal_held_while_the_block_fails_does_not_hide_its_error():
+    """A Ctrl-C held during a commit or close that then fails: the failure (e.g. a full disk) is what is raised, so
+    a command reports it (exit 2) instead of a bare interruption; the signal still stops the next unit of work."""
+    with stopping_signals():
+        with pytest.raises(OSError, match="No space left"), deferred_signals() as held:
+            signal.raise_signal(signal.SIGINT)
+            assert held == [signal.SIGINT]
+            raise OSError(28, "No space left on device")
+        with pytest.raises(KeyboardInterrupt):
+            raise_if_stopped()
+
+
+def test_a_signal_held_by_a_block_that_ends_well_is_raised_after_it():
+    with stopping_signals(), pytest.raises(KeyboardInterrupt), deferred_signals():
+        signal.raise_signal(signal.SIGINT)

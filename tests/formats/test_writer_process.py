@@ -138,11 +138,11 @@ def _interrupt_waits(monkeypatch, *which: int) -> None:
     receive = ProcessWriter._receive
     calls = []
 
-    def maybe_interrupted(self):
+    def maybe_interrupted(self, held=None):
         calls.append(None)
         if len(calls) in which:
             raise KeyboardInterrupt
-        return receive(self)
+        return receive(self, held)
 
     monkeypatch.setattr(ProcessWriter, "_receive", maybe_interrupted)
 
@@ -285,3 +285,27 @@ def test_an_error_read_as_a_ctrl_c_lands_is_raised_by_close(tmp_path, monkeypatc
     with pytest.raises(UsageError, match="episode 0 was already written"):
         w.close()
     assert [m.index for m in w.committed] == [0]
+
+
+def test_a_stopped_writer_process_does_not_make_ctrl_c_useless(tmp_path, monkeypatch):
+    """Closing waits for the child with signals held, as a writer's own close does; a child that never answers (here
+    stopped) is given `_STOP_SECONDS` once a Ctrl-C is held, then killed: one error, the file as a kill leaves it."""
+    import simreel.formats.durable as durable
+    import simreel.formats.writer_process as writer_process
+
+    monkeypatch.setattr(writer_process, "_STOP_SECONDS", 1)
+    meta = synthetic_meta(poses=False)
+    w = ProcessWriter(tmp_path / "r.h5").open(meta)
+    _write(w, synthetic_episode(meta, 0, 5))
+    w.settle()
+    os.kill(w._child.pid, signal.SIGSTOP)
+    threading.Timer(0.3, signal.raise_signal, (signal.SIGINT,)).start()
+    started = time.monotonic()
+    try:
+        with pytest.raises(RecordingFileError, match=r"the writer process \(pid \d+\) ended \(exit status -9\)"):
+            w.close()
+    finally:
+        durable._received.clear()  # the Ctrl-C was noted for a command's next unit of work; there is none here
+    assert time.monotonic() - started < 20
+    with open_reader(tmp_path / "r.h5") as r:
+        assert [m.index for m in r.episodes] == [0]
