@@ -102,8 +102,9 @@ class ProcessWriter:
             self.path = Path(opened)
         except BaseException:
             if self._owed and self._failed is None:  # interrupted while the child opens: it must drop what it made
-                self._last("abort", quiet=True)
-            self.cancel()
+                self._last("abort", quiet=True)  # which ends the child too
+            else:
+                self.cancel()
             raise
         return self
 
@@ -240,12 +241,6 @@ class ProcessWriter:
         """Close both ends of the pipe (the child reads the end of its input and exits)."""
         self._send_conn.close()
         self._recv_conn.close()
-
-    def __enter__(self) -> ProcessWriter:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
 
     def __del__(self) -> None:
         # A writer dropped without close (its recorder never closed): close the pipe so the child exits as after
