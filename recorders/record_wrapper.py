@@ -27,6 +27,7 @@ import numpy as np
 from simreel.episode import EpisodeMeta, StepBlock, json_default
 from simreel.errors import ActionError, UsageError
 from simreel.formats import open_writer, records_poses_by_default
+from simreel.formats.durable import deferred_signals
 from simreel.formats.writer_process import ProcessWriter
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.recorders.step_scalars import StepScalars, scalar_info
@@ -203,13 +204,16 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return self._writer.committed
 
     def _start(self, i: int, meta: EpisodeMeta, reset: StepBlock) -> None:
-        self._next_index += 1
-        self._episodes[i] = meta
-        self._open += 1
-        self._began_at[i] = self._steps
-        self._success[i] = self._ever_success[i] = False
-        self._sinks[i] = self._writer.begin_episode(meta, reset)
-        self._buffer.start[i] = self._buffer.rows
+        """Begin env i's episode `meta`. Signals are held until it is noted here: a Ctrl-C raised as the writer
+        returns its sink would leave the writer an episode this recorder cannot end (never discarded or committed)."""
+        with deferred_signals():
+            self._next_index += 1
+            self._episodes[i] = meta
+            self._open += 1
+            self._began_at[i] = self._steps
+            self._success[i] = self._ever_success[i] = False
+            self._sinks[i] = self._writer.begin_episode(meta, reset)
+            self._buffer.start[i] = self._buffer.rows
 
     def step(self, action: Any) -> Any:
         if self._open < self._n:

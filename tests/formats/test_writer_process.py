@@ -309,3 +309,29 @@ def test_a_stopped_writer_process_does_not_make_ctrl_c_useless(tmp_path, monkeyp
     assert time.monotonic() - started < 20
     with open_reader(tmp_path / "r.h5") as r:
         assert [m.index for m in r.episodes] == [0]
+
+
+def test_a_ctrl_c_as_an_episode_begins_leaves_no_episode_unfinished(tmp_path):
+    """A Ctrl-C held while the recorder sends the writer process a new episode comes out once the recorder has
+    noted the episode: close then ends it (discarded, no step), and the file names no unfinished episode."""
+    import signal
+
+    path = tmp_path / "rec.mcap"
+    rec = RecordWrapper(make_env("PickCube-v1"), path)
+    rec.reset(seed=0)
+    rec.step(np.zeros(rec.action_space.shape, np.float32))
+    connection = rec._writer._send_conn
+    send = connection.send
+
+    def send_then_ctrl_c(message):
+        send(message)
+        if message[0] == "begin":
+            signal.raise_signal(signal.SIGINT)  # held by the send's deferred_signals
+
+    connection.send = send_then_ctrl_c
+    with pytest.raises(KeyboardInterrupt):
+        rec.reset(seed=1)
+    connection.send = send
+    rec.close()
+    with open_reader(path) as r:
+        assert [m.index for m in r.episodes] == [0] and r.unfinished == []
