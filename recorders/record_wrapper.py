@@ -170,6 +170,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._finish(i)
         if self._buffer.rows and all(s is None for s in self._sinks):
             self._buffer.rewind()
+        self._writer.checkpoint()  # a writer process commits the episodes just ended while the env resets
         obs, info = self.env.reset(seed=seed, options=options or None)
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
         if reconfigured or self._sampler.px is not self._u.scene.px:
@@ -193,8 +194,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return obs, info
 
     def _settle(self) -> None:
-        """Wait until the writer has committed the episodes handed to it (a writer process commits them while the env
-        resets); raises what the writer met, e.g. a full disk."""
+        """Wait until the writer has committed the episodes this reset ended (a writer process commits them while the
+        env resets); raises what the writer met, e.g. a full disk."""
         self._writer.settle()
 
     @property

@@ -166,9 +166,14 @@ class EpisodeWriter(ABC):
         """How the episodes committed before a failed write stay readable, for its error ("" when as they are)."""
         return ""
 
+    def checkpoint(self) -> None:  # noqa: B027 - optional hook
+        """Mark what `settle` waits for: everything handed to the writer so far (a writer that writes elsewhere starts
+        on it now: `simreel.formats.writer_process`)."""
+
     def settle(self) -> None:  # noqa: B027 - optional hook
-        """Wait until everything handed to the writer is written. A writer in the caller's process writes as it is
-        called, so there is nothing to wait for (`simreel.formats.writer_process` has a writer that does wait)."""
+        """Wait until everything handed to the writer up to the last `checkpoint` is written. A writer in the caller's
+        process writes as it is called, so there is nothing to wait for (`simreel.formats.writer_process` has a writer
+        that does wait)."""
 
     @abstractmethod
     def close(self) -> None:

@@ -3,12 +3,13 @@ checksums, HDF5's object headers: ~4 ms an HDF5 episode) runs beside the env's o
 
 The recorder keeps the writer's interface: `begin_episode` gives a sink, whose `append`, `commit` and `discard`
 are sent to the child in order and return at once; each block is checked against the field table here first, so
-a bad block still fails where it is appended. `settle` waits until the child has done everything sent so far and
-raises the error the child met first, if any (the same error, e.g. the one-line `StorageError` of a full disk);
-`committed` lists the episodes the child has reported committed. A recorder settles at the end of every reset and
-`close` settles too, so once `reset()` returns the episodes it ended are committed, as with a writer in the same
-process. An error stops the writer for good, as it stops a writer in the recorder's process: the child writes
-nothing more, and every later write here raises the error again.
+a bad block still fails where it is appended. `settle` waits until the child has done everything sent (up to the last
+`checkpoint`) and raises the error the child met first, if any (the same error, e.g. the one-line `StorageError` of a
+full disk); `committed` lists the episodes the child has reported committed. A recorder sends the episodes a reset
+ends, asks for a `checkpoint`, resets the env and settles at the end of the reset (the child's answer is waiting by
+then, not a round trip away); `close` settles too. So once `reset()` returns the episodes it ended are committed, as
+with a writer in the same process. An error stops the writer for good, as it stops a writer in the recorder's process:
+the child writes nothing more, and every later write here raises the error again.
 
 The child holds the file's locks and writes where the format's writer says, as that writer would in the recorder's
 own process. It runs in a session of its own and ignores SIGINT and SIGTERM: the recorder handles them and tells it
@@ -118,9 +119,18 @@ class ProcessWriter:
         self._send(("begin", meta, StepBlock(arrays, reset.rows)))
         return _ProcessSink(self, meta.index)
 
+    def checkpoint(self) -> None:
+        """Ask the child to answer once it has done everything sent so far, and return at once: the next `settle`
+        waits for that answer, which the child sends while the caller works on (the recorder asks once it has sent
+        the episodes a reset ends, then resets the env, then settles)."""
+        self._send(("settle",), answered=True)
+
     def settle(self) -> None:
-        """Wait until the child has done everything sent so far; raise the error it met, if any."""
-        self._request(("settle",))
+        """Wait until the child has done everything sent up to the last `checkpoint` (when no checkpoint is
+        outstanding, everything sent so far); raise the error it met, if any."""
+        if not self._owed:
+            self.checkpoint()
+        self._await_answers()
 
     def close(self) -> None:
         """Settle, close the writer in the child (a staged recording replaces the old one now) and wait for the child
@@ -170,6 +180,11 @@ class ProcessWriter:
         (a Ctrl-C may have cut the wait for one); raises the writer's error if an answer carried one. `held`: the
         signals the caller holds (`_receive`)."""
         self._send(message, after_failure, answered=True)
+        return self._await_answers(after_failure, held)
+
+    def _await_answers(self, after_failure: bool = False, held: list[int] | None = None) -> Any:
+        """Read every answer owed and return the last one's value; raise the writer's error if an answer carried
+        one (`_request`)."""
         answer = None
         while self._owed:
             answer = self._receive(held)

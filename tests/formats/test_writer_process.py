@@ -219,8 +219,8 @@ def _write(w: ProcessWriter, episode) -> None:
 
 def test_an_error_the_writer_met_is_not_lost_to_a_ctrl_c_and_stops_it_for_good(tmp_path, monkeypatch):
     """The writer process refuses a write (here: a second episode 0); the settle that would report it is cut by a
-    Ctrl-C, and so is the next one, after it read that answer: a later settle still raises the error, and so does
-    every later write, as a writer in one process would."""
+    Ctrl-C, and so is the next one (after a new checkpoint), after it read that answer: a later settle still raises
+    the error, and so does every later write, as a writer in one process would."""
     meta = synthetic_meta(poses=False)
     first = synthetic_episode(meta, 0, 5)
     w = ProcessWriter(tmp_path / "r.h5").open(meta)
@@ -229,8 +229,9 @@ def test_an_error_the_writer_met_is_not_lost_to_a_ctrl_c_and_stops_it_for_good(t
     _interrupt_waits(monkeypatch, 1, 3)  # the first settle's wait, and the second's for its own answer
     with pytest.raises(KeyboardInterrupt):
         w.settle()
+    w.checkpoint()
     with pytest.raises(KeyboardInterrupt):
-        w.settle()  # read the first settle's answer (the error), then was cut
+        w.settle()  # read the first settle's answer (the error), then was cut waiting for the checkpoint's
     with pytest.raises(UsageError, match="episode 0 was already written"):
         w.settle()
     with pytest.raises(UsageError, match="episode 0 was already written"):
@@ -239,6 +240,26 @@ def test_an_error_the_writer_met_is_not_lost_to_a_ctrl_c_and_stops_it_for_good(t
     assert [m.index for m in w.committed] == [0]
     with open_reader(tmp_path / "r.h5") as r:
         assert [m.index for m in r.episodes] == [0]
+
+
+def test_a_settle_waits_for_what_was_sent_before_its_checkpoint(tmp_path):
+    """A checkpoint marks what the next settle waits for (the writer held stopped for a second meanwhile, so a
+    settle that did not wait would return first); a settle with no checkpoint outstanding waits for everything."""
+    meta = synthetic_meta(poses=False)
+    first, second = synthetic_episode(meta, 0, 5), synthetic_episode(meta, 1, 5)
+    w = ProcessWriter(tmp_path / "r.h5").open(meta)
+    _write(w, first)
+    w.checkpoint()
+    os.kill(w._child.pid, signal.SIGSTOP)
+    threading.Timer(1.0, os.kill, (w._child.pid, signal.SIGCONT)).start()
+    sink = w.begin_episode(second.meta, second.reset_block())  # after the checkpoint
+    w.settle()
+    assert [m.index for m in w.committed] == [0]
+    sink.append(second.steps_block())
+    sink.commit(second.meta)
+    w.settle()
+    assert [m.index for m in w.committed] == [0, 1]
+    w.close()
 
 
 @pytest.mark.parametrize("writer_process", [True, False], ids=["writer process", "in-process"])
