@@ -125,6 +125,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """The PhysX scene whose fast reader passed the check after a step (None: none yet, or rebuilt)."""
         self.meta = self._describe(env, path)  # refuses an action space other than a Box
         self._action_shape = tuple(u.single_action_space.shape)
+        self._action_shapes = {(self._n, *self._action_shape)} | ({self._action_shape} if self._n == 1 else set())
+        """The shapes an action may have: (num_envs, *single), or the single env's where there is one env."""
         if starting is not None:
             self._writer = starting.open(self.meta, overwrite=opts.overwrite, **opts.writer_options)
         else:
@@ -237,11 +239,16 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _actions(self, action: Any) -> list[Any] | np.ndarray:
         """`action`'s numbers once they are checked to fit the action space and be finite: a small action as a flat
-        list (a copy, made into rows with its block by `_ActionRows`), a large one as a (num_envs, A) float32 array;
+        list (a copy, made into rows with its block by `_action_rows`), a large one as a (num_envs, A) float32 array;
         `ActionError` (before the env steps) otherwise, since the recording could not hold it or replay it. A small
         action is checked in Python floats: a numpy call right after a physics step costs several times more."""
+        kind = action.dtype.kind if type(action) is np.ndarray else ""
+        if kind and kind in "biuf" and action.shape in self._action_shapes and action.size <= _PYTHON_CHECK_MAX:
+            values = action.ravel().tolist()  # the usual action, checked with the fewest calls
+            if kind != "f" or math.isfinite(sum(values)) or all(map(math.isfinite, values)):  # a sum may overflow
+                return values
         single = self._action_shape
-        a = None if action is None else to_numpy(action)
+        a = to_numpy(action) if isinstance(action, np.ndarray) or hasattr(action, "detach") else None  # as ManiSkill
         if a is None or a.dtype.kind not in "biuf":
             raise ActionError(f"an action of type {type(action).__name__}; {self.meta.env_id} takes a numeric array "
                               f"of shape {single}")

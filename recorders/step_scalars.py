@@ -65,14 +65,18 @@ class StepScalars:
         self._optional = [(name, 3 + self._keys.index(key), dtype) for name, key, dtype in named]
         """(field, where its value sits in a capture, dtype) of each field the env may leave out."""
         self._dtypes = {"rewards": np.dtype(np.float32), "terminated": np.dtype(bool), "truncated": np.dtype(bool)}
-        self._absent = [0] * num_envs
-        """What a step captures for an entry the env's info does not hold: zeros (False) of any dtype."""
+        self._absent = np.zeros(num_envs, np.int64)
+        """What a step captures (`tolist()`: [0, ...]) for an entry the env's info does not hold: zeros (False) of any
+        dtype."""
         self._wide_ints = any(d.kind in "iu" and d.itemsize == 8 for _, d in fields)
 
     def capture(self, reward: Any, terminated: Any, truncated: Any, info: dict[str, Any]) -> list[Any]:
         """This step's scalars, copied out as plain Python numbers and lists."""
-        absent = self._absent
-        return [_plain(reward), _plain(terminated), _plain(truncated), *(_plain(info.get(k, absent)) for k in self._keys)]
+        get, absent = info.get, self._absent
+        try:  # tensors and arrays, as every ManiSkill task gives them
+            return [reward.tolist(), terminated.tolist(), truncated.tolist(), *[get(k, absent).tolist() for k in self._keys]]
+        except AttributeError:
+            return [_plain(reward), _plain(terminated), _plain(truncated), *[_plain(get(k, absent)) for k in self._keys]]
 
     def rows(self, captures: list[list[Any]]) -> dict[str, np.ndarray]:
         """The fields of `len(captures)` steps, each (steps, num_envs)."""
@@ -90,14 +94,14 @@ class StepScalars:
         """Every capture as one (steps, values, num_envs) float64 array, when each value is one number per env and
         float64 holds them all exactly (no 64-bit integer field; bools, float32 and smaller integers it does).
         One flat list to numpy: numpy takes several times longer to read the same numbers nested."""
-        n = self._n
-        if self._wide_ints or not all(type(v) is list and len(v) == n for c in captures for v in c):
+        values = list(chain.from_iterable(captures))
+        if self._wide_ints or set(map(type, values)) != {list} or set(map(len, values)) != {self._n}:
             return None
         try:
-            flat = np.array(list(chain.from_iterable(chain.from_iterable(captures))), np.float64)
+            flat = np.array(list(chain.from_iterable(values)), np.float64)
         except (ValueError, TypeError):  # something that is not a number
             return None
-        return flat.reshape(len(captures), -1, n) if flat.ndim == 1 else None
+        return flat.reshape(len(captures), -1, self._n) if flat.ndim == 1 else None
 
     def _required(self, name: str, column: list[Any]) -> np.ndarray:
         dtype = self._dtypes[name]

@@ -62,6 +62,8 @@ BAD_INPUT = [
      "policies.py:nan returned an action holding NaN or infinity"),
     ("record-policy-none", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/policies.py:none"],
      "policies.py:none returned an action of type NoneType; PickCube-v1 takes a numeric array of shape (8,)"),
+    ("record-policy-list", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/policies.py:listed"],
+     "policies.py:listed returned an action of type list; PickCube-v1 takes a numeric array of shape (8,)"),
     ("record-time-limit-kwarg", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--env-kwargs", '{{"max_episode_steps": 0}}'],
      "--env-kwargs max_episode_steps must be a whole number ≥ 1, got 0"),
     # inspect
@@ -150,6 +152,7 @@ def boom(env, obs): raise RuntimeError("policy bug")
 def short(env, obs): return np.zeros(3, np.float32)
 def nan(env, obs): return np.full(env.action_space.shape, np.nan, np.float32)
 def none(env, obs): return None
+def listed(env, obs): return [0.0] * 8
 """
 
 

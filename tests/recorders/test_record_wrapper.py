@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 
 from simreel.errors import StateLayoutError
 from simreel.formats import open_reader
@@ -184,6 +185,34 @@ def test_unseeded_reset_records_no_seed_and_seeded_one_its_seed(tmp_path):
     env.close()
     with open_reader(tmp_path / "s.h5") as r:
         assert [m.seed for m in r.episodes] == [5, None]
+
+
+def test_every_kind_of_action_is_checked_and_recorded_as_given(tmp_path):
+    """Actions in each form ManiSkill takes: recorded as given (as float32); an action holding NaN or infinity is
+    refused before the env steps, whatever its dtype, and one whose finite numbers overflow a sum is not; so is one
+    of another shape or type (a list, which ManiSkill would refuse with a TypeError)."""
+    from simreel.errors import ActionError
+
+    env = RecordWrapper(make_env("PickCube-v1"), tmp_path / "a.h5", contacts="none", writer_process=False)
+    env.reset(seed=0)
+    given = [np.full(8, 0.5, np.float32), np.full((1, 8), -0.25), np.ones(8, np.int64), np.zeros(8, bool),
+             np.array([1e308, 1e308, 0, 0, 0, 0, 0, 0]), torch.full((1, 8), 0.75)]
+    for action in given:
+        env.step(action)
+    for bad in (np.float32, np.float64):
+        for value in (np.nan, np.inf, -np.inf):
+            action = np.zeros(8, bad)
+            action[3] = value
+            with pytest.raises(ActionError, match="NaN or infinity"):
+                env.step(action)
+    for wrong in (np.zeros(7, np.float32), np.zeros((2, 8), np.float32), np.zeros(8, np.complex64), [0.0] * 8):
+        with pytest.raises(ActionError):
+            env.step(wrong)
+    env.close()
+    with open_reader(tmp_path / "a.h5") as r:
+        recorded = r.read_episode(0).actions
+    expected = np.stack([np.asarray(to_numpy(a), np.float64).reshape(8) for a in given]).astype(np.float32)
+    np.testing.assert_array_equal(recorded, expected)
 
 
 def test_wrappers_that_change_actions_must_sit_above_the_recorder(tmp_path):
