@@ -210,12 +210,12 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """Begin env i's episode `meta`. Signals are held until it is noted here: a Ctrl-C raised as the writer
         returns its sink would leave the writer an episode this recorder cannot end (never discarded or committed)."""
         with deferred_signals():
+            self._sinks[i] = self._writer.begin_episode(meta, reset)  # first: it raises what the writer met
             self._next_index += 1
             self._episodes[i] = meta
             self._open += 1
             self._began_at[i] = self._steps
             self._success[i] = self._ever_success[i] = False
-            self._sinks[i] = self._writer.begin_episode(meta, reset)
             self._buffer.start[i] = self._buffer.rows
 
     def step(self, action: Any) -> Any:
@@ -248,10 +248,13 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             if kind != "f" or math.isfinite(sum(values)) or all(map(math.isfinite, values)):  # a sum may overflow
                 return values
         single = self._action_shape
-        a = to_numpy(action) if isinstance(action, np.ndarray) or hasattr(action, "detach") else None  # as ManiSkill
+        a = None
+        if isinstance(action, np.ndarray) or hasattr(action, "detach"):  # what ManiSkill takes
+            with contextlib.suppress(TypeError):  # a tensor numpy cannot hold (bfloat16)
+                a = np.asarray(to_numpy(action))  # np.matrix too
         if a is None or a.dtype.kind not in "biuf":
-            raise ActionError(f"an action of type {type(action).__name__}; {self.meta.env_id} takes a numeric array "
-                              f"of shape {single}")
+            what = f"dtype {action.dtype}" if hasattr(action, "dtype") else f"type {type(action).__name__}"
+            raise ActionError(f"an action of {what}; {self.meta.env_id} takes a numeric array of shape {single}")
         if a.shape != (self._n, *single) and not (self._n == 1 and a.shape == single):
             raise ActionError(f"an action of shape {a.shape}; {self.meta.env_id} takes shape "
                               f"{(self._n, *single) if self._n > 1 else single}")

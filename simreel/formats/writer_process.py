@@ -9,7 +9,9 @@ full disk); `committed` lists the episodes the child has reported committed. A r
 ends, asks for a `checkpoint`, resets the env and settles at the end of the reset (the child's answer is waiting by
 then, not a round trip away); `close` settles too. So once `reset()` returns the episodes it ended are committed, as
 with a writer in the same process. An error stops the writer for good, as it stops a writer in the recorder's process:
-the child writes nothing more, and every later write here raises the error again.
+the child writes nothing more and tells it at once; the next write here (or settle, or close) raises it, and every later
+write raises it again. (An error that begins the episode a reset starts, sent after the reset's checkpoint, is raised
+by the next reset, or by a step that fills a block.)
 
 The child holds the file's locks and writes where the format's writer says, as that writer would in the recorder's
 own process. It runs in a session of its own and ignores SIGINT and SIGTERM: the recorder handles them and tells it
@@ -84,6 +86,8 @@ class ProcessWriter:
         """Episodes sent to be committed, by index, until the child reports them committed."""
         self._owed = 0
         """Answers the child owes (a Ctrl-C can interrupt the wait for one: it is read before the next)."""
+        self._checkpoint_asked = False
+        """Whether a `checkpoint` was asked for since the last `settle` (which then waits for its answer)."""
         self.child_cpu_seconds = 0.0
         """CPU time the child spent writing, from the writer's opening to its close (its start-up, ~0.35 s of imports
         once, left out); known once `close` has returned. Benchmarks print it beside the recorder's own."""
@@ -124,12 +128,14 @@ class ProcessWriter:
         waits for that answer, which the child sends while the caller works on (the recorder asks once it has sent
         the episodes a reset ends, then resets the env, then settles)."""
         self._send(("settle",), answered=True)
+        self._checkpoint_asked = True
 
     def settle(self) -> None:
-        """Wait until the child has done everything sent up to the last `checkpoint` (when no checkpoint is
-        outstanding, everything sent so far); raise the error it met, if any."""
-        if not self._owed:
+        """Wait until the child has done everything sent up to the last `checkpoint` (when none was asked for since
+        the last settle, everything sent so far); raise the error it met, if any."""
+        if not self._checkpoint_asked:
             self.checkpoint()
+        self._checkpoint_asked = False
         self._await_answers()
 
     def close(self) -> None:
@@ -165,6 +171,12 @@ class ProcessWriter:
     def _send(self, message: tuple[Any, ...], after_failure: bool = False, answered: bool = False) -> None:
         """Send one message whole (a signal in the middle of one would leave the child reading half of it); for a
         message the child answers (`answered`), count the answer owed before any signal is let through."""
+        if not after_failure:
+            try:
+                while self._failed is None and self._recv_conn.poll(0):  # the child's news: an error it met since
+                    self._read()
+            except OSError:
+                raise self._gone() from None
         if self._failed is not None and not after_failure:
             self._failure_raised = True
             raise self._failed
@@ -194,8 +206,9 @@ class ProcessWriter:
         return answer
 
     def _receive(self, held: list[int] | None = None) -> Any:
-        """Wait for the next answer (a signal may cut the wait), then read it and note what it says with signals held,
-        so an answer is never half read or read and forgotten. Returns its value (None for an error).
+        """Wait for the next answer, or the news of an error the child met (a signal may cut the wait), then read it
+        and note what it says with signals held, so an answer is never half read or read and forgotten. Returns its
+        value (None for an error).
 
         A caller that holds signals passes the list of those held (`deferred_signals`): once one is there, the child
         gets `_STOP_SECONDS` more to answer, then is killed (a stopped or stuck child must not make Ctrl-C and
@@ -207,11 +220,18 @@ class ProcessWriter:
                     asked_to_stop = asked_to_stop or time.monotonic()
                     if time.monotonic() - asked_to_stop > _STOP_SECONDS:
                         self._child.kill()
+        except OSError:
+            raise self._gone() from None
+        return self._read()
+
+    def _read(self) -> Any:
+        """Read the message waiting (`_receive`) and note what it says, with signals held."""
+        try:
             with deferred_signals():
                 status, answer, committed = self._recv_conn.recv()
-                self._owed -= 1
+                self._owed -= status != "failed"  # "failed" is the child's own news, not an answer (`_Child._guarded`)
                 self.committed += [self._committing.pop(i) for i in committed]
-                if status == "error" and self._failed is None:
+                if status != "ok" and self._failed is None:
                     self._failed = _rebuilt(answer)
         except (EOFError, OSError):
             raise self._gone() from None
@@ -408,7 +428,8 @@ class _Child:
             os._exit(0)
 
     def _guarded(self, work: Any, *args: Any) -> bool:
-        """Run a write unless the writer has stopped; an error stops it (reported at the next answer)."""
+        """Run a write unless the writer has stopped; an error stops it, and is told at once (the recorder reads it
+        before its next write) and again in every answer."""
         if self._stopped:
             return False
         try:
@@ -416,6 +437,8 @@ class _Child:
             return True
         except Exception as e:  # noqa: BLE001 - every error goes back to the recorder, which raises it
             self._error, self._stopped = e, True
+            committed, self._committed = self._committed, []
+            self._answer_raw(("failed", _portable(e), committed))  # now: the recorder raises it at its next write
             return False
 
     def _cleanup(self, work: Any) -> None:

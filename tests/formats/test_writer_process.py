@@ -156,11 +156,13 @@ def test_ctrl_c_while_a_reset_waits_for_its_commit_does_not_leave_later_resets_a
     zero = np.zeros(rec.action_space.shape, np.float32)
     rec.reset(seed=0)
     rec.step(zero)
+    writer = rec._writer._child.pid
+    os.kill(writer, signal.SIGSTOP)  # so the reset's settle has to wait (the answer cannot be there before)
     _interrupt_waits(monkeypatch, 1)
     with pytest.raises(KeyboardInterrupt):
         rec.reset(seed=1)
+    os.kill(writer, signal.SIGCONT)
     rec.step(zero)
-    writer = rec._writer._child.pid
     os.kill(writer, signal.SIGSTOP)
     threading.Timer(1.0, os.kill, (writer, signal.SIGCONT)).start()
     rec.reset(seed=2)
@@ -257,6 +259,41 @@ def test_a_settle_waits_for_what_was_sent_before_its_checkpoint(tmp_path):
     assert [m.index for m in w.committed] == [0]
     sink.append(second.steps_block())
     sink.commit(second.meta)
+    w.settle()
+    assert [m.index for m in w.committed] == [0, 1]
+    w.close()
+
+
+def test_an_error_met_after_a_checkpoint_is_raised_by_the_next_write(tmp_path):
+    """The settle waits for the checkpoint only, so an error in what was sent after it (a refused begin: a second
+    episode 0) is not its to raise; the child tells it at once, and the next write raises it, not a later one."""
+    meta = synthetic_meta(poses=False)
+    first = synthetic_episode(meta, 0, 5)
+    w = ProcessWriter(tmp_path / "r.h5").open(meta)
+    _write(w, first)
+    w.checkpoint()
+    w.begin_episode(first.meta, first.reset_block())
+    w.settle()
+    assert w._recv_conn.poll(30)  # the child's news, once it has met the error
+    with pytest.raises(UsageError, match="episode 0 was already written"):
+        _write(w, synthetic_episode(meta, 1, 5))
+    w.close()
+    with open_reader(tmp_path / "r.h5") as r:
+        assert [m.index for m in r.episodes] == [0]
+
+
+def test_a_settle_after_one_a_ctrl_c_cut_waits_for_everything_sent_since(tmp_path, monkeypatch):
+    """The answer the cut settle left unread is not this settle's: it asks anew (the writer held stopped for a
+    second, so a settle that took the old answer would return first)."""
+    meta = synthetic_meta(poses=False)
+    w = ProcessWriter(tmp_path / "r.h5").open(meta)
+    _write(w, synthetic_episode(meta, 0, 5))
+    _interrupt_waits(monkeypatch, 1)
+    with pytest.raises(KeyboardInterrupt):
+        w.settle()
+    os.kill(w._child.pid, signal.SIGSTOP)
+    threading.Timer(1.0, os.kill, (w._child.pid, signal.SIGCONT)).start()
+    _write(w, synthetic_episode(meta, 1, 5))
     w.settle()
     assert [m.index for m in w.committed] == [0, 1]
     w.close()

@@ -187,26 +187,29 @@ def test_unseeded_reset_records_no_seed_and_seeded_one_its_seed(tmp_path):
         assert [m.seed for m in r.episodes] == [5, None]
 
 
+@pytest.mark.filterwarnings("ignore:the matrix subclass:PendingDeprecationWarning")
 def test_every_kind_of_action_is_checked_and_recorded_as_given(tmp_path):
     """Actions in each form ManiSkill takes: recorded as given (as float32); an action holding NaN or infinity is
-    refused before the env steps, whatever its dtype, and one whose finite numbers overflow a sum is not; so is one
-    of another shape or type (a list, which ManiSkill would refuse with a TypeError)."""
+    refused before the env steps, whatever its dtype, and one whose finite numbers overflow their sum is not; so
+    is one of another shape, type or dtype (a list, which ManiSkill would refuse with a TypeError; bfloat16)."""
     from simreel.errors import ActionError
 
     env = RecordWrapper(make_env("PickCube-v1"), tmp_path / "a.h5", contacts="none", writer_process=False)
     env.reset(seed=0)
     given = [np.full(8, 0.5, np.float32), np.full((1, 8), -0.25), np.ones(8, np.int64), np.zeros(8, bool),
-             np.array([1e308, 1e308, 0, 0, 0, 0, 0, 0]), torch.full((1, 8), 0.75)]
+             np.array([1e38, 1e38, 0, 0, 0, 0, 0, 0]), torch.full((1, 8), 0.75), np.asmatrix(np.full(8, 0.375))]
     for action in given:
         env.step(action)
+    assert env._actions(np.full(8, 1.7e308)) == [1.7e308] * 8  # finite, though their sum is not
     for bad in (np.float32, np.float64):
         for value in (np.nan, np.inf, -np.inf):
             action = np.zeros(8, bad)
             action[3] = value
             with pytest.raises(ActionError, match="NaN or infinity"):
                 env.step(action)
-    for wrong in (np.zeros(7, np.float32), np.zeros((2, 8), np.float32), np.zeros(8, np.complex64), [0.0] * 8):
-        with pytest.raises(ActionError):
+    for wrong in (np.zeros(7, np.float32), np.zeros((2, 8), np.float32), np.zeros(8, np.complex64), [0.0] * 8,
+                  torch.zeros(8, dtype=torch.bfloat16)):
+        with pytest.raises(ActionError, match="an action of"):
             env.step(wrong)
     env.close()
     with open_reader(tmp_path / "a.h5") as r:
