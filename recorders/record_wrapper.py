@@ -117,13 +117,15 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._u = u
         self._n = int(u.num_envs)
         self._sampler = ContactSampler(contact_channels(u, opts.contacts))
-        self._sampler.bind(u)
+        self._bind_sampler()
         self._fast: FastStateReader | None = None
         self._fast_unchecked = False
         self._fast_refuted = False
         self._fast_scene: Any = None
         """The PhysX scene whose fast reader passed the check after a step (None: none yet, or rebuilt)."""
         self.meta = self._describe(env, path)  # refuses an action space other than a Box
+        self._rows_beside_state = opts.record_obs or bool(self.meta.pose_bodies)
+        """Whether each step records rows besides the state (`_per_state_rows`): observations or body poses."""
         self._action_shape = tuple(u.single_action_space.shape)
         self._action_shapes = {(self._n, *self._action_shape)} | ({self._action_shape} if self._n == 1 else set())
         """The shapes an action may have: (num_envs, *single), or the single env's where there is one env."""
@@ -143,6 +145,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._ever_success = np.zeros(self._n, bool)
         self._has_success = "success" in self.meta.info_layout
         self._scalars = StepScalars(self._n, [(f"info/{k}", np.dtype(s.dtype)) for k, s in self.meta.info_layout.items()])
+        self._scalar_rows = self._scalars.rows  # one `StepBuffer` row source, bound once
         self._next_index = 0
         self._scene_seed: list[int | None] = [None] * self._n
         self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
@@ -176,7 +179,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options or None)
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
         if reconfigured or self._sampler.px is not self._u.scene.px:
-            self._sampler.bind(self._u)
+            self._bind_sampler()
         state = read_state(self._u)
         check_same_layout(self.meta.env_id, self.meta.state_layout, layout_of(state, batched=True))
         self._bind_fast_reader(state, reconfigured)
@@ -222,20 +225,21 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._open < self._n:
             raise UsageError("RecordWrapper.step() before reset(): reset the env first so the episode has a start")
         actions = self._actions(action)
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        fields, captures = self._after_step(obs)
+        result = self.env.step(action)
+        fields, captures = self._after_step(result[0])
         if isinstance(actions, list):
             captures.append((self._action_rows, actions))
         else:
             fields["actions"] = actions
-        captures.append((self._scalars.rows, self._scalars.capture(reward, terminated, truncated, info)))
-        self._buffer.push(fields, tuple(captures))
+        captures.append((self._scalar_rows, self._scalars.capture(*result[1:])))
+        buffer = self._buffer
+        buffer.push(fields, captures)
         self._steps += 1
-        if self._buffer.full:
+        if buffer.full:
             for i in range(self._n):
                 self._flush(i)
-            self._buffer.rewind()
-        return obs, reward, terminated, truncated, info
+            buffer.rewind()
+        return result
 
     def _actions(self, action: Any) -> list[Any] | np.ndarray:
         """`action`'s numbers once they are checked to fit the action space and be finite: a small action as a flat
@@ -274,8 +278,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         state, packed = self._state()
         if packed is not None:
             captures.append((self._state_rows, packed))
-        fields = self._per_state_rows(state, obs)
-        if self._sampler.captures:
+        fields = self._per_state_rows(state, obs) if state or self._rows_beside_state else {}
+        if self._contacts_captured:
             captures.append((self._contact_rows, self._sampler.capture()))
         elif self._sampler.channels:
             fields["contact_forces"] = self._sampler.sample()
@@ -318,6 +322,11 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     @property
     def path(self) -> Path:
         return self._writer.path
+
+    def _bind_sampler(self) -> None:
+        """Bind the contact sampler to the scene now (at the start and after a reset that rebuilt it)."""
+        self._sampler.bind(self._u)
+        self._contacts_captured = self._sampler.captures
 
     def _fingerprint_scenes(self, envs: Iterable[int]) -> None:
         """Where sub-scenes `envs` differ from the recording's scene fingerprint (after the scene was built or

@@ -11,7 +11,7 @@ no copy.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -41,16 +41,19 @@ class StepBuffer:
     def full(self) -> bool:
         return self.rows == self.capacity
 
-    def push(self, fields: dict[str, np.ndarray], captures: tuple[tuple[RowSource, Any], ...] = ()) -> None:
+    def push(self, fields: dict[str, np.ndarray], captures: Iterable[tuple[RowSource, Any]] = ()) -> None:
         """Store one step: each field has a leading num_envs dimension; each capture becomes its source's fields
         for this row when the rows are taken (a capture must not change after it is pushed)."""
         r = self.rows
         for name, value in fields.items():
             self._row_buffer(name, value)[r] = value
+        captured = self._captured
         for source, capture in captures:
-            rows, held = self._captured.setdefault(source, ([], []))
-            rows.append(r)
-            held.append(capture)
+            entry = captured.get(source)
+            if entry is None:
+                entry = captured[source] = ([], [])
+            entry[0].append(r)
+            entry[1].append(capture)
         self.rows = r + 1
 
     def _row_buffer(self, name: str, row: np.ndarray) -> np.ndarray:
