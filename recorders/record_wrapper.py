@@ -137,10 +137,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._sinks: list[Any] = [None] * self._n
         self._episodes: list[EpisodeMeta | None] = [None] * self._n
         self._open = 0
-        # Per-env running counts, folded into each episode's EpisodeMeta when it ends: its length is the steps taken
-        # since it began; its success flags are updated from each block of steps the buffer hands to its sink.
-        self._steps = 0
-        self._began_at = [0] * self._n
+        # Per-env running counts, folded into each episode's EpisodeMeta when it ends: its length is the rows handed
+        # to its sink (so it always says what the file holds); its success flags are updated from each of those blocks.
+        self._sent = [0] * self._n
         self._success = np.zeros(self._n, bool)
         self._ever_success = np.zeros(self._n, bool)
         self._has_success = "success" in self.meta.info_layout
@@ -217,7 +216,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._next_index += 1
             self._episodes[i] = meta
             self._open += 1
-            self._began_at[i] = self._steps
+            self._sent[i] = 0
             self._success[i] = self._ever_success[i] = False
             self._buffer.start[i] = self._buffer.rows
 
@@ -234,11 +233,11 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         captures.append((self._scalar_rows, self._scalars.capture(*result[1:])))
         buffer = self._buffer
         buffer.push(fields, captures)
-        self._steps += 1
         if buffer.full:
-            for i in range(self._n):
-                self._flush(i)
-            buffer.rewind()
+            with deferred_signals():  # `_flush`
+                for i in range(self._n):
+                    self._flush(i)
+                buffer.rewind()
         return result
 
     def _actions(self, action: Any) -> list[Any] | np.ndarray:
@@ -402,7 +401,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return {f"env_states/{key}": rows for key, rows in self._fast.unpack(captures).items()}
 
     def _flush(self, i: int) -> None:
-        """Hand env i's buffered steps to its episode's sink, noting whether the episode has succeeded."""
+        """Hand env i's buffered steps to its episode's sink, noting whether the episode has succeeded. Callers hold
+        signals (`deferred_signals`): a Ctrl-C between taking the rows and handing them over would lose them."""
         sink = self._sinks[i]
         if sink is None or not self._buffer.pending(i):
             return
@@ -411,22 +411,26 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._success[i] = success[-1]
         self._ever_success[i] |= success.any()
         sink.append(block)
+        self._sent[i] += block.rows
 
     def _finish(self, i: int) -> None:
-        sink, meta = self._sinks[i], self._episodes[i]
-        if sink is None:
-            return
-        self._flush(i)
-        self._sinks[i] = None
-        self._episodes[i] = None
-        self._open -= 1
-        meta.length = self._steps - self._began_at[i]
-        if self._has_success:
-            meta.success, meta.ever_success = bool(self._success[i]), bool(self._ever_success[i])
-        if meta.length == 0:
-            sink.discard()
-            return
-        sink.commit(meta)
+        """End env i's episode: commit it with the steps it has (discard it with none). Signals are held throughout,
+        so an ended episode is always committed or discarded, never left to neither."""
+        with deferred_signals():
+            sink, meta = self._sinks[i], self._episodes[i]
+            if sink is None:
+                return
+            self._flush(i)
+            self._sinks[i] = None
+            self._episodes[i] = None
+            self._open -= 1
+            meta.length = self._sent[i]
+            if self._has_success:
+                meta.success, meta.ever_success = bool(self._success[i]), bool(self._ever_success[i])
+            if meta.length == 0:
+                sink.discard()
+                return
+            sink.commit(meta)
 
 
 def _non_finite(a: np.ndarray) -> ActionError:

@@ -171,21 +171,19 @@ class ProcessWriter:
     def _send(self, message: tuple[Any, ...], after_failure: bool = False, answered: bool = False) -> None:
         """Send one message whole (a signal in the middle of one would leave the child reading half of it); for a
         message the child answers (`answered`), count the answer owed before any signal is let through."""
-        if not after_failure:
-            try:
-                while self._failed is None and self._recv_conn.poll(0):  # the child's news: an error it met since
-                    self._read()
-            except OSError:
-                raise self._gone() from None
-        if self._failed is not None and not after_failure:
-            self._failure_raised = True
-            raise self._failed
         try:
-            with deferred_signals():
-                self._send_conn.send(message)
-                self._owed += answered
+            with deferred_signals():  # from the child's news to the send: a signal is handled once both are done
+                if not after_failure:
+                    while self._failed is None and self._recv_conn.poll(0):  # the child's news: an error it met
+                        self._read()
+                if self._failed is None or after_failure:
+                    self._send_conn.send(message)
+                    self._owed += answered
+                    return
         except OSError:
             raise self._gone() from None
+        self._failure_raised = True
+        raise self._failed
 
     def _request(self, message: tuple[Any, ...], after_failure: bool = False, held: list[int] | None = None) -> Any:
         """Send `message` and return the child's answer to it, after reading the answers owed to earlier requests

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import signal
+
 import numpy as np
 import pytest
 import torch
@@ -216,6 +219,65 @@ def test_every_kind_of_action_is_checked_and_recorded_as_given(tmp_path):
         recorded = r.read_episode(0).actions
     expected = np.stack([np.asarray(to_numpy(a), np.float64).reshape(8) for a in given]).astype(np.float32)
     np.testing.assert_array_equal(recorded, expected)
+
+
+def _episodes_read_whole(path) -> list[tuple[int, int]]:
+    """(index, length) of each episode in `path`, each read whole (a length its rows do not have fails the read)."""
+    with open_reader(path) as r:
+        return [(m.index, len(r.read_episode(m.index).actions)) for m in r.episodes]
+
+
+@pytest.mark.parametrize("writer_process", [True, False], ids=["writer process", "in-process"])
+def test_a_ctrl_c_right_after_a_step_is_stored_keeps_the_episode_whole(tmp_path, monkeypatch, writer_process):
+    """A real SIGINT once the step's rows are in the buffer: the episode committed by close (as the CLI's cleanup
+    does) holds that step, and says so."""
+    from simreel.recorders.step_buffer import StepBuffer
+
+    rec = RecordWrapper(make_env("PickCube-v1"), tmp_path / "r.h5", writer_process=writer_process)
+    zero = np.zeros(rec.action_space.shape, np.float32)
+    rec.reset(seed=0)
+    for _ in range(5):
+        rec.step(zero)
+    push = StepBuffer.push
+
+    def push_then_ctrl_c(self, *args):
+        push(self, *args)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(StepBuffer, "push", push_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        rec.step(zero)
+    monkeypatch.undo()
+    rec.close()
+    assert [(m.index, m.length) for m in rec.episodes_committed] == [(0, 6)]
+    assert _episodes_read_whole(tmp_path / "r.h5") == [(0, 6)]
+
+
+def test_a_ctrl_c_while_an_ended_episode_is_handed_over_loses_none_of_it(tmp_path, monkeypatch):
+    """A real SIGINT while the reset hands the ended episode's steps to the writer process (as its send first reads
+    what the child has said): the steps and the commit still go out; the Ctrl-C comes after."""
+    from multiprocessing.connection import Connection
+
+    rec = RecordWrapper(make_env("PickCube-v1"), tmp_path / "r.h5")
+    rec.reset(seed=0)
+    for _ in range(10):
+        rec.step(np.zeros(rec.action_space.shape, np.float32))
+    poll, armed = Connection.poll, [True]
+
+    def ctrl_c_in_first_look(self, timeout=0.0):
+        if armed and timeout == 0:
+            armed.clear()
+            os.kill(os.getpid(), signal.SIGINT)
+        return poll(self, timeout)
+
+    monkeypatch.setattr(Connection, "poll", ctrl_c_in_first_look)
+    with pytest.raises(KeyboardInterrupt):
+        rec.reset(seed=1)
+    monkeypatch.undo()
+    assert not armed
+    rec.close()
+    assert [(m.index, m.length) for m in rec.episodes_committed] == [(0, 10)]
+    assert _episodes_read_whole(tmp_path / "r.h5") == [(0, 10)]
 
 
 def test_wrappers_that_change_actions_must_sit_above_the_recorder(tmp_path):
