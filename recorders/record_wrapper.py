@@ -170,6 +170,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         options = dict(options or {})
         env_idx = options.get("env_idx")
         idxs = list(range(self._n)) if env_idx is None else [int(i) for i in to_numpy(env_idx).reshape(-1)]
+        if len(set(idxs)) != len(idxs) or not all(0 <= i < self._n for i in idxs):
+            raise UsageError(f"reset(options={{'env_idx': {idxs}}}): name each env to reset once, from 0 to "
+                             f"{self._n - 1} (an env named twice would begin two episodes at once)")
         for i in idxs:
             self._finish(i)
         if self._buffer.rows and all(s is None for s in self._sinks):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from simreel.errors import StateLayoutError
+from simreel.errors import StateLayoutError, UsageError
 from simreel.formats import open_reader
 from simreel.recorders import RecordWrapper
 from simreel.sim.make import make_env
@@ -278,6 +278,24 @@ def test_a_ctrl_c_while_an_ended_episode_is_handed_over_loses_none_of_it(tmp_pat
     rec.close()
     assert [(m.index, m.length) for m in rec.episodes_committed] == [(0, 10)]
     assert _episodes_read_whole(tmp_path / "r.h5") == [(0, 10)]
+
+
+def test_a_partial_reset_naming_an_env_twice_or_none_there_is_refused_before_anything_changes(tmp_path):
+    """env_idx [0, 0] would begin two episodes for env 0 at once (one never ended); [3] names no env: both are
+    refused, and the recording goes on as if they had not been asked."""
+    rec = RecordWrapper(make_env("PickCube-v1"), tmp_path / "r.h5")
+    zero = np.zeros(rec.action_space.shape, np.float32)
+    rec.reset(seed=0)
+    rec.step(zero)
+    for env_idx in ([0, 0], [3], [-1]):
+        with pytest.raises(UsageError, match="name each env to reset once, from 0 to 0"):
+            rec.reset(seed=1, options={"env_idx": env_idx})
+    rec.step(zero)
+    rec.reset(seed=1, options={"env_idx": [0]})
+    rec.step(zero)
+    rec.close()
+    assert [(m.index, m.length) for m in rec.episodes_committed] == [(0, 2), (1, 1)]
+    assert _episodes_read_whole(tmp_path / "r.h5") == [(0, 2), (1, 1)]
 
 
 def test_wrappers_that_change_actions_must_sit_above_the_recorder(tmp_path):
