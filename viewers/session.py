@@ -129,15 +129,14 @@ def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto", imports: Sequenc
 
 
 def viewer_executable() -> str | None:
-    """The ``rerun`` viewer: on PATH, else beside the running Python (a venv's bin/), else None."""
+    """The ``rerun`` viewer installed with the rerun-sdk simreel streams with: beside the running Python (a venv's
+    bin/), else on PATH, else None. A ``rerun`` on PATH from another install (another venv, active in the shell) may
+    be another Rerun version, whose viewer need not read this one's stream: it comes second."""
     import shutil
     import sys
 
-    found = shutil.which("rerun")
-    if found:
-        return found
     beside = Path(sys.executable).parent / "rerun"
-    return str(beside) if beside.is_file() else None
+    return str(beside) if beside.is_file() else shutil.which("rerun")
 
 
 def web_viewer_url(web_port: int, grpc_url: str) -> str:

@@ -61,20 +61,26 @@ def _runs_here(command: str, cwd: Path, path_variable: str) -> str:
     return done.stdout
 
 
-@pytest.mark.parametrize("where", ["activated", "venv-parent", "elsewhere"])
+@pytest.mark.parametrize("where", ["activated", "venv-parent", "elsewhere", "another rerun on PATH"])
 def test_the_open_hint_works_in_the_shell_it_is_printed_in(tmp_path, monkeypatch, where):
     """`rerun FILE` only where `rerun` on PATH is simreel's viewer (an activated venv); otherwise the viewer's
-    path, relative where it lies below the current folder (`.venv/bin/rerun` in the repository root)."""
+    path, relative where it lies below the current folder (`.venv/bin/rerun` in the repository root) — also where
+    another install's `rerun` comes first on PATH (another venv active in the shell: maybe another Rerun)."""
     from simreel.cli.view import open_command
 
     bare_path = os.pathsep.join(p for p in os.environ["PATH"].split(os.pathsep) if Path(p) != VENV_BIN)
-    path_variable = f"{VENV_BIN}{os.pathsep}{bare_path}" if where == "activated" else bare_path
+    other = tmp_path / "other-venv-bin"
+    other.mkdir()
+    (other / "rerun").write_text("#!/bin/sh\necho another rerun\n")
+    (other / "rerun").chmod(0o755)
+    path_variable = {"activated": f"{VENV_BIN}{os.pathsep}{bare_path}",
+                     "another rerun on PATH": f"{other}{os.pathsep}{bare_path}"}.get(where, bare_path)
     cwd = VENV_BIN.parents[1] if where == "venv-parent" else tmp_path
     monkeypatch.setenv("PATH", path_variable)
     monkeypatch.chdir(cwd)
     command = open_command(tmp_path / "my session.rrd")
-    expected = {"activated": "rerun", "venv-parent": os.path.relpath(VENV_BIN / "rerun", cwd),
-                "elsewhere": str(VENV_BIN / "rerun")}[where]
+    expected = {"activated": "rerun", "venv-parent": os.path.relpath(VENV_BIN / "rerun", cwd)}.get(
+        where, str(VENV_BIN / "rerun"))
     assert command == f"{expected} '{tmp_path}/my session.rrd'"
     assert _runs_here(command, cwd, path_variable).startswith("rerun-cli 0.41.0")
 
