@@ -248,28 +248,21 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         list (a copy, made into rows with its block by `_action_rows`), a large one as a (num_envs, A) float32 array;
         `ActionError` (before the env steps) otherwise, since the recording could not hold it or replay it. A small
         action is checked in Python floats: a numpy call right after a physics step costs several times more."""
-        kind = action.dtype.kind if type(action) is np.ndarray else ""
-        if kind and kind in "biuf" and action.shape in self._action_shapes and action.size <= _PYTHON_CHECK_MAX:
-            values = action.ravel().tolist()  # the usual action, checked with the fewest calls
-            if kind != "f" or math.isfinite(sum(values)) or all(map(math.isfinite, values)):  # a sum may overflow
-                return values
-        single = self._action_shape
-        a = None
-        if isinstance(action, np.ndarray) or hasattr(action, "detach"):  # what ManiSkill takes
-            with contextlib.suppress(TypeError):  # a tensor numpy cannot hold (bfloat16)
-                a = np.asarray(to_numpy(action))  # np.matrix too
-        if a is None or a.dtype.kind not in "biuf":
+        a = action if type(action) is np.ndarray else _as_array(action)  # the usual action: no conversion
+        kind = "" if a is None else a.dtype.kind
+        if not kind or kind not in "biuf":
             what = f"dtype {action.dtype}" if hasattr(action, "dtype") else f"type {type(action).__name__}"
-            raise ActionError(f"an action of {what}; {self.meta.env_id} takes a numeric array of shape {single}")
-        if a.shape != (self._n, *single) and not (self._n == 1 and a.shape == single):
+            raise ActionError(f"an action of {what}; {self.meta.env_id} takes a numeric array of shape "
+                              f"{self._action_shape}")
+        if a.shape not in self._action_shapes:
             raise ActionError(f"an action of shape {a.shape}; {self.meta.env_id} takes shape "
-                              f"{(self._n, *single) if self._n > 1 else single}")
+                              f"{(self._n, *self._action_shape) if self._n > 1 else self._action_shape}")
         if a.size <= _PYTHON_CHECK_MAX:
-            values = a.reshape(-1).tolist()
-            if a.dtype.kind == "f" and not all(map(math.isfinite, values)):
-                raise _non_finite(a)
+            values = a.ravel().tolist()
+            if kind == "f" and not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):  # a sum may
+                raise _non_finite(a)  # overflow where every number is finite
             return values
-        if a.dtype.kind == "f" and not np.isfinite(a).all():
+        if kind == "f" and not np.isfinite(a).all():
             raise _non_finite(a)
         return a.astype(np.float32, copy=False).reshape(self._n, -1)
 
@@ -434,6 +427,15 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 sink.discard()
                 return
             sink.commit(meta)
+
+
+def _as_array(action: Any) -> np.ndarray | None:
+    """`action` as a numpy array where it is one ManiSkill takes (a numpy array, np.matrix too, or a tensor numpy can
+    hold: not bfloat16), else None."""
+    if isinstance(action, np.ndarray) or hasattr(action, "detach"):
+        with contextlib.suppress(TypeError):
+            return np.asarray(to_numpy(action))
+    return None
 
 
 def _non_finite(a: np.ndarray) -> ActionError:

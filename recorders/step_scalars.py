@@ -73,10 +73,11 @@ class StepScalars:
     def capture(self, reward: Any, terminated: Any, truncated: Any, info: dict[str, Any]) -> list[Any]:
         """This step's scalars, copied out as plain Python numbers and lists."""
         get, absent = info.get, self._absent
+        values = (reward, terminated, truncated, *[get(k, absent) for k in self._keys])
         try:  # tensors and arrays, as every ManiSkill task gives them
-            return [reward.tolist(), terminated.tolist(), truncated.tolist(), *[get(k, absent).tolist() for k in self._keys]]
+            return [v.tolist() for v in values]
         except AttributeError:
-            return [_plain(reward), _plain(terminated), _plain(truncated), *[_plain(get(k, absent)) for k in self._keys]]
+            return [_plain(v) for v in values]
 
     def rows(self, captures: list[list[Any]]) -> dict[str, np.ndarray]:
         """The fields of `len(captures)` steps, each (steps, num_envs)."""

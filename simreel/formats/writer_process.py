@@ -415,9 +415,15 @@ class _Child:
     def _answer(self, value: Any = None) -> None:
         """Answer with `value`, the episodes committed since the last answer, and the error that stopped the writer
         (in every answer from then on: the recorder may have been interrupted before it read the first)."""
-        error = self._error
+        if self._error is not None:
+            self._say("error", _portable(self._error))
+        else:
+            self._say("ok", value)
+
+    def _say(self, status: str, value: Any) -> None:
+        """Send (status, value, the episodes committed since the last message)."""
         committed, self._committed = self._committed, []
-        self._answer_raw(("error", _portable(error), committed) if error is not None else ("ok", value, committed))
+        self._answer_raw((status, value, committed))
 
     def _answer_raw(self, answer: tuple[str, Any, list[int]]) -> None:
         try:
@@ -435,8 +441,7 @@ class _Child:
             return True
         except Exception as e:  # noqa: BLE001 - every error goes back to the recorder, which raises it
             self._error, self._stopped = e, True
-            committed, self._committed = self._committed, []
-            self._answer_raw(("failed", _portable(e), committed))  # now: the recorder raises it at its next write
+            self._say("failed", _portable(e))  # now: the recorder raises it at its next write
             return False
 
     def _cleanup(self, work: Any) -> None:
