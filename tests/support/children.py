@@ -41,11 +41,14 @@ def wait_ended(pids: list[int], timeout: float = 30) -> None:
 
 
 def running(pid: int) -> bool:
+    """True until every thread of `pid` has ended. A process leader shows as a zombie as soon as its own thread
+    exits, while its other threads may still be ending and still hold its open files (and their locks)."""
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()
+        threads = [task.name for task in Path(f"/proc/{pid}/task").iterdir()]
     except OSError:
         return False
-    return stat.rpartition(")")[2].split()[0] != "Z"
+    return stat.rpartition(")")[2].split()[0] != "Z" or threads != [str(pid)]
 
 
 class RecordingChild:
