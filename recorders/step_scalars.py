@@ -44,8 +44,13 @@ def _scalar(value: Any, n: int) -> np.ndarray | None:
 
 
 def _plain(value: Any) -> Any:
-    """`value`'s numbers as Python objects (a copy), or `value` itself where it has none to copy out."""
-    return value.tolist() if hasattr(value, "tolist") else value
+    """`value`'s numbers as Python objects: a copy, also of a list or tuple (a task may change its list in place after
+    the step, as ManiSkill does its tensors), or `value` itself where it has nothing to copy out (a number)."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
 
 
 class StepScalars:

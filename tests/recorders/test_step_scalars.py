@@ -19,8 +19,8 @@ _BIG = 2**60 + 1
 
 @pytest.fixture(scope="module")
 def odd_info_task():
-    """PickCube whose info also holds a 0-d tensor, an int64 beyond float64, an entry present on even steps only and
-    one that changes shape at step 3."""
+    """PickCube whose info also holds a 0-d tensor, an int64 beyond float64, an entry present on even steps only,
+    one that changes shape at step 3 and a plain Python list the task changes in place at every step."""
     from mani_skill.envs.tasks.tabletop.pick_cube import PickCubeEnv
     from mani_skill.utils.registration import register_env
 
@@ -34,6 +34,9 @@ def odd_info_task():
             if t % 2 == 0:
                 info["sometimes"] = torch.tensor([True])
             info["shape_changes"] = torch.tensor([[1.0, 2.0]] if t == 3 else [1.5])
+            self._tally = getattr(self, "_tally", [0.0])
+            self._tally[0] = 0.5 * t
+            info["tally"] = self._tally
             return info
 
     return "SimreelTestOddInfo-v1"
@@ -54,6 +57,7 @@ def test_odd_info_entries_are_recorded_by_the_per_step_rules(tmp_path, odd_info_
     np.testing.assert_array_equal(ep.info["sometimes"], steps % 2 == 0)  # absent: False
     np.testing.assert_array_equal(ep.info["shape_changes"], np.where(steps == 3, 0.0, 1.5))  # another shape: 0
     np.testing.assert_array_equal(ep.info["elapsed_steps"], steps)  # ManiSkill updates this tensor in place
+    np.testing.assert_array_equal(ep.info["tally"], np.float32(0.5 * steps))  # so does the task this list
 
 
 def test_a_block_converts_to_what_each_step_reported(odd_info_task):
