@@ -46,7 +46,14 @@ from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct
 from simreel.replay.control import check_pair
 from simreel.replay.engine import GPU_SIM_BACKENDS, BlockSink, Collected, EpisodeReplayer, ReplayerOptions
-from simreel.replay.output import EpisodeStream, ReplayedWriter, ReplayOutput, ScratchEpisode, ScratchFolder
+from simreel.replay.output import (
+    EpisodeStream,
+    ReplayedWriter,
+    ReplayOutput,
+    ScratchEpisode,
+    ScratchFolder,
+    published,
+)
 from simreel.replay.report import EpisodeReport, episode_lines, recording_limits
 from simreel.replay.tracking import Commands, EndEffector, TrackingBlocks, tracking_tolerances
 from simreel.replay.workers import EpisodeResult, VerifySink, run_pool
@@ -601,16 +608,14 @@ class ConversionRun:
                                   conversion=self._conversion(), tolerances=self.tolerances.to_json(),
                                   limits=self._limits(meta))
         worker = ConvertWorker(self._job(), self.reader)  # closes the reader
-        writer = None
         try:
             report.warnings = _fingerprint_warnings(worker)
             spec = self._output_spec(worker)
-            writer = worker.output = ReplayedWriter(spec, meta, list(self.indices))
-            collector = _Collector(report, writer, progress)
-            self._run(worker, spec, collector)
+            with published(ReplayedWriter(spec, meta, list(self.indices)), keep=lambda: bool(report.written)) as writer:
+                worker.output = writer
+                collector = _Collector(report, writer, progress)
+                self._run(worker, spec, collector)
         finally:
-            if writer is not None:
-                writer.close() if report.written else writer.abort()
             worker.close()
         order = {i: k for k, i in enumerate(self.indices)}
         report.episodes.sort(key=lambda e: order[e.index])

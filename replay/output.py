@@ -9,25 +9,27 @@ writes its converted episodes the same way."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import shutil
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from simreel.episode import OPTIONAL_STEP_FIELDS, Episode, EpisodeMeta, RecordingMeta, StepBlock
-from simreel.errors import UsageError
+from simreel.errors import SimreelError, StorageError, UsageError
 from simreel.formats import EpisodeSink, format_of
+from simreel.formats.durable import raise_if_stopped
 from simreel.formats.lock import WriterLock, being_written
 from simreel.replay.engine import BlockSink
 from simreel.state_tree import layout_of
 
 __all__ = ["ReplayOutput", "ReplayedWriter", "EpisodeStream", "RecordedContacts", "output_pose_bodies",
-           "ScratchFolder", "ScratchEpisode", "scratch_folder"]
+           "ScratchFolder", "ScratchEpisode", "scratch_folder", "OutputFailed", "published"]
 
 _PRODUCED = ("versions", *OPTIONAL_STEP_FIELDS)
 """What a replay knows even where the recording did not hold it: this machine's versions, rewards and flags."""
@@ -45,6 +47,48 @@ class ReplayOutput:
     command: str = ""
     changes: dict[str, Any] = dataclasses.field(default_factory=dict)
     """`RecordingMeta` fields to set in the output (a conversion: control mode, action space, provenance)."""
+
+
+class OutputFailed(Exception):
+    """The output could not be written (a full disk, a read-only folder, ...), met while an episode was replayed into
+    it. Not a `SimreelError`, so a worker does not report it as that episode's error and go on: it stops the run,
+    whose output is then dropped (`published`), and the run raises `error`, the writer's own."""
+
+    def __init__(self, error: SimreelError) -> None:
+        super().__init__(error)
+        self.error = error
+
+
+@contextlib.contextmanager
+def _writing_output() -> Iterator[None]:
+    """Raise the errors of writing the output as `OutputFailed`."""
+    try:
+        yield
+    except SimreelError as e:
+        raise OutputFailed(e) from e
+
+
+@contextlib.contextmanager
+def published(writer: ReplayedWriter, keep: Callable[[], bool] = lambda: True) -> Iterator[ReplayedWriter]:
+    """Run the block that writes `writer`'s episodes, then publish the output (`close`) if `keep()`, else drop it.
+    When the block raises — an error that stops the run, the output's own (`OutputFailed`: raised as the writer's
+    error), Ctrl-C or SIGTERM — the output is dropped (`abort`): no part of a run is published, and an old file the
+    output was to replace stays as it was."""
+    try:
+        yield writer
+        raise_if_stopped()  # a Ctrl-C that landed in a finalizer (h5py's) was printed and dropped by Python
+    except BaseException as e:
+        writer.abort()
+        error = e.error if isinstance(e, OutputFailed) else e
+        if isinstance(error, StorageError):
+            error = error.dropped(f"; nothing was written to {writer.spec.path}")
+        if error is e:
+            raise
+        raise error from None
+    if keep():
+        writer.close()
+    else:
+        writer.abort()
 
 
 def output_pose_bodies(meta: RecordingMeta, output: str | Path | None) -> tuple[str, ...]:
@@ -179,10 +223,11 @@ class EpisodeStream(BlockSink):
         self._reset = replayed
 
     def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
-        if self._sink is None:
-            assert self._reset is not None
-            self._sink = self.output.begin(self.meta, self._reset, replayed)
-        self._sink.append(replayed)
+        with _writing_output():
+            if self._sink is None:
+                assert self._reset is not None
+                self._sink = self.output.begin(self.meta, self._reset, replayed)
+            self._sink.append(replayed)
         if replayed.rows:
             ever = bool(np.any(replayed["success"])) or (self._success is not None and self._success[1])
             self._success = (bool(replayed["success"][-1]), ever)
@@ -192,10 +237,11 @@ class EpisodeStream(BlockSink):
         meta = dataclasses.replace(meta, length=length)
         if self._success is not None:
             meta.success, meta.ever_success = self._success
-        if self._sink is None:
-            assert self._reset is not None
-            self._sink = self.output.begin(meta, self._reset, None)
-        self._sink.commit(meta)
+        with _writing_output():
+            if self._sink is None:
+                assert self._reset is not None
+                self._sink = self.output.begin(meta, self._reset, None)
+            self._sink.commit(meta)
         self._sink = None
 
     def discard(self) -> None:
@@ -259,7 +305,8 @@ class ScratchEpisode(EpisodeStream):
 
     def commit(self, meta: EpisodeMeta, length: int) -> None:
         super().commit(meta, length)
-        self.output.close()
+        with _writing_output():
+            self.output.close()
 
     def discard(self) -> None:
         super().discard()

@@ -35,7 +35,7 @@ from simreel.formats import check_writable, format_of, recording_files
 from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct, check_output
 from simreel.replay.engine import MODES
-from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchFolder
+from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchFolder, published
 from simreel.replay.report import EpisodeReport, recording_limits
 from simreel.replay.report_log import LoggedRun, ReportLog, load_log, report_paths, tally_of_log, write_report
 from simreel.replay.tally import FileTally, ReplayReport, RunTally
@@ -300,11 +300,8 @@ class ReplayRun:
         job = self._job()
         spec = ReplayOutput(opts.output, opts.overwrite, opts.obs_mode, job.replayer_options(f.meta).pose_bodies,
                             opts.command)
-        sink = ReplayedWriter(spec, f.meta, list(f.episodes))
-        try:
+        with published(ReplayedWriter(spec, f.meta, list(f.episodes))) as sink:
             yield sink
-        finally:
-            sink.close()
 
     def _collector(self, log: ReportLog | None, sink: ReplayedWriter | None,
                    progress: Progress | None) -> Callable[[EpisodeResult], None]:

@@ -192,7 +192,7 @@ class RecordingMeta:
     """What made this file from other recordings (empty for a recording made by recording), by ``"operation"``:
     ``"merge"`` / ``"filter"``: ``{"operation", "inputs": [{"path", "size", "mtime_ns", "meta_digest", "kind",
     "episodes", "versions", "created_utc", "command", "source", "provenance"}, ...], "criteria": {...}, "part": "kept"
-    | "rest"}`` (`simreel.formats.dataset`); ``"convert"`` (``simreel convert`` to a new observation or control
+    | "rest"}`` (`simreel.formats.dataset`; size and mtime as `simreel.formats.inputs.file_identity` says); ``"convert"`` (``simreel convert`` to a new observation or control
     mode): ``{"operation", "source": path, "source_kind", "source_episodes", "conversion": {what changed, how it
     was checked}, "tolerances", "filters"}``, each episode's own verdict in `EpisodeMeta.provenance`. Unlike
     `source`, which says where a file simreel did not record came from."""

@@ -79,6 +79,12 @@ class StorageError(RecordingFileError):
     def __reduce__(self) -> tuple[type, tuple[str, str, str, str]]:
         return type(self), (self.path, self.reason, self.fix, self.detail)
 
+    def dropped(self, detail: str, path: object = None) -> StorageError:
+        """The same failure, said by a command that dropped what it was writing: `detail` (e.g. "; nothing was
+        written") replaces what the writer said of the episodes it had committed; `path`, the output's name, the one
+        the writer wrote under (a staging name)."""
+        return StorageError(self.path if path is None else path, self.reason, self.fix, detail)
+
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised like Ctrl-C's KeyboardInterrupt so that the same clean-up runs (the CLI installs it)."""

@@ -15,9 +15,11 @@ from typing import Protocol, TypeVar
 
 from simreel.episode import EpisodeMeta, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
-from simreel.formats import check_writable, format_of, open_reader, open_writer
+from simreel.formats import check_writable, format_of, open_reader, open_writer, recording_files
 from simreel.formats.base import EpisodeReader, EpisodeRows, EpisodeWriter
+from simreel.formats.durable import raise_if_stopped
 from simreel.formats.staging import replacement_note
+from simreel.formats.targets import check_distinct
 
 __all__ = ["EpisodeTransform", "CopyReport", "RecoveryReport", "convert", "recover"]
 
@@ -68,8 +70,7 @@ def convert(
     """
     src_p, dst_p = Path(src), Path(dst)
     format_of(dst_p)  # a bad suffix fails before anything is read
-    if src_p.exists() and dst_p.exists() and src_p.resolve() == dst_p.resolve():
-        raise UsageError(f"{dst}: IN and OUT are the same file; write to another file")
+    check_distinct({"OUT": recording_files(dst_p)}, recording_files(src_p), input_label="IN")
     check_writable(dst_p, overwrite=overwrite)  # before the reader and a transform's env cost anything
     with open_reader(src_p) as reader:
         if reader.damaged:
@@ -108,8 +109,10 @@ def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, Epis
             writers.append(open_writer(target.path, target.meta, overwrite=target.overwrite))
         steps = [0] * len(targets)
         for k, episode in episodes:
+            raise_if_stopped()  # a Ctrl-C that landed in a finalizer (h5py's) was printed and dropped by Python
             writers[k].write_rows(episode)
             steps[k] += episode.length
+        raise_if_stopped()
         for writer in writers:
             writer.close()
     except BaseException:
@@ -162,7 +165,7 @@ def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target
 
 def _nothing_written(e: StorageError, target: Target, reader: EpisodeReader) -> StorageError:
     """A copy's storage failure: it wrote nothing (a failed copy is dropped) and its input is as it was."""
-    return StorageError(target.path, e.reason, e.fix, f"; nothing was written and {reader.path} is unchanged")
+    return e.dropped(f"; nothing was written and {reader.path} is unchanged")
 
 
 @dataclass
@@ -205,6 +208,7 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
         raise UsageError(f"{src}: {note}; recover that one with -o, or remove it, before recovering {src} in place")
     if not in_place:
         format_of(output)
+        check_distinct({"-o": recording_files(output)}, recording_files(src), input_label="the recording to recover")
         check_writable(output, overwrite=overwrite)  # refuse OUT before reading PATH front to back
     with _open_for_recovery(src) as reader:
         damaged = [*reader.damaged, *getattr(reader, "skipped", [])]
@@ -216,6 +220,10 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
         if report.complete and output is None:
             report.episodes, report.steps = len(reader.episodes), sum(e.length for e in reader.episodes)
             return report
+        if in_place and reader.meta.source.get("format") == "maniskill":
+            raise UsageError(f"{src} is a ManiSkill file (RecordEpisode's): recovering it in place would replace it "
+                             "by a simreel recording, losing its sidecar's own fields and any group the sidecar does not "
+                             "list; recover it with -o")
         dst = src if in_place else Path(output)
         copied = _copy(reader, reader.episodes, Target(dst, reader.meta, overwrite or in_place), salvage=True)
     report.episodes, report.steps = copied.episodes, copied.steps

@@ -34,10 +34,11 @@ import numpy as np
 
 from simreel import FORMAT_VERSION
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock
-from simreel.errors import OutputCheckError, RecordingFileError, UsageError
+from simreel.errors import OutputCheckError, RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
 from simreel.formats.base import EpisodeRows, PassedRows
 from simreel.formats.copy import Target, write_episodes
+from simreel.formats.durable import deferred_signals, raise_if_stopped
 from simreel.formats.inputs import file_identity
 from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.targets import check_distinct
@@ -378,6 +379,7 @@ def _read(items: Sequence[_Item], sources: Sequence[_Source], decide: Decide,
         source = sources[k]
         with source.reopen() as reader:
             for item in group:
+                raise_if_stopped()  # a Ctrl-C that landed in a finalizer (h5py's) was printed and dropped by Python
                 rows = reader.open_episode(item.index)
                 if decide(source, rows.meta) != item.target:
                     raise RecordingFileError(
@@ -455,12 +457,22 @@ class _Output:
             if src.exists() and self.final.overwrite:
                 os.replace(src, dst)
             elif src.exists():
-                os.link(src, dst)  # never replaces a file made since the start: FileExistsError
+                _link_new(src, dst, self.final.path)
                 src.unlink()
             elif self.final.overwrite and dst.is_dir():
                 shutil.rmtree(dst)
             elif self.final.overwrite:
                 dst.unlink(missing_ok=True)
+
+
+def _link_new(src: Path, dst: Path, out: Path) -> None:
+    """Give `src` (a file of the staged output `out`) the name `dst`, which must still be free: a file made there
+    since the start (another command writing the same OUT) is never replaced."""
+    try:
+        os.link(src, dst)
+    except FileExistsError:
+        raise UsageError(f"{out} was written by another command while this one ran ({dst.name} is there now); it is "
+                         "left as it is and nothing was written (pass --overwrite to replace it)") from None
 
 
 def _run(sources: Sequence[_Source], targets: Sequence[Target], decide: Decide, options: DatasetOptions,
@@ -478,11 +490,16 @@ def _run(sources: Sequence[_Source], targets: Sequence[Target], decide: Decide, 
         steps = write_episodes([o.staged for o in outputs], episodes)
         for output in outputs:
             _check(output, sources, options)
-        for output in outputs:
-            output.publish()
-    except BaseException:
+        raise_if_stopped()
+        with deferred_signals():  # every output or none: a Ctrl-C between OUT and --rest would leave the two mixed
+            for output in outputs:
+                output.publish()
+    except BaseException as e:
         for output in outputs:
             remove_recording(output.staged.path)
+        if isinstance(e, StorageError):
+            out = next((o.final.path for o in outputs if Path(e.path) == o.staged.path), e.path)
+            raise e.dropped("; nothing was written and the inputs are unchanged", out) from None
         raise
     return [OutputSummary(o.final.path, len(o.items), n) for o, n in zip(outputs, steps, strict=True)], items
 
@@ -499,6 +516,7 @@ def _check(output: _Output, sources: Sequence[_Source], options: DatasetOptions)
         if indices != list(range(len(digests))):
             raise OutputCheckError(f"{name}: holds episodes {indices[:10]}, expected 0..{len(digests) - 1}")
         for m in options.progress(reader.episodes, f"check {name.name}"):
+            raise_if_stopped()
             if episode_digest(reader.open_episode(m.index)) != digests[m.index]:
                 episode = reader.read_episode(m.index)
                 raise OutputCheckError(f"{name}: episode {m.index} {_difference(episode, output.items[m.index], sources)}")

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from simreel.errors import UsageError
-from simreel.formats import HDF5_SUFFIXES, MCAP_SUFFIXES
+from simreel.formats import HDF5_SUFFIXES, MCAP_SUFFIXES, recording_files
 
 __all__ = ["RECORDING_SUFFIXES", "expand_inputs", "file_identity", "shown_path"]
 
@@ -17,10 +17,17 @@ RECORDING_SUFFIXES = (*HDF5_SUFFIXES, *MCAP_SUFFIXES)
 
 
 def file_identity(path: str | os.PathLike[str]) -> tuple[int, int]:
-    """What says a recording is the file seen before (by a report, a plan, another machine): its size and its
-    modification time in ns. Raises `OSError` when there is no such file."""
+    """What says a recording is the one seen before (by a report, a plan, another machine): the size of its files
+    and the latest of their modification times in ns — the recording file and the files its format keeps beside it
+    (an HDF5 recording's JSON sidecar, which lists a ManiSkill file's episodes and their seeds). Raises `OSError`
+    when there is no such file."""
     st = os.stat(path)
-    return st.st_size, st.st_mtime_ns
+    size, mtime_ns = st.st_size, st.st_mtime_ns
+    for side in recording_files(os.path.realpath(path))[1:]:  # a link's sidecar is its target's
+        if side.is_file():
+            side_st = side.stat()
+            size, mtime_ns = size + side_st.st_size, max(mtime_ns, side_st.st_mtime_ns)
+    return size, mtime_ns
 
 
 def _is_pattern(spec: str) -> bool:

@@ -4,6 +4,8 @@ checked), the criteria as options, and one-line refusals (exit 2)."""
 from __future__ import annotations
 
 import dataclasses
+import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -124,6 +126,23 @@ def test_episodes_a_report_does_not_cover_are_not_kept_and_counted(replayed, tmp
     assert _origins(tmp_path / "ok.h5") == [0]
     assert main(["filter", str(rec), "-o", str(tmp_path / "bad.h5"), "--diverged", str(partial), "-q"]) == 2
     assert "nothing matches; nothing written" in capsys.readouterr().err
+
+
+def test_a_report_made_before_the_sidecar_changed_is_refused(replayed, tmp_path, capsys):
+    """The JSON sidecar is part of the recording (a ManiSkill file's episode list and seeds are there): a report made
+    before it changed is about another recording."""
+    rec, full, _ = replayed
+    copy = tmp_path / "copy.h5"
+    for suffix in (".h5", ".json"):
+        shutil.copy2(rec.with_suffix(suffix), copy.with_suffix(suffix))  # the same bytes and times
+    copy_report = tmp_path / "full.json"
+    copy_report.write_text(full.read_text().replace(str(rec), str(copy)))
+    assert main(["filter", str(copy), "-o", str(tmp_path / "y.h5"), "--verified", str(copy_report), "-q"]) == 0
+    sidecar = json.loads(copy.with_suffix(".json").read_text())
+    sidecar["episodes"][1]["episode_seed"] = 7
+    copy.with_suffix(".json").write_text(json.dumps(sidecar))
+    assert main(["filter", str(copy), "-o", str(tmp_path / "z.h5"), "--verified", str(copy_report), "-q"]) == 2
+    assert f"{copy} changed since {copy_report} verified it" in capsys.readouterr().err
 
 
 def test_a_report_of_another_file_or_of_the_file_before_it_changed_is_refused(replayed, src, tmp_path, capsys):

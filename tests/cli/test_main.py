@@ -114,10 +114,13 @@ BAD_INPUT = [
     # convert
     ("convert-suffix", ["convert", "{rec}", "{tmp}/out.txt"], "unknown recording suffix '.txt'"),
     ("convert-missing", ["convert", "{tmp}/missing.h5", "{tmp}/out.mcap"], "missing.h5: no such file"),
-    ("convert-same", ["convert", "{rec}", "{rec}"], "IN and OUT are the same file"),
+    ("convert-same", ["convert", "{rec}", "{rec}"], "OUT {rec} is IN; write it to another file"),
+    ("convert-o-shares-sidecar", ["convert", "{rec}", "{rec_twin}", "--overwrite"], "is a file of IN"),
     # recover
     ("recover-junk", ["recover", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
     ("recover-missing", ["recover", "{tmp}/missing.mcap"], "missing.mcap: no such file"),
+    ("recover-o-shares-sidecar", ["recover", "{rec}", "-o", "{rec_twin}", "--overwrite"],
+     "is a file of the recording to recover"),
     # merge
     ("merge-no-o", ["merge", "{rec}"], "the following arguments are required: -o/--output"),
     ("merge-missing", ["merge", "{rec}", "{tmp}/missing.h5", "-o", "{tmp}/out.h5"], "missing.h5: no such file"),
@@ -143,8 +146,9 @@ BAD_INPUT = [
 
 @pytest.fixture(scope="module")
 def recs(rec, record) -> dict[str, Path]:
-    """{rec} and {rec2} of the table: two recordings."""
-    return {"rec": rec, "rec2": record("PickCube-v1", 1, 10)}
+    """{rec} and {rec2} of the table: two recordings; {rec_twin}: a path beside {rec} that would share its JSON sidecar
+    (never written: every case refuses it)."""
+    return {"rec": rec, "rec2": record("PickCube-v1", 1, 10), "rec_twin": rec.with_suffix(".hdf5")}
 
 
 POLICIES = """import numpy as np

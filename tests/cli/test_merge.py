@@ -94,7 +94,7 @@ def test_ctrl_c_during_the_copy_leaves_no_output_and_the_inputs_as_they_were(inp
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
     child = subprocess.Popen([sys.executable, str(SUPPORT / "interrupted_merge.py"), *map(str, inputs), "-o", str(out),
                               *(["--overwrite"] if existing else [])],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert child.stdout.readline().strip() == "copying"
         staged = [p.name for p in tmp_path.iterdir() if p.name.startswith(".out.simreel-")]
@@ -106,6 +106,27 @@ def test_ctrl_c_during_the_copy_leaves_no_output_and_the_inputs_as_they_were(inp
     assert child.returncode == 130 and err == "simreel merge: interrupted\n"
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
     assert [p for p in recording_files(out) if p.exists()] == ([out] if existing else [])
+
+
+def test_two_merges_to_one_new_out_keep_the_first_and_refuse_the_second_in_one_line(inputs, tmp_path):
+    """The first merge passes the start's check (OUT does not exist yet) and is paused in its copy; a second one
+    writes OUT meanwhile; the first then finds OUT made and leaves it as it is: exit 2 and one line, never an
+    internal error or a replaced OUT."""
+    out = tmp_path / "m.h5"
+    first = subprocess.Popen([sys.executable, str(SUPPORT / "interrupted_merge.py"), *map(str, inputs), "-o", str(out)],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert first.stdout.readline().strip() == "copying"
+        assert main(["merge", str(inputs[1]), "-o", str(out), "-q"]) == 0
+        _, err = first.communicate("go on\n", timeout=120)
+    finally:
+        first.kill()
+    assert first.returncode == 2 and err == (f"simreel merge: error: {out} was written by another command while this "
+                                             "one ran (m.json is there now); it is left as it is and nothing was written "
+                                             "(pass --overwrite to replace it)\n")
+    with open_reader(out) as r:
+        assert [m.origin["file"] for m in r.episodes] == [str(inputs[1])] * 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "a.json", "b.mcap", "m.h5", "m.json"]
 
 
 def test_overwrite_replaces_a_recording_and_every_file_beside_it(inputs, tmp_path):

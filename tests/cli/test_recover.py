@@ -42,3 +42,29 @@ def test_recover_keeps_every_intact_hdf5_episode_and_names_the_damaged_ones(reco
     assert [e["episode_id"] for e in sidecar["episodes"]] == [0, 3, 4]
     with open_reader(path) as r:  # the damaged input is left as it was
         assert [m.index for m in r.episodes] == [0, 1, 2, 3, 4]
+
+
+def test_a_maniskill_file_is_recovered_with_o_only_and_stays_as_it_was(tmp_path):
+    """In place, `recover` would rewrite a RecordEpisode file as a simreel recording: its sidecar's own fields and a
+    group its sidecar does not list (one a killed RecordEpisode left) would be gone. Refused, nothing touched; with
+    -o the file and its sidecar stay byte for byte."""
+    from support.maniskill_files import record_maniskill
+
+    path = record_maniskill(tmp_path, "PickCube-v1", episodes=2, steps=8)
+    with h5py.File(path, "a") as f:
+        f.copy("traj_0", "traj_7")  # written, never listed
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+
+    refused = simreel("recover", str(path))
+    assert refused.returncode == 2 and refused.stderr == (
+        f"simreel recover: error: {path} is a ManiSkill file (RecordEpisode's): recovering it in place would replace it "
+        "by a simreel recording, losing its sidecar's own fields and any group the sidecar does not list; recover it "
+        "with -o\n")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+    done = simreel("recover", str(path), "-o", str(tmp_path / "saved.h5"))
+    assert done.returncode == 0, done.stderr
+    assert "found: 1 group(s) the sidecar does not list (traj_7)" in done.stdout
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.name in before} == before
+    with open_reader(tmp_path / "saved.h5") as r:
+        assert [m.index for m in r.episodes] == [0, 1]

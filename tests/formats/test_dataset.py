@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 from support.maniskill_files import record_maniskill
 from support.mcap_samples import assert_same_episode, long_sample, synthetic_episode, synthetic_meta, write
+from support.small_disk import small_disk
 
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta
-from simreel.errors import EnvMismatchError, OutputCheckError, RecordingFileError, UsageError
+from simreel.errors import EnvMismatchError, OutputCheckError, RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader, recording_files
 from simreel.formats.dataset import EpisodeCriteria, filter_recording, merge
 from simreel.state_tree import LeafSpec
@@ -79,7 +80,10 @@ def test_merge_copies_every_array_and_its_metadata_bit_exactly(synthetic, tmp_pa
         assert same.to_json() == first.meta.to_json()  # the env, its layouts and everything else as the inputs
     prov = meta.provenance
     assert prov["operation"] == "merge" and [i["path"] for i in prov["inputs"]] == [str(a), str(b)]
-    assert prov["inputs"][0]["size"] == a.stat().st_size and prov["inputs"][1]["mtime_ns"] == b.stat().st_mtime_ns
+    sidecar = a.with_suffix(".json").stat()
+    assert prov["inputs"][0]["size"] == a.stat().st_size + sidecar.st_size  # the recording's files: with its sidecar
+    assert prov["inputs"][0]["mtime_ns"] == max(a.stat().st_mtime_ns, sidecar.st_mtime_ns)
+    assert prov["inputs"][1]["mtime_ns"] == b.stat().st_mtime_ns
     assert prov["inputs"][1]["kind"] == "simreel MCAP recording (format 1)" and prov["inputs"][1]["episodes"] == 2
     assert prov["inputs"][0]["meta_digest"] == prov["inputs"][1]["meta_digest"]  # both written with one meta
 
@@ -433,12 +437,12 @@ def test_maniskills_replay_trajectory_replays_a_merged_file_bit_exactly(record, 
 
 def test_report_verdicts_find_the_file_by_its_real_path_and_only_its_episodes(synthetic, tmp_path, monkeypatch):
     from simreel.formats.dataset import report_verdicts
+    from simreel.formats.inputs import file_identity
 
     a, b = synthetic
     link = tmp_path / "link.h5"
     link.symlink_to(a)
-    st = a.stat()
-    files = {str(a): (st.st_size, st.st_mtime_ns), str(b): (1, 2)}
+    files = {str(a): file_identity(a), str(b): (1, 2)}
     verdicts = {(str(a), 0): "exact", (str(a), 2): "diverged", (str(b), 0): "exact"}
     monkeypatch.chdir(tmp_path)
     assert report_verdicts("a.h5", verdicts, files, "r.json") == {0: "exact", 2: "diverged"}  # relative, as typed
@@ -460,3 +464,17 @@ def test_an_input_with_a_damaged_episode_is_refused_naming_it(tmp_path):
     assert str(err.value).startswith(f"{a}: 1 damaged episode(s) (traj_1: no simreel_episode attribute")
     assert f"`simreel recover {a} -o OUT` copies the intact ones" in str(err.value)
     assert not (tmp_path / "out.h5").exists()
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".mcap"])
+def test_a_merge_the_disk_cannot_hold_names_its_output_and_leaves_nothing(tmp_path, suffix):
+    """The writer of the staged output says what it committed "stays readable" under its staging name, which the
+    merge then removes: the error names OUT and says nothing was written."""
+    long, _ = long_sample(tmp_path / "long.h5")
+    with small_disk(tmp_path, 256) as disk:
+        out = disk / f"m{suffix}"
+        with pytest.raises(StorageError) as raised:
+            merge([long], out)
+        assert str(raised.value) == (f"{out}: the disk is full; nothing was written and the inputs are unchanged; free "
+                                     "some space or write to another disk")
+        assert [p for p in disk.iterdir() if p.name != "lost+found"] == []

@@ -12,8 +12,9 @@ import shutil
 import numpy as np
 import pytest
 from support.damage import corrupt_chunk
+from support.small_disk import fill, small_disk
 
-from simreel.errors import EnvBuildError, UsageError
+from simreel.errors import EnvBuildError, StorageError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.lock import WriterLock
 from simreel.replay.output import scratch_folder
@@ -72,6 +73,22 @@ def test_an_episode_that_fails_leaves_no_scratch_and_the_others_are_written(reco
         assert [m.index for m in reader.episodes] == [0, 2, 3]
     assert not scratch_folder(out).exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.h5", "out.h5", "out.json"]
+
+
+@pytest.mark.parametrize("fmt", ["h5", "mcap"])
+def test_an_output_the_disk_cannot_hold_is_dropped_and_the_old_one_kept(record, tmp_path, fmt):
+    """The disk fills while -o is written: the run stops with one line saying nothing was written (not "the episodes
+    committed before stay readable", which the dropped output's writer had said), and the file it was to replace
+    is as it was."""
+    path = record("PickCube-v1", 8, 30)
+    with small_disk(tmp_path, 1024) as disk:
+        out = disk / f"out.{fmt}"
+        verify_recording(record("PickCube-v1", 1, 10), output=str(out))
+        old = {p.name: p.read_bytes() for p in disk.iterdir() if p.is_file()}  # an ext2 image has lost+found
+        fill(disk, leave_kib=48)
+        with pytest.raises(StorageError, match=rf"the disk is full; nothing was written to .*out\.{fmt}; free some"):
+            verify_recording(path, output=str(out), overwrite=True)
+        assert {p.name: p.read_bytes() for p in disk.iterdir() if p.is_file() and "filler" not in p.name} == old
 
 
 def test_a_run_whose_env_does_not_build_leaves_no_scratch(record, tmp_path):

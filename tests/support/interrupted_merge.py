@@ -1,14 +1,13 @@
-"""Child process of the Ctrl-C test of `simreel merge`: runs the real command, paused in the middle of the copy.
+"""Child process of tests of `simreel merge` that need it paused in the middle of the copy (Ctrl-C, a second merge).
 
 Usage: python interrupted_merge.py IN... -o OUT. Runs `simreel merge` on the arguments; when the copy opens its
-third episode it prints `copying` (the first two are written by then) and sleeps, for the parent to send SIGINT.
-Exits with the command's status.
+third episode it prints `copying` (the first two are written by then) and waits for a line on its standard input
+(the parent sends SIGINT meanwhile, or a line to go on). Exits with the command's status.
 """
 
 from __future__ import annotations
 
 import sys
-import time
 
 
 def main(argv: list[str]) -> int:
@@ -22,7 +21,7 @@ def main(argv: list[str]) -> int:
         calls.append(index)
         if len(calls) == 3:
             print("copying", flush=True)
-            time.sleep(300)  # interrupted here
+            sys.stdin.readline()  # interrupted here, or told to go on
         return open_episode(self, index)
 
     Hdf5Reader.open_episode = paused
