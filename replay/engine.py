@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta, StepBlock
-from simreel.errors import EnvBuildError, ReplayError, SimreelError
+from simreel.errors import EnvBuildError, RecordingFileError, ReplayError, SimreelError
 from simreel.formats.base import EpisodeRows
 from simreel.sim.fingerprint import SceneDifference
 from simreel.sim.rebuild import (
@@ -170,6 +170,21 @@ class EpisodeReplayer:
         from simreel.sim.describe import max_episode_steps_of
 
         self.max_episode_steps = max_episode_steps_of(self.env)
+        self._check_action_shape()
+
+    def _check_action_shape(self) -> None:
+        """`ReplayError` when the recorded actions' shape is not the rebuilt env's (ManiSkill would fail an assertion
+        at the first step of every episode): the recording names another control mode than the one that recorded
+        the actions, or none (the env's default is built). Not for a replay in another control mode (`convert`)."""
+        recorded = self.meta.action_space.get("shape")
+        here = tuple(self.u.single_action_space.shape)
+        if self._control_mode is not None or recorded is None or tuple(recorded) == here:
+            return
+        mode = self.u.control_mode
+        named = (f"its control mode, {mode}," if self.meta.control_mode else
+                 f"it names no control mode, and {self.meta.env_id}'s default, {mode},")
+        raise ReplayError(f"{self.meta.env_id}: the recorded actions have shape {tuple(recorded)} a step, but {named} "
+                          f"takes actions of shape {here}: the recording must name the control mode that recorded them")
 
     def _make_env(self) -> Any:
         from simreel.sim.make import camera_use
@@ -334,7 +349,7 @@ class EpisodeReplayer:
             warnings.simplefilter("ignore")
             for first, block in source.blocks(rows):
                 buf = self._block(block, np.zeros((block.rows, *shape), np.float32))
-                for i, action in enumerate(block["actions"]):
+                for i, action in enumerate(_without_nan(source, first, block["actions"])):
                     converted = converter(action)
                     buf.actions[i] = converted.action
                     clipped += [first + i] if converted.clipped else []
@@ -388,7 +403,7 @@ class EpisodeReplayer:
         for first, block in source.blocks(run.rows):
             states.advance(first, block)
             buf = self._block(block)
-            actions = self._actions(block["actions"])
+            actions = self._actions(_without_nan(source, first, block["actions"]))
             for i in range(block.rows):
                 step(run, buf, i, actions[i])
             run.sink.steps(first, block, buf.block())
@@ -495,6 +510,20 @@ class EpisodeReplayer:
         limit = self.max_episode_steps
         truncated = limit is not None and self.u._elapsed_steps[0].item() >= limit
         return obs, reward, terminated, truncated, info
+
+
+def _without_nan(source: EpisodeRows, first: int, actions: np.ndarray) -> np.ndarray:
+    """`actions`, the recorded actions of `source` from step `first`; `RecordingFileError` naming the episode and the
+    first step whose action holds NaN: ManiSkill refuses to step one, so no recorder stepped it (the file was
+    altered or damaged)."""
+    nan = np.isnan(actions).reshape(len(actions), -1).any(axis=1)
+    if nan.any():
+        where = getattr(source, "path", None) or "the recording"
+        raise RecordingFileError(where, f"episode {source.meta.index}: the recorded action of step "
+                                        f"{first + int(np.argmax(nan))} holds NaN, which ManiSkill refuses to step "
+                                        "(no recorder stepped it: the file was altered or damaged)")
+    return actions
+
 
 def _put(rows: np.ndarray, *values: np.ndarray | None) -> None:
     for row, value in zip(rows, values, strict=True):

@@ -15,7 +15,7 @@ from simreel.episode import RecordingMeta
 from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS
 from simreel.sim.describe import sim_config_json
 
-__all__ = ["fingerprint_differences"]
+__all__ = ["fingerprint_differences", "resolved_sim_backend"]
 
 
 def _flat(d: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -47,12 +47,30 @@ def fingerprint_differences(
     """
     diffs = _version_differences(meta.versions, versions)
     backend = getattr(getattr(unwrapped, "backend", None), "sim_backend", None)
-    if backend is not None and meta.sim_backend and backend != meta.sim_backend:
-        diffs.append(f"sim backend: recorded {meta.sim_backend}, replaying {backend}")
+    if backend is not None and meta.sim_backend and backend != resolved_sim_backend(meta.sim_backend, meta.num_envs):
+        diffs.append(f"sim backend: recorded {_named(meta.sim_backend, meta.num_envs)}, replaying {backend}")
     now = sim_config_json(getattr(unwrapped, "sim_config", None))
     if "sim_config" in meta.unknown:  # the file gives only the overrides passed to gym.make: compare those
         now = {k: v for k, v in now.items() if k in meta.sim_config}
     return diffs + _sim_config_differences(meta.sim_config, now)
+
+
+def resolved_sim_backend(name: str, num_envs: int) -> str:
+    """The sim backend ManiSkill runs for ``sim_backend=name`` in an env of `num_envs` parallel envs: "auto" (its
+    default, which RecordEpisode files record as given) is physx_cpu for one env and physx_cuda for more (ManiSkill
+    3.0.1's `BaseEnv.__init__`), and its aliases ("cpu", "gpu", "cuda", a ":<device>" suffix) map as its
+    `parse_sim_and_render_backend` maps them; a name it does not know is returned as it is."""
+    from mani_skill.envs.utils.system.backend import sim_backend_name_mapping
+
+    if name == "auto":
+        return "physx_cuda" if num_envs > 1 else "physx_cpu"
+    return sim_backend_name_mapping.get(name.split(":", 1)[0], name)
+
+
+def _named(name: str, num_envs: int) -> str:
+    """`name` as a difference line shows it: with what it resolves to when that is another name."""
+    resolved = resolved_sim_backend(name, num_envs)
+    return name if resolved == name else f"{name} ({resolved})"
 
 
 def _version_differences(recorded: Mapping[str, Any], versions: Mapping[str, Any] | None) -> list[str]:

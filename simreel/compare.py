@@ -261,6 +261,9 @@ class EpisodeComparison:
     """Key → first step at which it left its tolerance."""
     errors: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     """Key → per-row errors (T+1 rows for state/obs keys, T for per-step keys); not serialized."""
+    not_compared: list[str] = field(default_factory=list)
+    """One line per recorded key that could not be compared and why (an observation the replay lacks, or has in
+    another shape): limits of the verdict, which holds only for the keys compared."""
 
     @property
     def ok(self) -> bool:
@@ -314,6 +317,8 @@ class ErrorTable:
     errors: dict[str, np.ndarray] = field(default_factory=dict)
     tol: dict[str, float] = field(default_factory=dict)
     per_state: dict[str, bool] = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
+    """Recorded key → why it was not compared (`not_compared_lines`)."""
 
     def add(self, key: str, err: np.ndarray, group: str, *, per_state: bool) -> None:
         """Per-row errors `err` of `key`, judged by the tolerance of `group`; `per_state`: T+1 rows (row 0 after
@@ -336,9 +341,13 @@ class ErrorTable:
                 self.add(comp.key, err, comp.group, per_state=True)
 
     def observations(self, recorded: Mapping[str, np.ndarray], replayed: Mapping[str, np.ndarray]) -> None:
+        """Each recorded observation key against the replay's; a key the replay lacks or holds in another shape (a
+        file whose obs_mode or observation layout is not the env's) is kept in `skipped`, never passed silently."""
         for path, rec in recorded.items():
             rep = replayed.get(path)
             if rep is None or rep.shape != rec.shape:
+                self.skipped[f"obs/{path}"] = ("the replay's observation has no such key" if rep is None else
+                                               f"{_row_shape(rec)} a row in the file, {_row_shape(rep)} in the replay")
                 continue
             self.add(f"obs/{path}", component_error(rec, rep), "flag" if rec.dtype.kind == "b" else "obs",
                      per_state=True)
@@ -410,7 +419,8 @@ class ErrorTable:
         else:
             verdict = "within_tolerance"
         return EpisodeComparison(verdict=verdict, first_divergence=first, max_abs_error=max_err, tolerance=self.tol,
-                                 diverged_keys=diverged, errors=self.errors)
+                                 diverged_keys=diverged, errors=self.errors,
+                                 not_compared=[f"{key} not compared: {why}" for key, why in self.skipped.items()])
 
     def first_divergence(self) -> tuple[Divergence | None, dict[str, int]]:
         """The earliest value out of tolerance (see `compare_episode`), and each diverged key's first step."""
@@ -460,6 +470,7 @@ class BlockComparison:
     def _add(self, recorded: StepBlock, replayed: StepBlock) -> None:
         part = ErrorTable(self.tolerances, dataclasses.replace(self.scope, initial=True))
         part.rows(recorded.arrays, replayed.arrays, channels=self.channels)
+        self._table.skipped.update(part.skipped)
         for key, err in part.errors.items():
             self._parts.setdefault(key, []).append(err)
             self._table.tol[key] = part.tol[key]
@@ -500,6 +511,11 @@ def compare_episode(
     blocks.reset(recorded.reset_block(), replayed.reset_block())
     blocks.steps(recorded.steps_block(), replayed.steps_block())
     return blocks.comparison()
+
+
+def _row_shape(a: np.ndarray) -> str:
+    """The shape of one row of `a`, as a limit line names it: ``(8,)``, ``()`` for a scalar."""
+    return str(tuple(a.shape[1:]))
 
 
 def _group(arrays: Mapping[str, np.ndarray], group: str) -> dict[str, np.ndarray]:

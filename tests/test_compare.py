@@ -180,3 +180,19 @@ def test_length_mismatch_is_an_error():
     ep = _episode(T=4)
     with pytest.raises(ValueError, match="replay has 3 steps, recording 4"):
         compare_episode(ep, _episode(T=3), TOL)
+
+
+def test_observation_keys_that_cannot_be_compared_are_named_never_skipped_silently():
+    """A recorded observation the replay lacks, or holds in another shape, is not compared and says so; the
+    verdict holds for the keys compared."""
+    rec = _episode()
+    rng = np.random.default_rng(1)
+    obs = {"agent/qpos": rng.normal(size=(5, 9)), "agent/qvel": rng.normal(size=(5, 9)), "extra/tcp": np.ones((5, 7))}
+    rec = dataclasses.replace(rec, obs={"agent/qpos": obs["agent/qpos"], "agent/qvel": obs["agent/qvel"][:, :8],
+                                        "extra/tcp_renamed": obs["extra/tcp"]})
+    rep = dataclasses.replace(_copy(rec), obs=obs)
+    cmp = compare_episode(rec, rep, TOL, scope=CompareScope(contacts=False))
+    assert cmp.verdict == "exact" and "obs/agent/qpos" in cmp.errors
+    assert cmp.not_compared == ["obs/agent/qvel not compared: (8,) a row in the file, (9,) in the replay",
+                                "obs/extra/tcp_renamed not compared: the replay's observation has no such key"]
+    assert compare_episode(rep, _copy(rep), TOL).not_compared == []

@@ -12,7 +12,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from support.maniskill_files import record_maniskill, replay_maniskill
+from support.maniskill_files import copy_recording, edit_sidecar, record_maniskill, replay_maniskill
 
 from simreel.cli.main import main
 from simreel.formats import open_reader
@@ -142,3 +142,95 @@ def test_a_file_without_rewards_replays_without_computing_them_and_minus_o_still
             rewards = out.read_episode(m.index).rewards
             assert np.any(rewards != 0)
             np.testing.assert_array_equal(rewards, f[f"traj_{m.index}/rewards"][()])
+
+
+# ------------------------------------------------------------------------------ altered and inconsistent files
+@pytest.fixture(scope="module")
+def altered_dir(tmp_path_factory) -> Path:
+    """RecordEpisode files altered below: PickCube pd_joint_pos with nested observations, made with sim_backend
+    "auto" (ManiSkill's default, which the sidecar records as given); with flat state observations; and one in
+    pd_ee_delta_pose (7-number actions)."""
+    folder = tmp_path_factory.mktemp("altered")
+    record_maniskill(folder, "PickCube-v1", name="auto", episodes=2, steps=10, obs_mode="state_dict",
+                     env_kwargs={"sim_backend": "auto"})
+    record_maniskill(folder, "PickCube-v1", name="flat", episodes=1, steps=5, obs_mode="state")
+    record_maniskill(folder, "PickCube-v1", name="ee", episodes=1, steps=5, control_mode="pd_ee_delta_pose")
+    return folder
+
+
+def _replay(path: Path, tmp_path: Path, status: int, *extra: str) -> dict:
+    report = tmp_path / "report.json"
+    assert main(["replay", str(path), "-q", "--report", str(report), "--overwrite", *extra]) == status
+    return json.loads(report.read_text())
+
+
+def test_sim_backend_auto_is_the_cpu_sim_it_resolves_to_not_a_build_difference(altered_dir, tmp_path, capsys):
+    """A divergence (a reward altered) is explained without blaming the build: "auto" with one env is physx_cpu."""
+    path = copy_recording(altered_dir, "auto", tmp_path)
+    with h5py.File(path, "a") as f:
+        assert json.loads(path.with_suffix(".json").read_text())["env_info"]["env_kwargs"]["sim_backend"] == "auto"
+        f["traj_1/rewards"][5] += 0.01
+    report = _replay(path, tmp_path, 1)
+    assert [e["verdict"] for e in report["episodes"]] == ["exact", "diverged"]
+    assert "sim backend" not in capsys.readouterr().err and "sim backend" not in json.dumps(report["episodes"][1])
+
+
+def test_a_nan_action_is_one_error_naming_its_episode_and_step(altered_dir, tmp_path):
+    path = copy_recording(altered_dir, "auto", tmp_path)
+    with h5py.File(path, "a") as f:
+        f["traj_1/actions"][3, 0] = np.nan
+    for mode in ("actions", "step"):
+        report = _replay(path, tmp_path, 2, "--mode", mode)
+        assert report["episodes"][0]["verdict"] in ("exact", "within_tolerance")
+        assert report["episodes"][1]["error"] == ("episode 1: the recorded action of step 3 holds NaN, which ManiSkill "
+                                                  "refuses to step (no recorder stepped it: the file was altered or "
+                                                  "damaged)")
+
+
+@pytest.mark.parametrize(
+    ("edit", "why"),
+    [
+        (("auto", lambda d: [e.update(control_mode="pd_ee_delta_pose") for e in [d["env_info"]["env_kwargs"],
+                                                                                 *d["episodes"]]]),
+         "PickCube-v1: the recorded actions have shape (8,) a step, but its control mode, pd_ee_delta_pose, takes "
+         "actions of shape (7,): the recording must name the control mode that recorded them"),
+        (("ee", lambda d: [e.pop("control_mode") for e in [d["env_info"]["env_kwargs"], *d["episodes"]]]),
+         "PickCube-v1: the recorded actions have shape (7,) a step, but it names no control mode, and PickCube-v1's "
+         "default, pd_joint_delta_pos, takes actions of shape (8,): the recording must name the control mode that "
+         "recorded them"),
+    ],
+    ids=["another-control-mode", "no-control-mode"],
+)
+def test_actions_that_do_not_fit_the_named_control_mode_are_one_line(altered_dir, tmp_path, capsys, edit, why):
+    """(file, sidecar change): the sidecar then names a control mode whose actions have another shape, or none."""
+    name, change = edit
+    path = copy_recording(altered_dir, name, tmp_path)
+    edit_sidecar(path, change)
+    assert main(["replay", str(path), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and why in err, err
+
+
+def test_observation_keys_the_replay_lacks_or_shapes_otherwise_are_named_not_compared(altered_dir, tmp_path):
+    path = copy_recording(altered_dir, "auto", tmp_path)
+    with h5py.File(path, "a") as f:
+        for g in ("traj_0", "traj_1"):
+            f.move(f"{g}/obs/extra/tcp_pose", f"{g}/obs/extra/tcp_pose_renamed")
+            qvel = f[f"{g}/obs/agent/qvel"][()]
+            del f[f"{g}/obs/agent/qvel"]
+            f[f"{g}/obs/agent/qvel"] = qvel[:, :8] + 1.0
+    report = _replay(path, tmp_path, 0)
+    for episode in report["episodes"]:
+        assert episode["verdict"] == "exact" and "obs" in episode["checked"]
+        assert {"obs/agent/qvel not compared: (8,) a row in the file, (9,) in the replay",
+                "obs/extra/tcp_pose_renamed not compared: the replay's observation has no such key"} <= set(
+            episode["limits"]), episode["limits"]
+
+
+def test_a_flat_observation_under_a_dict_obs_mode_is_named_not_compared(altered_dir, tmp_path):
+    """A sidecar naming obs_mode state_dict over a file holding one flat `obs` array: nothing of it is compared."""
+    path = copy_recording(altered_dir, "flat", tmp_path)
+    edit_sidecar(path, lambda d: d["env_info"]["env_kwargs"].update(obs_mode="state_dict"))
+    episode = _replay(path, tmp_path, 0)["episodes"][0]
+    assert "obs" not in episode["checked"]
+    assert "obs/state_dict not compared: the replay's observation has no such key" in episode["limits"]

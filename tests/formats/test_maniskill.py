@@ -4,13 +4,12 @@ read as they are, what they lack reported unknown, their quirks named, bad sidec
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
-from support.maniskill_files import record_maniskill, replay_maniskill
+from support.maniskill_files import copy_recording, edit_sidecar, record_maniskill, replay_maniskill
 
 from simreel.cli.main import main
 from simreel.formats import open_reader
@@ -79,37 +78,93 @@ def test_what_a_file_does_not_hold_is_unknown_never_invented(ms_dir, capsys):
     assert "--mode step restores recorded states" in capsys.readouterr().err
 
 
-def _copy(ms_dir: Path, tmp_path: Path, name: str = "demos") -> Path:
-    for suffix in (".h5", ".json"):
-        shutil.copy(ms_dir / f"{name}{suffix}", tmp_path / f"{name}{suffix}")
-    return tmp_path / f"{name}.h5"
-
-
-def _edit_sidecar(path: Path, change) -> None:
-    doc = json.loads(path.with_suffix(".json").read_text())
-    change(doc)
-    path.with_suffix(".json").write_text(json.dumps(doc))
-
-
 @pytest.mark.parametrize(
     ("make_bad", "message"),
     [
         (lambda p: p.with_suffix(".json").unlink(),
          "a ManiSkill trajectory file (traj_N groups) without its JSON sidecar: {json} is missing"),
         (lambda p: p.with_suffix(".json").write_text("{not json"), "{json}: unreadable ManiSkill sidecar"),
-        (lambda p: _edit_sidecar(p, lambda d: d.update(env_info=None)), "{json}: a ManiSkill sidecar without env_info.env_id"),
-        (lambda p: _edit_sidecar(p, lambda d: d["episodes"].append({**d["episodes"][0], "episode_id": 7})),
+        (lambda p: edit_sidecar(p, lambda d: d.update(env_info=None)), "{json}: a ManiSkill sidecar without env_info.env_id"),
+        (lambda p: edit_sidecar(p, lambda d: d["episodes"].append({**d["episodes"][0], "episode_id": 7})),
          "{json}: lists episodes the .h5 does not hold (traj_7)"),
-        (lambda p: _edit_sidecar(p, lambda d: d.update(episodes={})), "{json}: a ManiSkill sidecar whose `episodes` is not"),
+        (lambda p: edit_sidecar(p, lambda d: d.update(episodes={})), "{json}: a ManiSkill sidecar whose `episodes` is not"),
+        (lambda p: edit_sidecar(p, lambda d: d["episodes"][1].update(episode_id="x")),
+         '{json}: episodes[1].episode_id is "x", expected a whole number'),
+        (lambda p: edit_sidecar(p, lambda d: d["episodes"][1].update(episode_id=-1)),
+         "{json}: episodes[1].episode_id is -1, expected a whole number >= 0"),
+        (lambda p: edit_sidecar(p, lambda d: d["episodes"][1].update(elapsed_steps="abc")),
+         '{json}: episodes[1].elapsed_steps is "abc", expected a whole number'),
+        (lambda p: edit_sidecar(p, lambda d: d["episodes"][1]["reset_kwargs"].update(options="x")),
+         '{json}: episodes[1].reset_kwargs.options is "x", expected an object'),
+        (lambda p: edit_sidecar(p, lambda d: d["env_info"]["env_kwargs"].update(num_envs="two")),
+         '{json}: env_info.env_kwargs.num_envs is "two", expected a whole number'),
     ],
-    ids=["missing", "not-json", "no-env-info", "episode-not-in-h5", "episodes-not-a-list"],
+    ids=["missing", "not-json", "no-env-info", "episode-not-in-h5", "episodes-not-a-list", "episode-id-not-a-number",
+         "episode-id-negative", "elapsed-steps-not-a-number", "options-not-an-object", "num-envs-not-a-number"],
 )
 def test_a_missing_or_mismatching_sidecar_is_one_line(ms_dir, tmp_path, capsys, make_bad, message):
-    path = _copy(ms_dir, tmp_path)
+    path = copy_recording(ms_dir, "demos", tmp_path)
     make_bad(path)
     assert main(["inspect", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message.format(json=path.with_suffix(".json")) in err, err
+
+
+def test_an_episode_id_given_as_a_digit_string_is_read_as_maniskills_tools_read_it(ms_dir, tmp_path):
+    path = copy_recording(ms_dir, "demos", tmp_path)
+    edit_sidecar(path, lambda d: d["episodes"][1].update(episode_id="1"))  # replay_trajectory formats it: traj_1
+    with open_reader(path) as r:
+        assert [e.index for e in r.episodes] == [0, 1] and r.read_episode(1).length == 15
+
+
+def test_a_traj_n_that_is_a_dataset_is_refused_in_one_line(ms_dir, tmp_path, capsys):
+    path = copy_recording(ms_dir, "demos", tmp_path)
+    with h5py.File(path, "a") as f:
+        del f["traj_0"]
+        f["traj_0"] = np.zeros(3)
+    for command in ("inspect", "replay"):
+        assert main([command, str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "traj_0 is a dataset, not a group of an episode's arrays" in err, err
+
+
+def _tamper(path: Path, change) -> None:
+    with h5py.File(path, "a") as f:
+        change(f)
+
+
+def _set(f: h5py.File, name: str, value: np.ndarray) -> None:
+    del f[name]
+    f[name] = value
+
+
+@pytest.mark.parametrize(
+    ("change", "why"),
+    [
+        (lambda f: [f.__delitem__(f"traj_0/{k}") for k in ("env_states", "rewards")],
+         "traj_1 differs from traj_0 (the first episode, whose datasets set the file's layout): it holds "
+         "env_states/actors/cube, env_states/actors/goal_site, env_states/actors/table-workspace, "
+         "env_states/articulations/panda, rewards, which the first lacks"),
+        (lambda f: f.__delitem__("traj_1/rewards"),
+         "traj_1 differs from traj_0 (the first episode, whose datasets set the file's layout): it lacks rewards"),
+        (lambda f: _set(f, "traj_1/actions", f["traj_1/actions"][:, :-1]),
+         "traj_1 differs from traj_0 (the first episode, whose datasets set the file's layout): its actions is "
+         "float32 (T, 7), the first's float32 (T, 8)"),
+    ],
+    ids=["first-lacks-what-later-ones-hold", "a-later-one-lacks-one", "another-action-shape"],
+)
+def test_an_episode_whose_datasets_differ_from_the_first_is_refused_never_read_short(ms_dir, tmp_path, capsys,
+                                                                                     change, why):
+    """The first episode's datasets are the file's layout (its fields and limits): an episode holding more, fewer
+    or other-shaped arrays is an error naming them, never replayed as exact with arrays unchecked nor copied
+    losing them."""
+    path = copy_recording(ms_dir, "demos", tmp_path)
+    _tamper(path, change)
+    assert main(["replay", str(path), "-q", "--episodes", "1", "--report", str(tmp_path / "r.json")]) == 2
+    episode = json.loads((tmp_path / "r.json").read_text())["episodes"][0]
+    assert (episode["verdict"], episode["error"]) == ("error", why)
+    assert main(["merge", str(path), "-o", str(tmp_path / "merged.h5")]) == 2
+    assert why in capsys.readouterr().err and not (tmp_path / "merged.h5").exists()
 
 
 def test_an_hdf5_file_of_neither_kind_is_refused(tmp_path, capsys):
@@ -120,7 +175,7 @@ def test_an_hdf5_file_of_neither_kind_is_refused(tmp_path, capsys):
 
 
 def test_quirks_of_a_file_are_named(ms_dir, tmp_path):
-    path = _copy(ms_dir, tmp_path)
+    path = copy_recording(ms_dir, "demos", tmp_path)
 
     def change(doc):
         doc["episodes"][0]["reset_kwargs"]["seed"] = [0]  # a seed list, as some ManiSkill versions write it
@@ -128,7 +183,7 @@ def test_quirks_of_a_file_are_named(ms_dir, tmp_path):
         doc["episodes"][1]["elapsed_steps"] = 14
         doc["extra_episode_not_listed"] = True
 
-    _edit_sidecar(path, change)
+    edit_sidecar(path, change)
     with h5py.File(path, "a") as f:
         f.copy("traj_0", "traj_9")  # a group the sidecar does not list
     with open_reader(path) as r:
@@ -140,14 +195,14 @@ def test_quirks_of_a_file_are_named(ms_dir, tmp_path):
 
 def test_a_gpu_recording_names_what_it_does_not_hold_and_asks_for_the_cpu_sim(ms_dir, tmp_path, capsys):
     """The sidecar of a GPU-sim recording (physx_cuda, 4 envs: reset_kwargs {}); its arrays here are CPU ones."""
-    path = _copy(ms_dir, tmp_path)
+    path = copy_recording(ms_dir, "demos", tmp_path)
 
     def gpu(doc):
         doc["env_info"]["env_kwargs"].update(sim_backend="physx_cuda", num_envs=4)
         for e in doc["episodes"]:
             e["reset_kwargs"] = {}
 
-    _edit_sidecar(path, gpu)
+    edit_sidecar(path, gpu)
     with open_reader(path) as r:
         assert (r.meta.sim_backend, r.meta.num_envs) == ("physx_cuda", 4)
         assert {"reset_options", "env_idx"} <= set(r.meta.unknown) and r.episodes[0].seed == 0
@@ -160,7 +215,7 @@ def test_a_gpu_recording_names_what_it_does_not_hold_and_asks_for_the_cpu_sim(ms
 
 def test_a_state_mode_output_of_replay_trajectory_is_found_off_by_one(ms_dir, maniskill_env, tmp_path, capsys):
     """replay_trajectory -o state --use-env-states stores the state after step 0 as the first state."""
-    converted = replay_maniskill(_copy(ms_dir, tmp_path), maniskill_env, "-o", "state", "--use-env-states")
+    converted = replay_maniskill(copy_recording(ms_dir, "demos", tmp_path), maniskill_env, "-o", "state", "--use-env-states")
     with open_reader(converted) as r:
         ep = r.read_episode(0)
         assert not ep.meta.initial_state_known

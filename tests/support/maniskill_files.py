@@ -11,8 +11,11 @@
 
 from __future__ import annotations
 
+import json
+import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -154,3 +157,17 @@ def replay_maniskill(path: Path, env: dict[str, str], *args: str) -> Path:
     written = sorted(set(Path(path).parent.glob("*.h5")) - before)
     assert len(written) == 1, (written, done.stdout[-2000:])
     return written[0]
+
+
+def copy_recording(folder: Path, name: str, to: Path) -> Path:
+    """folder/name.h5 and its sidecar copied into `to` (to alter them there); the copy's .h5 path."""
+    for suffix in (".h5", ".json"):
+        shutil.copy(folder / f"{name}{suffix}", to / f"{name}{suffix}")
+    return to / f"{name}.h5"
+
+
+def edit_sidecar(path: Path, change: Callable[[dict[str, Any]], Any]) -> None:
+    """Apply `change` to the JSON sidecar of the ManiSkill file `path`, in place."""
+    doc = json.loads(path.with_suffix(".json").read_text())
+    change(doc)
+    path.with_suffix(".json").write_text(json.dumps(doc))

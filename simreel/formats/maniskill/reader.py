@@ -14,6 +14,10 @@ fail and env_states. Quirks found in the file go to the episode's `EpisodeMeta.n
   one), so row 0 is not the reset state (`EpisodeMeta.initial_state_known` is False and replays skip it);
 - episodes the sidecar lists that the .h5 lacks (an error), groups the sidecar does not list (skipped, as
   ManiSkill's tools skip them).
+
+The first listed episode's datasets are the file's layout (its fields, and what the file is said to lack): an
+episode holding other datasets, or some in another dtype or row shape, is refused when opened (an error naming it
+and them), so that no array is left unchecked or uncopied while the rest of the episode passes.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ from simreel.episode import (
 )
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader
-from simreel.formats.hdf5.reader import Hdf5Rows, open_hdf5
+from simreel.formats.hdf5.reader import _H5PY_ERRORS, Hdf5Rows, open_hdf5
 from simreel.formats.maniskill.layout import OBS, dataset_name, field_name, group_index, group_name
 from simreel.formats.maniskill.sidecar import Sidecar
 from simreel.state_tree import LeafSpec
@@ -47,17 +51,35 @@ _DEFAULT_SIM_BACKEND = "physx_cpu"
 """ManiSkill's replay_trajectory assumes the CPU sim for files that do not name a backend."""
 
 
-def _datasets(group: Any, prefix: str = "") -> dict[str, Any]:
+def _datasets(group: Any) -> dict[str, Any]:
     """Every dataset below `group` by its path relative to the group (h5py objects, not read)."""
     import h5py
 
     out: dict[str, Any] = {}
-    group.visititems(lambda name, obj: out.__setitem__(prefix + name, obj) if isinstance(obj, h5py.Dataset) else None)
+    group.visititems(lambda name, obj: out.__setitem__(name, obj) if isinstance(obj, h5py.Dataset) else None)
     return out
 
 
 def _layout(datasets: dict[str, Any]) -> dict[str, LeafSpec]:
     return {name: LeafSpec(tuple(ds.shape[1:]), ds.dtype.name) for name, ds in datasets.items()}
+
+
+def _layout_differences(held: dict[str, LeafSpec], first: dict[str, LeafSpec]) -> list[str]:
+    """How an episode's datasets (`held`, by `_layout`) differ from the first episode's (`first`): what it holds
+    that the first lacks, what it lacks, and each dataset whose dtype or row shape differs (empty: none)."""
+    extra, lacking = sorted(set(held) - set(first)), sorted(set(first) - set(held))
+    out = [f"it holds {_names(extra)}, which the first lacks"] if extra else []
+    out += [f"it lacks {_names(lacking)}"] if lacking else []
+    return out + [f"its {name} is {held[name].dtype} {_rows(held[name])}, the first's {first[name].dtype} "
+                  f"{_rows(first[name])}" for name in sorted(set(held) & set(first)) if held[name] != first[name]]
+
+
+def _names(names: list[str]) -> str:
+    return ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
+
+
+def _rows(spec: LeafSpec) -> str:
+    return f"(T, {', '.join(str(n) for n in spec.shape)})" if spec.shape else "(T,)"
 
 
 class ManiskillReader(EpisodeReader):
@@ -77,33 +99,54 @@ class ManiskillReader(EpisodeReader):
         self.unfinished: list[str] = []
 
     def _open(self) -> None:
-        groups = {i: name for name in self._file if (i := group_index(name)) is not None}
-        if not groups:
-            raise RecordingFileError(
-                self.path, "an HDF5 file that is neither a simreel recording (no simreel metadata) nor a ManiSkill "
-                "trajectory file (no traj_N groups)"
-            )
+        groups = self._groups()
         self.sidecar = Sidecar.read(self.path)
         self.episodes = _episode_metas(self.sidecar, groups)
         self.notes = _unlisted(self.sidecar, groups)
         """Recording-level quirks (groups the sidecar does not list)."""
-        first = self._file[group_name(self.episodes[0].index)] if self.episodes else None
+        first = self._held(self.episodes[0].index) if self.episodes else None
+        self._first = _layout(first) if first is not None else {}
+        """The first listed episode's datasets (`_layout`): the file's layout, which every episode must have."""
         self.meta = _recording_meta(self.sidecar, first, self.episodes)
         self.fields = episode_fields(self.meta)
         self.kind = f"ManiSkill trajectory file (JSON sidecar {self.sidecar.path.name})"
 
+    def _groups(self) -> dict[int, str]:
+        """The ``traj_N`` groups at the root by episode index; `RecordingFileError` for a file with none, or where a
+        ``traj_N`` is no group (not a trajectory file, or a damaged one)."""
+        import h5py
+
+        try:
+            found = {i: (name, isinstance(self._file[name], h5py.Group))
+                     for name in self._file if (i := group_index(name)) is not None}
+        except _H5PY_ERRORS as e:
+            raise RecordingFileError(self.path, f"corrupt HDF5 file: its list of groups cannot be read ({e})") from None
+        if not found:
+            raise RecordingFileError(
+                self.path, "an HDF5 file that is neither a simreel recording (no simreel metadata) nor a ManiSkill "
+                "trajectory file (no traj_N groups)"
+            )
+        odd = [name for name, is_group in found.values() if not is_group]
+        if odd:
+            raise RecordingFileError(self.path, f"{odd[0]} is a dataset, not a group of an episode's arrays: not a "
+                                                "ManiSkill trajectory file, or a damaged one")
+        return {i: name for i, (name, _) in found.items()}
+
+    def _held(self, index: int) -> dict[str, Any]:
+        """Every dataset of episode `index`'s group (`_datasets`); `RecordingFileError` when its structure cannot be
+        read."""
+        try:
+            return _datasets(self._file[group_name(index)])
+        except _H5PY_ERRORS as e:
+            raise RecordingFileError(self.path, f"{group_name(index)} is corrupt: its structure cannot be read "
+                                                f"({e})") from None
+
     def open_episode(self, index: int) -> Hdf5Rows:
-        """Episode `index`: its datasets found and their row counts checked (T actions, T + 1 states), and the file's
-        quirks noted in its metadata (`_note_quirks`: reads state rows 0 and 1 only)."""
+        """Episode `index`: its datasets checked (`_episode_datasets`) and their row counts (T actions, T + 1 states),
+        and the file's quirks noted in its metadata (`_note_quirks`: reads state rows 0 and 1 only)."""
         meta = dataclasses.replace(self.episode_meta(index))
         meta.notes = list(meta.notes)
-        group = self._file[group_name(index)]
-        datasets = {}
-        for f in self.fields:
-            name = dataset_name(f.name, self.meta)
-            if name not in group:
-                raise RecordingFileError(self.path, f"{group_name(index)} has no {name} (the first episode has it)")
-            datasets[f.name] = group[name]
+        datasets = self._episode_datasets(index)
         steps = datasets["actions"].shape[0]
         for f in self.fields:
             rows = datasets[f.name].shape[0]
@@ -117,22 +160,40 @@ class ManiskillReader(EpisodeReader):
         _note_quirks(episode)
         return episode
 
+    def _episode_datasets(self, index: int) -> dict[str, Any]:
+        """Episode `index`'s dataset of each field; `RecordingFileError` when its datasets differ from the first
+        episode's (names, dtypes, row shapes): those are the file's layout, from which its fields and limits were
+        made, so an episode that differs is refused, never read with arrays left out or unchecked."""
+        held = self._held(index)
+        differences = _layout_differences(_layout(held), self._first)
+        if differences:
+            first = group_name(self.episodes[0].index)
+            raise RecordingFileError(self.path, f"{group_name(index)} differs from {first} (the first episode, whose "
+                                                f"datasets set the file's layout): {'; '.join(differences)}")
+        names = {f.name: dataset_name(f.name, self.meta) for f in self.fields}
+        absent = [name for name in names.values() if name not in held]
+        if absent:
+            raise RecordingFileError(self.path, f"{group_name(index)} has no {_names(absent)}, which every episode of "
+                                                "a ManiSkill trajectory file holds")
+        return {field: held[name] for field, name in names.items()}
+
     def close(self) -> None:
         self._file.close()
 
 
 # --------------------------------------------------------------------------------------------- metadata
-def _recording_meta(sidecar: Sidecar, first: Any, episodes: list[EpisodeMeta]) -> RecordingMeta:
-    """The recording's metadata from the sidecar and the datasets of its first episode."""
+def _recording_meta(sidecar: Sidecar, held: dict[str, Any] | None, episodes: list[EpisodeMeta]) -> RecordingMeta:
+    """The recording's metadata from the sidecar and the datasets its first episode holds (`held`; None: the
+    sidecar lists no episode)."""
     from simreel.sim.make import EnvConfig
 
     kw = sidecar.env_kwargs
     obs_mode = kw.get("obs_mode") or "state"
-    held = _datasets(first) if first is not None else {}
-    states = {k[len("env_states/"):]: ds for k, ds in held.items() if k.startswith("env_states/")}
-    obs = {field_name(k, obs_mode)[len(OBS) + 1:]: ds for k, ds in held.items() if k == OBS or k.startswith(OBS + "/")}
-    actions = held.get("actions")
-    lacking = [name for name in OPTIONAL_STEP_FIELDS if first is not None and name not in held]
+    found = held or {}
+    states = {k[len("env_states/"):]: ds for k, ds in found.items() if k.startswith("env_states/")}
+    obs = {field_name(k, obs_mode)[len(OBS) + 1:]: ds for k, ds in found.items() if k == OBS or k.startswith(OBS + "/")}
+    actions = found.get("actions")
+    lacking = [name for name in OPTIONAL_STEP_FIELDS if held is not None and name not in held]
     num_envs = int(kw.get("num_envs") or 1)
     if num_envs > 1:  # RecordEpisode writes no reset options and no sub-scene index for parallel envs
         lacking += ["reset_options", "env_idx"]
@@ -152,7 +213,7 @@ def _recording_meta(sidecar: Sidecar, first: Any, episodes: list[EpisodeMeta]) -
         obs_layout=_layout(obs),
         command=str(sidecar.source.get("source_desc", "")),
         source={"format": "maniskill", **sidecar.source, "sidecar": str(sidecar.path)},
-        unknown=[*ALWAYS_UNKNOWN, *lacking, *([] if states or first is None else ["env_states"])],
+        unknown=[*ALWAYS_UNKNOWN, *lacking, *([] if states or held is None else ["env_states"])],
     )
 
 
@@ -176,7 +237,7 @@ def _seed(entry: dict[str, Any], notes: list[str]) -> int | None:
 
 def _episode_metas(sidecar: Sidecar, groups: dict[int, str]) -> list[EpisodeMeta]:
     """One `EpisodeMeta` per episode the sidecar lists, in its order; an error for those the .h5 lacks."""
-    missing = [int(e["episode_id"]) for e in sidecar.episodes if int(e["episode_id"]) not in groups]
+    missing = [e["episode_id"] for e in sidecar.episodes if e["episode_id"] not in groups]
     if missing:
         shown = ", ".join(group_name(i) for i in missing[:5])
         raise RecordingFileError(sidecar.path, f"lists episodes the .h5 does not hold ({shown}): the sidecar belongs "
@@ -186,7 +247,7 @@ def _episode_metas(sidecar: Sidecar, groups: dict[int, str]) -> list[EpisodeMeta
         notes: list[str] = []
         options = dict((entry.get("reset_kwargs") or {}).get("options") or {})
         metas.append(EpisodeMeta(
-            index=int(entry["episode_id"]),
+            index=entry["episode_id"],
             seed=_seed(entry, notes),
             reset_options=options,
             reconfigured=True if options.get("reconfigure") else None,
@@ -198,7 +259,7 @@ def _episode_metas(sidecar: Sidecar, groups: dict[int, str]) -> list[EpisodeMeta
 
 
 def _unlisted(sidecar: Sidecar, groups: dict[int, str]) -> list[str]:
-    listed = {int(e["episode_id"]) for e in sidecar.episodes}
+    listed = {e["episode_id"] for e in sidecar.episodes}
     extra = sorted(set(groups) - listed)
     if not extra:
         return []

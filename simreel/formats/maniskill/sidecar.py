@@ -177,7 +177,44 @@ class Sidecar:
         kwargs = info.get("env_kwargs") or {}
         if not isinstance(kwargs, Mapping):
             raise RecordingFileError(path, f"env_info.env_kwargs is {type(kwargs).__name__}, expected an object")
+        _check_types(path, "env_info.env_kwargs", kwargs, _KWARG_TYPES)
         steps = info.get("max_episode_steps")
         source = {k: doc[k] for k in ("source_type", "source_desc", "commit_info") if doc.get(k) is not None}
         return cls(path, info["env_id"], dict(kwargs), steps if isinstance(steps, int) else None,
-                   [dict(e) for e in episodes], source)
+                   [_episode_read(path, i, e) for i, e in enumerate(episodes)], source)
+
+
+_WHOLE = "a whole number"
+_TEXT = "a string"
+_OBJECT = "an object"
+_KWARG_TYPES = {"obs_mode": _TEXT, "control_mode": _TEXT, "reward_mode": _TEXT, "sim_backend": _TEXT,
+                "render_backend": _TEXT, "num_envs": _WHOLE, "sim_config": _OBJECT}
+"""The env_kwargs the reader uses, and what each must be (absent or null is allowed: the env's default)."""
+_EPISODE_TYPES = {"episode_id": _WHOLE, "elapsed_steps": _WHOLE, "control_mode": _TEXT, "reset_kwargs": _OBJECT}
+"""The keys of an episode entry the reader uses (besides seeds and success, whose oddities it notes, not refuses)."""
+
+
+def _episode_read(path: Path, i: int, entry: Mapping[str, Any]) -> dict[str, Any]:
+    """Entry `i` of the sidecar's `episodes`, its keys checked (`RecordingFileError` naming the entry and the key
+    otherwise: a hand-edited or foreign sidecar), its ``episode_id`` an int (ManiSkill's tools accept a digit
+    string too, as they only format it into ``traj_<id>``)."""
+    entry = dict(entry)
+    if isinstance(entry["episode_id"], str) and entry["episode_id"].isascii() and entry["episode_id"].isdigit():
+        entry["episode_id"] = int(entry["episode_id"])
+    where = f"episodes[{i}]"
+    _check_types(path, where, entry, _EPISODE_TYPES)
+    if entry["episode_id"] is None or entry["episode_id"] < 0:
+        raise RecordingFileError(path, f"{where}.episode_id is {entry['episode_id']!r}, expected a whole number >= 0")
+    _check_types(path, f"{where}.reset_kwargs", entry.get("reset_kwargs") or {}, {"options": _OBJECT})
+    return entry
+
+
+def _check_types(path: Path, where: str, values: Mapping[str, Any], types: Mapping[str, str]) -> None:
+    """`RecordingFileError` for the first of `types`' keys whose value in `values` is neither absent, null, nor
+    of its kind."""
+    kinds = {_WHOLE: lambda v: isinstance(v, int) and not isinstance(v, bool), _TEXT: lambda v: isinstance(v, str),
+             _OBJECT: lambda v: isinstance(v, Mapping)}
+    for key, kind in types.items():
+        value = values.get(key)
+        if value is not None and not kinds[kind](value):
+            raise RecordingFileError(path, f"{where}.{key} is {json.dumps(value, default=str)[:60]}, expected {kind}")
