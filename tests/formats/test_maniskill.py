@@ -98,9 +98,12 @@ def test_what_a_file_does_not_hold_is_unknown_never_invented(ms_dir, capsys):
          '{json}: episodes[1].reset_kwargs.options is "x", expected an object'),
         (lambda p: edit_sidecar(p, lambda d: d["env_info"]["env_kwargs"].update(num_envs="two")),
          '{json}: env_info.env_kwargs.num_envs is "two", expected a whole number'),
+        (lambda p: edit_sidecar(p, lambda d: d["episodes"][1].update(episode_id=0)),
+         "{json}: lists traj_0 more than once: a sidecar lists each episode once"),
     ],
     ids=["missing", "not-json", "no-env-info", "episode-not-in-h5", "episodes-not-a-list", "episode-id-not-a-number",
-         "episode-id-negative", "elapsed-steps-not-a-number", "options-not-an-object", "num-envs-not-a-number"],
+         "episode-id-negative", "elapsed-steps-not-a-number", "options-not-an-object", "num-envs-not-a-number",
+         "episode-listed-twice"],
 )
 def test_a_missing_or_mismatching_sidecar_is_one_line(ms_dir, tmp_path, capsys, make_bad, message):
     path = copy_recording(ms_dir, "demos", tmp_path)

@@ -23,6 +23,7 @@ and them), so that no array is left unchecked or uncopied while the rest of the 
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -236,7 +237,12 @@ def _seed(entry: dict[str, Any], notes: list[str]) -> int | None:
 
 
 def _episode_metas(sidecar: Sidecar, groups: dict[int, str]) -> list[EpisodeMeta]:
-    """One `EpisodeMeta` per episode the sidecar lists, in its order; an error for those the .h5 lacks."""
+    """One `EpisodeMeta` per episode the sidecar lists, in its order; an error for those the .h5 lacks, and for an
+    episode listed twice (its group would be read twice, under the seeds of two entries)."""
+    twice = [i for i, n in Counter(e["episode_id"] for e in sidecar.episodes).items() if n > 1]
+    if twice:
+        raise RecordingFileError(sidecar.path, f"lists {group_name(twice[0])} more than once: a sidecar lists each "
+                                               "episode once")
     missing = [e["episode_id"] for e in sidecar.episodes if e["episode_id"] not in groups]
     if missing:
         shown = ", ".join(group_name(i) for i in missing[:5])
