@@ -48,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
     if r.damaged:
         print("lost (damaged): " + "; ".join(r.damaged))
     if not lost and not r.damaged:
-        print("lost: nothing (every episode that began was committed)")
+        print("lost: nothing so far (the recording still runs: its running episodes are not in the copy)" if r.live
+              else "lost: nothing (every episode that began was committed)")
     for note in r.notes:
         print(f"found: {note}")
     return 0

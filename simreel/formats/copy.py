@@ -186,6 +186,8 @@ class RecoveryReport:
     """Committed episodes (or records, or stretches of bytes) found damaged and not copied: lost."""
     notes: list[str] = field(default_factory=list)
     """What else the reader noticed (a sidecar that lagged, a staged replacement left behind)."""
+    live: bool = False
+    """A recording was still writing the file: its running episodes were not copied, and not lost either."""
 
 
 def _open_for_recovery(src: Path) -> EpisodeReader:
@@ -215,7 +217,7 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
         report = RecoveryReport(
             complete=not (getattr(reader, "recovered", False) or reader.unfinished or damaged or reader.notes),
             episodes=0, steps=0, unfinished=list(reader.unfinished), lost_bytes=getattr(reader, "lost_bytes", 0),
-            damaged=damaged, notes=list(reader.notes),
+            damaged=damaged, notes=list(reader.notes), live=bool(getattr(reader, "live", False)),
         )
         if report.complete and output is None:
             report.episodes, report.steps = len(reader.episodes), sum(e.length for e in reader.episodes)

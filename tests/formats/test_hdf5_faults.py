@@ -48,6 +48,9 @@ def test_readers_see_the_committed_episodes_of_a_file_being_recorded(tmp_path):
         for command in (["inspect", str(path)], ["convert", str(path), str(tmp_path / "copy.mcap"), "-q"]):
             done = simreel(*command)
             assert done.returncode == 0, done.stderr
+        saved = simreel("recover", str(path), "-o", str(tmp_path / "saved.h5"))
+        assert saved.returncode == 0, saved.stderr  # the running episode is not lost: the recording goes on
+        assert "lost: nothing so far (the recording still runs: its running episodes are not in the copy)" in saved.stdout
         child.wait_committed(child.committed + 3)
     with open_reader(tmp_path / "copy.mcap") as r:
         assert len(r.episodes) >= 3
