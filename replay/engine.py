@@ -514,14 +514,14 @@ class EpisodeReplayer:
 
 def _without_nan(source: EpisodeRows, first: int, actions: np.ndarray) -> np.ndarray:
     """`actions`, the recorded actions of `source` from step `first`; `RecordingFileError` naming the episode and the
-    first step whose action holds NaN: ManiSkill refuses to step one, so no recorder stepped it (the file was
-    altered or damaged)."""
+    first step whose action holds NaN: ManiSkill's CPU sim refuses to step one (a GPU-sim recording may hold NaN it
+    stepped, which no replay here can repeat)."""
     nan = np.isnan(actions).reshape(len(actions), -1).any(axis=1)
     if nan.any():
         where = getattr(source, "path", None) or "the recording"
         raise RecordingFileError(where, f"episode {source.meta.index}: the recorded action of step "
-                                        f"{first + int(np.argmax(nan))} holds NaN, which ManiSkill refuses to step "
-                                        "(no recorder stepped it: the file was altered or damaged)")
+                                        f"{first + int(np.argmax(nan))} holds NaN, which ManiSkill's CPU sim refuses "
+                                        "to step (on it, no recorder stepped it: the file was altered or damaged)")
     return actions
 
 

@@ -13,6 +13,7 @@ import contextlib
 import dataclasses
 import datetime
 import shutil
+import sys
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
@@ -77,18 +78,20 @@ def published(writer: ReplayedWriter, keep: Callable[[], bool] = lambda: True) -
     try:
         yield writer
         raise_if_stopped()  # a Ctrl-C that landed in a finalizer (h5py's) was printed and dropped by Python
+        if keep():
+            writer.close()  # a close that fails (the disk full at the end of the file) drops the output too
+        else:
+            writer.abort()
     except BaseException as e:
         writer.abort()
         error = e.error if isinstance(e, OutputFailed) else e
         if isinstance(error, StorageError):
-            error = error.dropped(f"; nothing was written to {writer.spec.path}")
+            out = writer.spec.path
+            named = out if Path(error.path).parent == scratch_folder(out) else error.path  # not a hidden scratch file
+            error = error.dropped(f"; nothing was written to {out}", named)
         if error is e:
             raise
         raise error from None
-    if keep():
-        writer.close()
-    else:
-        writer.abort()
 
 
 def output_pose_bodies(meta: RecordingMeta, output: str | Path | None) -> tuple[str, ...]:
@@ -245,9 +248,19 @@ class EpisodeStream(BlockSink):
         self._sink = None
 
     def discard(self) -> None:
-        if self._sink is not None:
-            self._sink.discard()
-            self._sink = None
+        """Drop what was written of the episode. Called while an error or Ctrl-C is handled (the caller then raises
+        it again), an output that fails here never hides that: its failure (`OutputFailed`) is raised only over an
+        episode's own error (a `SimreelError`, after which the run would go on into the broken output)."""
+        in_flight = sys.exc_info()[1]
+        sink, self._sink = self._sink, None
+        if sink is None:
+            return
+        try:
+            with _writing_output():
+                sink.discard()
+        except OutputFailed:
+            if in_flight is None or isinstance(in_flight, SimreelError):
+                raise
 
 
 def scratch_folder(output: str | Path) -> Path:

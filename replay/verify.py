@@ -261,9 +261,10 @@ class ReplayRun:
             with pool_closing(self._start_pool(worker.job)) as pool:
                 if self.strict and self.worklist.items and self.options.ray is None:
                     worker.prepare(self.worklist.items[0])  # a bad env fails before anything is written
-                with self._log() as log, self._sink() as sink:
-                    worker.output = sink if self.options.ray is None else None  # episodes replayed here stream into -o
-                    self._dispatch(worker, self._collector(log, sink, progress), log, pool)
+                with self._log() as log:
+                    with self._sink() as sink:  # -o is published (or fails) as this block ends, before the end line
+                        worker.output = sink if self.options.ray is None else None  # replayed here: streamed into -o
+                        self._dispatch(worker, self._collector(log, sink, progress), log, pool)
                     if log is not None:
                         log.write({"type": "end"})
         finally:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from simreel.cli.common import add_import_option, add_tolerance_options, parse_index_ranges, progress_bar
@@ -129,7 +130,10 @@ def _print(tally: Any, replay: Any) -> None:
     print(tally.summary())
     if replay.worklist.skipped:
         print(f"resumed {replay.report_json}: {replay.worklist.skipped} episode(s) already had their verdict")
-    if replay.options.output:
-        print(f"replayed episodes written to {replay.options.output}")
+    out = replay.options.output
+    if out and Path(out).exists():
+        print(f"replayed episodes written to {out}")
+    elif out:
+        print(f"nothing written to {out}: no episode could be replayed")
     if replay.report_json is not None:
         print(f"report: {replay.report_json} (each verdict as it came: {replay.report_log})")

@@ -198,10 +198,29 @@ def _open_for_recovery(src: Path) -> EpisodeReader:
     return open_reader(src)
 
 
+def _is_maniskill_file(reader: EpisodeReader) -> bool:
+    """Whether `reader` reads a ManiSkill trajectory file (not a simreel recording made from one)."""
+    from simreel.formats.maniskill.reader import ManiskillReader
+
+    return isinstance(reader, ManiskillReader)
+
+
+def _all_intact(reader: EpisodeReader) -> bool:
+    """Whether every episode's data reads back whole (checksums, layout): damage in a chunk shows only when it is
+    read, so a file complete in its structure is read through before `recover` calls it complete."""
+    for m in reader.episodes:
+        try:
+            reader.open_episode(m.index).read_through()
+        except RecordingFileError:
+            return False
+    return True
+
+
 def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bool = False) -> RecoveryReport:
     """Rewrite every intact committed episode of the recording `path` into `output` (default: `path` itself, which
     is replaced only once the new file is complete) and report what was lost: episodes that never finished,
-    damaged ones, damaged records and bytes. A recording with nothing to repair is left as it is."""
+    damaged ones, damaged records and bytes. A recording with nothing to repair (read through: every episode's data
+    intact) is left as it is."""
     src = Path(path)
     format_of(src)
     in_place = output is None or Path(output).resolve() == src.resolve()
@@ -215,14 +234,15 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
     with _open_for_recovery(src) as reader:
         damaged = [*reader.damaged, *getattr(reader, "skipped", [])]
         report = RecoveryReport(
-            complete=not (getattr(reader, "recovered", False) or reader.unfinished or damaged or reader.notes),
+            complete=not (getattr(reader, "recovered", False) or reader.unfinished or damaged or reader.notes)
+            and (output is not None or _all_intact(reader)),
             episodes=0, steps=0, unfinished=list(reader.unfinished), lost_bytes=getattr(reader, "lost_bytes", 0),
             damaged=damaged, notes=list(reader.notes), live=bool(getattr(reader, "live", False)),
         )
         if report.complete and output is None:
             report.episodes, report.steps = len(reader.episodes), sum(e.length for e in reader.episodes)
             return report
-        if in_place and reader.meta.source.get("format") == "maniskill":
+        if in_place and _is_maniskill_file(reader):
             raise UsageError(f"{src} is a ManiSkill file (RecordEpisode's): recovering it in place would replace it "
                              "by a simreel recording, losing its sidecar's own fields and any group the sidecar does not "
                              "list; recover it with -o")

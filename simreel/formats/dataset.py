@@ -448,31 +448,40 @@ class _Output:
         staged = target.path.with_name(f".{target.path.stem}.simreel-{os.getpid()}{target.path.suffix}")
         return cls(target, dataclasses.replace(target, path=staged, overwrite=True))
 
-    def publish(self) -> None:
-        """Move the checked recording and its side files to their final names, the recording last (a reader that
-        finds it finds its sidecar). Files of an old recording there that the new one lacks (its `.partial/`
-        scratch folder) go: with `overwrite` only, as the output rule checked at the start."""
+    def _pairs(self) -> list[tuple[Path, Path]]:
+        """(staged file, final name) of the recording's side files, then of the recording (a reader that finds it
+        finds its sidecar)."""
         pairs = list(zip(recording_files(self.staged.path), recording_files(self.final.path), strict=True))
-        for src, dst in pairs[1:] + pairs[:1]:
+        return pairs[1:] + pairs[:1]
+
+    def check_free(self) -> None:
+        """Without `overwrite`: `UsageError` when a final name is taken by now (another command writing the same
+        OUT), before any output is published."""
+        for src, dst in self._pairs():
+            if not self.final.overwrite and src.exists() and (dst.exists() or dst.is_symlink()):
+                raise self._taken(dst)
+
+    def publish(self) -> None:
+        """Move the checked recording and its side files to their final names. Files of an old recording there that
+        the new one lacks (its `.partial/` scratch folder) go: with `overwrite` only, as the output rule checked at
+        the start. A name taken since the start (a file made after `check_free`) is never replaced."""
+        for src, dst in self._pairs():
             if src.exists() and self.final.overwrite:
                 os.replace(src, dst)
             elif src.exists():
-                _link_new(src, dst, self.final.path)
+                try:
+                    os.link(src, dst)
+                except FileExistsError:
+                    raise self._taken(dst) from None
                 src.unlink()
             elif self.final.overwrite and dst.is_dir():
                 shutil.rmtree(dst)
             elif self.final.overwrite:
                 dst.unlink(missing_ok=True)
 
-
-def _link_new(src: Path, dst: Path, out: Path) -> None:
-    """Give `src` (a file of the staged output `out`) the name `dst`, which must still be free: a file made there
-    since the start (another command writing the same OUT) is never replaced."""
-    try:
-        os.link(src, dst)
-    except FileExistsError:
-        raise UsageError(f"{out} was written by another command while this one ran ({dst.name} is there now); it is "
-                         "left as it is and nothing was written (pass --overwrite to replace it)") from None
+    def _taken(self, dst: Path) -> UsageError:
+        return UsageError(f"{self.final.path} was written by another command while this one ran ({dst.name} is there "
+                          "now); it is left as it is and nothing was written (pass --overwrite to replace it)")
 
 
 def _run(sources: Sequence[_Source], targets: Sequence[Target], decide: Decide, options: DatasetOptions,
@@ -491,7 +500,9 @@ def _run(sources: Sequence[_Source], targets: Sequence[Target], decide: Decide, 
         for output in outputs:
             _check(output, sources, options)
         raise_if_stopped()
-        with deferred_signals():  # every output or none: a Ctrl-C between OUT and --rest would leave the two mixed
+        for output in outputs:
+            output.check_free()  # every output or none: OUT is not published when --rest can no longer be
+        with deferred_signals():  # nor when a Ctrl-C lands between the two
             for output in outputs:
                 output.publish()
     except BaseException as e:

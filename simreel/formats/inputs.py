@@ -23,11 +23,18 @@ def file_identity(path: str | os.PathLike[str]) -> tuple[int, int]:
     when there is no such file."""
     st = os.stat(path)
     size, mtime_ns = st.st_size, st.st_mtime_ns
-    for side in recording_files(os.path.realpath(path))[1:]:  # a link's sidecar is its target's
+    for side in _side_files(path):
         if side.is_file():
             side_st = side.stat()
             size, mtime_ns = size + side_st.st_size, max(mtime_ns, side_st.st_mtime_ns)
     return size, mtime_ns
+
+
+def _side_files(path: str | os.PathLike[str]) -> list[Path]:
+    """The files beside the recording `path` that are part of it: those beside the name given, which a reader reads
+    (a ManiSkill file's sidecar beside a link to it); for a link with none beside it, those of its target."""
+    beside = recording_files(path)[1:]
+    return beside if any(p.exists() for p in beside) else recording_files(os.path.realpath(path))[1:]
 
 
 def _is_pattern(spec: str) -> bool:

@@ -6,6 +6,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -13,6 +15,8 @@ from support.mcap_samples import synthetic_episode, synthetic_meta, write
 
 from simreel.cli.main import main
 from simreel.formats import open_reader
+
+SUPPORT = Path(__file__).resolve().parents[1] / "support"
 
 
 @pytest.fixture()
@@ -24,6 +28,11 @@ def src(tmp_path) -> Path:
         ep = synthetic_episode(meta, i, T)
         episodes.append(dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, success=success)))
     return write(tmp_path / "src.h5", meta, episodes)
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    """The recordings in `folder` (not the hidden staging files of a command still running), by name."""
+    return {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")}
 
 
 def _origins(path: Path) -> list[int]:
@@ -126,6 +135,25 @@ def test_episodes_a_report_does_not_cover_are_not_kept_and_counted(replayed, tmp
     assert _origins(tmp_path / "ok.h5") == [0]
     assert main(["filter", str(rec), "-o", str(tmp_path / "bad.h5"), "--diverged", str(partial), "-q"]) == 2
     assert "nothing matches; nothing written" in capsys.readouterr().err
+
+
+def test_a_split_whose_rest_another_command_wrote_meanwhile_publishes_neither(src, tmp_path):
+    """filter -o A --rest B, paused in its copy while another command writes B: at its end neither A nor B is
+    published by it (a split is both files or none), and B stays the other command's."""
+    kept, rest = tmp_path / "a.h5", tmp_path / "b.h5"
+    split = subprocess.Popen([sys.executable, str(SUPPORT / "paused_copy.py"), "filter", str(src), "-o", str(kept),
+                              "--rest", str(rest), "--episodes", "0-1"],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert split.stdout.readline().strip() == "copying"
+        assert main(["filter", str(src), "-o", str(rest), "--episodes", "3", "-q"]) == 0
+        theirs = _files(tmp_path)
+        _, err = split.communicate("go on\n", timeout=120)
+    finally:
+        split.kill()
+    assert split.returncode == 2 and err.startswith(f"simreel filter: error: {rest} was written by another command"), err
+    assert _files(tmp_path) == theirs and not kept.exists()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # its staging files are gone
 
 
 def test_a_report_made_before_the_sidecar_changed_is_refused(replayed, tmp_path, capsys):

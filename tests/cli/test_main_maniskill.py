@@ -182,9 +182,9 @@ def test_a_nan_action_is_one_error_naming_its_episode_and_step(altered_dir, tmp_
     for mode in ("actions", "step"):
         report = _replay(path, tmp_path, 2, "--mode", mode)
         assert report["episodes"][0]["verdict"] in ("exact", "within_tolerance")
-        assert report["episodes"][1]["error"] == ("episode 1: the recorded action of step 3 holds NaN, which ManiSkill "
-                                                  "refuses to step (no recorder stepped it: the file was altered or "
-                                                  "damaged)")
+        assert report["episodes"][1]["error"] == ("episode 1: the recorded action of step 3 holds NaN, which "
+                                                  "ManiSkill's CPU sim refuses to step (on it, no recorder stepped it: "
+                                                  "the file was altered or damaged)")
 
 
 @pytest.mark.parametrize(

@@ -92,7 +92,7 @@ def test_ctrl_c_during_the_copy_leaves_no_output_and_the_inputs_as_they_were(inp
     if existing:
         out.write_bytes(b"the old OUT")
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
-    child = subprocess.Popen([sys.executable, str(SUPPORT / "interrupted_merge.py"), *map(str, inputs), "-o", str(out),
+    child = subprocess.Popen([sys.executable, str(SUPPORT / "paused_copy.py"), "merge", *map(str, inputs), "-o", str(out),
                               *(["--overwrite"] if existing else [])],
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -113,7 +113,7 @@ def test_two_merges_to_one_new_out_keep_the_first_and_refuse_the_second_in_one_l
     writes OUT meanwhile; the first then finds OUT made and leaves it as it is: exit 2 and one line, never an
     internal error or a replaced OUT."""
     out = tmp_path / "m.h5"
-    first = subprocess.Popen([sys.executable, str(SUPPORT / "interrupted_merge.py"), *map(str, inputs), "-o", str(out)],
+    first = subprocess.Popen([sys.executable, str(SUPPORT / "paused_copy.py"), "merge", *map(str, inputs), "-o", str(out)],
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert first.stdout.readline().strip() == "copying"

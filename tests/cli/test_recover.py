@@ -68,3 +68,20 @@ def test_a_maniskill_file_is_recovered_with_o_only_and_stays_as_it_was(tmp_path)
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.name in before} == before
     with open_reader(tmp_path / "saved.h5") as r:
         assert [m.index for m in r.episodes] == [0, 1]
+
+
+def test_a_simreel_recording_made_from_a_maniskill_file_is_recovered_in_place(tmp_path):
+    """Only a ManiSkill file itself is refused in place: a simreel recording converted from one (its metadata keeps
+    where it came from) is recovered as any other. Its damage is in one chunk's data, which only reading finds:
+    recover reads every episode through before it calls a file complete (it used to say "nothing to recover")."""
+    from support.damage import corrupt_chunk
+    from support.maniskill_files import record_maniskill
+
+    converted = tmp_path / "converted.h5"
+    assert simreel("convert", str(record_maniskill(tmp_path, "PickCube-v1", episodes=3, steps=12)), str(converted),
+                   "-q").returncode == 0
+    corrupt_chunk(converted, "traj_1/actions", 1)
+    done = simreel("recover", str(converted))
+    assert done.returncode == 0, done.stderr
+    with open_reader(converted) as r:
+        assert [m.index for m in r.episodes] == [0, 2] and r.meta.source["format"] == "maniskill"

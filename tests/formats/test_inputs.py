@@ -45,3 +45,24 @@ def test_shown_paths_are_relative_below_the_working_folder(tmp_path, monkeypatch
     monkeypatch.chdir(tmp_path)
     assert shown_path(tmp_path / "d" / "a.h5") == "d/a.h5"
     assert shown_path("/elsewhere/a.h5") == "/elsewhere/a.h5"
+
+
+def test_a_recordings_identity_covers_the_sidecar_a_reader_reads(tmp_path):
+    """The JSON sidecar beside the name given is part of the recording (a ManiSkill file's episodes and seeds):
+    changing it changes the identity, also through a link that has its own sidecar; a link without one is its
+    target's recording."""
+    from simreel.formats.inputs import file_identity
+
+    target = tmp_path / "demos.h5"
+    target.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(100))
+    target.with_suffix(".json").write_text('{"episodes": []}')
+    link = tmp_path / "link.h5"
+    link.symlink_to(target)
+    assert file_identity(link) == file_identity(target) == (108 + 16, file_identity(target)[1])
+    before = file_identity(target)
+    target.with_suffix(".json").write_text('{"episodes": [1]}')
+    assert file_identity(target) != before
+    link.with_suffix(".json").write_text('{"episodes": [2]}')
+    linked = file_identity(link)
+    os.utime(link.with_suffix(".json"), ns=(0, linked[1] + 10**9))  # edited later
+    assert file_identity(link) != linked and file_identity(link)[0] == 108 + 17

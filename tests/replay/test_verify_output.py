@@ -91,6 +91,18 @@ def test_an_output_the_disk_cannot_hold_is_dropped_and_the_old_one_kept(record, 
         assert {p.name: p.read_bytes() for p in disk.iterdir() if p.is_file() and "filler" not in p.name} == old
 
 
+def test_a_disk_that_fills_in_the_middle_of_the_last_episode_stops_the_run_and_drops_the_output(record, tmp_path):
+    """One long episode: MCAP writes a chunk of it while it is replayed (not at its commit), and the disk fills
+    there. Dropping what was written of the episode raises the writer's failure again; that must not turn the
+    output's failure into the episode's own error, after which the run would go on and publish a broken file."""
+    path = record("PickCube-v1", 1, 600, "--record-obs")
+    with small_disk(tmp_path, 64) as disk:
+        out = disk / "out.mcap"
+        with pytest.raises(StorageError, match=r"the disk is full; nothing was written to .*out\.mcap; free some"):
+            verify_recording(path, output=str(out))
+        assert [p for p in disk.iterdir() if p.name != "lost+found"] == []
+
+
 def test_a_run_whose_env_does_not_build_leaves_no_scratch(record, tmp_path):
     out = tmp_path / "out.h5"
     with pytest.raises(EnvBuildError):

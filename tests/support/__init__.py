@@ -5,5 +5,5 @@
 - `viewer_data`: a small real PickCube recording and replay-like variants of it
 - `mcap_kill_child`, `record_until_killed`: child processes the kill -9 tests start and kill
 - `processes`: simreel as a subprocess: its command line, an environment without a display, free ports
-- `interrupted_merge`: `simreel merge` paused mid-copy, for the Ctrl-C test
+- `paused_copy`: `simreel merge` or `filter` paused mid-copy, for Ctrl-C and concurrent-output tests
 """

@@ -1,8 +1,9 @@
-"""Child process of tests of `simreel merge` that need it paused in the middle of the copy (Ctrl-C, a second merge).
+"""Child process of tests that need `simreel merge` or `simreel filter` paused in the middle of its copy (Ctrl-C,
+another command writing the same output meanwhile).
 
-Usage: python interrupted_merge.py IN... -o OUT. Runs `simreel merge` on the arguments; when the copy opens its
-third episode it prints `copying` (the first two are written by then) and waits for a line on its standard input
-(the parent sends SIGINT meanwhile, or a line to go on). Exits with the command's status.
+Usage: python paused_copy.py COMMAND ARGS... Runs `simreel COMMAND ARGS -q`; when the copy opens its third episode
+it prints `copying` (the first two are written by then) and waits for a line on its standard input (the parent
+sends SIGINT meanwhile, or a line to go on). Exits with the command's status.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ def main(argv: list[str]) -> int:
         return open_episode(self, index)
 
     Hdf5Reader.open_episode = paused
-    return simreel(["merge", *argv, "-q"])
+    return simreel([*argv, "-q"])
 
 
 if __name__ == "__main__":
