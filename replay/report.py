@@ -185,8 +185,8 @@ def episode_lines(e: EpisodeReport) -> list[str]:
         more = f" (+{len(e.scene_differences) - 4} more)" if len(e.scene_differences) > 4 else ""
         lines.append(f"{pad} scene differs from the recording (found at the reset): " + "; ".join(shown) + more)
     if e.verdict == "diverged":
-        also = [f"{k} {format_number(v)} (tol {format_number(t)})" for k, v, t in e.worst(4)
-                if e.first_divergence is None or k != e.first_divergence.key]
+        also = [f"{k} {format_number(v)} (tol {format_number(t)})" for k, v, t in e.worst(len(e.max_abs_error))
+                if k in e.diverged_keys and (e.first_divergence is None or k != e.first_divergence.key)]
         if also:
             lines.append(f"{pad} {len(e.diverged_keys)} keys left their tolerance; worst: " + ", ".join(also[:3]))
     if e.explanation is not None:

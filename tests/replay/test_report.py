@@ -29,3 +29,17 @@ def test_episode_report_ranks_keys_like_the_comparison():
     rep = EpisodeReport(index=0, seed=0, length=1, verdict="diverged", first_divergence=None, max_abs_error=errors,
                         tolerance=tol)
     assert rep.worst(3) == cmp.worst(3) == [("flag", 1.0, 0.0), ("c", 1.0, 1e-3), ("a", 2e-5, 1e-5)]
+
+
+def test_the_keys_said_to_have_left_their_tolerance_are_those_that_did():
+    """The line under a diverged episode names the other keys that left their tolerance, never one within it."""
+    from simreel.compare import Divergence
+    from simreel.replay.report import episode_lines
+
+    errors = {"obs/qpos": 0.5, "rewards": 0.2, "env_states/cube": 3e-6}
+    tol = {"obs/qpos": 1e-3, "rewards": 1e-3, "env_states/cube": 1e-5}
+    rep = EpisodeReport(index=0, seed=0, length=9, verdict="diverged",
+                        first_divergence=Divergence(step=4, key="obs/qpos", error=0.5, tolerance=1e-3),
+                        max_abs_error=errors, tolerance=tol, diverged_keys={"obs/qpos": 4, "rewards": 6})
+    (line,) = [x for x in episode_lines(rep) if "left their tolerance" in x]
+    assert line.strip() == "2 keys left their tolerance; worst: rewards 0.2 (tol 0.001)"
