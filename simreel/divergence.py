@@ -221,6 +221,8 @@ class ErrorGrowth:
             return f"{head}, grew {format_number(self.factor or 0)}× in {self.span} steps"
         if self.trend == "no later steps":
             return f"{head}, the last step compared"
+        if self.trend == _NOT_FINITE:
+            return f"{head}, {_NOT_FINITE}"
         return f"{head}, {self.trend} (×{format_number(self.factor or 0)} after {self.span} steps)"
 
     def to_json(self) -> dict[str, Any]:
@@ -237,9 +239,14 @@ class ErrorGrowth:
                    [int(s) for s in d.get("steps", [])], [float(e) for e in d.get("errors", [])])
 
 
+_NOT_FINITE = "no trend: NaN or infinity in the errors (the recording or the replay holds such values)"
+
+
 def _trend(after: np.ndarray, at: float) -> tuple[str, float | None]:
     if not len(after):
         return "no later steps", None
+    if not (math.isfinite(at) and np.isfinite(after).all()):
+        return _NOT_FINITE, None
     factor = float(after[-1] / at) if at > 0 else math.inf
     ratios = after / at if at > 0 else np.full(len(after), math.inf)
     if factor >= 2.0:

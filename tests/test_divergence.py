@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -91,6 +92,18 @@ def test_growth_tells_a_jump_with_constant_offset_from_growth():
     g = error_growth(cmp, d.key, d.step, (0, 9))
     assert g.trend == "grew" and g.factor == pytest.approx(1000, rel=1e-3)
     assert g.describe().endswith("grew 1e+03× in 3 steps")
+
+
+def test_growth_of_an_error_that_is_not_a_number_says_so_without_warnings():
+    """NaN in the data (a replay of a damaged recording): no ratio of errors is printed, and numpy warns nothing."""
+    recorded, replayed = _diverged(np.array([0.5, np.nan, np.nan, np.inf]), 6)
+    cmp = compare_episode(recorded, replayed, Tolerances.for_mode("actions"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        g = error_growth(cmp, "env_states/actors/cube[p]", 5, (2, 9))
+    assert g.factor is None and g.describe() == (
+        "env_states/actors/cube[p]: 0.5 at step 5 (tolerance 1e-05), no trend: NaN or infinity in the errors (the "
+        "recording or the replay holds such values)")
 
 
 def test_onset_and_events_of_an_amplified_difference():
