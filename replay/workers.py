@@ -200,7 +200,7 @@ class ReplayWorker:
             return EpisodeResult(item, error=e, worker=where)
         episode, scratch = (None, replayed) if isinstance(replayed, Path) else (replayed, None)
         return EpisodeResult(item, report, episode, scratch=scratch, worker=where,
-                             warnings=self._warnings(item.path, reader.meta, replayer))
+                             warnings=self._warnings(item.path, reader, replayer))
 
     def prepare(self, item: WorkItem) -> None:
         """Open `item`'s file and build its env now; raises the `SimreelError` that stops that."""
@@ -279,13 +279,15 @@ class ReplayWorker:
             report.explanation = explain_divergence(replayer, recorded, replayed, cmp, ctx)
         return report
 
-    def _warnings(self, path: str, meta: RecordingMeta, replayer: EpisodeReplayer) -> list[str]:
+    def _warnings(self, path: str, reader: EpisodeReader, replayer: EpisodeReplayer) -> list[str]:
+        """What to say once of the file `path`: what its reader noticed (e.g. groups a ManiSkill sidecar does not
+        list, which are not replayed) and where its build differs from this machine's."""
         from simreel.replay.fingerprint import fingerprint_differences
 
         if path in self._warned:
             return []
         self._warned.add(path)
-        return fingerprint_differences(meta, replayer.u)
+        return [*getattr(reader, "notes", []), *fingerprint_differences(reader.meta, replayer.u)]
 
     def _close_replayer(self) -> None:
         if self._replayer is not None:

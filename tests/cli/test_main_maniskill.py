@@ -175,6 +175,18 @@ def test_sim_backend_auto_is_the_cpu_sim_it_resolves_to_not_a_build_difference(a
     assert "sim backend" not in capsys.readouterr().err and "sim backend" not in json.dumps(report["episodes"][1])
 
 
+def test_a_group_the_sidecar_does_not_list_is_named_by_replay(altered_dir, tmp_path, capsys):
+    """A group a killed RecordEpisode left unlisted is not replayed (as ManiSkill's tools skip it): the replay says
+    so, on stderr and in its report, not only `inspect`."""
+    path = copy_recording(altered_dir, "auto", tmp_path)
+    with h5py.File(path, "a") as f:
+        f.copy("traj_0", "traj_7")
+    report = _replay(path, tmp_path, 0)
+    said = "1 group(s) the sidecar does not list (traj_7) are skipped, as ManiSkill's tools skip them"
+    assert f"simreel replay: warning: {said}" in capsys.readouterr().err
+    assert said in report["files"][0]["warnings"]
+
+
 def test_a_nan_action_is_one_error_naming_its_episode_and_step(altered_dir, tmp_path):
     path = copy_recording(altered_dir, "auto", tmp_path)
     with h5py.File(path, "a") as f:
