@@ -23,7 +23,9 @@ def add_parser(sub: Any) -> None:
         "recover",
         help="rescue the committed episodes of an interrupted or damaged recording",
         description="Rewrite a recording whose process was killed, or whose file is damaged, into a complete file "
-        "with every intact committed episode, and report what was lost.",
+        "with every intact committed episode, and report what was lost. MCAP: a file cut short or with damaged "
+        "records; HDF5: a killed recording's running episodes, damaged chunks or episodes (an HDF5 file cut short, "
+        "shorter than it says it is, cannot be opened at all).",
     )
     p.add_argument("path", metavar="PATH", help="the interrupted or damaged recording (.mcap or .h5)")
     p.add_argument("-o", "--output", metavar="OUT", default=None,
