@@ -187,6 +187,17 @@ def test_a_group_the_sidecar_does_not_list_is_named_by_replay(altered_dir, tmp_p
     assert said in report["files"][0]["warnings"]
 
 
+def test_a_sidecar_success_the_data_does_not_end_with_is_noted(altered_dir, tmp_path):
+    path = copy_recording(altered_dir, "auto", tmp_path)
+    with h5py.File(path, "r") as f:
+        last = bool(f["traj_1/success"][-1])
+    edit_sidecar(path, lambda d: d["episodes"][1].update(success=not last))
+    report = _replay(path, tmp_path, 0)
+    assert f"the sidecar says success {not last}, the file's success data ends {last} (inspect and filter --success go " \
+           "by the sidecar, as ManiSkill's tools do)" in report["episodes"][1]["notes"]
+    assert not any("sidecar says success" in n for n in report["episodes"][0]["notes"])
+
+
 def test_a_nan_action_is_one_error_naming_its_episode_and_step(altered_dir, tmp_path):
     path = copy_recording(altered_dir, "auto", tmp_path)
     with h5py.File(path, "a") as f:

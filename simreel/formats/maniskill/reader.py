@@ -157,6 +157,7 @@ class ManiskillReader(EpisodeReader):
         if meta.length != steps:
             meta.notes.append(f"elapsed_steps {meta.length} in the sidecar, {steps} actions in the file")
             meta.length = steps
+        _note_success(meta, datasets.get("success"))
         episode = Hdf5Rows(self.path, meta, self.fields, datasets)
         _note_quirks(episode)
         return episode
@@ -271,6 +272,17 @@ def _unlisted(sidecar: Sidecar, groups: dict[int, str]) -> list[str]:
         return []
     return [f"{len(extra)} group(s) the sidecar does not list ({', '.join(groups[i] for i in extra[:5])}) are "
             "skipped, as ManiSkill's tools skip them"]
+
+
+def _note_success(meta: EpisodeMeta, success: Any) -> None:
+    """A note where the sidecar's `success` (what inspect and filter go by, as ManiSkill's tools do) is not what the
+    file's success data ends with (a hand-edited sidecar, or one of another file)."""
+    if success is None or meta.success is None or not len(success):
+        return
+    last = bool(success[-1])
+    if last != meta.success:
+        meta.notes.append(f"the sidecar says success {meta.success}, the file's success data ends {last} (inspect and "
+                          "filter --success go by the sidecar, as ManiSkill's tools do)")
 
 
 def _note_quirks(episode: Hdf5Rows) -> None:
