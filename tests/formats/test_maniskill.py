@@ -229,3 +229,12 @@ def test_a_state_mode_output_of_replay_trajectory_is_found_off_by_one(ms_dir, ma
     # checked as it was made (restore, step, compare): the reset row is skipped, step 0 starts from the reset
     assert main(["replay", str(converted), "-q", "--mode", "step"]) == 0
     assert "the reset state is not compared" in capsys.readouterr().out
+
+
+def test_only_the_group_name_maniskill_looks_up_is_an_episodes():
+    """ManiSkill's tools open ``traj_<episode_id>``: ``traj_01`` beside ``traj_1`` is no second episode 1."""
+    from simreel.formats.maniskill.layout import group_index, group_name
+
+    assert [group_index(n) for n in ("traj_0", "traj_1", "traj_10", "traj_01", "traj_00", "traj_x")] == \
+        [0, 1, 10, None, None, None]
+    assert all(group_index(group_name(i)) == i for i in (0, 7, 12345))

@@ -26,7 +26,8 @@ __all__ = ["group_name", "group_index", "sidecar_path", "obs_is_array", "dataset
            "OBS"]
 
 OBS = "obs"
-_GROUP = re.compile(r"traj_(\d+)")
+_GROUP = re.compile(r"traj_(0|[1-9][0-9]*)")
+"""``traj_<index>`` as `group_name` writes it and ManiSkill's tools look it up (``traj_01`` is no episode's group)."""
 
 
 def group_name(index: int) -> str:
@@ -35,7 +36,7 @@ def group_name(index: int) -> str:
 
 
 def group_index(name: str) -> int | None:
-    """The episode index of a group named ``traj_<index>``; None for any other name."""
+    """The episode index of a group named ``traj_<index>`` (no leading zero); None for any other name."""
     m = _GROUP.fullmatch(name)
     return int(m.group(1)) if m else None
 
