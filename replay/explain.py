@@ -288,7 +288,7 @@ class _Explainer:
 
     def _amplification(self) -> Cause | None:
         onset = self.explanation.onset
-        if onset is None or not onset.float_noise or onset.growth < 10 or onset.step >= self.step:
+        if onset is None or not onset.float_noise or not onset.growth >= 10 or onset.step >= self.step:  # NaN: no ratio
             return None
         contacts = [e for e in self.explanation.events
                     if onset.step <= e.step <= self.step and e.kind in ("contact_begins", "contact_ends", "grasp_begins",

@@ -292,6 +292,8 @@ class DivergenceOnset:
         where = "after reset" if self.step < 0 else f"at step {self.step}"
         noise = " (float noise)" if self.float_noise else ""
         head = f"the first state difference: {where}, {self.key} off by {format_number(self.error)}{noise}"
+        if not math.isfinite(self.growth):
+            return f"{head}; no ratio to the divergence: NaN or infinity in the errors there"
         if self.growth <= 1.0:
             return f"{head}; the state matched the recording before it"
         return f"{head}; {format_number(self.growth)}× that (relative to tolerance) at the divergence"
@@ -332,7 +334,8 @@ def divergence_onset(comparison: EpisodeComparison, step: int) -> DivergenceOnse
     while start > 0 and err[start - 1] > 0:
         start -= 1
     at_divergence = float(ratio[min(step + 1, len(ratio) - 1)])
-    growth = at_divergence / float(ratio[start]) if ratio[start] > 0 else math.inf
+    finite = math.isfinite(at_divergence) and math.isfinite(ratio[start]) and ratio[start] > 0
+    growth = at_divergence / float(ratio[start]) if finite else math.nan  # NaN: no ratio (`describe`)
     return DivergenceOnset(step_of_state_row(start), worst[start], float(err[start]), float(ratio[start]), growth)
 
 

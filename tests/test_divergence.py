@@ -16,6 +16,7 @@ from simreel.divergence import (
     EpisodeEvent,
     Explanation,
     describe_divergence,
+    divergence_onset,
     episode_events,
     error_growth,
 )
@@ -104,6 +105,11 @@ def test_growth_of_an_error_that_is_not_a_number_says_so_without_warnings():
     assert g.factor is None and g.describe() == (
         "env_states/actors/cube[p]: 0.5 at step 5 (tolerance 1e-05), no trend: NaN or infinity in the errors (the "
         "recording or the replay holds such values)")
+    for offsets in ([np.nan, np.nan], [1e-7, np.inf]):  # NaN from the first difference on; a small one, then NaN
+        recorded, replayed = _diverged(np.array(offsets), 6)
+        cmp = compare_episode(recorded, replayed, Tolerances.for_mode("actions"))
+        onset = divergence_onset(cmp, cmp.first_divergence.step)
+        assert onset.describe().endswith("; no ratio to the divergence: NaN or infinity in the errors there")
 
 
 def test_onset_and_events_of_an_amplified_difference():
