@@ -165,7 +165,7 @@ def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target
 
 def _nothing_written(e: StorageError, target: Target, reader: EpisodeReader) -> StorageError:
     """A copy's storage failure: it wrote nothing (a failed copy is dropped) and its input is as it was."""
-    return e.dropped(f"; nothing was written and {reader.path} is unchanged")
+    return e.dropped(f"; nothing was written and {reader.path} is unchanged", target.path)
 
 
 @dataclass

@@ -45,10 +45,10 @@ from simreel.formats.maniskill.layout import dataset_name, group_index
 from simreel.formats.maniskill.sidecar import sidecar_episodes
 from simreel.formats.staging import replacement_note
 
-__all__ = ["Hdf5Reader", "Hdf5Rows", "open_hdf5", "holds_simreel_metadata"]
+__all__ = ["Hdf5Reader", "Hdf5Rows", "open_hdf5", "holds_simreel_metadata", "H5PY_ERRORS"]
 
 
-_H5PY_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError)
+H5PY_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError)
 """What h5py raises for a corrupt file (libhdf5's errors surface as any of these)."""
 
 
@@ -61,7 +61,7 @@ def open_hdf5(path: Path) -> Any:
         return h5py.File(path, "r", locking=False)
     except OSError as e:
         raise RecordingFileError(path, _open_problem(e)) from None
-    except _H5PY_ERRORS as e:
+    except H5PY_ERRORS as e:
         raise RecordingFileError(path, f"corrupt HDF5 file ({type(e).__name__}: {e})") from None
 
 
@@ -72,7 +72,7 @@ def holds_simreel_metadata(path: Path) -> bool:
         with CommitLock.reading(partial_dir(path), path) if being_written(path) else nullcontext(), \
                 open_hdf5(path) as f:
             return META_ATTR in f.attrs
-    except (RecordingFileError, *_H5PY_ERRORS):
+    except (RecordingFileError, *H5PY_ERRORS):
         return True
 
 
@@ -152,7 +152,7 @@ class Hdf5Reader(EpisodeReader):
             text = decode_text(attrs[META_ATTR])
         except RecordingFileError:
             raise
-        except _H5PY_ERRORS as e:
+        except H5PY_ERRORS as e:
             raise RecordingFileError(self.path, f"corrupt HDF5 file: its metadata cannot be read ({e})") from None
         if version > FORMAT_VERSION:
             raise RecordingFileError(
@@ -169,7 +169,7 @@ class Hdf5Reader(EpisodeReader):
         wrong with the others."""
         try:
             names = list(self._file)
-        except _H5PY_ERRORS as e:
+        except H5PY_ERRORS as e:
             raise RecordingFileError(self.path, f"corrupt HDF5 file: its list of episodes cannot be read ({e})") from None
         metas, damaged = [], []
         for name in names:
@@ -201,7 +201,7 @@ class Hdf5Reader(EpisodeReader):
             meta = EpisodeMeta.from_json(json.loads(decode_text(attrs[EPISODE_ATTR])))
         except (RecordingFileError, ValueError):
             raise
-        except _H5PY_ERRORS as e:
+        except H5PY_ERRORS as e:
             raise ValueError(f"cannot be read ({type(e).__name__}: {e})") from None
         if index is None or meta.index != index:
             raise ValueError(f"its metadata says episode {meta.index}, its name says otherwise")
@@ -237,7 +237,7 @@ class Hdf5Reader(EpisodeReader):
             names = {f.name: self._dataset(group, f.name) for f in self.fields}
             datasets = {f.name: self._field(group, where, f, names[f.name], meta.length) for f in self.fields}
             extra = sorted(set(_datasets(group)) - set(names.values()))
-        except _H5PY_ERRORS as e:
+        except H5PY_ERRORS as e:
             raise RecordingFileError(self.path, f"{where} is corrupt: its structure cannot be read ({e})") from None
         if extra:
             raise RecordingFileError(self.path, f"{where} holds {', '.join(extra[:3])}, which the recording's layout "
@@ -292,7 +292,7 @@ class Hdf5Rows(EpisodeRows):
         ds = self.datasets[name]
         try:
             return ds[start:stop]
-        except _H5PY_ERRORS as e:
+        except H5PY_ERRORS as e:
             raise RecordingFileError(
                 self.path, f"{ds.name.lstrip('/')} is corrupt: its data fails its checksum or cannot be decompressed ({e})"
             ) from None
@@ -345,5 +345,5 @@ def _scratch_steps(scratch: Path) -> str:
     try:
         with h5py.File(scratch, "r", locking=False) as f:
             return str(f["traj/rewards"].shape[0]) if "traj/rewards" in f else "0"
-    except _H5PY_ERRORS:
+    except H5PY_ERRORS:
         return "?"

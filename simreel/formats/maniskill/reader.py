@@ -39,7 +39,7 @@ from simreel.episode import (
 )
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader
-from simreel.formats.hdf5.reader import _H5PY_ERRORS, Hdf5Rows, open_hdf5
+from simreel.formats.hdf5.reader import H5PY_ERRORS, Hdf5Rows, open_hdf5
 from simreel.formats.maniskill.layout import OBS, dataset_name, field_name, group_index, group_name
 from simreel.formats.maniskill.sidecar import Sidecar
 from simreel.state_tree import LeafSpec
@@ -120,7 +120,7 @@ class ManiskillReader(EpisodeReader):
         try:
             found = {i: (name, isinstance(self._file[name], h5py.Group))
                      for name in self._file if (i := group_index(name)) is not None}
-        except _H5PY_ERRORS as e:
+        except H5PY_ERRORS as e:
             raise RecordingFileError(self.path, f"corrupt HDF5 file: its list of groups cannot be read ({e})") from None
         if not found:
             raise RecordingFileError(
@@ -138,7 +138,7 @@ class ManiskillReader(EpisodeReader):
         read."""
         try:
             return _datasets(self._file[group_name(index)])
-        except _H5PY_ERRORS as e:
+        except H5PY_ERRORS as e:
             raise RecordingFileError(self.path, f"{group_name(index)} is corrupt: its structure cannot be read "
                                                 f"({e})") from None
 
