@@ -117,6 +117,19 @@ def _worst_at(cmp: EpisodeComparison, step: int, *, only: str | tuple[str, ...] 
     return best
 
 
+def _inconsistent_step(k: int, physics: _Worst, worst: _Worst, length: int) -> str:
+    """Why step k of a recording is inconsistent (the steps around it reproduce): its recorded action does not give its
+    recorded state, or (the state reproduced) what the task computes from it is not what was recorded."""
+    if physics.ratio > 1:
+        return (f"the recorded action {k} does not produce the recorded step {k} even from the exactly restored state, "
+                "while the steps around it do")
+    said = (f"the recorded {worst.key} at step {k} is not what the task computes there from the exactly restored state "
+            f"and action (the state after the step is reproduced), while the steps around it are")
+    if worst.key == "truncated" and k == length - 1:
+        said += "; at the last step, a time limit other than the replaying env's would do that"
+    return said
+
+
 class _Explainer:
     """One diverged episode's explanation: the data part first, then the causes tried in the module's order."""
 
@@ -238,12 +251,15 @@ class _Explainer:
             self.checked.append(f"the same after resetting to another episode (seed {self.other_seed}) first")
             apart = _worst_at(self.between, k)
         physics = _worst_at(one, k, only="env_states/")
-        if (apart is not None and apart.ratio > 1) or (worst[k].ratio > 1 and physics.ratio <= 1):
+        others = [t for t in steps if t != k]
+        bad = [t for t in others if worst[t].ratio > 1]
+        # step k alone is off, and alike from an instance that held another episode: what it computes depends on
+        # the restored state and the action only, so the recording is what is off, not state the dict lacks
+        held_nothing = apart is not None and apart.ratio <= 1 and not bad
+        if (apart is not None and apart.ratio > 1) or (worst[k].ratio > 1 and physics.ratio <= 1 and not held_nothing):
             return self._state_not_captured(k, worst, at_k, apart)
         if worst[k].ratio <= 1:
             return None
-        others = [t for t in steps if t != k]
-        bad = [t for t in others if worst[t].ratio > 1]
         if bad:
             return None  # not reproduced around k either, whatever the env held: see _undetermined
         fine = max((worst[t] for t in others), key=lambda w: w.ratio, default=None)
@@ -254,9 +270,9 @@ class _Explainer:
             same = _worst_at(self.between, k)
             evidence.append(f"an instance reset to another episode (seed {self.other_seed}) before the restore gives the "
                             "same step " + (f"(largest difference: {same.describe()})" if same.error else "exactly"))
-        return Cause("input_inconsistent", f"input inconsistent with the recording at step {k}: the recorded action "
-                     f"{k} does not produce the recorded step {k} even from the exactly restored state, while the "
-                     "steps around it do", step=k, key=self.cmp.first_divergence.key, evidence=evidence)
+        return Cause("input_inconsistent", f"input inconsistent with the recording at step {k}: "
+                     + _inconsistent_step(k, physics, worst[k], T), step=k, key=self.cmp.first_divergence.key,
+                     evidence=evidence)
 
     def _state_not_captured(self, k: int, worst: dict[int, _Worst], at_k: str, apart: _Worst | None) -> Cause:
         """The step from a restored state depends on what the env held before the restore (two instances disagree),

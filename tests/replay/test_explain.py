@@ -57,6 +57,25 @@ def test_an_altered_action_is_an_input_inconsistent_with_the_recording(record, t
     assert f"error: {d.key}: " in text
 
 
+@pytest.mark.parametrize("flag", ["terminated", "truncated"])
+def test_a_flipped_flag_is_an_input_inconsistent_not_state_the_dict_lacks(record, tmp_path, flag):
+    """The state is reproduced, only a flag the task computes differs, and alike from an instance that held another
+    episode: the recording is off, not the task's state dict (no `simreel audit` to send the user to)."""
+    with open_reader(record("PickCube-v1", 1, 30)) as r, open_writer(tmp_path / "flipped.h5", r.meta) as w:
+        episode = r.read_episode(0)
+        flags = getattr(episode, flag)
+        flags[ALTERED_STEP] = not flags[ALTERED_STEP]
+        w.write_episode(episode)
+    ep = verify_recording(tmp_path / "flipped.h5").episodes[0]
+    cause = ep.explanation.cause
+    assert (ep.first_divergence.step, ep.first_divergence.key) == (ALTERED_STEP, flag)
+    assert (cause.kind, cause.step, cause.key) == ("input_inconsistent", ALTERED_STEP, flag)
+    assert cause.summary.endswith(f"the recorded {flag} at step {ALTERED_STEP} is not what the task computes there from "
+                                  "the exactly restored state and action (the state after the step is reproduced), "
+                                  "while the steps around it are")
+    assert not any("simreel audit" in line for line in cause.evidence)
+
+
 def test_another_build_is_not_blamed_for_what_a_step_explains(record, tmp_path):
     """Version differences are named as the cause only when no step-level cause holds: here the altered action
     explains the divergence, and the other Python release is one of the things checked, not the reason."""
