@@ -148,6 +148,8 @@ class EpisodeReplayer:
         self._sim_backend = opts.sim_backend
         self._control_mode = opts.control_mode
         self._env_kwargs = dict(opts.env_kwargs)
+        self._options = opts
+        self._in_modes: dict[str, EpisodeReplayer | None] = {}
         self.env: Any = None
         self._build()
 
@@ -225,9 +227,39 @@ class EpisodeReplayer:
         return "none" in reward_modes(self.meta.env_id)
 
     def close(self) -> None:
+        for other in self._in_modes.values():
+            if other is not None:
+                other.close()
+        self._in_modes.clear()
         if self.env is not None:
             self.env.close()
             self.env = None
+
+    def same_size_control_modes(self) -> list[str]:
+        """The robot's control modes other than the replaying one (`u.control_mode`) that take actions of the recorded
+        shape: the modes a recording's actions could have been made in, had it named the wrong one."""
+        recorded = self.meta.action_space.get("shape")
+        agent = getattr(self.u, "agent", None)
+        if recorded is None or agent is None:
+            return []
+        modes = [m for m in getattr(agent, "supported_control_modes", []) if m != self.u.control_mode]
+        return [m for m in modes if self.in_control_mode(m) is not None]
+
+    def in_control_mode(self, mode: str) -> EpisodeReplayer | None:
+        """A replayer of this recording whose env is built in control `mode` (built once, closed with this one), or
+        None when that mode takes actions of another shape than the recorded ones or its env does not build."""
+        if mode not in self._in_modes:
+            other = None
+            try:
+                other = EpisodeReplayer(self.meta, self._options, control_mode=mode)
+            except (SimreelError, EnvBuildError):
+                pass
+            recorded = tuple(self.meta.action_space.get("shape") or ())
+            if other is not None and tuple(other.u.single_action_space.shape) != recorded:
+                other.close()
+                other = None
+            self._in_modes[mode] = other
+        return self._in_modes[mode]
 
     def __enter__(self) -> EpisodeReplayer:
         return self

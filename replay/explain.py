@@ -11,14 +11,17 @@ in this order and keeping the first the data supports:
    each other but not with the recording: ``input_inconsistent`` (the seed or options do not produce the recorded
    initial state); they disagree: ``reset_not_reproducible``.
 3. The one-step errors of ``--mode step`` (restore the recorded state t, step action t, compare with recorded
-   t + 1), judged by step mode's tolerances, at the divergent step k and the steps around it: off at k only:
-   ``input_inconsistent`` (the recorded action k does not produce the recorded transition, while its neighbours
-   do); off at k and around it: ``state_not_captured`` (the recorded state does not determine the transition).
+   t + 1), judged by step mode's tolerances, at the divergent step k and the steps around it, and the same from
+   an instance reset to another episode first: step k depends on what the env held before the restore, or
+   reproduces the state but not what the task computes from it: ``state_not_captured``; off at k only, and alike
+   from the other instance: ``input_inconsistent`` (the recorded step is not what its action gives).
 4. Each step alone reproduces the recording, but the state began to differ by float noise and grew:
    ``amplification`` (through the contact events on the way, when there are some).
 5. The difference appeared in the first step after the replay restored a recorded state (``--resync``, an
    unseeded episode's start) and is no larger than one step from a restored state is: ``restore_difference``.
-6. Otherwise ``undetermined``, with what was checked.
+6. No step around k gives its recorded state from the restored one, but each does in another of the robot's
+   control modes whose actions have the recorded size: ``control_mode_differs`` (the file names the wrong mode).
+7. Otherwise ``undetermined``, with what was checked.
 """
 
 from __future__ import annotations
@@ -156,7 +159,8 @@ class _Explainer:
         if self.step < 0:
             cause = scene or self._reset()
         else:
-            cause = scene or self._one_step_cause() or self._amplification() or self._restore_difference()
+            cause = (scene or self._one_step_cause() or self._amplification() or self._restore_difference()
+                     or self._other_control_mode())
         self.explanation.cause = cause or self._build() or self._undetermined()
         return self.explanation
 
@@ -241,7 +245,7 @@ class _Explainer:
         if one is None:
             return None
         k, T = self.step, self.recorded.length
-        steps = [t for t in range(k - NEIGHBOURS, k + NEIGHBOURS + 1) if 0 <= t < T]
+        steps = self._window()
         worst = {t: _worst_at(one, t) for t in steps}
         self.checked.append("one-step errors (restore state t, step action t; step tolerances) at steps "
                             + ", ".join(map(str, steps)))
@@ -346,19 +350,65 @@ class _Explainer:
                      evidence=[onset.describe(), f"one step from the restored state {max(onset.step, 0)}: "
                                + (at_onset.describe() if at_onset.error > 0 else "exact"), self._one_step_fine()])
 
-    # -- 6.
+    # -- 6. the actions in another control mode
+    def _other_control_mode(self) -> Cause | None:
+        """When no step around k gives its recorded state from the restored one (the actions do not produce the
+        recorded states), whether they do in another of the robot's control modes that takes actions of the recorded
+        size: a recording that names the wrong control mode (a ManiSkill file's sidecar, say)."""
+        window = self._window()
+        if self.one_step is None or not all(_worst_at(self.one_step, t, only="env_states/").ratio > 1 for t in window):
+            return None
+        named, modes = self.replayer.u.control_mode, self.replayer.same_size_control_modes()
+        first = self.recorded.first_steps(window[-1] + 1)
+        for mode in modes:
+            try:
+                stepped = self.replayer.in_control_mode(mode).replay(first, mode="step", obs=False).episode
+            except Exception:  # noqa: BLE001 - a mode the recorded state cannot be restored into reproduces nothing
+                continue
+            one = compare_episode(first, stepped, Tolerances.for_mode("step"), channels=self.ctx.channels)
+            worst = max((_worst_at(one, t) for t in window), key=lambda w: w.ratio)
+            if worst.ratio <= 1:
+                return Cause("control_mode_differs", f"control mode differs: the recorded actions give the recorded "
+                             f"states in {mode}, not in {named}, the control mode the recording names", step=self.step,
+                             key=self.cmp.first_divergence.key, evidence=[
+                                 f"steps {_listed(window)}, each from its restored state: not reproduced in {named} "
+                                 f"({_worst_at(self.one_step, self.step).describe()} at step {self.step}), reproduced "
+                                 f"in {mode} (" + (f"largest: {worst.describe()}" if worst.error else "exactly") + ")",
+                                 f"replay it in {mode}: name that control mode in the recording (a ManiSkill file: its "
+                                 "JSON sidecar's env_kwargs and each episode's control_mode)"])
+        self.checked.append(f"one step from each restored state in the robot's other control modes with actions of the "
+                            f"recorded size ({_listed(modes) or 'none'}): none reproduces steps {_listed(window)}")
+        return None
+
+    def _window(self) -> list[int]:
+        """The divergent step and its `NEIGHBOURS` on each side that the episode has."""
+        k = self.step
+        return [t for t in range(k - NEIGHBOURS, k + NEIGHBOURS + 1) if 0 <= t < self.recorded.length]
+
+    # -- 7.
     def _undetermined(self) -> Cause:
-        onset = self.explanation.onset
-        evidence = [self._one_step_fine()] if self.step >= 0 else []
-        if self.one_step is not None and self.step >= 0 and _worst_at(self.one_step, self.step).ratio > 1:
-            evidence = [f"step {self.step} and the steps around it are not reproduced from their restored states, "
-                        "whatever the env held before the restore: the recorded actions or the physics differ at each "
-                        "of them (the scene fingerprint matched)"]
+        """No cause the data supports: what was found, from what was actually checked."""
+        onset, k = self.explanation.onset, self.step
+        found = ["the scene matches" if self.replayed.scene_differences is not None else
+                 "the scene was not compared (the recording has no fingerprint)"]
+        evidence = []
+        if k >= 0 and self.one_step is not None and _worst_at(self.one_step, k).ratio > 1:
+            held = ", whatever the env held before the restore" if self.between is not None else ""
+            found.append(f"step {k} and the steps around it are not reproduced from their restored states")
+            evidence.append(f"{found[-1]}{held}: the recorded actions or the physics differ at each of them")
+        elif k >= 0:
+            evidence.append(self._one_step_fine())
+            if self.one_step is not None:
+                found.append("each step alone reproduces the recording")
+        if k >= 0:
+            found.append("the difference did not start at float noise nor right after a restore")
         evidence.append(onset.describe() if onset is not None else "the state matched the recording up to the divergence")
-        return Cause("undetermined", "undetermined: the scene matches, each step alone reproduces the recording, and the "
-                     "difference did not start at float noise nor right after a restore; "
-                     "checked: " + "; ".join(self.checked), step=self.step, key=self.cmp.first_divergence.key,
-                     evidence=evidence)
+        return Cause("undetermined", "undetermined: " + ", ".join(found) + "; checked: " + "; ".join(self.checked),
+                     step=k, key=self.cmp.first_divergence.key, evidence=evidence)
+
+
+def _listed(items: list[Any]) -> str:
+    return ", ".join(map(str, items))
 
 
 def _other_episode(recorded: Episode) -> Episode | None:

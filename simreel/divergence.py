@@ -53,6 +53,7 @@ CAUSES = (
     "state_not_captured",
     "amplification",
     "restore_difference",
+    "control_mode_differs",
     "undetermined",
 )
 """Kinds of `Cause`, the order in which the replay room tries them."""

@@ -476,6 +476,11 @@ class Episode:
         """Every step: the per-step fields, and rows 1..T of the per-state ones."""
         return StepBlock.of({k: (a[1:] if self._per_state(k) else a) for k, a in self.fields().items()})
 
+    def first_steps(self, steps: int) -> Episode:
+        """The episode's first `steps` steps (its per-state rows up to the state after them), as views."""
+        rows = {k: a[: steps + 1] if self._per_state(k) else a[:steps] for k, a in self.fields().items()}
+        return Episode.from_fields(dataclasses.replace(self.meta, length=steps), rows)
+
     @staticmethod
     def _per_state(name: str) -> bool:
         return name == "body_poses" or name.split("/", 1)[0] in ("env_states", "obs")

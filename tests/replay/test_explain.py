@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from support.maniskill_files import edit_sidecar, record_maniskill
 from support.unseeded import record_unseeded
 
 from simreel.divergence import CONTACT_THRESHOLD_N
@@ -74,6 +75,44 @@ def test_a_flipped_flag_is_an_input_inconsistent_not_state_the_dict_lacks(record
                                   "the exactly restored state and action (the state after the step is reproduced), "
                                   "while the steps around it are")
     assert not any("simreel audit" in line for line in cause.evidence)
+
+
+def test_a_file_naming_the_wrong_control_mode_is_explained_by_the_mode_that_reproduces_it(tmp_path):
+    """ManiSkill recorded pd_joint_pos actions; the sidecar says pd_joint_delta_pos (the same action size, so nothing
+    refuses it): the replay diverges at step 0 and the explanation finds the mode whose steps reproduce the file."""
+    path = record_maniskill(tmp_path, "PickCube-v1", name="demos", episodes=1, steps=6)
+
+    def relabel(doc):
+        doc["env_info"]["env_kwargs"]["control_mode"] = "pd_joint_delta_pos"
+        for episode in doc["episodes"]:
+            episode["control_mode"] = "pd_joint_delta_pos"
+
+    edit_sidecar(path, relabel)
+    ep = verify_recording(path).episodes[0]
+    assert (ep.verdict, ep.first_divergence.step) == ("diverged", 0)
+    cause = ep.explanation.cause
+    assert (cause.kind, cause.step) == ("control_mode_differs", 0)
+    assert cause.summary == ("control mode differs: the recorded actions give the recorded states in pd_joint_pos, not "
+                             "in pd_joint_delta_pos, the control mode the recording names")
+    assert cause.evidence[0].startswith("steps 0, 1, 2, each from its restored state: not reproduced in "
+                                        "pd_joint_delta_pos (")
+    assert "reproduced in pd_joint_pos (" in cause.evidence[0]
+
+
+def test_actions_no_control_mode_reproduces_are_undetermined_and_say_what_was_checked(record, tmp_path):
+    """Every action altered: no step is reproduced from its restored state in the recorded mode nor in another of the
+    same size, and the explanation says so instead of claiming each step alone reproduces the recording."""
+    with open_reader(record("PickCube-v1", 1, 30)) as r, open_writer(tmp_path / "noise.h5", r.meta) as w:
+        episode = r.read_episode(0)
+        episode.actions[:] = np.where(episode.actions > 0, -1.0, 1.0)
+        w.write_episode(episode)
+    cause = verify_recording(tmp_path / "noise.h5").episodes[0].explanation.cause
+    assert cause.kind == "undetermined"
+    assert cause.summary.startswith("undetermined: the scene matches, step 0 and the steps around it are not "
+                                    "reproduced from their restored states, the difference did not start")
+    assert "each step alone reproduces" not in cause.summary
+    assert ("the robot's other control modes with actions of the recorded size (pd_joint_pos, "
+            "pd_joint_target_delta_pos, pd_joint_vel): none reproduces steps 0, 1, 2") in cause.summary
 
 
 def test_another_build_is_not_blamed_for_what_a_step_explains(record, tmp_path):
