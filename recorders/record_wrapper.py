@@ -42,6 +42,7 @@ from simreel.state_tree import layout_of, to_numpy
 __all__ = ["RecordWrapper", "RecordOptions"]
 
 _PYTHON_CHECK_MAX = 256
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 """Actions of up to this many numbers are checked and copied out in Python floats (`RecordWrapper._actions`)."""
 
 
@@ -140,6 +141,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         # Per-env running counts, folded into each episode's EpisodeMeta when it ends: its length is the rows handed
         # to its sink (so it always says what the file holds); its success flags are updated from each of those blocks.
         self._sent = [0] * self._n
+        self._last_scalars: list[Any] | None = None
+        """The last step's captured scalars (`StepScalars.capture`): whether it ended each env's episode."""
         self._success = np.zeros(self._n, bool)
         self._ever_success = np.zeros(self._n, bool)
         self._has_success = "success" in self.meta.info_layout
@@ -167,10 +170,15 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None) -> Any:
+        self._check_open("reset()")
         options = dict(options or {})
         env_idx = options.get("env_idx")
-        idxs = list(range(self._n)) if env_idx is None else [int(i) for i in to_numpy(env_idx).reshape(-1)]
-        if len(set(idxs)) != len(idxs) or not all(0 <= i < self._n for i in idxs):
+        named = None if env_idx is None else to_numpy(env_idx).reshape(-1)
+        if named is not None and named.size and named.dtype.kind not in "iu":
+            raise UsageError(f"reset(options={{'env_idx': ...}}) holds {named.dtype} values; give the indices of the "
+                             f"envs to reset, from 0 to {self._n - 1}")
+        idxs = list(range(self._n)) if named is None else [int(i) for i in named]
+        if not idxs or len(set(idxs)) != len(idxs) or not all(0 <= i < self._n for i in idxs):
             raise UsageError(f"reset(options={{'env_idx': {idxs}}}): name each env to reset once, from 0 to "
                              f"{self._n - 1} (an env named twice would begin two episodes at once)")
         for i in idxs:
@@ -225,6 +233,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def step(self, action: Any) -> Any:
         if self._open < self._n:
+            self._check_open("step()")
             raise UsageError("RecordWrapper.step() before reset(): reset the env first so the episode has a start")
         actions = self._actions(action)
         result = self.env.step(action)
@@ -233,7 +242,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             captures.append((self._action_rows, actions))
         else:
             fields["actions"] = actions
-        captures.append((self._scalar_rows, self._scalars.capture(*result[1:])))
+        self._last_scalars = self._scalars.capture(*result[1:])
+        captures.append((self._scalar_rows, self._last_scalars))
         buffer = self._buffer
         buffer.push(fields, captures)
         if buffer.full:
@@ -261,9 +271,13 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             values = a.ravel().tolist()
             if kind == "f" and not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):  # a sum may
                 raise _non_finite(a)  # overflow where every number is finite
+            if a.dtype.itemsize > 4 and kind == "f" and values and max(map(abs, values)) > _FLOAT32_MAX:
+                raise _beyond_float32(a)
             return values
         if kind == "f" and not np.isfinite(a).all():
             raise _non_finite(a)
+        if a.dtype.itemsize > 4 and kind == "f" and np.abs(a).max() > _FLOAT32_MAX:
+            raise _beyond_float32(a)
         return a.astype(np.float32, copy=False).reshape(self._n, -1)
 
     def _after_step(self, obs: Any) -> tuple[dict[str, np.ndarray], list[tuple[Any, Any]]]:
@@ -302,6 +316,27 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def close(self) -> None:
         """Commit the running episodes that have at least one step, close the file and the env (the env also when
         the writer raises: e.g. the error that stopped it, raised again by the commit)."""
+        self._close(replace=True)
+
+    def stop(self, reason: str) -> None:
+        """End a recording stopped before it was complete (`reason`: what stopped it, e.g. "Ctrl-C (SIGINT)"): each
+        running episode that has steps is committed with a note that it was cut short, and a recording that was to
+        replace an old file (`overwrite`) stays in its side folder, the old file as it was (its readers say where the
+        new one is, `simreel.formats.staging`). Then the env is closed, as by `close`."""
+        for i, meta in enumerate(self._episodes):
+            if meta is not None and not self._ended(i):
+                meta.notes.append(f"cut short: {reason} stopped the recording before this episode ended")
+        self._close(replace=False)
+
+    def _ended(self, i: int) -> bool:
+        """Env i's last step ended its episode (terminated or truncated), as the step's captured scalars say."""
+        captured = self._last_scalars
+        if captured is None or self._sent[i] + self._buffer.pending(i) == 0:
+            return False
+        terminated, truncated = captured[1], captured[2]
+        return any(bool(flags[i] if isinstance(flags, list) else flags) for flags in (terminated, truncated))
+
+    def _close(self, *, replace: bool) -> None:
         try:
             if not self._closed:
                 self._closed = True
@@ -309,9 +344,14 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                     for i in range(self._n):
                         self._finish(i)
                 finally:
-                    self._writer.close()
+                    self._writer.close(replace=replace)
         finally:
             self.env.close()
+
+    def _check_open(self, call: str) -> None:
+        if self._closed:
+            raise UsageError(f"RecordWrapper.{call} after close(): the recording is closed; wrap the env in a new "
+                             "RecordWrapper to record more")
 
     # ------------------------------------------------------------------ internals
     @property
@@ -431,16 +471,39 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
 def _as_array(action: Any) -> np.ndarray | None:
     """`action` as a numpy array where it is one ManiSkill takes (a numpy array, np.matrix too, or a tensor numpy can
-    hold: not bfloat16), else None."""
+    hold: not bfloat16), else None; `ActionError` for a tensor ManiSkill would fail on inside its step."""
+    if hasattr(action, "detach"):
+        _check_tensor(action)
     if isinstance(action, np.ndarray) or hasattr(action, "detach"):
         with contextlib.suppress(TypeError):
             return np.asarray(to_numpy(action))
     return None
 
 
+_UNCLIPPABLE = ("torch.uint16", "torch.uint32", "torch.uint64")
+"""Tensor dtypes torch cannot clamp, as ManiSkill does with every action."""
+
+
+def _check_tensor(action: Any) -> None:
+    if getattr(action, "requires_grad", False):
+        raise ActionError("an action tensor that requires grad, which ManiSkill cannot take (it calls .numpy() on "
+                          "it): detach it, or run the policy under torch.no_grad()")
+    if getattr(action, "is_meta", False):
+        raise ActionError("an action tensor on torch's meta device, which holds no numbers")
+    if str(getattr(action, "dtype", "")) in _UNCLIPPABLE:
+        raise ActionError(f"an action of dtype {action.dtype}, which ManiSkill cannot clip to the action space")
+
+
 def _non_finite(a: np.ndarray) -> ActionError:
     flat = a.reshape(-1)
-    return ActionError(f"an action holding NaN or infinity ({flat[~np.isfinite(flat)][:3]}); ManiSkill refuses them")
+    return ActionError(f"an action holding NaN or infinity ({flat[~np.isfinite(flat)][:3]}); a recording takes "
+                       "finite actions only")
+
+
+def _beyond_float32(a: np.ndarray) -> ActionError:
+    flat = np.abs(a.reshape(-1))
+    return ActionError(f"an action holding values beyond float32's range ({flat[flat > _FLOAT32_MAX][:3]}), which the "
+                       "recording cannot hold: its actions are float32, as ManiSkill's")
 
 
 def _constructor_options(opts: RecordOptions) -> dict[str, Any]:

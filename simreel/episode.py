@@ -280,7 +280,8 @@ class EpisodeMeta:
     """False where the file's state row 0 is not the state after the reset (ManiSkill's replay_trajectory writes
     the state after step 0 there in its state modes): replays then do not compare row 0."""
     notes: list[str] = field(default_factory=list)
-    """What the reader found about this episode in the file (quirks, mismatches), for reports."""
+    """What the recorder noted about this episode (``cut short: ...`` when a stop ended the recording before the
+    episode ended) and what the reader found about it in the file (quirks, mismatches), for reports."""
     origin: dict[str, Any] = field(default_factory=dict)
     """Where a merged or filtered episode was copied from: ``{"file": <absolute path>, "index": <its index
     there>}``, and that episode's own ``"origin"`` when it had one (empty for a recorded episode)."""

@@ -112,10 +112,24 @@ def run(args: argparse.Namespace) -> int:
             _record_single(rec, policy, args, limits.steps)
         else:
             _record_batched(rec, policy, args, limits.steps)
-    finally:
-        rec.close()
+    except BaseException as e:
+        rec.stop(_what_stopped(e))
+        _summary(rec, stopped=True)
+        raise
+    rec.close()
     _summary(rec)
     return 0
+
+
+def _what_stopped(error: BaseException) -> str:
+    """What stopped a recording, for the note on the episode it cut short."""
+    from simreel.errors import Terminated
+
+    if isinstance(error, Terminated):
+        return "SIGTERM"
+    if isinstance(error, KeyboardInterrupt):
+        return "Ctrl-C (SIGINT)"
+    return f"an error ({error})" if isinstance(error, SimreelError) else f"an error ({type(error).__name__})"
 
 
 class _Policy:
@@ -131,6 +145,9 @@ class _Policy:
             action = self._policy(rec, obs)
         except (SimreelError, KeyboardInterrupt):
             raise
+        except SystemExit as e:
+            raise UsageError(f"--policy {self.spec} called sys.exit({e.code!r}) ({where}); a policy returns actions, "
+                             "the recording ends by itself") from None
         except Exception as e:  # the policy's own bug: bad input to simreel, not simreel's
             raise UsageError(f"--policy {self.spec} raised {type(e).__name__}: {e} ({where}); fix the policy") from None
         try:
@@ -196,9 +213,21 @@ def _record_batched(rec: Any, policy: _Policy, args: argparse.Namespace, max_ste
     rec.discard_running()
 
 
-def _summary(rec: Any) -> None:
+def _summary(rec: Any, stopped: bool = False) -> None:
+    """What the file holds; for a recording stopped before it was complete, also the episode it cut short and, when
+    it was to replace an old file, where it is instead (the error's own line follows, on stderr)."""
+    from simreel.formats.staging import side_folder
+
     eps = rec.episodes_committed
     steps = sum(e.length for e in eps)
     succ = sum(1 for e in eps if e.success)
-    size = rec.path.stat().st_size if rec.path.exists() else 0
-    print(f"recorded {len(eps)} episode(s), {steps} steps, {succ} successful, to {rec.path} ({size / 1024:.0f} KiB)")
+    if not stopped:
+        size = rec.path.stat().st_size if rec.path.exists() else 0
+        print(f"recorded {len(eps)} episode(s), {steps} steps, {succ} successful, to {rec.path} ({size / 1024:.0f} KiB)")
+        return
+    cut = [e.index for e in eps if any(n.startswith("cut short:") for n in e.notes)]
+    staged = side_folder(rec.path) / rec.path.name
+    where = (f"in {staged}, beside {rec.path}, which is unchanged (the new recording replaces it only once complete)"
+             if staged.is_file() else f"in {rec.path}")
+    print(f"stopped: {len(eps)} episode(s), {steps} steps, {succ} successful, {where}"
+          + (f"; episode {cut[0]} was cut short (noted in the file)" if cut else ""), flush=True)

@@ -176,8 +176,10 @@ class EpisodeWriter(ABC):
         that does wait)."""
 
     @abstractmethod
-    def close(self) -> None:
-        """Finish the file (a staged recording replaces the old one now) and give up its lock."""
+    def close(self, *, replace: bool = True) -> None:
+        """Finish the file (a staged recording replaces the old one now) and give up its lock. `replace=False`: the
+        recording stopped before it was complete, so a staged one stays beside the old one, which stays as it was
+        (`simreel.formats.staging`)."""
 
     @abstractmethod
     def abort(self) -> None:

@@ -92,8 +92,13 @@ class RecordingTarget:
         elif self.folder.exists() or self.folder.is_symlink():
             self.folder.unlink()
 
-    def publish(self, side_files: list[str] = ()) -> None:
-        """Move a staged recording (and its `side_files`, by name) over the old one; then give up the locks."""
+    def publish(self, side_files: list[str] = (), *, replace: bool = True) -> None:
+        """Move a staged recording (and its `side_files`, by name) over the old one; then give up the locks.
+        `replace=False` (a recording stopped before it was complete) leaves a staged one in the side folder, where
+        readers of the old one are told about it (`replacement_note`), and the old one as it is."""
+        if self.staged and not replace:
+            self.release()
+            return
         try:
             if self.staged:
                 os.replace(self.write_path, self.path)

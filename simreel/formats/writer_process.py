@@ -138,10 +138,10 @@ class ProcessWriter:
         self._checkpoint_asked = False
         self._await_answers()
 
-    def close(self) -> None:
-        """Settle, close the writer in the child (a staged recording replaces the old one now) and wait for the child
-        to exit. Raises the child's error not yet raised, or the one closing met."""
-        cpu = self._last("close")
+    def close(self, *, replace: bool = True) -> None:
+        """Settle, close the writer in the child (a staged recording replaces the old one now, unless not `replace`)
+        and wait for the child to exit. Raises the child's error not yet raised, or the one closing met."""
+        cpu = self._last("close", replace)
         if cpu is not None:
             self.child_cpu_seconds = cpu - self._opened_cpu
 
@@ -149,16 +149,17 @@ class ProcessWriter:
         """Drop the whole recording (the format writer's `abort`) and end the child."""
         self._last("abort")
 
-    def _last(self, op: str, quiet: bool = False) -> Any:
-        """Send the child its last message, `op` ("close" or "abort"), and wait for it to exit; its answer (None when
-        the child was gone already, or had ended before). `quiet`: raise nothing (cleaning up after another error)."""
+    def _last(self, op: str, *args: Any, quiet: bool = False) -> Any:
+        """Send the child its last message, `op` ("close" or "abort") with `args`, and wait for it to exit; its answer
+        (None when the child was gone already, or had ended before). `quiet`: raise nothing (cleaning up after
+        another error)."""
         if self._closed:
             return None
         self._closed = True
         with deferred_signals() as held:  # like a writer's own close: a Ctrl-C now is handled once the file is finished
             try:
                 if not isinstance(self._failed, _Gone):
-                    return self._request((op,), after_failure=True, held=held)
+                    return self._request((op, *args), after_failure=True, held=held)
                 return None
             except BaseException:
                 if not quiet:
@@ -485,8 +486,8 @@ class _Child:
     def _settle(self) -> None:
         self._answer()
 
-    def _close(self) -> None:
-        self._cleanup(self._writer.close)
+    def _close(self, replace: bool) -> None:
+        self._cleanup(lambda: self._writer.close(replace=replace))
         self._answer(time.process_time())
 
     def _abort(self) -> None:

@@ -317,4 +317,8 @@ def test_sigterm_stops_a_recording_as_cleanly_as_ctrl_c(tmp_path, sig, status, l
     with open_reader(out) as r:  # a complete file: summary and footer written
         assert len(r.episodes) >= 2 and r.unfinished == []
         for m in r.episodes:
-            assert 1 <= r.read_episode(m.index).length <= 10
+            episode = r.read_episode(m.index)
+            assert 1 <= episode.length <= 10
+            ended = bool(episode.terminated[-1] or episode.truncated[-1])
+            cut = f"cut short: {'SIGTERM' if sig == signal.SIGTERM else 'Ctrl-C (SIGINT)'} stopped the recording"
+            assert m.notes == ([] if ended else [f"{cut} before this episode ended"])  # only one the stop cut

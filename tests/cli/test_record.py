@@ -6,6 +6,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from simreel.cli.main import main
 
 
@@ -86,3 +88,53 @@ def test_episodes_longer_than_the_time_limit_are_recorded_and_the_limit_is_said(
     assert main(["record", "PickCube-v1", "-o", str(tmp_path / "own.h5"), "-q"]) == 0
     assert capsys.readouterr().out.startswith("episodes end at PickCube-v1's time limit of 50 steps, or earlier when "
                                               "the task ends them\n")
+
+
+_LATE_FAILING_POLICY = """
+import numpy as np
+calls = 0
+
+def late(env, obs):
+    global calls
+    calls += 1
+    if calls == 14:  # step 3 of the second episode of 10 steps
+        {failure}
+    return np.zeros(env.action_space.shape, np.float32)
+"""
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".mcap"])
+@pytest.mark.parametrize(("failure", "said"), [
+    ("raise ValueError('boom')", "--policy {policy} raised ValueError: boom (episode 1, step 3); fix the policy"),
+    ("raise SystemExit(5)", "--policy {policy} called sys.exit(5) (episode 1, step 3); a policy returns actions, the "
+                            "recording ends by itself"),
+], ids=["raises", "sys.exit"])
+def test_a_recording_an_error_stops_replaces_nothing_and_notes_the_episode_it_cut(tmp_path, capsys, suffix, failure,
+                                                                                    said):
+    """Regression: `--overwrite` replaced the old file by the stopped recording's (a policy error, Ctrl-C), whose
+    last episode, cut short, looked like any other; a policy calling sys.exit ended `record` with its status."""
+    from simreel.formats import open_reader
+
+    out = tmp_path / f"rec{suffix}"
+    assert main(["record", "PickCube-v1", "-o", str(out), "-n", "3", "--max-steps", "10", "-q"]) == 0
+    old = out.read_bytes()
+    (tmp_path / "late.py").write_text(_LATE_FAILING_POLICY.format(failure=failure))
+    policy = f"{tmp_path}/late.py:late"
+    capsys.readouterr()
+    assert main(["record", "PickCube-v1", "-o", str(out), "--overwrite", "-n", "5", "--max-steps", "10", "-q",
+                 "--policy", policy]) == 2
+    printed = capsys.readouterr()
+    assert printed.err.splitlines() == [f"simreel record: error: {said.format(policy=policy)}"]
+    staged = tmp_path / f"rec{suffix}.partial" / f"rec{suffix}"
+    assert printed.out.splitlines()[-1] == (f"stopped: 2 episode(s), 13 steps, 0 successful, in {staged}, beside {out}, "
+                                            "which is unchanged (the new recording replaces it only once complete); "
+                                            "episode 1 was cut short (noted in the file)")
+    assert out.read_bytes() == old
+    with open_reader(staged) as r:
+        assert [m.length for m in r.episodes] == [10, 3]
+        assert r.episodes[0].notes == []
+        assert r.episodes[1].notes == [f"cut short: an error ({said.format(policy=policy)}) stopped the recording "
+                                       "before this episode ended"]
+    assert main(["inspect", str(out)]) == 0
+    assert (f"a recording that was to replace this one stopped before it was complete; its committed episodes are in "
+            f"{staged} (this file is unchanged)") in capsys.readouterr().out

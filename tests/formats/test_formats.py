@@ -47,3 +47,28 @@ def test_check_writable_raises_what_the_writer_would_and_touches_nothing(tmp_pat
     assert sorted(tmp_path.iterdir()) == before
     if make:
         assert (tmp_path / make).read_text() == "mine"
+
+
+def test_a_sidecar_another_hdf5_file_shares_is_never_replaced(tmp_path, record):
+    """Regression: `-o x.hdf5 --overwrite` replaced `x.json`, the sidecar of `x.h5` (ManiSkill's tools read it for
+    `x.h5`), though `x.hdf5` did not even exist; refused now, by the command's early check and by the writer."""
+    import shutil
+
+    from simreel.formats import open_reader, open_writer
+
+    src = record("PickCube-v1", 1, 3)
+    shutil.copy(src, tmp_path / "x.h5")
+    shutil.copy(src.with_suffix(".json"), tmp_path / "x.json")
+    sidecar = (tmp_path / "x.json").read_bytes()
+    before = sorted(tmp_path.iterdir())
+    with open_reader(tmp_path / "x.h5") as r:
+        meta = r.meta
+    said = (f"{tmp_path}/x.json is the JSON sidecar of {tmp_path}/x.h5, which ManiSkill's tools read with it; writing "
+            f"{tmp_path}/x.hdf5 would replace it: name the output otherwise")
+    for attempt in (lambda: check_writable(tmp_path / "x.hdf5", overwrite=True),
+                    lambda: open_writer(tmp_path / "x.hdf5", meta, overwrite=True)):
+        with pytest.raises(UsageError) as err:
+            attempt()
+        assert str(err.value) == said
+    assert sorted(tmp_path.iterdir()) == before and (tmp_path / "x.json").read_bytes() == sidecar
+    check_writable(tmp_path / "x.h5", overwrite=True)  # the sidecar's own recording may replace it

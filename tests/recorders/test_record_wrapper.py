@@ -124,7 +124,7 @@ def test_long_episode_streams_in_blocks(tmp_path, monkeypatch):
     np.testing.assert_array_equal(ep.env_states["actors/cube"][1:], states)
 
 
-def test_reset_without_steps_leaves_no_episode_and_step_before_reset_is_refused(tmp_path):
+def test_reset_without_steps_leaves_no_episode_and_step_before_reset_or_after_close_is_refused(tmp_path):
     from simreel.errors import UsageError
 
     env = RecordWrapper(make_env("PushCube-v1"), tmp_path / "e.h5")
@@ -136,6 +136,9 @@ def test_reset_without_steps_leaves_no_episode_and_step_before_reset_is_refused(
     env.close()
     with open_reader(tmp_path / "e.h5") as r:
         assert [(m.index, m.seed, m.length) for m in r.episodes] == [(1, 1, 1)]
+    for late in (lambda: env.step(np.zeros(env.action_space.shape, np.float32)), lambda: env.reset(seed=2)):
+        with pytest.raises(UsageError, match=r"RecordWrapper\.(step|reset)\(\) after close\(\): the recording is closed"):
+            late()
 
 
 def test_observations_and_poses_when_asked(tmp_path):
@@ -193,7 +196,8 @@ def test_unseeded_reset_records_no_seed_and_seeded_one_its_seed(tmp_path):
 @pytest.mark.filterwarnings("ignore:the matrix subclass:PendingDeprecationWarning")
 def test_every_kind_of_action_is_checked_and_recorded_as_given(tmp_path):
     """Actions in each form ManiSkill takes: recorded as given (as float32); an action holding NaN or infinity is
-    refused before the env steps, whatever its dtype, and one whose finite numbers overflow their sum is not; so
+    refused before the env steps, whatever its dtype, and so is one beyond float32's range; so is a tensor ManiSkill
+    would fail on (one that requires grad, of an unsigned dtype torch cannot clamp, on the meta device); so
     is one of another shape, type or dtype (a list, which ManiSkill would refuse with a TypeError; bfloat16)."""
     from simreel.errors import ActionError
 
@@ -203,7 +207,14 @@ def test_every_kind_of_action_is_checked_and_recorded_as_given(tmp_path):
              np.array([1e38, 1e38, 0, 0, 0, 0, 0, 0]), torch.full((1, 8), 0.75), np.asmatrix(np.full(8, 0.375))]
     for action in given:
         env.step(action)
-    assert env._actions(np.full(8, 1.7e308)) == [1.7e308] * 8  # finite, though their sum is not
+    for huge in (np.full(8, 1.7e308), np.array([0, 0, 0, -1e39, 0, 0, 0, 0])):
+        with pytest.raises(ActionError, match="beyond float32's range .*, which the recording cannot hold"):
+            env._actions(huge)  # finite (the first even where their sum is not), but no float32 holds them
+    for tensor, said in ((torch.zeros(8, requires_grad=True), "requires grad"),
+                         (torch.zeros(8, dtype=torch.uint64), "dtype torch.uint64"),
+                         (torch.zeros(8, device="meta"), "meta device")):
+        with pytest.raises(ActionError, match=said):
+            env.step(tensor)  # each would fail inside ManiSkill's step
     for bad in (np.float32, np.float64):
         for value in (np.nan, np.inf, -np.inf):
             action = np.zeros(8, bad)
@@ -287,9 +298,11 @@ def test_a_partial_reset_naming_an_env_twice_or_none_there_is_refused_before_any
     zero = np.zeros(rec.action_space.shape, np.float32)
     rec.reset(seed=0)
     rec.step(zero)
-    for env_idx in ([0, 0], [3], [-1]):
+    for env_idx in ([0, 0], [3], [-1], []):  # []: ManiSkill would fail half way through the reset
         with pytest.raises(UsageError, match="name each env to reset once, from 0 to 0"):
             rec.reset(seed=1, options={"env_idx": env_idx})
+    with pytest.raises(UsageError, match="holds bool values; give the indices of the envs to reset, from 0 to 0"):
+        rec.reset(seed=1, options={"env_idx": np.array([True])})
     rec.step(zero)
     rec.reset(seed=1, options={"env_idx": [0]})
     rec.step(zero)
@@ -348,3 +361,33 @@ def test_the_scene_fingerprint_is_kept_once_and_per_rebuilt_scene(record):
             assert apply_changes(meta.scene_fingerprint, m.scene_changes) == scene_fingerprint(env.unwrapped)
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".mcap"])
+@pytest.mark.parametrize("writer_process", [True, False], ids=["writer process", "in-process"])
+def test_stop_keeps_the_old_file_and_notes_only_the_episode_it_cut(tmp_path, suffix, writer_process):
+    """`stop` (what `simreel record` calls on Ctrl-C or an error): an `overwrite` recording stays in its side folder,
+    the old file as it was; the running episode is noted as cut short, an ended one is not."""
+    out = tmp_path / f"r{suffix}"
+    zero = np.zeros(8, np.float32)
+    for overwrite, steps in ((False, (3,)), (True, (50, 2))):  # 50: PickCube's time limit ends the episode
+        rec = RecordWrapper(make_env("PickCube-v1"), out, overwrite=overwrite, writer_process=writer_process)
+        for k, n in enumerate(steps):
+            rec.reset(seed=k)
+            for _ in range(n):
+                rec.step(zero)
+        if not overwrite:
+            rec.close()
+            old = out.read_bytes()
+    rec.stop("a test")
+    assert out.read_bytes() == old
+    with open_reader(tmp_path / f"r{suffix}.partial" / f"r{suffix}") as r:
+        assert [(m.length, m.notes) for m in r.episodes] == [
+            (50, []), (2, ["cut short: a test stopped the recording before this episode ended"])]
+    rec = RecordWrapper(make_env("PickCube-v1"), out, overwrite=True, writer_process=writer_process)
+    rec.reset(seed=0)
+    for _ in range(50):
+        rec.step(zero)
+    rec.stop("a test")  # the episode ended at its last step: nothing is noted
+    with open_reader(tmp_path / f"r{suffix}.partial" / f"r{suffix}") as r:
+        assert [(m.length, m.notes) for m in r.episodes] == [(50, [])]

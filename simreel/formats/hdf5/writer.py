@@ -21,6 +21,7 @@ one by `close` (`simreel.formats.staging`); a second writer of the same name is 
 from __future__ import annotations
 
 import contextlib
+import glob
 import json
 import os
 import shutil
@@ -167,6 +168,7 @@ class Hdf5Writer(EpisodeWriter):
         self._journal_fd: int | None = None
         self._failed: StorageError | None = None
         self._closed = self._aborted = False
+        _refuse_shared_sidecar(self.path)
         self._target = RecordingTarget.claim(self.path, self.side_paths(self.path), overwrite=overwrite)
         self.partial = self._target.folder
         try:
@@ -187,6 +189,11 @@ class Hdf5Writer(EpisodeWriter):
     @classmethod
     def side_paths(cls, path: Path) -> list[Path]:
         return [sidecar_path(path), partial_dir(path)]
+
+    @classmethod
+    def check_target(cls, path: Path, *, overwrite: bool) -> None:
+        _refuse_shared_sidecar(path)
+        super().check_target(path, overwrite=overwrite)
 
     @property
     def _fd(self) -> int:
@@ -306,10 +313,10 @@ class Hdf5Writer(EpisodeWriter):
         self._file = None
 
     # ---------------------------------------------------------------- close
-    def close(self) -> None:
+    def close(self, *, replace: bool = True) -> None:
         """Close the file, remove what the running episodes left in the side folder (they are not committed), and
-        move a staged recording over the old one. After a failed write nothing replaces the old recording: the
-        episodes committed before stay where they were written (the error said where)."""
+        move a staged recording over the old one (unless not `replace`). After a failed write nothing replaces the
+        old recording: the episodes committed before stay where they were written (the error said where)."""
         if self._closed:
             return
         self._closed = True
@@ -330,7 +337,7 @@ class Hdf5Writer(EpisodeWriter):
             self._commit_lock.close()
             self._clear_running()
             if self._failed is None:
-                self._target.publish([sidecar_path(self.path).name])
+                self._target.publish([sidecar_path(self.path).name], replace=replace)
             else:
                 self._target.release()
 
@@ -404,3 +411,18 @@ def _bound_metadata_cache(file: Any, datasets: int) -> None:
     config.min_size = config.max_size // 2
     config.incr_mode = config.decr_mode = config.flash_incr_mode = 0  # H5C_incr__off, H5C_decr__off, H5C_flash_incr__off
     file.id.set_mdc_config(config)
+
+
+def _refuse_shared_sidecar(path: Path) -> None:
+    """`UsageError` when the JSON sidecar a recording at `path` writes is another HDF5 file's too (`x.h5` and
+    `x.hdf5` share `x.json`, which ManiSkill's tools read for both): `--overwrite` of the one never replaces the
+    other's."""
+    from simreel.formats import HDF5_SUFFIXES
+
+    sidecar = sidecar_path(path)
+    if not (sidecar.exists() or sidecar.is_symlink()):
+        return
+    for other in sorted(path.parent.glob(glob.escape(path.stem) + ".*")):
+        if other.name != path.name and other.suffix.lower() in HDF5_SUFFIXES and other.is_file():
+            raise UsageError(f"{sidecar} is the JSON sidecar of {other}, which ManiSkill's tools read with it; writing "
+                             f"{path} would replace it: name the output otherwise")

@@ -155,9 +155,10 @@ class McapWriter(EpisodeWriter):
         """An episode of env `lane.env` ended at `end_ns`: that env's next episode starts one period later."""
         self._lane_next[lane.env] = end_ns + self._channels.step_ns
 
-    def close(self) -> None:
-        """Write the summary and footer, close the file, and move a staged recording over the old one. After a
-        failed write the file is closed as it is (committed episodes, no footer) and replaces nothing."""
+    def close(self, *, replace: bool = True) -> None:
+        """Write the summary and footer, close the file, and move a staged recording over the old one (unless not
+        `replace`). After a failed write the file is closed as it is (committed episodes, no footer) and replaces
+        nothing."""
         if self._closed:
             return
         self._closed = True
@@ -168,7 +169,7 @@ class McapWriter(EpisodeWriter):
         finally:
             self._close_file()
             if self._failed is None:
-                self._target.publish()
+                self._target.publish(replace=replace)
             else:
                 self._target.release()
 
