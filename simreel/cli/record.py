@@ -16,6 +16,8 @@ __all__ = ["add_parser", "run"]
 _DEFAULT_MAX_STEPS = 200
 _SEED_LIMIT = 2**32
 """ManiSkill's seeds are unsigned 32-bit numbers."""
+_STEP_LIMIT = 2**31 - 1
+"""The longest time limit ManiSkill can keep: it counts an episode's steps in int32 (beyond, every step ends it)."""
 
 
 def add_parser(sub: Any) -> None:
@@ -50,11 +52,12 @@ def _done(terminated: Any, truncated: Any) -> Any:
 def _check_counts(args: argparse.Namespace) -> None:
     if args.episodes < 1:
         raise UsageError(f"--episodes must be ≥ 1, got {args.episodes}")
-    if args.max_steps is not None and args.max_steps < 1:
-        raise UsageError(f"--max-steps must be ≥ 1, got {args.max_steps}")
+    if args.max_steps is not None and not 1 <= args.max_steps <= _STEP_LIMIT:
+        raise UsageError(f"--max-steps must be from 1 to {_STEP_LIMIT} (ManiSkill counts steps in 32 bits), got "
+                         f"{args.max_steps}")
     if args.num_envs < 1:
         raise UsageError(f"--num-envs must be ≥ 1, got {args.num_envs}")
-    last = args.seed + args.episodes + args.num_envs - 2  # the largest seed a run can use
+    last = args.seed + max(args.episodes, args.num_envs) - 1  # the largest seed a run uses (`_record_batched`)
     if args.seed < 0 or last >= _SEED_LIMIT:
         raise UsageError(f"--seed {args.seed}: this run would use seeds {args.seed} to {last}, but ManiSkill takes "
                          f"seeds from 0 to {_SEED_LIMIT - 1}; choose a seed in that range")
@@ -76,8 +79,9 @@ def _limits(args: argparse.Namespace) -> _Limits:
 
     registered = time_limit(args.env_id)
     asked = args.env_kwargs.pop("max_episode_steps", None)
-    if asked is not None and (not isinstance(asked, int) or isinstance(asked, bool) or asked < 1):
-        raise UsageError(f"--env-kwargs max_episode_steps must be a whole number ≥ 1, got {asked!r}")
+    if asked is not None and (not isinstance(asked, int) or isinstance(asked, bool) or not 1 <= asked <= _STEP_LIMIT):
+        raise UsageError(f"--env-kwargs max_episode_steps must be a whole number from 1 to {_STEP_LIMIT} (ManiSkill "
+                         f"counts steps in 32 bits), got {asked!r}")
     if asked is not None and args.max_steps is not None and asked != args.max_steps:
         raise UsageError(f"--max-steps {args.max_steps} and --env-kwargs max_episode_steps {asked} disagree; give one")
     chosen = args.max_steps or asked
@@ -190,26 +194,30 @@ def _record_single(rec: Any, policy: _Policy, args: argparse.Namespace, max_step
 
 
 def _record_batched(rec: Any, policy: _Policy, args: argparse.Namespace, max_steps: int) -> None:
-    """N parallel envs; a finished env is reset alone (partial reset) with the next unused seed."""
+    """N parallel envs running episodes k = 0, 1, ... in the order they start, episode k with seed S+k. An env whose
+    episode ends is reset alone (a partial reset: its episode is committed and the next one starts there) while it
+    runs one of the `--episodes` wanted; an episode started past those (a reset must start one) gets seed S, is left
+    running when it ends, and is dropped at the end: exactly `--episodes` episodes are recorded, seeds S to S+N-1."""
     import numpy as np
 
-    n = rec.meta.num_envs
-    next_seed = args.seed + n
+    n, wanted = rec.meta.num_envs, args.episodes
+    order = np.arange(n)  # the start order of each env's running episode
     obs, _ = rec.reset(seed=[args.seed + i for i in range(n)])
-    steps = np.zeros(n, dtype=np.int64)
+    started, steps = n, np.zeros(n, dtype=np.int64)
     with _progress(args) as bar:
-        while len(rec.episodes_committed) < args.episodes:
+        while len(rec.episodes_committed) < wanted:
             raise_if_stopped()
             obs, _, terminated, truncated, _ = policy.step(rec, obs, f"after {len(rec.episodes_committed)} episodes")
             steps += 1
-            done = _done(terminated, truncated) | (steps >= max_steps)
+            done = (_done(terminated, truncated) | (steps >= max_steps)) & (order < wanted)
             if done.any():
                 idx = np.flatnonzero(done)
                 before = len(rec.episodes_committed)
-                obs, _ = rec.reset(seed=list(range(next_seed, next_seed + len(idx))), options={"env_idx": idx})
-                next_seed += len(idx)
-                steps[idx] = 0
-                bar.update(min(args.episodes, len(rec.episodes_committed)) - min(args.episodes, before))
+                new = np.arange(started, started + len(idx))
+                seeds = [args.seed + int(k) if k < wanted else args.seed for k in new]
+                obs, _ = rec.reset(seed=seeds, options={"env_idx": idx})
+                order[idx], started, steps[idx] = new, started + len(idx), 0
+                bar.update(len(rec.episodes_committed) - before)
     rec.discard_running()
 
 

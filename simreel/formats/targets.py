@@ -74,6 +74,7 @@ def open_text_atomic(path: str | Path) -> Iterator[IO[str]]:
     p = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.resolve().parent)
     try:
+        os.fchmod(fd, 0o666 & ~_umask())  # as open() would make it: mkstemp's 0600 hides it from other users
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             yield fh
         os.replace(tmp, p)
@@ -86,3 +87,10 @@ def write_text_atomic(path: str | Path, text: str) -> None:
     """Write `text` to `path` at once (`open_text_atomic`)."""
     with open_text_atomic(path) as fh:
         fh.write(text)
+
+
+def _umask() -> int:
+    """The process's umask (reading it means setting it: it is set back at once)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask

@@ -38,7 +38,14 @@ def parse_pairs(spec: str) -> list[tuple[str, str]]:
             raise ContactSpecError(
                 f"bad contact pair {item!r}: expected BODY_A:BODY_B, e.g. panda/panda_leftfinger:cube"
             )
+        if parts[0] == parts[1]:
+            raise ContactSpecError(f"bad contact pair {item!r}: a body paired with itself")
+        if tuple(parts) in pairs:
+            raise ContactSpecError(f"contact pair {item!r} is named twice")
         pairs.append((parts[0], parts[1]))
+    if not pairs:
+        raise ContactSpecError(f"contacts {spec!r} names no pair; give auto, none or pairs like "
+                               "panda/panda_leftfinger:cube")
     return pairs
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import os
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -71,7 +72,8 @@ class EnvConfig:
         render_backend: ``"auto"`` (probe: `simreel.sim.render_device.detect_render_backend`), ``"gpu"``,
             ``"cpu"`` (software Vulkan) or ``"none"`` (state-only; `simreel.sim.norender` is switched on).
         env_kwargs: further keyword arguments for the task, e.g. ``{"render_mode": "rgb_array"}``,
-            ``{"robot_uids": "panda"}``. They may not repeat the named arguments above.
+            ``{"robot_uids": "panda"}``. One of the named arguments here is taken as that argument (`make_env`),
+            unless both give it, differently.
         max_episode_steps: override the task's time limit (None: the task's own).
         sim_config: ManiSkill ``SimConfig`` overrides as a dict, e.g. ``{"sim_freq": 500}``.
     """
@@ -114,6 +116,22 @@ class EnvConfig:
         return dataclasses.replace(self, **overrides)
 
 
+def _fold_env_kwargs(env_id: str, cfg: EnvConfig) -> EnvConfig:
+    """`cfg` with the named arguments its `env_kwargs` also hold (``--env-kwargs '{"sim_config": {...}}'``) moved
+    into their own fields; `EnvBuildError` where both give one, differently (a field at its default gives none)."""
+    repeated = sorted(set(cfg.env_kwargs) & set(EnvConfig.names()) - {"env_kwargs"})
+    if not repeated:
+        return cfg
+    kwargs, moved, default = dict(cfg.env_kwargs), {}, EnvConfig()
+    for name in repeated:
+        value, own = kwargs.pop(name), getattr(cfg, name)
+        if own != getattr(default, name) and own != value:
+            raise EnvBuildError(f"{env_id}: {name} is given twice, {own!r} and {value!r} in env_kwargs "
+                                "(--env-kwargs); give it once")
+        moved[name] = value
+    return dataclasses.replace(cfg, env_kwargs=kwargs, **moved)
+
+
 def camera_use(obs_mode: str | None, render_mode: str | None = None) -> str | None:
     """Say why this ``obs_mode`` / ``render_mode`` needs a render device, or None if it does not."""
     if obs_mode:
@@ -137,12 +155,7 @@ def make_env(env_id: str, config: EnvConfig | None = None, **overrides: Any) -> 
         RenderUnavailableError: cameras or ``render_mode`` were asked for but there is no render device, or the
             task cannot be built without one (PushT-v1).
     """
-    cfg = (config or EnvConfig()).with_overrides(**overrides)
-    repeated = sorted(set(EnvConfig.names()) & set(cfg.env_kwargs))
-    if repeated:
-        raise EnvBuildError(
-            f"{env_id}: env_kwargs repeats {', '.join(repeated)}; pass them as make_env keyword arguments instead"
-        )
+    cfg = _fold_env_kwargs(env_id, (config or EnvConfig()).with_overrides(**overrides))
     configure_vulkan()
     if cfg.render_backend == "auto":
         start_render_probe()  # runs in a child process while mani_skill imports here
@@ -265,8 +278,8 @@ def _prepare_render(env_id: str, cfg: EnvConfig) -> str:
         needs = camera_use(cfg.obs_mode, cfg.env_kwargs.get("render_mode"))
         if needs is not None:
             raise RenderUnavailableError(
-                f"{env_id}: {needs}, but there is no render device ({why}). To render, {no_render_device_fix()}; "
-                "or use obs_mode='state' and no render_mode."
+                f"{env_id}: {needs}, but there is no render device ({why}). To render, "
+                f"{_render_fix(cfg.render_backend)}; or use obs_mode='state' and no render_mode."
             )
         from simreel.sim import norender
 
@@ -300,6 +313,23 @@ def _gym_kwargs(cfg: EnvConfig, backend: str) -> dict[str, Any]:
     if cfg.max_episode_steps is not None:
         kwargs["max_episode_steps"] = cfg.max_episode_steps
     return kwargs
+
+
+def _render_fix(asked: str | None) -> str:
+    """How to get the render device an env needs and did not get, as one clause of an error message: ask for one
+    (render backend 'none' asks for none), fix the user's own Vulkan setting, or fetch lavapipe."""
+    if asked in (None, "none"):
+        return "ask for one: drop --render-backend none (render_backend='none' asks for no device)"
+    from simreel.sim.render_device import lavapipe_icd_path
+
+    ours = os.path.abspath(lavapipe_icd_path())
+    for var in ("VK_DRIVER_FILES", "VK_ICD_FILENAMES"):
+        value = os.environ.get(var)
+        if value and value != ours:  # the user's choice, which simreel never overrides
+            missing = [f for f in value.split(os.pathsep) if f and not os.path.exists(f)]
+            why = f"{', '.join(missing)} does not exist" if missing else "it gives no device SAPIEN can render with"
+            return f"fix or unset {var}={value} ({why}; unset, simreel uses the lavapipe `make setup` fetched)"
+    return no_render_device_fix()
 
 
 def no_render_device_fix() -> str:

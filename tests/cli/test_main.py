@@ -65,7 +65,19 @@ BAD_INPUT = [
     ("record-policy-list", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/policies.py:listed"],
      "policies.py:listed returned an action of type list; PickCube-v1 takes a numeric array of shape (8,)"),
     ("record-time-limit-kwarg", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--env-kwargs", '{{"max_episode_steps": 0}}'],
-     "--env-kwargs max_episode_steps must be a whole number ≥ 1, got 0"),
+     "--env-kwargs max_episode_steps must be a whole number from 1 to 2147483647 (ManiSkill counts steps in 32 bits), "
+     "got 0"),
+    ("record-time-limit-past-int32", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--max-steps", "2147483648"],
+     "--max-steps must be from 1 to 2147483647 (ManiSkill counts steps in 32 bits), got 2147483648"),
+    ("record-policy-exits", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/policies.py:leave"],
+     "policies.py:leave called sys.exit(5) (episode 0, step 0); a policy returns actions, the recording ends by "
+     "itself"),
+    ("record-contacts-self", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--contacts", "cube:cube"],
+     "bad contact pair 'cube:cube': a body paired with itself"),
+    ("record-contacts-twice", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--contacts", "cube:table-workspace,"
+     "cube:table-workspace"], "contact pair 'cube:table-workspace' is named twice"),
+    ("record-contacts-empty", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--contacts", ","],
+     "contacts ',' names no pair; give auto, none or pairs like panda/panda_leftfinger:cube"),
     # inspect
     ("inspect-missing", ["inspect", "{tmp}/missing.h5"], "missing.h5: no such file"),
     ("inspect-junk", ["inspect", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
@@ -157,6 +169,7 @@ def short(env, obs): return np.zeros(3, np.float32)
 def nan(env, obs): return np.full(env.action_space.shape, np.nan, np.float32)
 def none(env, obs): return None
 def listed(env, obs): return [0.0] * 8
+def leave(env, obs): raise SystemExit(5)
 """
 
 

@@ -6,6 +6,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from simreel.cli.main import main
@@ -138,3 +139,60 @@ def test_a_recording_an_error_stops_replaces_nothing_and_notes_the_episode_it_cu
     assert main(["inspect", str(out)]) == 0
     assert (f"a recording that was to replace this one stopped before it was complete; its committed episodes are in "
             f"{staged} (this file is unchanged)") in capsys.readouterr().out
+
+
+class _BatchedStandIn:
+    """What `_record_batched` sees of a `RecordWrapper` over N parallel envs, for this machine, whose CPU sim runs one
+    env (the real batched recorder is tested on the GPU sim: `tests/recorders/test_record_wrapper_gpu.py`): a reset
+    commits the running episodes of the envs it resets and starts theirs (seed, env); every episode lasts `length`
+    steps of its env."""
+
+    def __init__(self, n: int, lengths: dict[int, int]) -> None:
+        import types
+
+        self.meta, self.n, self.lengths = types.SimpleNamespace(num_envs=n), n, lengths
+        self.episodes_committed: list[tuple[int, int]] = []
+        self.running: dict[int, list] = {}
+        self.seeds: list[int] = []
+
+    def reset(self, seed, options=None):
+        idx = range(self.n) if options is None else [int(i) for i in options["env_idx"]]
+        for i, s in zip(idx, seed, strict=True):
+            if i in self.running:
+                self.episodes_committed.append(tuple(self.running.pop(i)[:2]))
+            self.running[i] = [s, i, 0]
+            self.seeds.append(s)
+        return np.zeros((self.n, 1)), {}
+
+    def step(self, _action):
+        import torch
+
+        for episode in self.running.values():
+            episode[2] += 1
+        ended = torch.tensor([self.running[i][2] >= self.lengths.get(i, 10) for i in range(self.n)])
+        return np.zeros((self.n, 1)), None, ended, torch.zeros(self.n, dtype=torch.bool), {}
+
+    def discard_running(self):
+        self.running.clear()
+
+
+@pytest.mark.parametrize(("episodes", "lengths", "committed"), [
+    (1, {}, [(0, 0)]),  # four episodes end together: one was asked for
+    (2, {}, [(0, 0), (1, 1)]),
+    (6, {0: 3}, [(0, 0), (4, 0), (5, 0), (1, 1), (2, 2), (3, 3)]),  # env 0 runs three while the others run one
+])
+def test_parallel_envs_record_exactly_the_episodes_asked_with_seeds_in_range(episodes, lengths, committed):
+    """Regression: -n 1 --num-envs 4 committed 4 episodes, and a run near the top of the seed range handed ManiSkill
+    seeds past 2**32 - 1 for episodes it then dropped."""
+    import argparse
+
+    from simreel.cli import record
+
+    seed = 2**32 - max(episodes, 4)  # the highest first seed the options allow
+    args = argparse.Namespace(episodes=episodes, seed=seed, num_envs=4, max_steps=10, quiet=True, env_id="X")
+    record._check_counts(args)
+    rec = _BatchedStandIn(4, lengths)
+    policy = record._Policy("zero", lambda env, obs: np.zeros(1))
+    record._record_batched(rec, policy, args, 10)
+    assert [(s - seed, env) for s, env in rec.episodes_committed] == committed
+    assert max(rec.seeds) <= 2**32 - 1

@@ -88,3 +88,17 @@ def test_write_text_atomic_replaces_whole_and_leaves_no_temporary_file(tmp_path,
     with pytest.raises(OSError):
         write_text_atomic(path, "three")
     assert path.read_text() == "two" and sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+
+
+def test_a_file_written_atomically_has_the_permissions_open_would_give_it(tmp_path):
+    """Regression: sidecars and reports were 0600 (mkstemp's), unreadable to the other users of a shared dataset
+    whose .h5 files are 0644."""
+    import stat
+
+    for mask, mode in ((0o022, 0o644), (0o077, 0o600)):
+        old = os.umask(mask)
+        try:
+            write_text_atomic(tmp_path / "s.json", "{}")
+        finally:
+            os.umask(old)
+        assert stat.S_IMODE((tmp_path / "s.json").stat().st_mode) == mode

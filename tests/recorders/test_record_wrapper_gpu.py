@@ -48,3 +48,16 @@ def test_heterogeneous_layout_does_not_depend_on_num_envs(tmp_path, num_envs):
                         tmp_path / f"h{num_envs}.h5")
     assert env.meta.state_layout["articulations/cabinet"].shape == (19,)
     env.close()
+
+
+def test_the_record_command_records_exactly_the_episodes_asked_of_parallel_envs(tmp_path, capsys):
+    """`record -n 3 --num-envs 4`: four episodes run at once and end together at the time limit; three are kept, with
+    seeds 0, 1, 2."""
+    from simreel.cli.main import main
+    from simreel.formats import open_reader
+
+    out = tmp_path / "p.h5"
+    assert main(["record", "PickCube-v1", "-o", str(out), "-n", "3", "--num-envs", "4", "--max-steps", "5",
+                 "--sim-backend", "physx_cuda", "-q"]) == 0
+    with open_reader(out) as r:
+        assert sorted((m.seed, m.length) for m in r.episodes) == [(0, 5), (1, 5), (2, 5)]

@@ -63,7 +63,15 @@ NO_DEVICE_SCRIPT = textwrap.dedent(
     out["unknown"] = error("PickCub-v1")
     out["bad_control_mode"] = error("PickCube-v1", control_mode="bogus")
     out["bad_kwarg"] = error("PickCube-v1", env_kwargs={"bogus_kwarg": 1})
-    out["repeated_kwarg"] = error("PickCube-v1", env_kwargs={"obs_mode": "state"})
+    out["repeated_kwarg"] = error("PickCube-v1", control_mode="pd_joint_pos",
+                                  env_kwargs={"control_mode": "pd_ee_delta_pos"})
+    env = make_env("PickCube-v1", env_kwargs={"sim_config": {"sim_freq": 400}, "control_mode": "pd_joint_pos"})
+    out["folded_kwargs"] = [env.unwrapped.sim_freq, env.unwrapped.control_mode]
+    env.close()
+    out["rgb_none"] = error("PickCube-v1", obs_mode="rgb", render_backend="none")
+    import os
+    os.environ["VK_ICD_FILENAMES"] = "/nonexistent/icd.json"  # the user's choice, after the probe: it names no file
+    out["rgb_user_icd"] = error("PickCube-v1", obs_mode="rgb")
     out["num_envs"] = error("PickCube-v1", num_envs=2)
     print(json.dumps(out))
     """
@@ -205,7 +213,17 @@ def placeholders(no_render_env, task_file) -> dict[str, str]:
          "unknown ManiSkill env id 'PickCub-v1': did you mean PickCube-v1, PickCubeSO100-v1, PokeCube-v1? "
          "(the code imported does not register it: {user_file} registers SimreelTestPickCube-v1)"),
         ("repeated_kwarg", "EnvBuildError",
-         "PickCube-v1: env_kwargs repeats obs_mode; pass them as make_env keyword arguments instead"),
+         "PickCube-v1: control_mode is given twice, 'pd_joint_pos' and 'pd_ee_delta_pos' in env_kwargs "
+         "(--env-kwargs); give it once"),
+        ("rgb_none", "RenderUnavailableError",
+         "PickCube-v1: obs_mode='rgb' needs camera images (rgb), but there is no render device (render_backend='none' "
+         "was asked for). To render, ask for one: drop --render-backend none (render_backend='none' asks for no "
+         "device); or use obs_mode='state' and no render_mode."),
+        ("rgb_user_icd", "RenderUnavailableError",
+         "PickCube-v1: obs_mode='rgb' needs camera images (rgb), but there is no render device (no Vulkan device "
+         "SAPIEN can render with). To render, fix or unset VK_ICD_FILENAMES=/nonexistent/icd.json "
+         "(/nonexistent/icd.json does not exist; unset, simreel uses the lavapipe `make setup` fetched); or use "
+         "obs_mode='state' and no render_mode."),
         ("num_envs", "EnvBuildError",
          "PickCube-v1: num_envs=2 needs the GPU sim (PhysX CUDA) and this machine has no CUDA device; use "
          "num_envs=1 (CPU sim), or gymnasium's AsyncVectorEnv for several CPU envs"),
@@ -213,6 +231,11 @@ def placeholders(no_render_env, task_file) -> dict[str, str]:
 )
 def test_errors_without_a_device(no_device, placeholders, case, kind, message):
     assert no_device[case] == [kind, message.format(**placeholders)]
+
+
+def test_named_arguments_in_env_kwargs_are_taken_as_those_arguments(no_device):
+    """What a CLI user can only give through --env-kwargs (sim_config), or gives there instead of its own option."""
+    assert no_device["folded_kwargs"] == [400, "pd_joint_pos"]
 
 
 def test_the_fetch_command_a_refusal_names_exists_and_fills_the_folder_simreel_reads(no_device, no_render_env):
