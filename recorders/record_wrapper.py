@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
-import math
 import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -25,12 +24,13 @@ import gymnasium as gym
 import numpy as np
 
 from simreel.episode import EpisodeMeta, StepBlock, json_default
-from simreel.errors import ActionError, UsageError
+from simreel.errors import UsageError
 from simreel.formats import open_writer, records_poses_by_default
 from simreel.formats.durable import deferred_signals
 from simreel.formats.writer_process import ProcessWriter
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.recorders.step_scalars import StepScalars, scalar_info
+from simreel.sim.actions import ActionCheck
 from simreel.sim.contacts import ContactSampler, contact_channels
 from simreel.sim.describe import flatten_obs, recording_meta
 from simreel.sim.fingerprint import fingerprint_changes, scene_fingerprint
@@ -41,9 +41,6 @@ from simreel.state_tree import layout_of, to_numpy
 
 __all__ = ["RecordWrapper", "RecordOptions"]
 
-_PYTHON_CHECK_MAX = 256
-_FLOAT32_MAX = float(np.finfo(np.float32).max)
-"""Actions of up to this many numbers are checked and copied out in Python floats (`RecordWrapper._actions`)."""
 
 
 @dataclass(frozen=True)
@@ -127,8 +124,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.meta = self._describe(env, path)  # refuses an action space other than a Box
         self._rows_beside_state = opts.record_obs or bool(self.meta.pose_bodies)
         """Whether each step records rows besides the state (`_per_state_rows`): observations or body poses."""
-        self._action_shape = tuple(u.single_action_space.shape)
-        self._action_shapes = {(self._n, *self._action_shape)} | ({self._action_shape} if self._n == 1 else set())
+        self._actions = ActionCheck(self.meta.env_id, tuple(u.single_action_space.shape), self._n)
         """The shapes an action may have: (num_envs, *single), or the single env's where there is one env."""
         if starting is not None:
             self._writer = starting.open(self.meta, overwrite=opts.overwrite, **opts.writer_options)
@@ -252,33 +248,6 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                     self._flush(i)
                 buffer.rewind()
         return result
-
-    def _actions(self, action: Any) -> list[Any] | np.ndarray:
-        """`action`'s numbers once they are checked to fit the action space and be finite: a small action as a flat
-        list (a copy, made into rows with its block by `_action_rows`), a large one as a (num_envs, A) float32 array;
-        `ActionError` (before the env steps) otherwise, since the recording could not hold it or replay it. A small
-        action is checked in Python floats: a numpy call right after a physics step costs several times more."""
-        a = action if type(action) is np.ndarray else _as_array(action)  # the usual action: no conversion
-        kind = "" if a is None else a.dtype.kind
-        if not kind or kind not in "biuf":
-            what = f"dtype {action.dtype}" if hasattr(action, "dtype") else f"type {type(action).__name__}"
-            raise ActionError(f"an action of {what}; {self.meta.env_id} takes a numeric array of shape "
-                              f"{self._action_shape}")
-        if a.shape not in self._action_shapes:
-            raise ActionError(f"an action of shape {a.shape}; {self.meta.env_id} takes shape "
-                              f"{(self._n, *self._action_shape) if self._n > 1 else self._action_shape}")
-        if a.size <= _PYTHON_CHECK_MAX:
-            values = a.ravel().tolist()
-            if kind == "f" and not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):  # a sum may
-                raise _non_finite(a)  # overflow where every number is finite
-            if a.dtype.itemsize > 4 and kind == "f" and values and max(map(abs, values)) > _FLOAT32_MAX:
-                raise _beyond_float32(a)
-            return values
-        if kind == "f" and not np.isfinite(a).all():
-            raise _non_finite(a)
-        if a.dtype.itemsize > 4 and kind == "f" and np.abs(a).max() > _FLOAT32_MAX:
-            raise _beyond_float32(a)
-        return a.astype(np.float32, copy=False).reshape(self._n, -1)
 
     def _after_step(self, obs: Any) -> tuple[dict[str, np.ndarray], list[tuple[Any, Any]]]:
         """The state, observations, poses and contact forces after a step: (fields read now, what is captured now
@@ -467,43 +436,6 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 sink.discard()
                 return
             sink.commit(meta)
-
-
-def _as_array(action: Any) -> np.ndarray | None:
-    """`action` as a numpy array where it is one ManiSkill takes (a numpy array, np.matrix too, or a tensor numpy can
-    hold: not bfloat16), else None; `ActionError` for a tensor ManiSkill would fail on inside its step."""
-    if hasattr(action, "detach"):
-        _check_tensor(action)
-    if isinstance(action, np.ndarray) or hasattr(action, "detach"):
-        with contextlib.suppress(TypeError):
-            return np.asarray(to_numpy(action))
-    return None
-
-
-_UNCLIPPABLE = ("torch.uint16", "torch.uint32", "torch.uint64")
-"""Tensor dtypes torch cannot clamp, as ManiSkill does with every action."""
-
-
-def _check_tensor(action: Any) -> None:
-    if getattr(action, "requires_grad", False):
-        raise ActionError("an action tensor that requires grad, which ManiSkill cannot take (it calls .numpy() on "
-                          "it): detach it, or run the policy under torch.no_grad()")
-    if getattr(action, "is_meta", False):
-        raise ActionError("an action tensor on torch's meta device, which holds no numbers")
-    if str(getattr(action, "dtype", "")) in _UNCLIPPABLE:
-        raise ActionError(f"an action of dtype {action.dtype}, which ManiSkill cannot clip to the action space")
-
-
-def _non_finite(a: np.ndarray) -> ActionError:
-    flat = a.reshape(-1)
-    return ActionError(f"an action holding NaN or infinity ({flat[~np.isfinite(flat)][:3]}); a recording takes "
-                       "finite actions only")
-
-
-def _beyond_float32(a: np.ndarray) -> ActionError:
-    flat = np.abs(a.reshape(-1))
-    return ActionError(f"an action holding values beyond float32's range ({flat[flat > _FLOAT32_MAX][:3]}), which the "
-                       "recording cannot hold: its actions are float32, as ManiSkill's")
 
 
 def _constructor_options(opts: RecordOptions) -> dict[str, Any]:

@@ -57,6 +57,8 @@ def recorded_trajectories(path: str, indices: list[int] | None = None) -> Iterat
     from simreel.formats import open_reader
 
     with open_reader(path) as reader:
+        if indices is None:
+            reader.refuse_damaged("audited along")
         for index in indices if indices is not None else [m.index for m in reader.episodes]:
             episode = reader.open_episode(index).episode(obs=False)
             actions = episode.actions

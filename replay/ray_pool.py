@@ -1,7 +1,8 @@
 """Replay a work list on a Ray cluster (`simreel replay --ray`): `run_ray`.
 
-Each of `workers` Ray actors holds a `ReplayWorker` — its env built once per env key, kept across episodes — and
-replays the work items the driver hands it, a few at a time. An actor reads each recording where it is when
+Each of `workers` Ray actors (at most one per CPU of the cluster: each takes one) holds a `ReplayWorker` — its
+env built once per env key, kept across episodes — and replays the work items the driver hands it, a few at a
+time. An actor reads each recording where it is when
 it sees the same file (path, size and modification time: a shared filesystem); otherwise, or always with
 ``ship=True``, the driver reads the episode and sends it. An actor that dies (its process killed, its node
 lost) is replaced and its unfinished episodes go to the others; an episode whose actor died `MAX_ATTEMPTS`
@@ -12,11 +13,14 @@ Ray is an optional dependency (``pip install 'simreel[ray]'``); it is imported o
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import signal
 import socket
+import threading
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -98,22 +102,80 @@ def _import_ray() -> Any:
 
 
 def _connect(ray: Any, address: str) -> None:
-    """Join or start the cluster; `UsageError` naming the address when there is none."""
+    """Join or start the cluster; `UsageError` naming the address when there is none. simreel's own SIGINT and
+    SIGTERM handlers stay in place (`ray.init` installs its own, which would end a run with Ray's dumps and exit
+    15 instead of the report's resume hint)."""
     quiet = {"logging_level": logging.ERROR, "log_to_driver": False, "include_dashboard": False}
+    if address != "local":
+        _check_reachable(address)
+    with _signal_handlers_kept():
+        try:
+            if address == "local":
+                # "local": a private instance, also where `ray start` runs a cluster (plain init would join it)
+                ray.init(address="local", object_store_memory=_OBJECT_STORE_BYTES, **quiet)
+            else:
+                ray.init(address=address, **quiet)
+        except (ConnectionError, RuntimeError, ValueError) as e:
+            if address == "local":
+                raise UsageError(f"--ray: cannot start Ray on this machine ({type(e).__name__}: {e}); join a "
+                                 "running cluster instead (--ray auto, or its address)") from None
+            raise UsageError(f"--ray {address}: no Ray cluster to join there ({type(e).__name__}: {e}); start one "
+                             "(ray start --head) or give its address (host:6379, ray://host:10001)") from None
+
+
+_CONNECT_SECONDS = 5.0
+"""How long `_check_reachable` waits for a cluster's port to answer (Ray itself would retry for ever)."""
+
+
+def _check_reachable(address: str) -> None:
+    """`UsageError` when nothing listens at a ``host:port`` or ``ray://host:port`` address: `ray.init` retries such
+    an address for ever. "auto" is Ray's to find (it fails at once when this machine belongs to no cluster)."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if address == "auto" or not sep or not port.isdigit():
+        return
+    host = host.strip("[]")  # an IPv6 address in brackets
     try:
-        if address == "local":
-            ray.init(object_store_memory=_OBJECT_STORE_BYTES, **quiet)
-        else:
-            ray.init(address=address, **quiet)
-    except (ConnectionError, RuntimeError, ValueError) as e:
-        raise UsageError(f"--ray {address}: no Ray cluster to join there ({type(e).__name__}: {e}); start one "
-                         "(ray start --head) or give its address (host:6379, ray://host:10001)") from None
+        socket.create_connection((host, int(port)), timeout=_CONNECT_SECONDS).close()
+    except OSError as e:
+        why = "no answer" if isinstance(e, TimeoutError) else (e.strerror or str(e))
+        raise UsageError(f"--ray {address}: no Ray cluster answers there ({why}); start one (ray start --head) or "
+                         "give its address (host:6379, ray://host:10001)") from None
+
+
+@contextlib.contextmanager
+def _signal_handlers_kept() -> Iterator[None]:
+    """Put simreel's SIGINT and SIGTERM handlers back after the block (`ray.init` replaces them: its SIGTERM one
+    exits 15, and its core worker prints a stack dump), so a stopped run ends as a local one does. Only the main
+    thread sets handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    kept = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in kept.items():
+            if handler is not None:
+                signal.signal(s, handler)  # also takes the signal back from Ray's C++ handler
+
+
+def _actor_count(ray: Any, workers: int) -> tuple[int, list[str]]:
+    """How many actors to start for `workers` (each takes one CPU) and the note that says so when the cluster has
+    fewer CPUs: Ray would wait for ever to place the others. `UsageError` for a cluster without CPUs."""
+    cpus = int(ray.cluster_resources().get("CPU", 0))
+    if cpus < 1:
+        raise UsageError("--ray: the Ray cluster has no CPU for a worker (each takes one); add a node with CPUs")
+    if workers <= cpus:
+        return workers, []
+    return cpus, [f"--workers {workers}: the Ray cluster has {cpus} CPU(s), one per worker, so {cpus} worker(s) "
+                  "replayed"]
 
 
 class _Fleet:
     """The actors of a run and the episodes each is replaying."""
 
-    def __init__(self, ray: Any, job: ReplayJob, options: RayOptions, files: list[RecordingInfo]) -> None:
+    def __init__(self, ray: Any, job: ReplayJob, options: RayOptions, files: list[RecordingInfo],
+                 actors: int) -> None:
         self.ray, self.job, self.options = ray, job, options
         self.files = {f.path: f for f in files}
         self.remote = ray.remote(num_cpus=1, max_restarts=0)(_Actor)
@@ -126,7 +188,7 @@ class _Fleet:
         self.deaths = 0
         self.replayed_again = 0
         self._readers = ReaderCache()
-        self._start_actors(options.workers)
+        self._start_actors(actors)
 
     def _start_actors(self, n: int) -> None:
         """`n` more actors, started at once (each takes seconds to start), and what each of them sees."""
@@ -191,18 +253,19 @@ class _Fleet:
 def run_ray(job: ReplayJob, items: list[WorkItem], options: RayOptions, files: list[RecordingInfo],
             collect: Callable[[EpisodeResult], Any]) -> list[str]:
     """Replay `items` (episodes of `files`) on Ray actors, calling `collect` here with each result as it comes;
-    returns notes on what happened on the way (workers that died)."""
+    returns notes on what happened on the way (fewer workers than asked, workers that died)."""
     ray = _import_ray()
     _connect(ray, options.address)
     fleet = None
     try:
-        fleet = _Fleet(ray, job, options, files)
+        actors, notes = _actor_count(ray, options.workers)
+        fleet = _Fleet(ray, job, options, files, actors)
         fleet.run(items, collect)
     finally:
         if fleet is not None:
             fleet.close()
         ray.shutdown()
-    if not fleet.deaths:
-        return []
-    return [f"{fleet.deaths} Ray worker(s) died during the run; the {fleet.replayed_again} episode(s) they were "
-            "replaying were replayed again by others (each counted once)"]
+    if fleet.deaths:
+        notes.append(f"{fleet.deaths} Ray worker(s) died during the run; the {fleet.replayed_again} episode(s) they "
+                     "were replaying were replayed again by others (each counted once)")
+    return notes

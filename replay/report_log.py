@@ -5,8 +5,9 @@ reached and `--resume` replays only the rest.
 written — and writes ``REPORT.json``, the whole report as one document, from it when the run ends or is
 interrupted. The lines, in order::
 
-    {"type": "run", ...}      a run: simreel version, time, working folder, inputs, the options that decide the
-                              verdicts, tolerances; a resumed run adds its own, with the same options
+    {"type": "run", ...}      a run: simreel version, time, working folder, inputs, how many files it lists, the
+                              options that decide the verdicts, tolerances; a resumed run adds its own, with the
+                              same options (and replays the files the first run listed, no others)
     {"type": "file", ...}     an input recording: absolute path, size, mtime_ns, env id, episodes, error, limits
     {"type": "episode", ...}  one episode's verdict (`EpisodeReport.to_json`, with "file" and the "worker" that
                               replayed it), or why it could not be replayed (verdict "error")
@@ -19,6 +20,7 @@ An episode listed twice (a retried Ray task) counts once: the first line wins. `
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -28,7 +30,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from simreel.errors import ReportFileError, UsageError
+from simreel.errors import ReportFileError, StorageError, UsageError
+from simreel.formats.durable import is_storage_error, storage_error
 from simreel.formats.lock import lock_file
 from simreel.formats.targets import open_text_atomic
 from simreel.replay.report import EpisodeReport
@@ -56,13 +59,16 @@ def report_paths(report: str | Path) -> tuple[Path, Path]:
 class ReportLog:
     """Appends a run's lines to REPORT.jsonl, holding an exclusive lock on it so two runs never write one report.
 
-    `resume`: keep the lines there (dropping a last line a killed run left half-written); else start empty.
+    `resume`: keep the lines there (dropping a last line a killed run left half-written); else start empty. A write
+    the storage refuses (a full disk) raises `StorageError` saying what the lines kept and how to finish; the line
+    it cut short is dropped by the resume.
     """
 
     def __init__(self, path: str | Path, *, resume: bool) -> None:
         self.path = Path(path)
-        self._fh: IO[str] = open(self.path, "a+", encoding="utf-8")  # never truncates before the lock is held
-        if not lock_file(self._fh, exclusive=True):  # type: ignore[arg-type]
+        # unbuffered: a refused write leaves nothing waiting in a buffer that closing would write (and fail) again
+        self._fh: IO[bytes] = open(self.path, "a+b", buffering=0)  # never truncates before the lock is held
+        if not lock_file(self._fh, exclusive=True):
             self._fh.close()
             raise ReportFileError(self.path, "another simreel replay is writing this report now; wait for it to end")
         if resume:
@@ -70,20 +76,46 @@ class ReportLog:
         else:
             self._fh.truncate(0)
         self._synced = time.monotonic()
+        self.episodes = 0
+        """Episode lines this run wrote whole."""
+        self._resumable = resume
+        """Whether the lines hold a whole run line, which a resumed run starts from."""
+        self._refused: StorageError | None = None
 
     def _drop_cut_line(self) -> None:
         self._fh.seek(0)
-        text = self._fh.read()
-        if text and not text.endswith("\n"):
-            self._fh.truncate(text.rfind("\n") + 1)
+        data = self._fh.read()
+        if data and not data.endswith(b"\n"):
+            self._fh.truncate(data.rfind(b"\n") + 1)
         self._fh.seek(0, os.SEEK_END)
 
     def write(self, record: dict[str, Any]) -> None:
-        self._fh.write(json.dumps(record, separators=(",", ":")) + "\n")
-        self._fh.flush()
-        if time.monotonic() - self._synced > _SYNC_SECONDS:
-            os.fsync(self._fh.fileno())
-            self._synced = time.monotonic()
+        data = (json.dumps(record, separators=(",", ":")) + "\n").encode("utf-8")
+        try:
+            while data:
+                data = data[self._fh.write(data):]
+            if time.monotonic() - self._synced > _SYNC_SECONDS:
+                os.fsync(self._fh.fileno())
+                self._synced = time.monotonic()
+        except OSError as e:
+            raise self._refusal(e) from None
+        self._resumable = self._resumable or record["type"] == "run"
+
+    def _refusal(self, e: OSError) -> OSError | StorageError:
+        """The one-line error for a write the storage refused: what the lines keep and how to finish the run (`e`
+        itself when it is no storage error)."""
+        if not is_storage_error(e):
+            return e
+        json_path = report_paths(self.path)[0]
+        if self._resumable:
+            kept = (f": it keeps every verdict reached before ({self.episodes} this run; the line cut short is "
+                    "dropped when the run is resumed)")
+            then = f"simreel replay --resume {json_path}"
+        else:
+            kept, then = ": it holds no run yet", "run it again with --overwrite"
+        error = storage_error(self.path, e)
+        self._refused = StorageError(self.path, error.reason, f"{error.fix}, then finish with: {then}", kept)
+        return self._refused
 
     def episode(self, path: str, report: EpisodeReport, *, warnings: list[str], worker: str = "") -> None:
         """An episode's line: its report, the file's fingerprint warnings first met with it, who replayed it."""
@@ -91,18 +123,33 @@ class ReportLog:
         if warnings:
             record["warnings"] = warnings
         self.write(record)
+        self.episodes += 1
+
+    @property
+    def refused(self) -> StorageError | None:
+        """The storage error a write met (the lines end there), or None."""
+        return self._refused
 
     def close(self) -> None:
-        if not self._fh.closed:
-            self._fh.flush()
-            os.fsync(self._fh.fileno())
+        if self._fh.closed:
+            return
+        try:
+            if self._refused is None:
+                os.fsync(self._fh.fileno())
+        except OSError as e:
+            raise self._refusal(e) from None
+        finally:
             self._fh.close()  # releases the lock
 
     def __enter__(self) -> ReportLog:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self.close()
+        if exc[0] is None:
+            self.close()
+            return
+        with contextlib.suppress(OSError, StorageError):  # the error raised in the block is the one to tell
+            self.close()
 
 
 def read_log(path: str | Path) -> Iterator[dict[str, Any]]:

@@ -140,8 +140,9 @@ class RunTally:
         return self.complete and not self.unreadable and self.count("diverged") == 0 and self.count("error") == 0
 
     def exit_status(self) -> int:
-        """0 every episode verified; 1 some diverged; 2 some file or episode could not be replayed (bad input)."""
-        if self.unreadable or self.count("error"):
+        """0 every episode verified; 1 some diverged; 2 some file or episode could not be replayed (bad input), or
+        some episode has no verdict (an incomplete run is never a success)."""
+        if self.unreadable or self.count("error") or not self.complete:
             return 2
         return 0 if self.count("diverged") == 0 else 1
 

@@ -33,6 +33,7 @@ from simreel.compare import Tolerances
 from simreel.errors import FileProblemError, UsageError
 from simreel.formats import check_writable, format_of, recording_files
 from simreel.formats.durable import raise_if_stopped
+from simreel.formats.inputs import file_identity
 from simreel.formats.targets import check_distinct, check_output
 from simreel.replay.engine import MODES
 from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchFolder, published
@@ -41,6 +42,7 @@ from simreel.replay.report_log import LoggedRun, ReportLog, load_log, report_pat
 from simreel.replay.tally import FileTally, ReplayReport, RunTally
 from simreel.replay.workers import EpisodeResult, ReplayJob, ReplayWorker, pool_closing, run_pool, start_pool
 from simreel.replay.worklist import RecordingInfo, WorkItem, WorkList, build_worklist
+from simreel.sim.user_code import import_user_code, recorded_spec
 
 __all__ = ["ReplayOptions", "ReplayRun", "verify_recording"]
 
@@ -95,7 +97,8 @@ class ReplayOptions:
     def __post_init__(self) -> None:
         if self.episodes is not None:
             object.__setattr__(self, "episodes", tuple(self.episodes))
-        object.__setattr__(self, "imports", tuple(self.imports))
+        # a file by its absolute path: a resumed run, or a worker, may work in another folder
+        object.__setattr__(self, "imports", tuple(recorded_spec(spec) for spec in self.imports))
         object.__setattr__(self, "group_tolerances", dict(self.group_tolerances))
         for name in ("output", "report"):
             if getattr(self, name) is not None:
@@ -133,6 +136,14 @@ def _json_value(value: Any) -> Any:
     return list(value) if isinstance(value, tuple) else value
 
 
+def _run_options(run: Mapping[str, Any]) -> dict[str, Any]:
+    """The verdict options of a report's run line, its ``--import`` files found where that run found them: from its
+    working folder (a report of a run before imports were kept absolute names them relative to it)."""
+    options = dict(run["options"])
+    options["imports"] = [recorded_spec(spec, base=run.get("cwd")) for spec in options.get("imports") or ()]
+    return options
+
+
 class ReplayRun:
     """One replay-and-verify run over recordings: checked and ready when built, done by `execute`.
 
@@ -153,13 +164,15 @@ class ReplayRun:
         self.report_json, self.report_log = report_paths(opts.report) if opts.report else (None, None)
         logged = self._logged()
         restores = f"--mode {opts.mode}" if opts.mode != "actions" else ("--resync" if opts.resync else None)
-        self.worklist: WorkList = build_worklist(self.inputs, episodes=opts.episodes, restores=restores,
-                                                 done=logged.done if logged else ())
+        self.worklist: WorkList = build_worklist(self._recordings(logged), episodes=opts.episodes,
+                                                 restores=restores, done=logged.done if logged else ())
         self._check_outputs()
         self.tally = self._tally(logged)
         self._new_files = [f for f in self.worklist.files if logged is None or f.path not in logged.files]
         if self.strict and not self.worklist.items and logged is None:
             raise UsageError(f"{self.inputs[0]}: the recording has no episodes to replay")
+        for spec in opts.imports:  # a bad --import is one line now, not an error for every episode
+            import_user_code(spec)
 
     @classmethod
     def resume(cls, report: str | Path, **execution: Any) -> ReplayRun:
@@ -171,7 +184,7 @@ class ReplayRun:
                              f"may change, not {', '.join(sorted(set(execution) - allowed))}")
         _, log = report_paths(report)
         run = load_log(log).run
-        options = ReplayOptions(**run["options"], report=str(report), resume=True, **execution)
+        options = ReplayOptions(**_run_options(run), report=str(report), resume=True, **execution)
         return cls(run["inputs"], options)
 
     # ------------------------------------------------------------------ checks
@@ -185,12 +198,21 @@ class ReplayRun:
             raise UsageError(f"{self.report_json}: its run wrote replayed episodes (-o), which cannot be resumed; "
                              "run it again with --overwrite")
         mine = opts.verdict_options()
-        for name, value in logged.run["options"].items():
+        for name, value in _run_options(logged.run).items():
             if mine.get(name) != value:
                 raise UsageError(f"{self.report_json} was made with {name}={value!r} and this run asks for "
                                  f"{name}={mine.get(name)!r}; resume with the report's options (simreel replay "
                                  f"--resume {self.report_json} alone)")
+        self._check_unchanged(logged)
         return logged
+
+    def _recordings(self, logged: LoggedRun | None) -> list[str]:
+        """What the work list is made of: the inputs; for a resumed run, the recordings the report's run listed
+        (its file lines), not what its folders and patterns hold now. Its unreadable files are not read again
+        (the report keeps why); a report cut before its run had listed them all has no verdict yet: its inputs."""
+        if logged is None or len(logged.files) < logged.run.get("files", 1):
+            return self.inputs
+        return [path for path, f in logged.files.items() if f.get("error") is None]
 
     def _check_outputs(self) -> None:
         opts = self.options
@@ -208,15 +230,19 @@ class ReplayRun:
             check_writable(opts.output, overwrite=opts.overwrite)
         if self.report_json is not None and not opts.resume:
             check_output(self.report_json, overwrite=opts.overwrite, side_paths=[self.report_log], option="--report")
-        if self.report_json is not None and opts.resume:
-            self._check_unchanged(load_log(self.report_log))
 
     def _check_unchanged(self, logged: LoggedRun) -> None:
-        """A resumed run must replay the files the report began with, not newer versions of them."""
-        for f in self.worklist.files:
-            then = logged.files.get(f.path)
-            if then is not None and (then.get("size"), then.get("mtime_ns")) != f.identity:
-                raise UsageError(f"{f.path} changed since {self.report_json} began (size or modification time "
+        """A resumed run must replay the files the report began with, every one of them, not newer versions."""
+        for path, then in logged.files.items():
+            if then.get("error") is not None:
+                continue  # unreadable then: the report says why, and nothing of it is replayed
+            try:
+                now = file_identity(path)
+            except OSError:
+                raise UsageError(f"{path} is gone since {self.report_json} began: its episodes cannot be replayed; "
+                                 "put it back to resume, or start a new report (--overwrite)") from None
+            if (then.get("size"), then.get("mtime_ns")) != now:
+                raise UsageError(f"{path} changed since {self.report_json} began (size or modification time "
                                  "differ): its verdicts would mix two recordings; start a new report (--overwrite)")
 
     def _tally(self, logged: LoggedRun | None) -> RunTally:
@@ -288,7 +314,8 @@ class ReplayRun:
         opts = self.options
         return {"type": "run", "simreel": __version__, "resumed": opts.resume, "cwd": os.getcwd(),
                 "started_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-                "inputs": [os.path.abspath(p) for p in self.inputs], "options": opts.verdict_options(),
+                "inputs": [os.path.abspath(p) for p in self.inputs], "files": len(self.worklist.files),
+                "options": opts.verdict_options(),
                 "tolerances": self.tolerances.to_json(), "output": opts.output, "command": opts.command}
 
     @contextlib.contextmanager

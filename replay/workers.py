@@ -21,13 +21,14 @@ import time
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from simreel.compare import BlockComparison, CompareScope, EpisodeComparison, Tolerances
 from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta, StepBlock
-from simreel.errors import EpisodeLayoutError, MetadataError, RecordingFileError, SimreelError
+from simreel.errors import EpisodeLayoutError, MetadataError, RecordingFileError, ReplayError, SimreelError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows
 from simreel.replay.engine import BlockSink, Collected, EpisodeReplayer, ReplayedEpisode, ReplayerOptions
@@ -45,7 +46,7 @@ from simreel.replay.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports
 
 __all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "VerifySink", "run_pool", "start_pool", "stop_pool",
-           "pool_closing"]
+           "pool_closing", "WorkerDiedError"]
 
 _EPISODE_DATA_ERRORS = (RecordingFileError, EpisodeLayoutError, MetadataError)
 """Errors about one episode's data (damaged, missing, malformed); any other error is about the env its file
@@ -388,20 +389,42 @@ def pool_closing(pool: ProcessPoolExecutor | None) -> Iterator[ProcessPoolExecut
 
 def _feed(worker: Any, queue: deque[WorkItem], workers: int, collect: Callable[[EpisodeResult], Any],
           pool: ProcessPoolExecutor) -> None:
-    """Hand `queue`'s items to `pool` a few at a time, replay the rest here, and `collect` every result."""
+    """Hand `queue`'s items to `pool` a few at a time, replay the rest here, and `collect` every result.
+    `WorkerDiedError` when a worker process dies (killed from outside) with the items the pool then held."""
     ahead = 2 * (workers - 1)  # items handed to the workers at a time; the rest stay for this process
-    pending: set[Any] = set()
-    while queue or pending:
-        while queue and len(pending) < ahead:
-            pending.add(pool.submit(_worker_run, queue.popleft()))
-        if queue:
-            collect(worker.run(queue.popleft()))
-            done = {fut for fut in pending if fut.done()}
-        else:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-        pending -= done
-        for fut in done:
-            collect(fut.result())
+    pending: dict[Any, WorkItem] = {}
+    try:
+        while queue or pending:
+            while queue and len(pending) < ahead:
+                item = queue.popleft()
+                pending[pool.submit(_worker_run, item)] = item
+            if queue:
+                collect(worker.run(queue.popleft()))
+                done = {fut for fut in pending if fut.done()}
+            else:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in done:
+                result = fut.result()
+                del pending[fut]
+                collect(result)
+    except BrokenProcessPool:
+        raise WorkerDiedError(list(pending.values())) from None
+
+
+class WorkerDiedError(ReplayError):
+    """A worker process of the pool died (the OOM killer, a kill -9): the pool cannot go on, and the episodes it
+    held (`lost`) have no result. The run stops rather than replaying them again: what killed the process
+    (memory, most often) would likely kill the next one too; the caller says how to finish the run."""
+
+    def __init__(self, lost: list[WorkItem]) -> None:
+        self.lost = lost
+        shown = ", ".join(f"{Path(item.path).name}:{item.index}" for item in lost[:6])
+        more = f" and {len(lost) - 6} more" if len(lost) > 6 else ""
+        held = f"; the pool was replaying episode(s) {shown}{more}" if lost else ""
+        super().__init__(f"a worker process died (killed from outside: out of memory?){held}")
+
+    def __reduce__(self) -> tuple[type, tuple[list[WorkItem]]]:
+        return type(self), (self.lost,)
 
 
 def stop_pool(pool: ProcessPoolExecutor) -> None:

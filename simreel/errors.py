@@ -23,6 +23,7 @@ __all__ = [
     "KeyPathError",
     "StateLayoutError",
     "CustomStateError",
+    "TaskCodeError",
     "HeterogeneousBuildError",
     "ReplayError",
     "ViewError",
@@ -125,6 +126,10 @@ class StateLayoutError(SimreelError):
 
 class CustomStateError(SimreelError):
     """A declared custom state attribute is missing, has the wrong shape, or a state dict lacks it."""
+
+
+class TaskCodeError(SimreelError):
+    """A task's own code (its `set_state_dict`, say) raised: a bug for the task's author, named with the call."""
 
 
 class HeterogeneousBuildError(SimreelError):

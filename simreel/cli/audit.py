@@ -62,12 +62,13 @@ def _along(args: argparse.Namespace) -> dict[str, Any]:
     if args.policy is not None:
         if args.env_id is None:
             raise UsageError("--policy needs the task's ENV_ID")
-        from simreel.cli.policy_option import load_policy
+        from simreel.cli.policy_option import PolicyCall, load_policy
         from simreel.sim.user_code import import_user_code
 
         for spec in args.imports:  # a user policy may live in an --import module
             import_user_code(spec)
-        out.update(policy=load_policy(args.policy, args.env_id), policy_name=f"--policy {args.policy}")
+        call = PolicyCall(args.policy, load_policy(args.policy, args.env_id), check=True)
+        out.update(policy=lambda env, obs: call(env, obs), policy_name=f"--policy {args.policy}")
         if args.episodes is not None:
             if not args.episodes.isdigit():
                 raise UsageError(f"--episodes with --policy is a number of episodes, got {args.episodes!r}")

@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from simreel.errors import UsageError
+from simreel.errors import SimreelError, UsageError
 
-__all__ = ["Policy", "load_policy", "POLICY_HELP"]
+__all__ = ["Policy", "load_policy", "POLICY_HELP", "PolicyCall"]
 
 Policy = Callable[[Any, Any], Any]
 POLICY_HELP = "random | zero | scripted (the task's shipped policy) | MODULE:CALLABLE | FILE.py:CALLABLE"
@@ -56,3 +56,38 @@ def load_policy(spec: str, env_id: str) -> Policy:
     if not callable(policy):
         raise UsageError(f"--policy {spec}: {module_spec} has no callable {attr!r}")
     return policy
+
+
+class PolicyCall:
+    """The --policy `spec` as a command calls it: its failures (an exception, `sys.exit`) and, with `check`, actions
+    the env cannot take (`simreel.sim.actions.ActionCheck`) become one-line `UsageError`s naming the policy and `where`
+    it was asked. (A recorder checks actions itself: `returned` tells its `ActionError` the same way.)"""
+
+    def __init__(self, spec: str, policy: Policy, check: bool = False) -> None:
+        self.spec, self._policy, self._check = spec, policy, check
+
+    def __call__(self, env: Any, obs: Any, where: str = "") -> Any:
+        at = f" ({where})" if where else ""
+        try:
+            action = self._policy(env, obs)
+        except (SimreelError, KeyboardInterrupt):
+            raise
+        except SystemExit as e:
+            raise UsageError(f"--policy {self.spec} called sys.exit({e.code!r}){at}; a policy returns actions, the "
+                             "recording ends by itself") from None
+        except Exception as e:  # the policy's own bug: bad input to simreel, not simreel's
+            raise UsageError(f"--policy {self.spec} raised {type(e).__name__}: {e}{at}; fix the policy") from None
+        if self._check:
+            from simreel.sim.actions import ActionCheck
+
+            self.returned(lambda: ActionCheck.for_env(env)(action), where)
+        return action
+
+    def returned(self, use: Any, where: str = "") -> Any:
+        """`use()` (a step with the policy's action, or its check), an `ActionError` told as what the policy returned."""
+        from simreel.errors import ActionError
+
+        try:
+            return use()
+        except ActionError as e:
+            raise UsageError(f"--policy {self.spec} returned {e}" + (f" ({where})" if where else "")) from None

@@ -8,7 +8,7 @@ from typing import Any
 
 from simreel.cli.common import add_env_options, apply_imports, progress_bar
 from simreel.cli.policy_option import POLICY_HELP
-from simreel.errors import ActionError, SimreelError, UsageError
+from simreel.errors import SimreelError, UsageError
 from simreel.formats.durable import raise_if_stopped
 
 __all__ = ["add_parser", "run"]
@@ -137,27 +137,18 @@ def _what_stopped(error: BaseException) -> str:
 
 
 class _Policy:
-    """The --policy callable, its failures and unusable actions turned into one-line errors naming it and when."""
+    """The --policy callable stepping the recorder (`PolicyCall`: one-line errors naming it and when)."""
 
     def __init__(self, spec: str, policy: Any) -> None:
+        from simreel.cli.policy_option import PolicyCall
+
         self.spec = spec
-        self._policy = policy
+        self._call = PolicyCall(spec, policy)
 
     def step(self, rec: Any, obs: Any, where: str) -> Any:
         """Ask the policy for an action and step the recorder with it."""
-        try:
-            action = self._policy(rec, obs)
-        except (SimreelError, KeyboardInterrupt):
-            raise
-        except SystemExit as e:
-            raise UsageError(f"--policy {self.spec} called sys.exit({e.code!r}) ({where}); a policy returns actions, "
-                             "the recording ends by itself") from None
-        except Exception as e:  # the policy's own bug: bad input to simreel, not simreel's
-            raise UsageError(f"--policy {self.spec} raised {type(e).__name__}: {e} ({where}); fix the policy") from None
-        try:
-            return rec.step(action)
-        except ActionError as e:
-            raise UsageError(f"--policy {self.spec} returned {e} ({where})") from None
+        action = self._call(rec, obs, where)
+        return self._call.returned(lambda: rec.step(action), where)
 
 
 def _recorder(args: argparse.Namespace, time_limit: int | None) -> Any:

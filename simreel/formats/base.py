@@ -333,6 +333,13 @@ class EpisodeReader(ABC):
         for m in self.episodes:
             yield self.read_episode(m.index)
 
+    def refuse_damaged(self, doing: str) -> None:
+        """`RecordingFileError` naming the damaged episodes, if the file has any: a command `doing` ("replayed",
+        "audited along") every episode never leaves one out silently, nor calls the rest all of it."""
+        if self.damaged:
+            raise RecordingFileError(self.path, f"damaged, cannot be {doing}: {'; '.join(self.damaged)}; name the "
+                                                "others with --episodes, or `simreel recover` the file")
+
     def episode_meta(self, index: int) -> EpisodeMeta:
         for m in self.episodes:
             if m.index == index:

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from simreel.errors import StateLayoutError
+from simreel.errors import StateLayoutError, TaskCodeError
 from simreel.state_tree import LeafSpec, flatten, layout_differences, layout_of, to_numpy, unflatten
 
 __all__ = [
@@ -229,7 +229,13 @@ def restore_state(unwrapped: Any, flat_state: Mapping[str, np.ndarray], *, elaps
     """
     u = unwrapped
     state = _to_torch(unflatten(flat_state), u.device)
-    u.set_state_dict(state)
+    try:
+        u.set_state_dict(state)
+    except Exception as e:
+        if not _users_code(type(u).set_state_dict):
+            raise
+        raise TaskCodeError(f"{type(u).__name__}.set_state_dict raised {type(e).__name__}: {e} while a state was "
+                            "restored into it; fix the task's set_state_dict") from e
     controller = state.get("controller")
     agent = getattr(u, "agent", None)
     if controller and agent is not None:
@@ -242,6 +248,12 @@ def restore_state(unwrapped: Any, flat_state: Mapping[str, np.ndarray], *, elaps
             agent.set_controller_state(controller)
     if elapsed_steps is not None:
         u._elapsed_steps[...] = int(elapsed_steps)
+
+
+def _users_code(function: Any) -> bool:
+    """Whether `function` is a user's (a task's override), not ManiSkill's or simreel's own."""
+    module = getattr(function, "__module__", "") or ""
+    return module.split(".")[0] not in ("mani_skill", "simreel")
 
 
 # ------------------------------------------------------------------------------------------ the layout

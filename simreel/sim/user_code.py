@@ -60,10 +60,13 @@ def imported_user_code() -> dict[str, str]:
     return {spec: name for spec, name in _IMPORTED.items() if name != "simreel" and not name.startswith("simreel.")}
 
 
-def recorded_spec(spec: str) -> str:
+def recorded_spec(spec: str, *, base: str | Path | None = None) -> str:
     """An ``--import`` spec as a recording stores it: a file by its absolute path (a relative path would name
-    the file only from the folder it was recorded in), a module by its name."""
-    return str(Path(spec).expanduser().resolve()) if _is_path(spec) else spec
+    the file only from the folder it was recorded in), a module by its name. `base`: the folder a relative path
+    was given in (default: the current one), e.g. the working folder of the run a report resumes."""
+    if not _is_path(spec):
+        return spec
+    return str((Path(base or os.getcwd()) / Path(spec).expanduser()).resolve())
 
 
 def resolve_task_imports(recorded: Sequence[str], *, explicit: Sequence[str] = (),

@@ -117,6 +117,14 @@ BAD_INPUT = [
     ("audit-unknown-env", ["audit", "PickCub-v1"], "unknown ManiSkill env id 'PickCub-v1': did you mean PickCube-v1"),
     ("audit-steps-0", ["audit", "PickCube-v1", "--steps", "0"], "--steps must be >= 1, got 0"),
     ("audit-json-no-dir", ["audit", "PickCube-v1", "--json", "{tmp}/no/dir/a.json"], "does not exist"),
+    ("audit-set-state-raises", ["audit", "TestBadSetState-v1", "--steps", "2", "--import", "{tmp}/bad_tasks.py"],
+     "BadSetState.set_state_dict raised KeyError: 'nope' while a state was restored into it; fix the task's "
+     "set_state_dict"),
+    ("audit-policy-raises", ["audit", "PickCube-v1", "--steps", "2", "--policy", "{tmp}/policies.py:boom"],
+     "--policy {tmp}/policies.py:boom raised RuntimeError: policy bug; fix the policy"),
+    ("audit-policy-list", ["audit", "PickCube-v1", "--steps", "2", "--policy", "{tmp}/policies.py:listed"],
+     "--policy {tmp}/policies.py:listed returned an action of type list; PickCube-v1 takes a numeric array of shape "
+     "(8,)"),
     # view
     ("view-no-episode", ["view", "{rec}", "--episode", "7"], "no episode 7 (episodes: 0, 1)"),
     ("view-save-suffix", ["view", "{rec}", "--save", "x.png"], "--save x.png: the output must end in .rrd"),
@@ -173,6 +181,16 @@ def leave(env, obs): raise SystemExit(5)
 """
 
 
+BAD_TASKS = """from mani_skill.envs.tasks.tabletop.pick_cube import PickCubeEnv
+from mani_skill.utils.registration import register_env
+
+@register_env("TestBadSetState-v1", max_episode_steps=50)
+class BadSetState(PickCubeEnv):
+    def set_state_dict(self, state, env_idx=None):
+        raise KeyError("nope")
+"""
+
+
 @pytest.mark.parametrize(("argv", "message"), [case[1:] for case in BAD_INPUT], ids=[case[0] for case in BAD_INPUT])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, recs, argv, message):
     (tmp_path / "junk.h5").write_text("not a recording")
@@ -182,6 +200,7 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, recs, argv, message)
     (tmp_path / "empty").mkdir()
     (tmp_path / "no_tasks.py").write_text("VALUE = 1\n")
     (tmp_path / "policies.py").write_text(POLICIES)
+    (tmp_path / "bad_tasks.py").write_text(BAD_TASKS)
     if any("other.h5" in a for a in argv):
         from support.mcap_samples import synthetic_episode, synthetic_meta, write
 

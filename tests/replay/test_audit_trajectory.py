@@ -72,3 +72,19 @@ def test_the_fixed_task_is_clean_along_its_trajectories(record, capsys):
 def test_bad_options_are_one_line_errors(args, message, capsys):
     assert main(["audit", *args]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_an_audit_along_a_file_with_a_damaged_episode_names_it_instead_of_skipping_it(tmp_path, capsys):
+    """Regression: the damaged episode was left out silently and the audit along the rest said "no findings"."""
+    path = tmp_path / "two.mcap"
+    assert main(["record", "PickCube-v1", "-o", str(path), "-n", "2", "--seed", "0", "--max-steps", "4", "-q"]) == 0
+    data = bytearray(path.read_bytes())
+    seed = data.index(b'"seed": 1', data.index(b"simreel.episode.1"))  # in episode 1's metadata
+    data[seed + 8] = ord("7")  # valid JSON, the wrong number: its record's checksum tells
+    path.write_bytes(data)
+    capsys.readouterr()
+    assert main(["audit", "--trajectory", str(path), "--steps", "2"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        f"simreel audit: error: {path}: damaged, cannot be audited along: record simreel.episode.1: the record does not "
+        "match its checksum (damaged); name the others with --episodes, or `simreel recover` the file"]
+    assert main(["audit", "--trajectory", str(path), "--steps", "2", "--episodes", "0"]) == 0
