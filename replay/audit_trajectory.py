@@ -210,7 +210,8 @@ def audit_along(report: AuditReport, make: Callable[[], Any], trajectories: Iter
         for traj in trajectories:
             before = auditor.checked
             steps = auditor.run(traj)
-            report.checks.append(f"restore-equivalence at {auditor.checked - before} points along {traj.label} "
+            points = auditor.checked - before
+            report.checks.append(f"restore-equivalence at {points} point{'s' * (points != 1)} along {traj.label} "
                                  f"({steps} steps, every {every})")
     finally:
         env_b.close()

@@ -30,9 +30,9 @@ from typing import Any
 
 from simreel import __version__
 from simreel.compare import Tolerances
-from simreel.errors import FileProblemError, UsageError
+from simreel.errors import FileProblemError, ReplayError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, recording_files
-from simreel.formats.durable import raise_if_stopped
+from simreel.formats.durable import is_storage_error, raise_if_stopped, storage_error
 from simreel.formats.inputs import file_identity
 from simreel.formats.targets import check_distinct, check_output
 from simreel.replay.engine import MODES
@@ -40,7 +40,15 @@ from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchFolder, p
 from simreel.replay.report import EpisodeReport, recording_limits
 from simreel.replay.report_log import LoggedRun, ReportLog, load_log, report_paths, tally_of_log, write_report
 from simreel.replay.tally import FileTally, ReplayReport, RunTally
-from simreel.replay.workers import EpisodeResult, ReplayJob, ReplayWorker, pool_closing, run_pool, start_pool
+from simreel.replay.workers import (
+    EpisodeResult,
+    ReplayJob,
+    ReplayWorker,
+    WorkerDiedError,
+    pool_closing,
+    run_pool,
+    start_pool,
+)
 from simreel.replay.worklist import RecordingInfo, WorkItem, WorkList, build_worklist
 from simreel.sim.user_code import import_user_code, recorded_spec
 
@@ -283,6 +291,7 @@ class ReplayRun:
             yield str(folder.path)
 
     def _execute(self, worker: ReplayWorker, progress: Progress | None) -> RunTally:
+        ended = False
         try:
             with pool_closing(self._start_pool(worker.job)) as pool:
                 if self.strict and self.worklist.items and self.options.ray is None:
@@ -293,11 +302,36 @@ class ReplayRun:
                         self._dispatch(worker, self._collector(log, sink, progress), log, pool)
                     if log is not None:
                         log.write({"type": "end"})
+            ended = True
+        except WorkerDiedError as e:
+            raise ReplayError(f"{e}; {self._how_to_finish('(with fewer --workers if memory ran out)')}") from None
         finally:
             worker.close()
-            if self.report_log is not None and self.report_log.exists():
-                write_report(self.report_log, self.report_json, output=self.options.output)
+            self._write_report(ended)
         return self.tally
+
+    def _how_to_finish(self, advice: str) -> str:
+        """What a run that stopped early kept and the command that finishes it (`advice` goes with it)."""
+        if self.report_json is None:
+            return f"run it again {advice} (with --report, a stopped run keeps its verdicts for --resume)"
+        return (f"{self.tally.total} of {self.tally.planned} episodes have their verdict in {self.report_json}; "
+                f"finish with: simreel replay --resume {self.report_json} {advice}")
+
+    def _write_report(self, ended: bool) -> None:
+        """Write REPORT.json from the lines. When the run ended well, a storage error doing so is the run's one line
+        (the lines hold every verdict: a resume writes it); after another error, that error is the one told."""
+        if self.report_log is None or not self.report_log.exists():
+            return
+        try:
+            write_report(self.report_log, self.report_json, output=self.options.output)
+        except Exception as e:
+            if not ended:
+                return  # the error that stopped the run is the one to tell; the lines keep its verdicts
+            if not is_storage_error(e):
+                raise
+            error = storage_error(self.report_json, e)
+            raise StorageError(self.report_json, error.reason, f"{error.fix}, then write it with: simreel replay "
+                               f"--resume {self.report_json}", f": every verdict is in {self.report_log}") from None
 
     @contextlib.contextmanager
     def _log(self) -> Iterator[ReportLog | None]:

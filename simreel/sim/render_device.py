@@ -57,6 +57,8 @@ _HIDDEN_ICD = "/nonexistent/simreel-vulkan-hidden.json"
 
 # Runs in the child. Prints exactly one JSON line; a crash shows as a negative return code.
 _PROBE_SCRIPT = """
+import sys
+sys.path[:] = [p for p in sys.path if p]  # not the user's folder (`-c` puts it first): a sapien.py there is not SAPIEN
 import json, time, warnings
 warnings.simplefilter("ignore")
 try:

@@ -40,8 +40,11 @@ PROBE_SCRIPT = textwrap.dedent(
 )
 
 
-def run_probe(env: dict[str, str]) -> dict:
-    done = subprocess.run([sys.executable, "-c", PROBE_SCRIPT], env=env, capture_output=True, text=True, timeout=120)
+def run_probe(env: dict[str, str], cwd: Path | None = None) -> dict:
+    """The probe's answer in a fresh process (its folder `cwd` kept off its module path, as a console script's is)."""
+    script = "import sys; sys.path[:] = [p for p in sys.path if p]\n" + PROBE_SCRIPT
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120,
+                          cwd=cwd)
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -110,6 +113,12 @@ def test_probe_with_lavapipe_says_cpu(lavapipe_env):
     assert probe["vulkan_icd"] == lavapipe_env["SIMREEL_VK_ICD"]
     assert probe["cached"] is True
     assert probe["env_overrides"] == {} and probe["warnings"] == []
+
+
+def test_a_sapien_module_in_the_users_folder_does_not_fool_the_probe(lavapipe_env, tmp_path):
+    """Regression: the probe's child (`python -c`) imported the user's own sapien.py from the folder simreel ran in."""
+    (tmp_path / "sapien.py").write_text("raise ImportError('the user project, not SAPIEN')\n")
+    assert run_probe(lavapipe_env, cwd=tmp_path)["backend"] == "cpu"
 
 
 def test_probe_without_any_device_says_none(no_render_env):
