@@ -42,7 +42,6 @@ from simreel.state_tree import layout_of, to_numpy
 __all__ = ["RecordWrapper", "RecordOptions"]
 
 
-
 @dataclass(frozen=True)
 class RecordOptions:
     """What `RecordWrapper` records and how.
@@ -125,7 +124,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._rows_beside_state = opts.record_obs or bool(self.meta.pose_bodies)
         """Whether each step records rows besides the state (`_per_state_rows`): observations or body poses."""
         self._actions = ActionCheck(self.meta.env_id, tuple(u.single_action_space.shape), self._n)
-        """The shapes an action may have: (num_envs, *single), or the single env's where there is one env."""
+        """What every action passes before the env steps with it (its numbers, copied out, are what is recorded)."""
         if starting is not None:
             self._writer = starting.open(self.meta, overwrite=opts.overwrite, **opts.writer_options)
         else:

@@ -252,7 +252,7 @@ class EpisodeReplayer:
             other = None
             try:
                 other = EpisodeReplayer(self.meta, self._options, control_mode=mode)
-            except (SimreelError, EnvBuildError):
+            except SimreelError:  # its env does not build
                 pass
             recorded = tuple(self.meta.action_space.get("shape") or ())
             if other is not None and tuple(other.u.single_action_space.shape) != recorded:

@@ -8,7 +8,7 @@ from typing import Any
 
 from simreel.cli.common import add_env_options, apply_imports, progress_bar
 from simreel.cli.policy_option import POLICY_HELP
-from simreel.errors import SimreelError, UsageError
+from simreel.errors import SimreelError, Terminated, UsageError
 from simreel.formats.durable import raise_if_stopped
 
 __all__ = ["add_parser", "run"]
@@ -127,8 +127,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _what_stopped(error: BaseException) -> str:
     """What stopped a recording, for the note on the episode it cut short."""
-    from simreel.errors import Terminated
-
     if isinstance(error, Terminated):
         return "SIGTERM"
     if isinstance(error, KeyboardInterrupt):
@@ -188,7 +186,7 @@ def _record_batched(rec: Any, policy: _Policy, args: argparse.Namespace, max_ste
     """N parallel envs running episodes k = 0, 1, ... in the order they start, episode k with seed S+k. An env whose
     episode ends is reset alone (a partial reset: its episode is committed and the next one starts there) while it
     runs one of the `--episodes` wanted; an episode started past those (a reset must start one) gets seed S, is left
-    running when it ends, and is dropped at the end: exactly `--episodes` episodes are recorded, seeds S to S+N-1."""
+    running when it ends, and is dropped at the end: exactly the episodes wanted are recorded, with their seeds."""
     import numpy as np
 
     n, wanted = rec.meta.num_envs, args.episodes

@@ -8,6 +8,7 @@ own conditions (an MCAP file another process is writing) in `simreel.formats.che
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -90,7 +91,10 @@ def write_text_atomic(path: str | Path, text: str) -> None:
 
 
 def _umask() -> int:
-    """The process's umask (reading it means setting it: it is set back at once)."""
+    """The process's umask: from /proc where there is one (reading it through `os.umask` means setting it, for a moment
+    in which another thread's new file would get another mask), else through `os.umask`."""
+    with contextlib.suppress(OSError, ValueError, StopIteration), open("/proc/self/status") as status:
+        return int(next(line for line in status if line.startswith("Umask:")).split()[1], 8)
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
