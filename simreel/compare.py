@@ -246,6 +246,10 @@ class Divergence:
         where = "after reset" if self.at == "reset" else f"step {self.step}"
         return f"{where}: {self.key} off by {format_number(self.error)} (tolerance {format_number(self.tolerance)})"
 
+    def sentence(self, subject: str) -> str:
+        """`describe` said of `subject`: "replay diverges after reset: ..." or "replay diverges at step 11: ..."."""
+        return f"{subject} {'' if self.at == 'reset' else 'at '}{self.describe()}"
+
 
 @dataclass
 class EpisodeComparison:

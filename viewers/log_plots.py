@@ -192,8 +192,7 @@ def episode_events(
             events.append(Event(0, "WARN", comparison.note))
         d = comparison.divergence
         if d is not None:
-            text = d.describe() if d.at == "reset" else f"at {d.describe()}"
-            events.append(Event(divergence_row(d), "ERROR", f"replay diverges {text}"))
+            events.append(Event(divergence_row(d), "ERROR", d.sentence("replay diverges")))
     if explanation is not None:
         events += _explanation_events(explanation)
     order = {"ERROR": 0, "WARN": 1}

@@ -26,6 +26,7 @@ from simreel.divergence import Explanation
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import UsageError, ViewError
 from simreel.formats import EpisodeReader
+from simreel.formats.targets import staged_output
 from simreel.sim.rebuild import GYM_MAKE_SEED, reset_to_episode
 from simreel.sim.state import check_rebuilt_layout, read_state
 from simreel.viewers.compare import (
@@ -36,6 +37,7 @@ from simreel.viewers.compare import (
     explain_for_view,
 )
 from simreel.viewers.paths import step_of_row
+from simreel.viewers.rrd_file import first_line, write_rrd
 from simreel.viewers.scene_geometry import (
     GEOMETRY_SOURCES,
     BodyGeometry,
@@ -188,18 +190,13 @@ def _flush_to_viewer(rec: rr.RecordingStream, port: int, *, wait_s: float = 1.0)
             if failed_at_once:
                 time.sleep(wait_s / 2)  # a viewer that is closing can still listen for a moment
             if not _listening(port):
-                raise _viewer_gone(_first_line(e)) from e
+                raise _viewer_gone(first_line(e)) from e
             if failed_at_once:
-                raise _refused(port, _first_line(e)) from e
+                raise _refused(port, first_line(e)) from e
             continue
         if not _listening(port):
             raise _viewer_gone(f"nothing listens on port {port} any more")
         return
-
-
-def _first_line(error: Exception) -> str:
-    text = str(error).strip()
-    return text.splitlines()[0] if text else type(error).__name__
 
 
 def _joint_names(u: Any) -> dict[str, list[str]]:
@@ -312,17 +309,19 @@ class ViewSession:
 
         return rr.RecordingStream(APPLICATION_ID, recording_id=self.recording_id)
 
-    def save(self, path: str | Path) -> Path:
-        """Write the session to an .rrd file (with its blueprint) and return the path."""
+    def save(self, path: str | Path, *, overwrite: bool = True) -> Path:
+        """Write the session to an .rrd file (with its blueprint) and return the path.
+
+        The file is written whole or not at all (`staged_output`): an existing one is replaced only once the new
+        one is complete, and not at all with ``overwrite=False`` (``simreel view --save`` without --overwrite: a
+        file another run wrote meanwhile is kept, `UsageError`); a full disk is a `StorageError`, never a wait.
+        """
         path = Path(path)
         if path.suffix.lower() != ".rrd":
             raise UsageError(f"--save {path}: the output must end in .rrd")
         path.parent.mkdir(parents=True, exist_ok=True)
-        rec = self.new_stream()
-        rec.save(path, default_blueprint=self.blueprint())
-        self.log_to(rec)
-        rec.flush()
-        rec.disconnect()
+        with staged_output(path, overwrite=overwrite, option="--save") as partial:
+            write_rrd(self.new_stream(), partial, path, self.blueprint(), self.log_to)
         return path
 
     def spawn(self, *, port: int = 9876) -> None:
@@ -338,7 +337,7 @@ class ViewSession:
         try:
             rr.spawn(port=port, connect=False, recording=rec, executable_path=viewer_executable())
         except RuntimeError as e:
-            raise ViewError(f"could not start the Rerun viewer ({_first_line(e)}); use --save OUT.rrd and open it "
+            raise ViewError(f"could not start the Rerun viewer ({first_line(e)}); use --save OUT.rrd and open it "
                             "elsewhere") from e
         if not _listening(port):
             raise _viewer_gone(f"nothing listens on port {port}")

@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from simreel.episode import Episode, FieldSpec, RecordingMeta, StepBlock, join_blocks
-from simreel.errors import RecordingFileError, ViewError
+from simreel.episode import Episode, EpisodeMeta, FieldSpec, RecordingMeta, StepBlock, join_blocks
+from simreel.errors import RecordingFileError, StorageError, ViewError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows, block_rows
 
-__all__ = ["EpisodeRun", "read_run", "read_compare", "Source"]
+__all__ = ["EpisodeRun", "read_run", "read_compare", "episode_meta", "recover_hint", "Source"]
 
 Source = str | Path | EpisodeReader
 """A recording to read: a path (.h5 or .mcap) or an open reader."""
@@ -77,9 +77,14 @@ def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun
             raise RecordingFileError(reader.path, "holds no committed episode to view")
         if index is None:
             index = reader.episodes[0].index
-        reader.episode_meta(index)  # a clear error naming the episodes there are
-        rows = reader.open_episode(index)
-        episode = summary(rows)
+        episode_meta(reader, index)  # a clear error naming the episodes there are, or the damaged one
+        try:
+            rows = reader.open_episode(index)
+            episode = summary(rows)
+        except StorageError:
+            raise
+        except RecordingFileError as e:
+            raise _damaged_episode(reader, index, e.problem) from None
     except BaseException:
         if owned:
             reader.close()
@@ -133,6 +138,9 @@ def summary(rows: EpisodeRows) -> Episode:
 
 
 def _check_comparable(run: EpisodeRun, recorded: EpisodeRun) -> None:
+    """`ViewError` unless `run` can be drawn as the replay of `recorded` (``view --compare``, ``video --compare``):
+    a recording of the same env, with states in common (restored into the recording's env, another env's states
+    would be drawn as if they were its own)."""
     if run.meta.env_id != recorded.meta.env_id:
         raise ViewError(
             f"--compare {run.label}: it is a recording of {run.meta.env_id}, not of {recorded.meta.env_id}; "
@@ -140,3 +148,26 @@ def _check_comparable(run: EpisodeRun, recorded: EpisodeRun) -> None:
         )
     if not run.state_keys & recorded.state_keys:
         raise ViewError(f"--compare {run.label}: no state key in common with {recorded.label}")
+
+
+def episode_meta(reader: EpisodeReader, index: int) -> EpisodeMeta:
+    """`reader.episode_meta(index)`, but where the file has damaged episodes (`EpisodeReader.damaged`), an index
+    it cannot list may be one of them: the error names them and says how to recover the file."""
+    try:
+        return reader.episode_meta(index)
+    except RecordingFileError:
+        if not reader.damaged:
+            raise
+        readable = ", ".join(str(m.index) for m in reader.episodes) or "none"
+        raise RecordingFileError(reader.path, f"no readable episode {index} (readable: {readable}); damaged: "
+                                              f"{'; '.join(reader.damaged)}; {recover_hint(reader.path)}") from None
+
+
+def _damaged_episode(reader: EpisodeReader, index: int, problem: str) -> RecordingFileError:
+    """The error for episode `index` of `reader`, whose data is damaged (`problem`: what is wrong), and what to do."""
+    return RecordingFileError(reader.path, f"episode {index} is damaged ({problem}); {recover_hint(reader.path)}")
+
+
+def recover_hint(path: str | Path) -> str:
+    """What to do with a file that has damaged episodes."""
+    return f"`simreel recover {path}` keeps its intact episodes"

@@ -4,15 +4,18 @@ verdict drawn in: what `simreel video` runs.
 Frames: one per state row (row 0 after the reset, row t+1 after step t), so a video has steps + 1 frames. They
 come from a camera the recording holds as observations (``camera="base_camera"``: its ``rgb``), else from
 ManiSkill's render camera (``render_mode="rgb_array"``) after restoring each recorded state into the rebuilt env
-(a render device is needed: a GPU or lavapipe). With ``compare``, the other recording's episode of the same index
+(a render device is needed: a GPU or lavapipe); a ManiSkill file recorded without states has its actions stepped
+from the reset first, as ``simreel view`` does. With ``compare``, the other recording's episode of the same index
 is drawn on the right, and the verdict is that of its conversion (`EpisodeMeta.provenance`, written by
 ``simreel convert``) or, for a replay, of comparing the two (`simreel.compare`, ``simreel replay``'s rules).
-Encoding: H.264 (yuv420p) through imageio's ffmpeg.
+Encoding: H.264 (yuv420p) by ffmpeg (imageio's binary), through a temporary file renamed when the video is whole.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,10 +25,13 @@ import numpy as np
 
 from simreel.compare import Tolerances
 from simreel.episode import Episode, RecordingMeta
-from simreel.errors import UsageError, ViewError
+from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader
-from simreel.formats.targets import check_output
+from simreel.formats.durable import STORAGE_ERRNOS, storage_error
+from simreel.formats.targets import check_output, staged_output
 from simreel.viewers.compare import DEFAULT_MODE, compare_for_view
+from simreel.viewers.session import states_by_stepping
+from simreel.viewers.sources import episode_meta, read_compare, read_run, recover_hint
 
 __all__ = ["VideoOptions", "VideoRun", "EpisodeVideo", "video_path"]
 
@@ -40,7 +46,7 @@ class VideoOptions:
         size: (width, height) of the video frame (both even: H.264 in yuv420p); side by side, each half is one
             recording.
         camera: a camera whose ``rgb`` observations the recording holds (None: render each restored state).
-        fps: frames per second (None: the recording's control frequency, else 20).
+        fps: frames per second, a positive number (None: the recording's control frequency, else 20).
         mode: whose default tolerances judge a replay shown with `compare` (as ``simreel view --compare``).
         overwrite: replace existing videos.
         imports: ``--import`` specs registering the task, used instead of the recorded ones (else those are found
@@ -62,6 +68,9 @@ class VideoOptions:
             raise UsageError(f"--size {width}x{height}: width and height must be even numbers >= 2 (H.264, yuv420p)")
         if self.compare is not None and width % 4:
             raise UsageError(f"--size {width}x{height}: side by side, the width must be a multiple of 4")
+        if self.fps is not None and not (math.isfinite(self.fps) and self.fps > 0):
+            raise UsageError(f"--fps {self.fps:g}: frames per second must be a positive number; leave it out for the "
+                             "recording's control frequency")
 
 
 @dataclass
@@ -80,7 +89,11 @@ def video_path(folder: str | Path, recording: str | Path, index: int) -> Path:
 
 
 class VideoRun:
-    """Videos of a recording's episodes: checked when built (options, targets, files), written by `execute`."""
+    """Videos of a recording's episodes: checked when built (options, targets, files), written by `execute`.
+
+    Damaged episodes get no video, and are never left out silently: those the file lists as damaged, and those
+    whose data fails to read, are named in `damaged` (`damage_error`), the others' videos written.
+    """
 
     def __init__(self, path: str | Path, folder: str | Path, options: VideoOptions | None = None, **overrides: Any):
         opts = dataclasses.replace(options or VideoOptions(), **overrides)
@@ -91,11 +104,11 @@ class VideoRun:
         with open_reader(path) as r:
             self.meta = r.meta
             self.indices = list(opts.episodes) if opts.episodes is not None else [m.index for m in r.episodes]
-            self.lengths = {i: r.episode_meta(i).length for i in self.indices}
-        if opts.compare is not None:
-            with open_reader(opts.compare) as other:
-                for i in self.indices:
-                    _compare_meta(other, i)
+            self.lengths = {i: episode_meta(r, i).length for i in self.indices}
+            self.damaged: list[str] = list(r.damaged) if opts.episodes is None else []
+            """What is wrong with each episode that got no video because it is damaged."""
+        self.compared = _compared_indices(path, opts.compare, self.indices) if opts.compare is not None else {}
+        """Episode index → the index of the episode of `options.compare` drawn beside it."""
         if opts.camera is not None and not any(k.startswith(f"sensor_data/{opts.camera}/rgb") for k in self.meta.obs_layout):
             have = sorted({k.split("/")[1] for k in self.meta.obs_layout if k.startswith("sensor_data/")})
             raise UsageError(f"{path} holds no rgb observations of camera {opts.camera!r} (cameras: "
@@ -109,12 +122,29 @@ class VideoRun:
         return sum(n + 1 for n in self.lengths.values())
 
     def execute(self, progress: Callable[[int], None] | None = None) -> list[EpisodeVideo]:
-        """Write every video; `progress(frames)` after each frame written."""
+        """Write every video but those of damaged episodes (added to `damaged`); `progress(frames)` after each
+        frame written."""
         frames = _FrameSource(self.meta, self.options, self.path)
+        written = []
         try:
-            return [self._episode(frames, i, progress) for i in self.indices]
+            for i in self.indices:
+                try:
+                    written.append(self._episode(frames, i, progress))
+                except StorageError:
+                    raise
+                except RecordingFileError as e:  # its data (or that of the episode beside it) fails to read
+                    ours = Path(e.path).resolve() == Path(self.path).resolve()
+                    self.damaged.append(f"episode {i} ({e.problem if ours else e})")
         finally:
             frames.close()
+        return written
+
+    def damage_error(self) -> RecordingFileError | None:
+        """The error that names the damaged episodes that got no video (None: there are none)."""
+        if not self.damaged:
+            return None
+        return RecordingFileError(self.path, f"damaged, no video of: {'; '.join(self.damaged)}; the other videos "
+                                             f"were written; {recover_hint(self.path)}")
 
     def _episode(self, frames: _FrameSource, index: int, progress: Callable[[int], None] | None) -> EpisodeVideo:
         """One video. The episodes are read without their observations; recorded camera frames are read a block
@@ -124,10 +154,11 @@ class VideoRun:
         right = None
         if self.options.compare is not None:
             with open_reader(self.options.compare) as other:
-                right = other.open_episode(_compare_meta(other, index).index).episode(obs=False)
+                right = other.open_episode(self.compared[index]).episode(obs=False)
         labels = _labels(left, right, self.meta, self.options)
         out = video_path(self.folder, self.path, index)
-        count = _encode(out, self._frames(frames, left, right, labels, progress), self._fps())
+        count = _encode(out, self._frames(frames, left, right, labels, progress), self._fps(),
+                        overwrite=self.options.overwrite)
         return EpisodeVideo(index, str(out), count, labels.verdict)
 
     def _frames(self, frames: _FrameSource, left: Episode, right: Episode | None, labels: _Labels,
@@ -146,17 +177,19 @@ class VideoRun:
                 progress(1)
 
     def _fps(self) -> float:
-        return float(self.options.fps or self.meta.control_freq or 20.0)
+        return float(self.options.fps if self.options.fps is not None else self.meta.control_freq or 20.0)
 
 
-def _compare_meta(reader: Any, index: int) -> Any:
-    """The compared recording's episode for `index`: the same index, or the file's only episode."""
-    for m in reader.episodes:
-        if m.index == index:
-            return m
-    if len(reader.episodes) == 1:
-        return reader.episodes[0]
-    raise UsageError(f"{reader.path} has no episode {index} to show beside it")
+def _compared_indices(path: str | Path, compare: str, indices: list[int]) -> dict[int, int]:
+    """For each episode of `indices`, the episode of `compare` drawn beside it, chosen and checked as ``view
+    --compare`` does (`simreel.viewers.sources.read_compare`: the same index or the file's only episode, of the
+    same env, with states in common): another env's states restored into this one's would draw nonsense."""
+    found = {}
+    with open_reader(path) as r, open_reader(compare) as other:
+        for i in indices:
+            recorded = read_run(r, i)
+            found[i] = read_compare(other, recorded).episode.meta.index
+    return found
 
 
 # ------------------------------------------------------------------------------------------------ frames
@@ -179,11 +212,11 @@ class _FrameSource:
         from simreel.sim.rebuild import reset_to_episode
         from simreel.sim.state import restore_state, state_row
 
-        if not episode.env_states:
-            raise ViewError("the episode holds no env_states to render: give --camera NAME for recorded images")
         env = self._env(size)
         done = reset_to_episode(env, episode.meta, scene_seed=self.scene_seed)
         self.scene_seed = done.scene_seed
+        if not episode.env_states:  # a ManiSkill file recorded without states: step its actions, as `view` does
+            states_by_stepping(env.unwrapped, episode)
         for row in range(episode.length + 1):
             restore_state(env.unwrapped, state_row(episode.env_states, row), elapsed_steps=row)
             yield _to_image(env.render(), size)
@@ -300,20 +333,71 @@ def _draw(image: np.ndarray, lines: list[str]) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------------ encoding
-def _encode(path: Path, frames: Iterator[np.ndarray], fps: float) -> int:
-    """Write `frames` to the mp4 `path` (through a temporary file: an interrupted run leaves no half video)."""
-    import imageio.v2 as imageio
+def _encode(path: Path, frames: Iterator[np.ndarray], fps: float, *, overwrite: bool) -> int:
+    """Write `frames` to the mp4 `path` through a temporary file (`staged_output`): an interrupted run or a full
+    disk leaves no half video, and a video another run wrote meanwhile is replaced only with `overwrite`."""
+    with staged_output(path, overwrite=overwrite) as partial:
+        return _write_mp4(partial, frames, fps, label=path)
 
-    tmp = path.with_name(f".{path.name}.partial.mp4")
-    count = 0
-    try:
-        writer = imageio.get_writer(tmp, fps=fps, codec="libx264", pixelformat="yuv420p", macro_block_size=1,
-                                    ffmpeg_log_level="error")
-        with writer:
+
+def _write_mp4(path: Path, frames: Iterator[np.ndarray], fps: float, *, label: Path) -> int:
+    """Encode `frames` into `path` with ffmpeg (imageio's binary, the command imageio's writer runs) and return
+    how many; `label` is the video's name in errors.
+
+    ffmpeg is run here rather than through imageio's writer, which neither checks how ffmpeg ended nor keeps its
+    messages: a trailer ffmpeg could not write (a full disk) left a cut video reported as written, a frame it
+    could not take a broken pipe and ffmpeg's whole log. Its messages are kept and make the error
+    (`_encoder_error`)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    count, process = 0, None
+    with tempfile.TemporaryFile() as log:
+        try:
             for frame in frames:
-                writer.append_data(frame)
+                if process is None:
+                    process = subprocess.Popen(_ffmpeg_command(path, frame.shape, fps), stdin=subprocess.PIPE,
+                                               stdout=subprocess.DEVNULL, stderr=log)
+                process.stdin.write(np.ascontiguousarray(frame, np.uint8).tobytes())
                 count += 1
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+            if process is None:
+                raise ValueError(f"no frames to write to {label}")
+            process.stdin.close()
+            ended = process.wait() == 0
+        except BrokenPipeError:  # ffmpeg stopped taking frames: its log says why
+            process.wait()
+            ended = False
+        except BaseException:
+            if process is not None:
+                process.kill()
+                process.wait()
+            raise
+        log.seek(0)
+        said = log.read().decode(errors="replace").strip()
+    if not ended:
+        raise _encoder_error(label, said)
+    if said:
+        print(said, file=sys.stderr)  # warnings of a video that was written
     return count
+
+
+def _ffmpeg_command(path: Path, shape: tuple[int, ...], fps: float) -> list[str]:
+    """ffmpeg reading raw rgb24 frames of `shape` (H, W, 3) from stdin and writing H.264 (yuv420p) to `path`."""
+    import imageio_ffmpeg
+
+    height, width = shape[:2]
+    return [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo", "-s", f"{width}x{height}",
+            "-pix_fmt", "rgb24", "-r", str(fps), "-i", "-", "-an", "-vcodec", "libx264", "-pix_fmt", "yuv420p",
+            "-v", "error", str(path)]
+
+
+def _encoder_error(path: Path, said: str) -> Exception:
+    """The error for ffmpeg failing to write the video `path`, from what it `said`: where the storage refused (a
+    full disk, a read-only file system) the one-line `storage_error` (exit 2), else a `RuntimeError` quoting ffmpeg's
+    last line (not the user's doing)."""
+    for code in sorted(STORAGE_ERRNOS):
+        if os.strerror(code) in said:
+            return storage_error(path, OSError(code, os.strerror(code)), lost="the video was not written")
+    last = said.splitlines()[-1] if said else "no message"
+    return RuntimeError(f"ffmpeg could not write {path}: {last}")

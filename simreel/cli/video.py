@@ -28,7 +28,8 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--size", type=parse_size, default=None, metavar="WxH",
                    help="frame size, even numbers (default 256x256, 512x256 side by side)")
     p.add_argument("--camera", default=None, metavar="NAME", help="use the recorded rgb images of this camera")
-    p.add_argument("--fps", type=float, default=None, help="frames per second (default: the control frequency)")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frames per second, a positive number (default: the control frequency)")
     p.add_argument("--mode", choices=("actions", "states", "step"), default="actions",
                    help="whose default tolerances judge a replay given with --compare (as simreel replay --mode)")
     p.add_argument("--overwrite", action="store_true", help="replace existing videos")
@@ -52,4 +53,7 @@ def run(args: argparse.Namespace) -> int:
         written = videos.execute(bar.update)
     for v in written:
         print(f"episode {v.index}: {v.path} ({v.frames} frames{', ' + v.verdict if v.verdict else ''})")
+    damaged = videos.damage_error()
+    if damaged is not None:  # never left out silently
+        raise damaged
     return 0

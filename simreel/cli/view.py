@@ -154,10 +154,11 @@ def default_output(path: str | Path, episode: int) -> Path:
 def _first_episode(args: argparse.Namespace) -> int:
     """The episode to show; a bad file or episode fails here, before the env is built."""
     from simreel.formats import open_reader
+    from simreel.viewers.sources import episode_meta
 
     with open_reader(args.path) as reader:
         if args.episode is not None:
-            reader.episode_meta(args.episode)
+            episode_meta(reader, args.episode)
             return args.episode
         return reader.episodes[0].index if reader.episodes else 0
 
@@ -219,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
             print("warning: no render device, so no visual meshes: showing collision shapes (for the meshes, "
                   f"{no_render_device_fix()})", file=sys.stderr)
         if mode == "save":
-            out = session.save(save)
+            out = session.save(save, overwrite=args.overwrite)
             size = out.stat().st_size / 1024
             print(f"wrote {out} ({size:.0f} KiB, {session.episode.length} steps, {session.geometry_source} geometry) "
                   f"in {time.perf_counter() - t0:.1f} s")
@@ -269,7 +270,8 @@ def _print_comparison(c: Any, explanation: Any) -> None:
     if c.note:
         print(f"note: {c.note}")
     d = c.divergence
-    print(f"replay diverges at {d.describe()}" if d is not None
+    print(d.sentence("replay diverges") if d is not None
           else f"replay {c.comparison.verdict.replace('_', ' ')}: no value leaves its tolerance")
     if explanation is not None and explanation.cause is not None:
         print(f"why: {explanation.cause.summary} (the events log shows the evidence)")
+

@@ -9,6 +9,7 @@ own conditions (an MCAP file another process is writing) in `simreel.formats.che
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -18,7 +19,7 @@ from typing import IO
 
 from simreel.errors import UsageError
 
-__all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic"]
+__all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output"]
 
 
 def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path] = (), option: str = "") -> Path:
@@ -88,6 +89,53 @@ def write_text_atomic(path: str | Path, text: str) -> None:
     """Write `text` to `path` at once (`open_text_atomic`)."""
     with open_text_atomic(path) as fh:
         fh.write(text)
+
+
+@contextlib.contextmanager
+def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[Path]:
+    """A temporary file to write `path` through: in the same folder, under a name no other run uses
+    (``.NAME.XXXXXXXX.partial.EXT``, the extension kept for writers that go by it), moved to `path` when the block
+    ends without error and removed when it raises (an error, a full disk, Ctrl-C, SIGTERM). So `path` is never a
+    part of a file, and an old one stays as it was until a whole new one replaces it. Without `overwrite`, a file
+    that appeared at `path` meanwhile (another run's) is not replaced: `UsageError`. `option` names the CLI option
+    in messages (``--save``)."""
+    from simreel.formats.durable import is_storage_error, storage_error
+
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".partial{path.suffix}",
+                                    dir=path.resolve().parent)
+    except OSError as e:
+        if is_storage_error(e):
+            raise storage_error(path, e, lost="nothing was written") from None
+        raise
+    partial = Path(name)
+    try:
+        os.fchmod(fd, 0o666 & ~_umask())  # as open() would make it: mkstemp's 0600 hides it from other users
+        os.close(fd)
+        yield partial
+        _publish(partial, path, overwrite=overwrite, option=option)
+    finally:
+        partial.unlink(missing_ok=True)
+
+
+def _publish(partial: Path, path: Path, *, overwrite: bool, option: str) -> None:
+    """Move the complete `partial` to `path`; without `overwrite`, never over a file that is there (a hard link
+    fails if the name exists, where a check and a rename leave a moment for another run to write it)."""
+    if overwrite:
+        os.replace(partial, path)
+        return
+    try:
+        os.link(partial, path)
+    except FileExistsError:
+        label = f"{option} {path}" if option else str(path)
+        raise UsageError(f"{label}: a file appeared there while this one was written (another run?); it is kept; "
+                         "pass --overwrite to replace it") from None
+    except OSError as e:
+        if e.errno not in (errno.EPERM, errno.ENOTSUP, errno.EXDEV, errno.EMLINK):
+            raise
+        if path.exists() or path.is_symlink():  # a file system without hard links: check, then rename
+            raise UsageError(f"{path} already exists; pass --overwrite to replace it") from None
+        os.replace(partial, path)
 
 
 def _umask() -> int:

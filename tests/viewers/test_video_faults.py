@@ -1,0 +1,186 @@
+"""`simreel video` under bad input and faults: a frame rate that is no rate, a compared recording of another env,
+damaged episodes, a full disk, two runs writing into one folder: one line and exit 2, intact videos kept, no
+temporary file left, nothing replaced without --overwrite."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support.damage import corrupt_chunk
+from support.mcap_samples import synthetic_episode, synthetic_meta, write
+from support.small_disk import fill, small_disk
+
+from simreel.cli.main import main
+from simreel.state_tree import LeafSpec
+from simreel.viewers.video import VideoRun, video_path
+
+
+def _camera_recording(path: Path, lengths: tuple[int, ...] = (7, 12), *, side: int = 32, noise: bool = False,
+                      env_id: str = "Synthetic-v0") -> Path:
+    """A recording whose observations hold a `side` x `side` camera (`noise`: random pixels, which H.264 cannot
+    compress: a big video)."""
+    meta = dataclasses.replace(synthetic_meta(), env_id=env_id,
+                               obs_layout={"sensor_data/cam/rgb": LeafSpec((side, side, 3), "uint8")})
+    rng = np.random.default_rng(0)
+    episodes = []
+    for index, T in enumerate(lengths):
+        frames = (rng.integers(0, 256, (T + 1, side, side, 3), dtype=np.uint8) if noise
+                  else np.full((T + 1, side, side, 3), 40 * index, np.uint8))
+        episodes.append(dataclasses.replace(synthetic_episode(meta, index, T), obs={"sensor_data/cam/rgb": frames}))
+    return write(path, meta, episodes)
+
+
+def _frames(path: Path) -> int:
+    import imageio.v2 as imageio
+
+    reader = imageio.get_reader(path)
+    try:
+        return reader.count_frames()
+    finally:
+        reader.close()
+
+
+def _leftovers(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
+
+
+@pytest.mark.parametrize("fps", ["0", "-5", "nan", "inf"])
+def test_a_frame_rate_that_is_not_a_positive_number_is_one_line_exit_2(tmp_path, capsys, fps):
+    """Before, -5 and nan failed inside ffmpeg (exit 3) and 0 silently meant the default."""
+    recording = _camera_recording(tmp_path / "cam.h5")
+    assert main(["video", str(recording), "-o", str(tmp_path), "--camera", "cam", "--fps", fps, "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--fps {fps}: frames per second must be a positive number" in err, err
+    assert not list(tmp_path.glob("*.mp4"))
+
+
+def test_a_compared_recording_of_another_env_is_refused_as_view_refuses_it(tmp_path, capsys):
+    """Its states would be restored into this recording's env and drawn as its replay: the same check and message
+    as `view --compare` (`simreel.viewers.sources.check_comparable`)."""
+    recording = _camera_recording(tmp_path / "cam.h5")
+    other = _camera_recording(tmp_path / "other.h5", env_id="OtherTask-v1")
+    assert main(["video", str(recording), "-o", str(tmp_path), "--camera", "cam", "--compare", str(other),
+                 "--size", "64x32", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert "--compare other.h5 episode 0 (replayed): it is a recording of OtherTask-v1, not of Synthetic-v0" in err
+    assert not list(tmp_path.glob("*.mp4"))
+
+
+def test_a_damaged_episode_gets_no_video_and_is_named_with_exit_2(tmp_path, capsys):
+    """Episode 1's data fails its checksum: the videos of 0 and 2 are written, and the run ends with one line naming
+    episode 1 and how to recover the file, exit 2 (before: exit 0, episode 1 left out without a word)."""
+    recording = _camera_recording(tmp_path / "cam.h5", (4, 6, 5))
+    corrupt_chunk(recording, "traj_1/actions", chunk=1, rows=2)
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    assert main(["video", str(recording), "-o", str(folder), "--camera", "cam", "-q"]) == 2
+    captured = capsys.readouterr()
+    [line] = captured.err.splitlines()
+    assert "damaged, no video of: episode 1 (traj_1/actions is corrupt" in line
+    assert f"the other videos were written; `simreel recover {recording}` keeps its intact episodes" in line
+    assert sorted(p.name for p in folder.iterdir()) == ["cam_ep0.mp4", "cam_ep2.mp4"]
+    assert [_frames(folder / "cam_ep0.mp4"), _frames(folder / "cam_ep2.mp4")] == [5, 6]
+    assert "episode 0: " in captured.out and "episode 2: " in captured.out
+
+
+def test_an_episode_the_file_lists_as_damaged_is_named(tmp_path, capsys):
+    """Episode 0's metadata is damaged (the reader lists it in `damaged`, not among the episodes): all episodes
+    asked for, the others' videos are written and it is named, exit 2; asked for by index, it is said to be
+    damaged, not missing."""
+    import h5py
+
+    recording = _camera_recording(tmp_path / "cam.h5", (4, 6))
+    with h5py.File(recording, "r+") as f:
+        for name in list(f["traj_0"].attrs):
+            del f["traj_0"].attrs[name]
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    assert main(["video", str(recording), "-o", str(folder), "--camera", "cam", "-q"]) == 2
+    [line] = capsys.readouterr().err.splitlines()
+    assert "damaged, no video of: traj_0: " in line and "`simreel recover" in line
+    assert sorted(p.name for p in folder.iterdir()) == ["cam_ep1.mp4"]
+    assert main(["video", str(recording), "-o", str(folder), "--camera", "cam", "--episodes", "0", "-q"]) == 2
+    [line] = capsys.readouterr().err.splitlines()
+    assert "no readable episode 0 (readable: 1); damaged: traj_0: " in line and "`simreel recover" in line
+
+
+def test_a_full_disk_is_one_line_exit_2_and_leaves_no_temporary_file(tmp_path):
+    """A 40 KiB disk and a video of noise that does not fit: before, exit 3 with "OSError: Broken pipe" and
+    ffmpeg's dump."""
+    recording = _camera_recording(tmp_path / "noise.h5", (40,), side=96, noise=True)
+    with small_disk(tmp_path, 40) as disk:
+        fill(disk, leave_kib=16)
+        done = subprocess.run([sys.executable, "-m", "simreel", "video", str(recording), "-o", str(disk),
+                               "--camera", "cam", "--size", "96x96", "-q"], capture_output=True, text=True,
+                              timeout=300)
+        left = sorted(p.name for p in disk.iterdir() if not p.name.startswith("filler"))
+    assert done.returncode == 2, done.stderr[-2000:]
+    [line] = done.stderr.splitlines()
+    assert line == (f"simreel video: error: {video_path(disk, recording, 0)}: the disk is full: the video was not "
+                    "written; free some space or write to another disk")
+    assert left == []
+
+
+def test_two_runs_into_one_folder_neither_clobbers_the_other(tmp_path):
+    """While one run encodes a video, another writes the same video whole (here: inside the first's progress
+    callback, so the two overlap at a known point). Each has a temporary file of its own (before, both used
+    `.NAME.partial.mp4`: the second's rename took the first's file away, which then died with exit 3), and the
+    first, without --overwrite, does not replace the video that appeared meanwhile: it stops with one line."""
+    from simreel.errors import UsageError
+
+    recording = _camera_recording(tmp_path / "cam.h5", (30,))
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    first = VideoRun(recording, folder, camera="cam", size=(32, 32))
+    second = VideoRun(recording, folder, camera="cam", size=(32, 32), fps=5)
+    seen: list[list[str]] = []
+
+    def progress(frames: int) -> None:
+        if not seen:
+            seen.append(_leftovers(folder))  # the first's temporary file, being written
+            [written] = second.execute()
+            assert written.frames == 31
+            seen.append(_leftovers(folder))
+
+    with pytest.raises(UsageError, match="a file appeared there while this one was written"):
+        first.execute(progress)
+    out = video_path(folder, recording, 0)
+    assert len(seen[0]) == 1 and seen[1] == seen[0]  # the second's own temporary file is gone, the first's kept
+    assert _leftovers(folder) == []  # and the first's is removed when it stops
+
+    import imageio.v2 as imageio
+
+    reader = imageio.get_reader(out)
+    try:
+        assert reader.get_meta_data()["fps"] == 5  # the second run's video, kept
+    finally:
+        reader.close()
+    assert _frames(out) == 31
+
+
+
+def test_a_maniskill_file_without_states_is_rendered_from_its_stepped_actions(lavapipe_env, tmp_path):
+    """A RecordEpisode file recorded with record_env_state=False: before, "give --camera NAME for recorded images"
+    though it holds none; now its actions are stepped from the reproduced reset, as `view` does
+    (`simreel.viewers.session.states_by_stepping`), and each state reached is rendered."""
+    from support.maniskill_files import record_maniskill
+
+    demos = record_maniskill(tmp_path, "PickCube-v1", episodes=1, steps=8, record_env_state=False)
+    done = subprocess.run([sys.executable, "-m", "simreel", "video", str(demos), "-o", str(tmp_path), "--size",
+                           "64x64", "-q"], env=lavapipe_env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    import imageio.v2 as imageio
+
+    reader = imageio.get_reader(video_path(tmp_path, demos, 0))
+    try:
+        frames = [reader.get_data(i) for i in range(reader.count_frames())]
+    finally:
+        reader.close()
+    assert len(frames) == 9 and frames[0].std() > 5  # a scene per state, not a blank frame
+    assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 0.5  # the robot moved
