@@ -179,6 +179,9 @@ class ReplayRun:
         self._new_files = [f for f in self.worklist.files if logged is None or f.path not in logged.files]
         if self.strict and not self.worklist.items and logged is None:
             raise UsageError(f"{self.inputs[0]}: the recording has no episodes to replay")
+        if opts.episodes and logged is None and self.worklist.readable and not self.worklist.items:
+            raise UsageError(f"--episodes {','.join(map(str, opts.episodes))}: none of the recordings has any of "
+                             "these episodes")
         for spec in opts.imports:  # a bad --import is one line now, not an error for every episode
             import_user_code(spec)
 
@@ -427,7 +430,19 @@ class ReplayRun:
 
 def _file_tally(f: RecordingInfo) -> FileTally:
     return FileTally(f.path, f.meta.env_id if f.meta else None, len(f.episodes), size=f.size, mtime_ns=f.mtime_ns,
-                     error=f.error, limits=recording_limits(f.meta.unknown) if f.meta else [])
+                     error=f.error, limits=recording_limits(f.meta.unknown) if f.meta else [],
+                     warnings=_lacking_warning(f))
+
+
+def _lacking_warning(f: RecordingInfo) -> list[str]:
+    """What a dataset run says of a file that lacks episodes --episodes names (it replays those it has)."""
+    if not f.lacking:
+        return []
+    lacking = ", ".join(map(str, f.lacking))
+    if not f.episodes:
+        return [f"has none of the episodes --episodes names (no episode {lacking}): nothing of it is replayed"]
+    return [f"has no episode {lacking} of those --episodes names: only its episode(s) "
+            f"{', '.join(map(str, f.episodes))} are replayed"]
 
 
 def verify_recording(

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from simreel.episode import RecordingMeta, json_default
-from simreel.errors import FileProblemError, RecordingFileError, SimreelError, UsageError
+from simreel.errors import FileProblemError, SimreelError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.inputs import expand_inputs, file_identity
 
@@ -46,6 +46,8 @@ class RecordingInfo:
     size: int | None = None
     mtime_ns: int | None = None
     """What identifies this version of the file: a resumed run refuses a file that changed."""
+    lacking: list[int] = field(default_factory=list)
+    """Episodes `--episodes` asks for that the file does not have (a dataset run replays the others)."""
 
     @property
     def identity(self) -> tuple[int | None, int | None]:
@@ -76,22 +78,23 @@ def env_key(meta: RecordingMeta) -> str:
     return json.dumps(parts, sort_keys=True, default=json_default)
 
 
-def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None) -> RecordingInfo:
+def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None, *, some: bool) -> RecordingInfo:
+    """The header of the recording at `path`, with the episodes of `wanted` (None: all) it has; `some`: a file that
+    lacks some of them replays the others (a dataset's files differ in length), else it is refused."""
     size, mtime_ns = file_identity(path) if path.is_file() else (None, None)
     with open_reader(path) as reader:
         if restores is not None and not reader.meta.state_layout:
             raise UsageError(f"{path}: holds no env_states (recorded without them), and {restores} restores recorded "
                              "states; replay it with --mode actions")
-        if wanted is None and reader.damaged:
-            # a damaged episode is never left out silently: it can be neither replayed nor called verified
-            raise RecordingFileError(path, f"damaged, cannot be replayed: {'; '.join(reader.damaged)}; replay the "
-                                           "others with --episodes, or `simreel recover` the file")
+        if wanted is None:
+            reader.refuse_damaged("replayed")  # a damaged episode is never left out silently
         steps = {m.index: m.length for m in reader.episodes}
+        lacking = [] if wanted is None else [i for i in dict.fromkeys(wanted) if i not in steps]
+        if lacking and (not some or reader.damaged):  # a damaged episode is not listed: never take it for absent
+            reader.episode_meta(lacking[0])  # raises RecordingFileError naming the episodes the file has
         if wanted is not None:
-            for i in wanted:
-                reader.episode_meta(i)  # raises RecordingFileError naming the episodes the file has
-            steps = {i: steps[i] for i in dict.fromkeys(wanted)}
-        return RecordingInfo(str(path), reader.meta, steps, size=size, mtime_ns=mtime_ns)
+            steps = {i: steps[i] for i in dict.fromkeys(wanted) if i in steps}
+        return RecordingInfo(str(path), reader.meta, steps, size=size, mtime_ns=mtime_ns, lacking=lacking)
 
 
 def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | None = None,
@@ -101,12 +104,15 @@ def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | Non
     option that makes the run restore recorded states (``--mode step``), so a file without any cannot be replayed.
 
     A file given by name that cannot be read raises its `SimreelError`; one found in a folder or by a glob
-    is kept with its error, so one bad file does not end a dataset run.
+    is kept with its error, so one bad file does not end a dataset run. A file of a dataset run (more than one
+    file) that lacks some of the `episodes` replays those it has (`RecordingInfo.lacking` says which it lacks);
+    the one file of a one-file run is refused.
     """
     files: list[RecordingInfo] = []
-    for path, explicit in expand_inputs(specs):
+    found = expand_inputs(specs)
+    for path, explicit in found:
         try:
-            files.append(_read_header(path, episodes, restores))
+            files.append(_read_header(path, episodes, restores, some=len(found) > 1 or not explicit))
         except SimreelError as e:
             if explicit:
                 raise

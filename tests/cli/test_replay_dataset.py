@@ -90,3 +90,23 @@ def test_inspect_of_a_dataset_is_a_line_per_file(dataset, capsys, monkeypatch):
     assert main(["inspect", "pick.h5", "more/stack.h5", "--json"]) == 0
     summaries = json.loads(capsys.readouterr().out)
     assert [s["meta"]["env_id"] for s in summaries] == ["PickCube-v1", "StackCube-v1"]
+
+
+def test_episodes_a_file_lacks_are_named_and_those_it_has_replayed(record, tmp_path, capsys, monkeypatch):
+    """`--episodes` over files of different lengths: each replays the episodes it has, and a warning names those it
+    lacks; asking for episodes no file has is one line."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "data").mkdir()
+    shutil.copy(record("PickCube-v1", 2, 8), tmp_path / "data" / "two.h5")
+    shutil.copy(record("StackCube-v1", 1, 6), tmp_path / "data" / "one.h5")
+    capsys.readouterr()
+    assert main(["replay", "data", "--episodes", "1,3", "-q"]) == 0
+    out, err = capsys.readouterr()
+    assert out.splitlines()[-1] == "1 of 1 episode(s) verified (1 exact, 0 within tolerance); all verified"
+    assert err == ("simreel replay: warning: data/one.h5: has none of the episodes --episodes names (no episode 1, 3): "
+                   "nothing of it is replayed\n"
+                   "simreel replay: warning: data/two.h5: has no episode 3 of those --episodes names: only its "
+                   "episode(s) 1 are replayed\n")
+    assert main(["replay", "data", "--episodes", "5", "-q"]) == 2
+    assert capsys.readouterr().err == ("simreel replay: error: --episodes 5: none of the recordings has any of these "
+                                       "episodes\n")

@@ -77,3 +77,10 @@ def test_one_file_prints_its_episode_table_many_print_a_line_per_file(tmp_path, 
     assert "b.h5" in text and "(1 not replayed)" in text and "episodes that did not verify:" in text
     assert text.endswith("1 of 2 episode(s) verified (1 exact, 0 within tolerance); 1 diverged; "
                          "1 not replayed (the run stopped early)")
+
+
+def test_a_run_with_episodes_left_without_a_verdict_never_exits_0():
+    tally = _tally(("/d/a.h5", 2))
+    tally.add("/d/a.h5", _report(0))
+    assert not tally.complete and tally.exit_status() == 2
+    assert tally.summary().endswith("1 not replayed (the run stopped early)")

@@ -115,3 +115,9 @@ def test_a_recorded_import_found_nowhere_names_every_place_tried(layout):
         f"the recording's --import lost_tasks_module is not found here (tried module lost_tasks_module on sys.path "
         f"and in {layout}/elsewhere, {layout}/rec/lost_tasks_module.py); pass --import with where it is now, e.g. "
         "--import PATH/TO/lost_tasks_module.py")
+
+
+def test_a_relative_import_is_kept_from_the_folder_it_was_given_in(tmp_path):
+    assert recorded_spec("tasks/noop.py", base=tmp_path) == str(tmp_path / "tasks" / "noop.py")
+    assert recorded_spec("/abs/noop.py", base=tmp_path) == "/abs/noop.py"
+    assert recorded_spec("my_tasks.mod", base=tmp_path) == "my_tasks.mod"  # a module is found by its name
