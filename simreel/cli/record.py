@@ -117,8 +117,10 @@ def run(args: argparse.Namespace) -> int:
         else:
             _record_batched(rec, policy, args, limits.steps)
     except BaseException as e:
-        rec.stop(_what_stopped(e))
-        _summary(rec, stopped=True)
+        try:
+            rec.stop(_what_stopped(e))
+        finally:  # also when a second Ctrl-C cuts the stop short: the user must learn where the recording is
+            _summary(rec, stopped=True)
         raise
     rec.close()
     _summary(rec)

@@ -35,6 +35,7 @@ from simreel.episode import (
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats.durable import is_storage_error, storage_error
 from simreel.formats.lock import being_written
+from simreel.formats.staging import refuse_kept_recording
 from simreel.formats.targets import check_output
 
 __all__ = ["EpisodeSink", "EpisodeWriter", "EpisodeReader", "EpisodeRows", "BLOCK_BYTES", "block_rows"]
@@ -95,6 +96,7 @@ class EpisodeWriter(ABC):
         if being_written(path):
             raise UsageError(f"{path} is being written by another recording; choose another file, or wait until "
                              "that recording has finished")
+        refuse_kept_recording(path)
 
     @classmethod
     def remove(cls, path: Path) -> None:

@@ -22,7 +22,7 @@ from simreel.errors import UsageError
 from simreel.formats.lock import WriterLock, being_written
 from simreel.formats.targets import check_output
 
-__all__ = ["RecordingTarget", "side_folder", "replacement_note"]
+__all__ = ["RecordingTarget", "side_folder", "replacement_note", "refuse_kept_recording"]
 
 
 def side_folder(path: Path) -> Path:
@@ -40,6 +40,17 @@ def replacement_note(path: Path) -> str | None:
         return f"a recording that will replace this one when it is complete is being written in {staged}"
     return (f"a recording that was to replace this one stopped before it was complete; its committed episodes are "
             f"in {staged} (this file is unchanged)")
+
+
+def refuse_kept_recording(path: Path) -> None:
+    """`UsageError` when the side folder of `path` holds a staged recording a writer left there (one that stopped
+    before it was complete, or was killed): it holds committed episodes, which no `--overwrite` of `path` removes."""
+    folder = side_folder(path)
+    staged = folder / path.name
+    if staged.is_file() and not folder.is_symlink() and not being_written(staged):
+        raise UsageError(f"{staged} holds the episodes of a recording that stopped before it was complete; move it "
+                         f"out of {folder} (or delete that folder) first: --overwrite replaces {path}, never that "
+                         "recording")
 
 
 @dataclass
@@ -68,11 +79,13 @@ class RecordingTarget:
         """Check the target (`check_output`), lock it and decide where to write. Without `overwrite` an existing
         file or side file is refused; with it, a file another writer holds is still refused. Leftovers of an
         earlier writer in the side folder (never-committed scratch files, a staged file it did not finish) are
-        removed once the name is locked."""
+        removed once the name is locked; a staged recording one left there (stopped before it was complete, or
+        killed: its committed episodes are in it) is never removed, `overwrite` or not: `UsageError` saying so."""
         check_output(path, overwrite=overwrite, side_paths=side_paths)
         existing = overwrite and (path.exists() or path.is_symlink())
         target = cls(path, path, side_folder(path), [WriterLock.acquire(path, create=not existing)], not existing)
         try:
+            refuse_kept_recording(path)
             target._clear_folder()  # the name is ours now: what is there was left by a writer that has ended
             if existing:
                 target.folder.mkdir()

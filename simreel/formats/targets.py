@@ -101,9 +101,9 @@ def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[
     in messages (``--save``)."""
     from simreel.formats.durable import is_storage_error, storage_error
 
+    real = path.resolve()  # a symbolic link is written through: its file is replaced, the link kept
     try:
-        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".partial{path.suffix}",
-                                    dir=path.resolve().parent)
+        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".partial{path.suffix}", dir=real.parent)
     except OSError as e:
         if is_storage_error(e):
             raise storage_error(path, e, lost="nothing was written") from None
@@ -113,7 +113,7 @@ def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[
         os.fchmod(fd, 0o666 & ~_umask())  # as open() would make it: mkstemp's 0600 hides it from other users
         os.close(fd)
         yield partial
-        _publish(partial, path, overwrite=overwrite, option=option)
+        _publish(partial, real, overwrite=overwrite, option=option)
     finally:
         partial.unlink(missing_ok=True)
 

@@ -139,6 +139,12 @@ def test_a_recording_an_error_stops_replaces_nothing_and_notes_the_episode_it_cu
     assert main(["inspect", str(out)]) == 0
     assert (f"a recording that was to replace this one stopped before it was complete; its committed episodes are in "
             f"{staged} (this file is unchanged)") in capsys.readouterr().out
+    kept = staged.read_bytes()
+    assert main(["record", "PickCube-v1", "-o", str(out), "--overwrite", "-n", "1", "--max-steps", "2", "-q"]) == 2
+    assert capsys.readouterr().err.splitlines() == [  # the next --overwrite never deletes the kept recording
+        f"simreel record: error: {staged} holds the episodes of a recording that stopped before it was complete; move "
+        f"it out of {staged.parent} (or delete that folder) first: --overwrite replaces {out}, never that recording"]
+    assert staged.read_bytes() == kept and out.read_bytes() == old
 
 
 class _BatchedStandIn:

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import shutil
 import signal
 import subprocess
 import sys
@@ -12,7 +13,7 @@ from support.children import RecordingChild
 from support.mcap_samples import synthetic_episode, synthetic_meta, write
 
 from simreel.errors import UsageError
-from simreel.formats import open_reader, open_writer
+from simreel.formats import check_writable, open_reader, open_writer
 from simreel.formats.staging import side_folder
 
 
@@ -56,7 +57,7 @@ def test_overwrite_keeps_the_old_recording_until_the_new_one_is_complete(tmp_pat
                                f"{side_folder(path) / path.name}"]
         assert new.signal(signal.SIGKILL) == -signal.SIGKILL
     assert path.read_bytes() == old  # killed before it was complete: the old recording is untouched
-    staged = side_folder(path) / path.name
+    staged = staged_left = side_folder(path) / path.name
     with open_reader(path) as r:
         assert r.notes == [f"a recording that was to replace this one stopped before it was complete; its committed "
                            f"episodes are in {staged} (this file is unchanged)"]
@@ -68,6 +69,10 @@ def test_overwrite_keeps_the_old_recording_until_the_new_one_is_complete(tmp_pat
     with open_reader(staged) as r:
         assert r.meta.env_id == "PickCube-v1" and len(r.episodes) >= 2
 
+    with pytest.raises(UsageError, match=f"{staged_left} holds the episodes of a recording that stopped before it "
+                                         "was complete; move it out of"):
+        check_writable(path, overwrite=True)  # --overwrite replaces the old recording, never the kept one
+    shutil.rmtree(side_folder(path))  # the user has what they wanted of it
     with RecordingChild(str(path), "--overwrite", "--steps", "10", "--episodes", "3") as complete:
         assert complete.wait() == 0
     with open_reader(path) as r:  # complete: it has replaced the old one, and nothing is left beside it

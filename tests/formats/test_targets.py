@@ -102,3 +102,19 @@ def test_a_file_written_atomically_has_the_permissions_open_would_give_it(tmp_pa
         finally:
             os.umask(old)
         assert stat.S_IMODE((tmp_path / "s.json").stat().st_mode) == mode
+
+
+def test_a_staged_output_through_a_symbolic_link_replaces_the_linked_file_and_keeps_the_link(tmp_path):
+    """Regression: the temporary file went beside the link's target and was renamed onto the link itself (another
+    file system: a traceback; the same one: the link replaced, its file left stale)."""
+    from simreel.formats.targets import staged_output
+
+    (tmp_path / "elsewhere").mkdir()
+    real = tmp_path / "elsewhere" / "real.rrd"
+    real.write_text("old")
+    link = tmp_path / "link.rrd"
+    link.symlink_to(real)
+    with staged_output(link, overwrite=True) as partial:
+        partial.write_text("new")
+    assert link.is_symlink() and link.read_text() == "new" == real.read_text()
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["elsewhere", "link.rrd", "real.rrd"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 
 import numpy as np
@@ -384,6 +385,9 @@ def test_stop_keeps_the_old_file_and_notes_only_the_episode_it_cut(tmp_path, suf
     with open_reader(tmp_path / f"r{suffix}.partial" / f"r{suffix}") as r:
         assert [(m.length, m.notes) for m in r.episodes] == [
             (50, []), (2, ["cut short: a test stopped the recording before this episode ended"])]
+    with pytest.raises(UsageError, match="holds the episodes of a recording that stopped before it was complete"):
+        RecordWrapper(make_env("PickCube-v1"), out, overwrite=True, writer_process=writer_process)  # kept, not lost
+    shutil.rmtree(tmp_path / f"r{suffix}.partial")
     rec = RecordWrapper(make_env("PickCube-v1"), out, overwrite=True, writer_process=writer_process)
     rec.reset(seed=0)
     for _ in range(50):
