@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from simreel.episode import Episode, EpisodeMeta, FieldSpec, RecordingMeta, StepBlock, join_blocks
+from simreel.episode import Episode, FieldSpec, RecordingMeta, StepBlock, join_blocks
 from simreel.errors import RecordingFileError, StorageError, ViewError
 from simreel.formats import EpisodeReader, open_reader
-from simreel.formats.base import EpisodeRows, block_rows
+from simreel.formats.base import EpisodeRows, block_rows, recover_hint
 
-__all__ = ["EpisodeRun", "read_run", "read_compare", "episode_meta", "recover_hint", "Source"]
+__all__ = ["EpisodeRun", "read_run", "read_compare", "Source"]
 
 Source = str | Path | EpisodeReader
 """A recording to read: a path (.h5 or .mcap) or an open reader."""
@@ -77,7 +77,7 @@ def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun
             raise RecordingFileError(reader.path, "holds no committed episode to view")
         if index is None:
             index = reader.episodes[0].index
-        episode_meta(reader, index)  # a clear error naming the episodes there are, or the damaged one
+        reader.episode_meta(index)  # a clear error naming the episodes there are, or the damaged ones
         try:
             rows = reader.open_episode(index)
             episode = summary(rows)
@@ -150,24 +150,6 @@ def _check_comparable(run: EpisodeRun, recorded: EpisodeRun) -> None:
         raise ViewError(f"--compare {run.label}: no state key in common with {recorded.label}")
 
 
-def episode_meta(reader: EpisodeReader, index: int) -> EpisodeMeta:
-    """`reader.episode_meta(index)`, but where the file has damaged episodes (`EpisodeReader.damaged`), an index
-    it cannot list may be one of them: the error names them and says how to recover the file."""
-    try:
-        return reader.episode_meta(index)
-    except RecordingFileError:
-        if not reader.damaged:
-            raise
-        readable = ", ".join(str(m.index) for m in reader.episodes) or "none"
-        raise RecordingFileError(reader.path, f"no readable episode {index} (readable: {readable}); damaged: "
-                                              f"{'; '.join(reader.damaged)}; {recover_hint(reader.path)}") from None
-
-
 def _damaged_episode(reader: EpisodeReader, index: int, problem: str) -> RecordingFileError:
     """The error for episode `index` of `reader`, whose data is damaged (`problem`: what is wrong), and what to do."""
     return RecordingFileError(reader.path, f"episode {index} is damaged ({problem}); {recover_hint(reader.path)}")
-
-
-def recover_hint(path: str | Path) -> str:
-    """What to do with a file that has damaged episodes."""
-    return f"`simreel recover {path}` keeps its intact episodes"

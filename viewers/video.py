@@ -27,11 +27,12 @@ from simreel.compare import Tolerances
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader
+from simreel.formats.base import recover_hint
 from simreel.formats.durable import STORAGE_ERRNOS, storage_error
 from simreel.formats.targets import check_output, staged_output
 from simreel.viewers.compare import DEFAULT_MODE, compare_for_view
 from simreel.viewers.session import states_by_stepping
-from simreel.viewers.sources import episode_meta, read_compare, read_run, recover_hint
+from simreel.viewers.sources import read_compare, read_run
 
 __all__ = ["VideoOptions", "VideoRun", "EpisodeVideo", "video_path"]
 
@@ -104,7 +105,7 @@ class VideoRun:
         with open_reader(path) as r:
             self.meta = r.meta
             self.indices = list(opts.episodes) if opts.episodes is not None else [m.index for m in r.episodes]
-            self.lengths = {i: episode_meta(r, i).length for i in self.indices}
+            self.lengths = {i: r.episode_meta(i).length for i in self.indices}
             self.damaged: list[str] = list(r.damaged) if opts.episodes is None else []
             """What is wrong with each episode that got no video because it is damaged."""
         self.compared = _compared_indices(path, opts.compare, self.indices) if opts.compare is not None else {}

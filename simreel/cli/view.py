@@ -154,11 +154,10 @@ def default_output(path: str | Path, episode: int) -> Path:
 def _first_episode(args: argparse.Namespace) -> int:
     """The episode to show; a bad file or episode fails here, before the env is built."""
     from simreel.formats import open_reader
-    from simreel.viewers.sources import episode_meta
 
     with open_reader(args.path) as reader:
         if args.episode is not None:
-            episode_meta(reader, args.episode)
+            reader.episode_meta(args.episode)
             return args.episode
         return reader.episodes[0].index if reader.episodes else 0
 

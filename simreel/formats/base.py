@@ -343,10 +343,15 @@ class EpisodeReader(ABC):
                                                 "others with --episodes, or `simreel recover` the file")
 
     def episode_meta(self, index: int) -> EpisodeMeta:
+        """The metadata of episode `index`; `RecordingFileError` naming the episodes there are, and where the file has
+        damaged ones (which it cannot list), those too and how to recover it."""
         for m in self.episodes:
             if m.index == index:
                 return m
         have = ", ".join(str(m.index) for m in self.episodes) or "none"
+        if self.damaged:
+            raise RecordingFileError(self.path, f"no readable episode {index} (readable: {have}); damaged: "
+                                                f"{'; '.join(self.damaged)}; {recover_hint(self.path)}")
         raise RecordingFileError(self.path, f"no episode {index} (episodes: {have})")
 
     def close(self) -> None:  # noqa: B027 - optional hook
@@ -359,3 +364,8 @@ class EpisodeReader(ABC):
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+def recover_hint(path: str | Path) -> str:
+    """What to do with a file that has damaged episodes."""
+    return f"`simreel recover {path}` keeps its intact episodes"
