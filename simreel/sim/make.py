@@ -12,7 +12,9 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import os
+import traceback
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from simreel.errors import EnvBuildError, RenderUnavailableError
@@ -334,17 +336,25 @@ def _render_fix(asked: str | None) -> str:
 
 def no_render_device_fix() -> str:
     """How to get a render device, as one clause of an error message: fetch lavapipe the way `make setup` does
-    (spelled out for a pip install, which has no Makefile), or use a GPU machine."""
+    (spelled out for a pip install, which has no Makefile), or use a GPU machine; on a machine with an NVIDIA GPU
+    whose Vulkan SAPIEN cannot use (a CUDA-only container, no Vulkan loader), make that Vulkan visible, or point
+    Vulkan at lavapipe by hand (`configure_vulkan` leaves an NVIDIA machine's Vulkan alone)."""
     import shlex
 
-    from simreel.sim.render_device import lavapipe_icd_path
+    from simreel.sim.render_device import has_nvidia_gpu, lavapipe_icd_path
 
     icd = lavapipe_icd_path()  # where simreel looks: $SIMREEL_VK_ICD, else <venv>/share/simreel/mesa/lvp_icd.json
     fetch = f"tools/fetch_lavapipe.sh {shlex.quote(str(icd.parent))}"
     if icd.name != "lvp_icd.json":  # the script writes DIR/lvp_icd.json
         fetch += f" and set SIMREEL_VK_ICD={shlex.quote(str(icd.parent / 'lvp_icd.json'))}"
-    return ("fetch the software Vulkan driver (lavapipe): `make setup` does it in a simreel checkout; after a pip "
-            f"install run `{fetch}` from simreel's source (Debian/Ubuntu); or use a machine with a GPU")
+    lavapipe = ("fetch the software Vulkan driver (lavapipe): `make setup` does it in a simreel checkout; after a pip "
+                f"install run `{fetch}` from simreel's source (Debian/Ubuntu)")
+    if not has_nvidia_gpu():
+        return f"{lavapipe}; or use a machine with a GPU"
+    return ("make this machine's NVIDIA Vulkan driver usable (SAPIEN finds no Vulkan device on the GPU: install the "
+            "Vulkan loader, libvulkan1, and in a container grant the graphics driver capability, e.g. "
+            f"NVIDIA_DRIVER_CAPABILITIES=all); or render on the CPU: {lavapipe}, then set VK_ICD_FILENAMES to its "
+            "lvp_icd.json (simreel does not choose lavapipe itself where an NVIDIA GPU is present)")
 
 
 def _build_error(env_id: str, exc: Exception, *, backend: str, cfg: EnvConfig) -> Exception:
@@ -361,12 +371,36 @@ def _build_error(env_id: str, exc: Exception, *, backend: str, cfg: EnvConfig) -
                 "device; use num_envs=1 (CPU sim), or gymnasium's AsyncVectorEnv for several CPU envs"
             )
         return EnvBuildError(f"{env_id}: a CUDA device was asked for and this machine has none ({message})")
+    missing = _missing_physx_gpu_library(exc)
+    if missing is not None:
+        return EnvBuildError(f"{env_id}: {missing} ({type(exc).__name__}: {message})")
     if isinstance(exc, AttributeError) and "render_shapes" in message:
         return RenderUnavailableError(
             f"{env_id} reads render shapes while building its scene, which needs a render device ({message}). "
             f"To build it, {no_render_device_fix()}."
         )
     return EnvBuildError(f"{env_id}: could not build the env: {type(exc).__name__}: {message}")
+
+
+def _missing_physx_gpu_library(exc: Exception) -> str | None:
+    """What to do when `exc` came out of SAPIEN's `sapien.physx.enable_gpu` and its PhysX GPU library is not on disk;
+    None otherwise. SAPIEN 3.0.3 downloads that library from GitHub into ``~/.sapien/physx/<PhysX version>/`` the
+    first time a process uses the GPU sim, so on a machine that cannot reach GitHub every GPU env fails to build, with
+    a network error that does not say what is missing."""
+    if not any(frame.name == "enable_gpu" for frame in traceback.extract_tb(exc.__traceback__)):
+        return None
+    import platform
+
+    import sapien
+
+    folder = Path.home() / ".sapien" / "physx" / sapien.physx.version()
+    if (folder / "libPhysXGpu_64.so").is_file():
+        return None
+    arch = "linux-aarch64-so" if platform.machine() in ("aarch64", "arm64") else "linux-so"
+    url = f"https://github.com/sapien-sim/physx-precompiled/releases/download/{sapien.physx.version()}/{arch}.zip"
+    return (f"the GPU sim needs SAPIEN's PhysX GPU library, which is not in {folder} and could not be fetched: SAPIEN "
+            f"downloads it from GitHub at first use. On a machine that reaches GitHub, download {url} and unzip it into "
+            f"{folder} on this one (the file is libPhysXGpu_64.so), then run again")
 
 
 def env_versions() -> dict[str, str | None]:

@@ -79,7 +79,8 @@ def lavapipe_icd_path() -> Path:
     return Path(sys.prefix) / "share" / "simreel" / "mesa" / "lvp_icd.json"
 
 
-def _has_nvidia() -> bool:
+def has_nvidia_gpu() -> bool:
+    """An NVIDIA GPU and driver are present (its device node or /proc entry exists), working Vulkan or not."""
     return any(os.path.exists(marker) for marker in _NVIDIA_MARKERS)
 
 
@@ -88,7 +89,7 @@ def device_expected() -> bool:
     lavapipe that `make setup` fetched. False means only a probe can tell."""
     icd = lavapipe_icd_path()
     configured = os.environ.get("VK_ICD_FILENAMES") == os.path.abspath(icd) and icd.is_file()
-    return _has_nvidia() or configured
+    return has_nvidia_gpu() or configured
 
 
 def configure_vulkan() -> str | None:
@@ -104,7 +105,7 @@ def configure_vulkan() -> str | None:
     """
     if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
         return None
-    if _has_nvidia():
+    if has_nvidia_gpu():
         return None
     icd = lavapipe_icd_path()
     if not icd.is_file():

@@ -7,6 +7,7 @@ no-device subprocess builds every env once and the tests below read its JSON ans
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -183,9 +184,15 @@ def _no_device_help(no_render_env) -> str:
     """What the refusals tell a user to do: fetch lavapipe where this process looks for it (the test's
     SIMREEL_VK_ICD names a missing file of another name, so the message says to point SIMREEL_VK_ICD at it)."""
     folder = Path(no_render_env["SIMREEL_VK_ICD"]).parent
-    return ("fetch the software Vulkan driver (lavapipe): `make setup` does it in a simreel checkout; after a pip "
-            f"install run `tools/fetch_lavapipe.sh {folder} and set SIMREEL_VK_ICD={folder}/lvp_icd.json` from "
-            "simreel's source (Debian/Ubuntu); or use a machine with a GPU")
+    lavapipe = ("fetch the software Vulkan driver (lavapipe): `make setup` does it in a simreel checkout; after a pip "
+                f"install run `tools/fetch_lavapipe.sh {folder} and set SIMREEL_VK_ICD={folder}/lvp_icd.json` from "
+                "simreel's source (Debian/Ubuntu)")
+    if not any(os.path.exists(p) for p in ("/dev/nvidia0", "/proc/driver/nvidia")):
+        return f"{lavapipe}; or use a machine with a GPU"
+    return ("make this machine's NVIDIA Vulkan driver usable (SAPIEN finds no Vulkan device on the GPU: install the "
+            "Vulkan loader, libvulkan1, and in a container grant the graphics driver capability, e.g. "
+            f"NVIDIA_DRIVER_CAPABILITIES=all); or render on the CPU: {lavapipe}, then set VK_ICD_FILENAMES to its "
+            "lvp_icd.json (simreel does not choose lavapipe itself where an NVIDIA GPU is present)")
 
 
 @pytest.fixture(scope="module")
@@ -297,3 +304,26 @@ def test_env_versions_from_metadata():
     assert set(versions) == {"simreel", "mani_skill", "sapien", "torch", "numpy", "gymnasium", "python"}
     assert versions["mani_skill"] == "3.0.1" and versions["sapien"] == "3.0.3"
     assert versions["python"] == "{}.{}.{}".format(*sys.version_info[:3])
+
+
+def test_a_gpu_build_without_the_physx_gpu_library_says_where_to_get_it_and_put_it(tmp_path):
+    """SAPIEN fetches its PhysX GPU library from GitHub when a process first uses the GPU sim; on a machine that cannot
+    reach GitHub (this one, CI, the lent GPU machine) that fails with a bare network error. The real failure of
+    `sapien.physx.enable_gpu()` (in a child whose home is empty) must become a line that names the file, the folder
+    and the download."""
+    script = textwrap.dedent("""
+        import sapien.physx
+        from simreel.sim.make import EnvConfig, _build_error
+        try:
+            sapien.physx.enable_gpu()
+        except Exception as exc:
+            print(_build_error("PickCube-v1", exc, backend="none", cfg=EnvConfig(num_envs=4)))
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "HOME": str(tmp_path)})
+    folder = next((tmp_path / ".sapien" / "physx").iterdir())
+    if (folder / "libPhysXGpu_64.so").is_file():
+        pytest.skip("this machine reached GitHub and SAPIEN fetched its PhysX GPU library")
+    line = done.stdout.strip().splitlines()[-1]
+    assert line.startswith(f"PickCube-v1: the GPU sim needs SAPIEN's PhysX GPU library, which is not in {folder}")
+    assert f"/releases/download/{folder.name}/linux" in line and f"unzip it into {folder} on this one" in line
