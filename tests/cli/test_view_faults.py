@@ -46,20 +46,34 @@ def test_a_full_disk_is_one_line_exit_2_not_a_hang(pickcube_h5, tmp_path, replac
     assert left == [] and kept == (OLD if replacing else None)
 
 
+def test_a_disk_filled_by_the_session_itself_is_one_line_not_a_hang(pickcube_h5, tmp_path):
+    """The meshes of a session with visual geometry (5.7 MB) overfill a 600 KiB disk while Rerun's own file writer
+    wrote them: its thread stopped and even a flush with a time limit then waited forever (SIGINT, SIGTERM unseen)."""
+    with small_disk(tmp_path, 600) as disk:
+        out = disk / "x.rrd"
+        done = subprocess.run(simreel_command("view", str(pickcube_h5), "--save", str(out), "--geometry", "visual"),
+                              capture_output=True, text=True, timeout=120)
+        left = _others(disk)
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert done.stderr.splitlines() == [f"simreel view: error: {out}: the disk is full: the session was not saved; "
+                                        "free some space or write to another disk"]
+    assert left == []
+
+
 @pytest.fixture(scope="module")
 def long_recording(record) -> Path:
     """Long enough that its session takes seconds to write: the signal comes in the middle of it."""
     return record("PickCube-v1", 1, 1500)
 
 
-def _wait_until_written(child: subprocess.Popen, folder: Path, out: Path, before: bytes | None) -> None:
-    """Until the session is being written: bytes in a temporary file beside `out`, or `out` itself changed (as it
-    was written in place before)."""
+def _wait_until_saving(child: subprocess.Popen, folder: Path, out: Path, before: bytes | None) -> None:
+    """Until the session is being saved: its temporary file beside `out` made (the session is then logged into it,
+    which takes seconds for a long episode), or `out` itself changed (as it was written in place before)."""
     deadline = time.monotonic() + 240
     while True:
         assert child.poll() is None, child.communicate()
         assert time.monotonic() < deadline, "no .rrd written after 240 s"
-        partial = [p for p in folder.iterdir() if p.name.startswith(f".{out.name}.") and p.stat().st_size > 0]
+        partial = [p for p in folder.iterdir() if p.name.startswith(f".{out.name}.")]
         now = out.read_bytes() if out.exists() else None
         if partial or now != before:
             return
@@ -80,7 +94,7 @@ def test_a_signal_while_saving_leaves_no_part_of_a_session(long_recording, tmp_p
                                              "collision", *(["--overwrite"] if replacing else [])),
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        _wait_until_written(child, tmp_path, out, OLD if replacing else None)
+        _wait_until_saving(child, tmp_path, out, OLD if replacing else None)
         os.kill(child.pid, stop)
         _, err = child.communicate(timeout=60)
     finally:
