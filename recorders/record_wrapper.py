@@ -24,7 +24,7 @@ import gymnasium as gym
 import numpy as np
 
 from simreel.episode import EpisodeMeta, StepBlock, json_default
-from simreel.errors import UsageError
+from simreel.errors import SimreelError, StateLayoutError, Terminated, UsageError
 from simreel.formats import open_writer, records_poses_by_default
 from simreel.formats.durable import deferred_signals
 from simreel.formats.writer_process import ProcessWriter
@@ -39,7 +39,7 @@ from simreel.sim.state import FastStateReader, check_same_layout, read_state
 from simreel.sim.user_code import recorded_spec
 from simreel.state_tree import layout_of, to_numpy
 
-__all__ = ["RecordWrapper", "RecordOptions"]
+__all__ = ["RecordWrapper", "RecordOptions", "what_stopped"]
 
 
 @dataclass(frozen=True)
@@ -183,10 +183,10 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._writer.checkpoint()  # a writer process commits the episodes just ended while the env resets
         obs, info = self.env.reset(seed=seed, options=options or None)
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
-        if reconfigured or self._sampler.px is not self._u.scene.px:
-            self._bind_sampler()
         state = read_state(self._u)
         check_same_layout(self.meta.env_id, self.meta.state_layout, layout_of(state, batched=True))
+        if reconfigured or self._sampler.px is not self._u.scene.px:
+            self._bind_sampler()
         self._bind_fast_reader(state, reconfigured)
         reset_rows = self._per_state_rows(state, obs)
         stored_options = json.loads(json.dumps({k: v for k, v in options.items() if k != "env_idx"},
@@ -286,6 +286,17 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         the writer raises: e.g. the error that stopped it, raised again by the commit)."""
         self._close(replace=True)
 
+    def __exit__(self, *exc_info: Any) -> bool:
+        """Leave a ``with`` block: `close` when it ended normally, and when an exception ends it `stop` (as `simreel
+        record` does): the running episodes are noted as cut short and a recording that was to replace an old file
+        (`overwrite`) stays in its side folder, the old file as it was. The exception goes on."""
+        error = exc_info[1]
+        if error is None:
+            self.close()
+        else:
+            self.stop(what_stopped(error))
+        return False
+
     def stop(self, reason: str) -> None:
         """End a recording stopped before it was complete (`reason`: what stopped it, e.g. "Ctrl-C (SIGINT)"): each
         running episode that has steps is committed with a note that it was cut short, and a recording that was to
@@ -327,8 +338,15 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return self._writer.path
 
     def _bind_sampler(self) -> None:
-        """Bind the contact sampler to the scene now (at the start and after a reset that rebuilt it)."""
-        self._sampler.bind(self._u)
+        """Bind the contact sampler to the scene now (at the start and after a reset that rebuilt it); a rebuilt scene
+        that lacks a body of the channels chosen from the first one is `StateLayoutError`."""
+        try:
+            self._sampler.bind(self._u)
+        except KeyError as e:
+            raise StateLayoutError(
+                f"{self.meta.env_id}: this episode's scene has no body {e}, which the recording's contact channels name "
+                "(chosen from the first scene, and the same for every episode); record without contacts "
+                "(--contacts none, contacts=\"none\") or with pairs of bodies every scene has") from None
         self._contacts_captured = self._sampler.captures
 
     def _fingerprint_scenes(self, envs: Iterable[int]) -> None:
@@ -437,6 +455,15 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             sink.commit(meta)
 
 
+def what_stopped(error: BaseException) -> str:
+    """What stopped a recording, for the note on each episode it cut short (`RecordWrapper.stop`)."""
+    if isinstance(error, Terminated):
+        return "SIGTERM"
+    if isinstance(error, KeyboardInterrupt):
+        return "Ctrl-C (SIGINT)"
+    return f"an error ({error})" if isinstance(error, SimreelError) else f"an error ({type(error).__name__})"
+
+
 def _constructor_options(opts: RecordOptions) -> dict[str, Any]:
     """The options that differ from the defaults, as plain values for ``env.spec`` (gymnasium's WrapperSpec)."""
     default = RecordOptions()
@@ -449,7 +476,9 @@ def _constructor_options(opts: RecordOptions) -> dict[str, Any]:
 
 
 def _refuse_reshaping_wrappers(env: gym.Env, record_obs: bool) -> None:
-    """Actions (and observations, when recorded) must be the task's own: replay feeds them to the task."""
+    """Actions (and observations, when recorded) must be the task's own: replay feeds them to the task. Episodes must
+    start at the recorder's resets: one that an autoreset wrapper below it starts inside step() would be recorded
+    as a continuation of the episode before."""
     e = env
     while isinstance(e, gym.Wrapper):
         if isinstance(e, gym.ActionWrapper) or (record_obs and isinstance(e, gym.ObservationWrapper)):
@@ -458,4 +487,8 @@ def _refuse_reshaping_wrappers(env: gym.Env, record_obs: bool) -> None:
                 f"{'actions' if isinstance(e, gym.ActionWrapper) else 'observations'}; a replay could not "
                 "reproduce them. Put RecordWrapper directly around the ManiSkill env, below such wrappers"
             )
+        if isinstance(e, gym.wrappers.Autoreset):
+            raise UsageError(
+                "RecordWrapper wraps Autoreset, which starts the next episode inside step(), where the recorder cannot "
+                "see it: the recording would join two episodes. Put Autoreset above RecordWrapper")
         e = e.env

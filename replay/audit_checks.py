@@ -204,7 +204,8 @@ def compare_computed(report: AuditReport, check: Check, a: Computed, b: Computed
 
 
 def differing_attributes(ua: Any, ub: Any, state_keys: Iterable[str]) -> list[str]:
-    """Tensor, array and Pose attributes of the task that hold different values in the two instances."""
+    """Tensor, array, Pose and plain number attributes of the task that hold different values in the two
+    instances."""
     import torch
 
     skip = set(_ENV_INTERNALS) | {k.split("/", 1)[0] for k in state_keys}
@@ -221,4 +222,6 @@ def differing_attributes(ua: Any, ub: Any, state_keys: Iterable[str]) -> list[st
         elif isinstance(va, np.ndarray) and isinstance(vb, np.ndarray) and va.dtype != object:
             if va.shape == vb.shape and not np.array_equal(va, vb):
                 out.append(name)
+        elif isinstance(va, int | float) and isinstance(vb, int | float) and va != vb:  # bool is an int
+            out.append(name)
     return sorted(out)

@@ -460,6 +460,11 @@ def verify_recording(
         file, an unknown episode, an env that cannot be rebuilt; `StateLayoutError` when its layout differs.
     """
     run = ReplayRun(path, options, **overrides)
+    if len(run.worklist.files) != 1:
+        files = [str(f.path) for f in run.worklist.files]
+        names = ", ".join(files[:3]) + (", ..." if len(files) > 3 else "")
+        raise UsageError(f"verify_recording verifies one recording, and {path} names {len(files)} ({names}): pass "
+                         "one file, or use ReplayRun for several")
     reports: dict[int, EpisodeReport] = {}
 
     def keep(item: WorkItem, report: EpisodeReport) -> None:

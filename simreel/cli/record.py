@@ -8,7 +8,7 @@ from typing import Any
 
 from simreel.cli.common import add_env_options, apply_imports, progress_bar
 from simreel.cli.policy_option import POLICY_HELP
-from simreel.errors import SimreelError, Terminated, UsageError
+from simreel.errors import UsageError
 from simreel.formats.durable import raise_if_stopped
 
 __all__ = ["add_parser", "run"]
@@ -117,23 +117,16 @@ def run(args: argparse.Namespace) -> int:
         else:
             _record_batched(rec, policy, args, limits.steps)
     except BaseException as e:
+        from simreel.recorders.record_wrapper import what_stopped
+
         try:
-            rec.stop(_what_stopped(e))
+            rec.stop(what_stopped(e))
         finally:  # also when a second Ctrl-C cuts the stop short: the user must learn where the recording is
             _summary(rec, stopped=True)
         raise
     rec.close()
     _summary(rec)
     return 0
-
-
-def _what_stopped(error: BaseException) -> str:
-    """What stopped a recording, for the note on the episode it cut short."""
-    if isinstance(error, Terminated):
-        return "SIGTERM"
-    if isinstance(error, KeyboardInterrupt):
-        return "Ctrl-C (SIGINT)"
-    return f"an error ({error})" if isinstance(error, SimreelError) else f"an error ({type(error).__name__})"
 
 
 class _Policy:

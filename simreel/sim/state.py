@@ -283,11 +283,13 @@ def check_rebuilt_layout(unwrapped: Any, env_id: str, recorded: Mapping[str, Lea
 
 
 def check_same_layout(env_id: str, first: Mapping[str, LeafSpec], now: Mapping[str, LeafSpec]) -> None:
-    """Raise `StateLayoutError` when a task's state layout `now` is not the layout of its `first` episode."""
+    """Raise `StateLayoutError` when a task's state layout `now` is not the `first` one, the recording's (read from
+    the env as the recorder was made, before any episode)."""
     error = _layout_error(
-        first, now, ("first episode", "now"),
+        first, now, ("when the recording started", "now"),
         f"the state dict of {env_id} changed after a reset",
-        "one recording needs one layout — register merged views for per-episode objects (see simreel.heterogeneous)",
+        "one recording needs one layout — register merged views for per-episode objects, with a `state_dof` bound "
+        "where their joints vary (see simreel.heterogeneous)",
     )
     if error is not None:
         raise error

@@ -183,6 +183,51 @@ def test_state_layout_change_is_refused(tmp_path):
     env.close()
 
 
+RENAMED_LINK_TASK = """
+import sapien, torch
+from mani_skill.envs.tasks.tabletop.push_cube import PushCubeEnv
+from mani_skill.utils.registration import register_env
+
+@register_env("SimreelTestRenamedLink-v1", max_episode_steps=20)
+class RenamedLink(PushCubeEnv):
+    \"\"\"A slider whose moving link is named after the episode's seed: the state layout stays, the bodies do not.\"\"\"
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, reconfiguration_freq=1, **kwargs)
+
+    def _load_scene(self, options):
+        super()._load_scene(options)
+        seed = int(self._batched_episode_rng[0].randint(0, 2))
+        builder = self.scene.create_articulation_builder()
+        base = builder.create_link_builder()
+        base.set_name("base")
+        base.add_box_collision(half_size=[0.02, 0.02, 0.02])
+        moving = builder.create_link_builder(base)
+        moving.set_name(("drawer", "knob")[seed])
+        moving.add_box_collision(half_size=[0.02, 0.02, 0.02])
+        moving.set_joint_properties("prismatic", limits=[[0, 0.1]], pose_in_parent=sapien.Pose(),
+                                    pose_in_child=sapien.Pose(), friction=0, damping=0)
+        builder.initial_pose = sapien.Pose(p=[0.3, 0.3, 0.02])
+        self.slider = builder.build(name="slider", fix_root_link=True)
+"""
+
+
+def test_a_rebuilt_scene_without_a_body_the_contact_channels_name_is_one_clear_error(tmp_path):
+    """Contact channels are chosen from the first scene; a later scene that lacks one of their bodies (a link named
+    per episode, the state layout the same) ended `record` with `internal error: KeyError` (exit 3)."""
+    from simreel.sim.user_code import import_user_code
+
+    task = tmp_path / "renamed_link_task.py"
+    task.write_text(RENAMED_LINK_TASK)
+    import_user_code(str(task))
+    env = RecordWrapper(make_env("SimreelTestRenamedLink-v1"), tmp_path / "c.h5")
+    moving = next(b for ch in env.meta.contact_channels for b in ch.bodies if b.startswith("slider/") and b != "slider/base")
+    with pytest.raises(StateLayoutError, match=f"this episode's scene has no body '{moving}', which the recording's "
+                                               "contact channels name .*record without contacts"):
+        for seed in range(20):
+            env.reset(seed=seed)
+    env.close()
+
+
 def test_unseeded_reset_records_no_seed_and_seeded_one_its_seed(tmp_path):
     """ManiSkill keeps a stale _episode_seed after reset(seed=None): the file must not claim it."""
     env = RecordWrapper(make_env("PushCube-v1"), tmp_path / "s.h5")
@@ -320,6 +365,37 @@ def test_wrappers_that_change_actions_must_sit_above_the_recorder(tmp_path):
     with pytest.raises(UsageError, match="RecordWrapper wraps ClipAction, which changes the task's actions"):
         RecordWrapper(gym.wrappers.ClipAction(make_env("PushCube-v1")), tmp_path / "w.h5")
     assert not (tmp_path / "w.h5").exists()
+
+
+def test_an_autoreset_below_the_recorder_is_refused(tmp_path):
+    """Autoreset starts the next episode inside step(): below the recorder, two episodes were written as one (a
+    replay then diverged with cause `undetermined`)."""
+    import gymnasium as gym
+
+    with pytest.raises(UsageError, match="RecordWrapper wraps Autoreset, .* Put Autoreset above RecordWrapper"):
+        RecordWrapper(gym.wrappers.Autoreset(make_env("PushCube-v1")), tmp_path / "w.h5")
+    assert not (tmp_path / "w.h5").exists()
+
+
+def test_an_exception_that_leaves_a_with_block_stops_the_recording_as_record_does(tmp_path):
+    """`with RecordWrapper(..., overwrite=True) as env:` left by an exception closed the recording as if complete:
+    the old file was replaced by the fragment, without a note. Now it stops: the old file stays, the new recording
+    waits in its side folder with the running episode noted as cut short."""
+    out, zero = tmp_path / "r.h5", np.zeros(8, np.float32)
+    with RecordWrapper(make_env("PickCube-v1"), out) as rec:
+        rec.reset(seed=0)
+        rec.step(zero)
+    old = out.read_bytes()
+    with pytest.raises(RuntimeError, match="the training loop failed"):
+        with RecordWrapper(make_env("PickCube-v1"), out, overwrite=True) as rec:
+            rec.reset(seed=1)
+            for _ in range(3):
+                rec.step(zero)
+            raise RuntimeError("the training loop failed")
+    assert out.read_bytes() == old
+    with open_reader(tmp_path / "r.h5.partial" / "r.h5") as r:
+        assert [(m.seed, m.length, m.notes) for m in r.episodes] == [
+            (1, 3, ["cut short: an error (RuntimeError) stopped the recording before this episode ended"])]
 
 
 def test_the_wrapper_keeps_its_arguments_in_env_spec(tmp_path):

@@ -132,3 +132,17 @@ def test_a_scratch_folder_left_by_a_killed_run_is_cleared_and_a_live_one_refused
     finally:
         lock.release()
     assert not (tmp_path / "out2.h5").exists()
+
+
+def test_verify_recording_of_a_folder_of_several_recordings_is_refused_before_replaying(record, tmp_path):
+    """It replayed every episode of every file, then failed on its own unpacking of the one file it expected (a raw
+    ValueError, the work lost)."""
+    folder = tmp_path / "ds"
+    folder.mkdir()
+    for name in ("a", "b"):
+        shutil.copy(record("PickCube-v1", 1, 5), folder / f"{name}.h5")
+    replayed = []
+    with pytest.raises(UsageError, match=r"verify_recording verifies one recording, and .*ds names 2 \(.*a\.h5, "
+                                         r".*b\.h5\): pass one file, or use ReplayRun for several"):
+        verify_recording(folder, progress=replayed.append)
+    assert replayed == []
