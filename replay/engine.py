@@ -17,9 +17,11 @@ and restoring a state is `simreel.sim.state.restore_state`; the viewer and ``sim
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -337,21 +339,22 @@ class EpisodeReplayer:
             raise ReplayError(f"resync={resync} needs mode 'actions' and K >= 1")
         start = time.perf_counter()
         run = _Run(source, sink, mode, resync, rows)
-        try:
-            out = self._replay(run)
-        except SimreelError:
-            raise
-        except Exception as exc:
-            if self.obs_mode != "none" or self.need_obs:
+        with _task_code_errors():
+            try:
+                out = self._replay(run)
+            except SimreelError:
                 raise
-            # A task whose reward or evaluation reads observations cannot run with obs_mode="none": rebuild
-            # with the recorded observation mode and replay again (slower, same physics).
-            self.close()
-            self.obs_mode = self.meta.obs_mode
-            self._build()
-            out = self._replay(run)
-            out.notes.insert(0, f"replayed with obs_mode={self.obs_mode!r}: the task failed without observations "
-                                f"({type(exc).__name__}: {exc})")
+            except Exception as exc:
+                if self.obs_mode != "none" or self.need_obs:
+                    raise
+                # A task whose reward or evaluation reads observations cannot run with obs_mode="none": rebuild
+                # with the recorded observation mode and replay again (slower, same physics).
+                self.close()
+                self.obs_mode = self.meta.obs_mode
+                self._build()
+                out = self._replay(run)
+                out.notes.insert(0, f"replayed with obs_mode={self.obs_mode!r}: the task failed without "
+                                    f"observations ({type(exc).__name__}: {exc})")
         out.compare_contacts = self._contacts is not None
         out.seconds = time.perf_counter() - start
         return out
@@ -364,6 +367,11 @@ class EpisodeReplayer:
         (None: the reader's `block_rows`), each block handed to `sink` with its replay (which holds the converted
         actions). The result's notes say at which steps the target mode's limits clipped the action; its `commands`
         hold per step the tool-centre pose each action commanded (12 floats a step, kept whole)."""
+        with _task_code_errors():
+            return self._replay_converted(source, converter, sink, rows=rows)
+
+    def _replay_converted(self, source: EpisodeRows, converter: Any, sink: BlockSink, *,
+                          rows: int | None) -> ReplayedEpisode:
         import torch
 
         start = time.perf_counter()
@@ -542,6 +550,23 @@ class EpisodeReplayer:
         limit = self.max_episode_steps
         truncated = limit is not None and self.u._elapsed_steps[0].item() >= limit
         return obs, reward, terminated, truncated, info
+
+
+@contextlib.contextmanager
+def _task_code_errors() -> Iterator[None]:
+    """Raise what the user's task code raised in the block as `TaskCodeError` (`task_code_error`): that episode's
+    verdict is then an error naming the task's line, and a dataset run goes on with the next episode."""
+    from simreel.sim.user_code import task_code_error
+
+    try:
+        yield
+    except SimreelError:
+        raise
+    except Exception as exc:
+        error = task_code_error(exc)
+        if error is None:
+            raise
+        raise error from exc
 
 
 def _without_nan(source: EpisodeRows, first: int, actions: np.ndarray) -> np.ndarray:

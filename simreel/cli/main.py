@@ -83,9 +83,20 @@ def _run(args: argparse.Namespace) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except Exception as e:  # a bug, not bad input: still one line, and not 1 (which replay uses for "diverged")
-        how = "please report it" if args.debug else "rerun with --debug for the traceback, and please report it"
-        _fail(args, f"internal error: {type(e).__name__}: {e} ({how})")
-        return 3
+        return _unexpected(args, e)
+
+
+def _unexpected(args: argparse.Namespace, e: Exception) -> int:
+    """Exit 3 for a bug of simreel's, one line; exit 2 where the user's task code raised (`task_code_error`)."""
+    from simreel.sim.user_code import task_code_error
+
+    user_bug = task_code_error(e)
+    if user_bug is not None:
+        _fail(args, f"error: {user_bug}")
+        return 2
+    how = "please report it" if args.debug else "rerun with --debug for the traceback, and please report it"
+    _fail(args, f"internal error: {type(e).__name__}: {e} ({how})")
+    return 3
 
 
 def _fail(args: argparse.Namespace, message: str) -> None:

@@ -24,7 +24,7 @@ from simreel.sim.render_device import (
     probe_render_device,
     start_render_probe,
 )
-from simreel.sim.user_code import quiet_sapien_import
+from simreel.sim.user_code import quiet_sapien_import, task_code_error
 
 if TYPE_CHECKING:
     import gymnasium as gym
@@ -371,15 +371,24 @@ def _build_error(env_id: str, exc: Exception, *, backend: str, cfg: EnvConfig) -
                 "device; use num_envs=1 (CPU sim), or gymnasium's AsyncVectorEnv for several CPU envs"
             )
         return EnvBuildError(f"{env_id}: a CUDA device was asked for and this machine has none ({message})")
-    missing = _missing_physx_gpu_library(exc)
-    if missing is not None:
-        return EnvBuildError(f"{env_id}: {missing} ({type(exc).__name__}: {message})")
+    elsewhere = _failed_outside_maniskill(env_id, exc, message)
+    if elsewhere is not None:
+        return elsewhere
     if isinstance(exc, AttributeError) and "render_shapes" in message:
         return RenderUnavailableError(
             f"{env_id} reads render shapes while building its scene, which needs a render device ({message}). "
             f"To build it, {no_render_device_fix()}."
         )
     return EnvBuildError(f"{env_id}: could not build the env: {type(exc).__name__}: {message}")
+
+
+def _failed_outside_maniskill(env_id: str, exc: Exception, message: str) -> Exception | None:
+    """The error for a build that failed in SAPIEN fetching its PhysX GPU library, or in the user's task code (its
+    scene building or first reset: `task_code_error`); None otherwise."""
+    missing = _missing_physx_gpu_library(exc)
+    if missing is not None:
+        return EnvBuildError(f"{env_id}: {missing} ({type(exc).__name__}: {message})")
+    return task_code_error(exc)
 
 
 def _missing_physx_gpu_library(exc: Exception) -> str | None:

@@ -16,15 +16,17 @@ import importlib
 import importlib.util
 import os
 import sys
+import traceback
 import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
 
-from simreel.errors import EnvBuildError
+from simreel.errors import EnvBuildError, TaskCodeError
 from simreel.sim.render_device import configure_vulkan
 
-__all__ = ["import_user_code", "imported_user_code", "quiet_sapien_import", "recorded_spec", "resolve_task_imports"]
+__all__ = ["import_user_code", "imported_user_code", "quiet_sapien_import", "recorded_spec", "resolve_task_imports",
+           "task_code_error"]
 
 _IMPORTED: dict[str, str] = {}
 """Every spec `import_user_code` imported in this process, in order, and the name of the module it gave."""
@@ -58,6 +60,26 @@ def imported_user_code() -> dict[str, str]:
     """The user's code this process imported (`import_user_code` spec -> module name), simreel's own modules
     left out; error messages name it (an env id none of it registers)."""
     return {spec: name for spec, name in _IMPORTED.items() if name != "simreel" and not name.startswith("simreel.")}
+
+
+def task_code_error(exc: BaseException) -> TaskCodeError | None:
+    """`exc` as an error of the user's own code, where its traceback runs through a file this process imported with
+    `import_user_code` (a task's step, evaluate or reward raising): a bug for the task's author, said in one line that
+    names where (exit 2), not an internal error of simreel's. None where no frame of it is in that code."""
+    files = _user_files()
+    frames = [f for f in traceback.extract_tb(exc.__traceback__) if f.filename in files] if files else []
+    if not frames:
+        return None
+    last = frames[-1]
+    message = " ".join(str(exc).split())
+    return TaskCodeError(f"the task's own code raised {type(exc).__name__}: {message} ({Path(last.filename).name}, "
+                         f"line {last.lineno}, in {last.name}); fix the task")
+
+
+def _user_files() -> set[str]:
+    """The files of the modules `imported_user_code` names, as tracebacks spell them."""
+    files = (getattr(sys.modules.get(name), "__file__", None) for name in imported_user_code().values())
+    return {f for f in files if f}
 
 
 def recorded_spec(spec: str, *, base: str | Path | None = None) -> str:

@@ -121,3 +121,61 @@ def test_a_relative_import_is_kept_from_the_folder_it_was_given_in(tmp_path):
     assert recorded_spec("tasks/noop.py", base=tmp_path) == str(tmp_path / "tasks" / "noop.py")
     assert recorded_spec("/abs/noop.py", base=tmp_path) == "/abs/noop.py"
     assert recorded_spec("my_tasks.mod", base=tmp_path) == "my_tasks.mod"  # a module is found by its name
+
+
+BUGGY_TASK = '''
+import os
+from mani_skill.envs.tasks.tabletop.pick_cube import PickCubeEnv
+from mani_skill.utils.registration import register_env
+
+@register_env("SimreelTestBuggyEvaluate-v1", max_episode_steps=50)
+class BuggyEvaluate(PickCubeEnv):
+    def evaluate(self):
+        if os.environ.get("SIMREEL_TEST_BUG") and int(self.elapsed_steps[0]) >= 3:
+            raise ZeroDivisionError("a bug of the task's author")
+        return super().evaluate()
+
+    def _initialize_episode(self, env_idx, options):
+        super()._initialize_episode(env_idx, options)
+        if os.environ.get("SIMREEL_TEST_RESET_BUG"):
+            raise KeyError("a bug in reset")
+'''
+
+
+def test_an_error_raised_in_the_users_task_code_is_one_line_naming_its_line_not_an_internal_error(tmp_path):
+    """A task's own step code raising (here its `evaluate`, from step 3) was `internal error ... please report it`,
+    exit 3, in record, audit and replay, and stopped a whole dataset run; now one line naming the task's file and
+    line, exit 2, and in a dataset run that episode's verdict is `error` while the others go on."""
+    import os
+    import subprocess
+
+    from support.processes import simreel_command
+
+    task = tmp_path / "buggy_tasks.py"
+    task.write_text(BUGGY_TASK)
+    env_id, line = "SimreelTestBuggyEvaluate-v1", 10
+    said = (f"the task's own code raised ZeroDivisionError: a bug of the task's author (buggy_tasks.py, line {line}, "
+            "in evaluate); fix the task")
+    (tmp_path / "ds").mkdir()
+
+    def run(*args: str, bug: bool = True) -> subprocess.CompletedProcess:
+        env = {**os.environ, "SIMREEL_TEST_BUG": "1"} if bug else os.environ
+        return subprocess.run(simreel_command(*args), capture_output=True, text=True, timeout=300, cwd=tmp_path, env=env)
+
+    clean = run("record", env_id, "--import", str(task), "-o", "ds/a.h5", "-n", "2", "--max-steps", "6", "-q", bug=False)
+    assert clean.returncode == 0, clean.stderr
+    for args in (("record", env_id, "--import", str(task), "-o", "b.h5", "--max-steps", "6", "-q"),
+                 ("audit", env_id, "--import", str(task)),
+                 ("replay", "ds/a.h5", "-q")):
+        done = run(*args)
+        assert (done.returncode, done.stderr.splitlines()[-1]) == (2, f"simreel {args[0]}: error: {said}"), args
+    dataset = run("replay", "ds", "-q")
+    assert dataset.returncode == 2, dataset.stderr
+    assert dataset.stdout.count(f"error             {said}") == 2
+    assert "2 could not be replayed" in dataset.stdout
+    # raised while the env is built (ManiSkill resets it then): was "could not build the env: KeyError: ..."
+    done = subprocess.run(simreel_command("record", env_id, "--import", str(task), "-o", "c.h5", "-q"), cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300, env={**os.environ, "SIMREEL_TEST_RESET_BUG": "1"})
+    assert (done.returncode, done.stderr.splitlines()[-1]) == (
+        2, "simreel record: error: the task's own code raised KeyError: 'a bug in reset' (buggy_tasks.py, line 16, in "
+           "_initialize_episode); fix the task")
