@@ -123,13 +123,14 @@ class _Auditor:
         try:
             if not self._check_dict(env_a.unwrapped):
                 return
+            built = layout_of(read_state(env_a.unwrapped), batched=True)  # as gym.make left it: a recorder's layout
             actions, other = self._actions(env_a)
             saved, elapsed = self._drive(env_a, actions[: self.steps])
             self._roundtrip(env_a.unwrapped, saved, elapsed)
             env_b = self.make()
             self._restore_into_second(env_a.unwrapped, env_b, other, (saved, elapsed), actions[self.steps - 1])
             self._follow(env_a, env_b, actions[self.steps:])
-            self._check_layouts(env_a)
+            self._check_layouts(env_a, built)
         finally:
             if env_b is not None:
                 env_b.close()
@@ -226,8 +227,10 @@ class _Auditor:
                                              error=err, tolerance=0.0))
         self.report.checks.append("controller state survives a restore (" + ", ".join(sorted(ctrl)) + ")")
 
-    def _check_layouts(self, env: Any) -> None:
-        """4. the layout does not depend on the seed (nor, on a GPU, on num_envs)."""
+    def _check_layouts(self, env: Any, built: Any) -> None:
+        """4. the layout does not depend on the seed, nor differs from the layout the env was `built` with (ManiSkill
+        resets an env while building it, with a seed of its own; a recorder made then takes that layout), nor, on a
+        GPU, depends on num_envs."""
         seeds = [self.seed, self.seed + 1, self.seed + 2]
         layouts = []
         for s in seeds:
@@ -235,15 +238,19 @@ class _Auditor:
             layouts.append(layout_of(read_state(env.unwrapped), batched=True))
         base = layouts[0]
         for s, layout in zip(seeds[1:], layouts[1:], strict=True):
-            for key in sorted(set(base) | set(layout)):
-                if base.get(key) != layout.get(key):
-                    self.report.add(AuditFinding(
-                        "layout_seed", f"env_states/{key}",
-                        f"the state-dict layout depends on the seed: {key} is {describe_leaf(base.get(key))} with "
-                        f"seed {self.seed} and {describe_leaf(layout.get(key))} with seed {s}; register merged views "
-                        "with fixed state sizes (simreel.heterogeneous)"))
-        self.report.checks.append(f"state-dict layout is the same for seeds {', '.join(map(str, seeds))}")
+            self._layout_findings("layout_seed", base, layout, f"with seed {self.seed}", f"with seed {s}")
+        self._layout_findings("layout_build", built, base, "as gym.make built it", f"after reset(seed={self.seed})")
+        self.report.checks.append(f"state-dict layout is the same as built and for seeds {', '.join(map(str, seeds))}")
         self._check_num_envs(base)
+
+    def _layout_findings(self, kind: str, a: Any, b: Any, as_a: str, as_b: str) -> None:
+        for key in sorted(set(a) | set(b)):
+            if a.get(key) != b.get(key):
+                self.report.add(AuditFinding(
+                    kind, f"env_states/{key}",
+                    f"the state-dict layout changes: {key} is {describe_leaf(a.get(key))} {as_a} and "
+                    f"{describe_leaf(b.get(key))} {as_b}, and one recording needs one layout; register merged views "
+                    "with fixed state sizes, with a state_dof bound where joints vary (simreel.heterogeneous)"))
 
     def _check_num_envs(self, base: Any) -> None:
         """The layout with num_envs=2 on the GPU sim equals `base`'s; where the GPU sim cannot be built (no CUDA

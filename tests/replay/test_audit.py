@@ -28,7 +28,7 @@ def test_fixed_twin_passes(tmp_path, capsys):
     doc = json.loads(out.read_text())
     assert doc["ok"] is True and doc["findings"] == []
     assert any("round-trips" in c for c in doc["checks"])
-    assert any("layout is the same for seeds" in c for c in doc["checks"])
+    assert "state-dict layout is the same as built and for seeds 0, 1, 2" in doc["checks"]
 
 
 def test_controller_state_is_checked(capsys):
@@ -45,3 +45,56 @@ def test_a_real_leak_in_a_builtin_task_is_found(capsys):
     out = capsys.readouterr().out
     assert "restore_evaluate   info/valve_rotation" in out
     assert "task attributes that still differ after the restore: rest_qpos" in out
+
+
+UNBOUNDED_CABINET_TASK = """
+import numpy as np, sapien, torch
+from mani_skill.envs.sapien_env import BaseEnv
+from mani_skill.utils.registration import register_env
+from mani_skill.utils.scene_builder.table import TableSceneBuilder
+from simreel.heterogeneous import build_heterogeneous_articulation
+from simreel.tasks.cabinets import add_cabinet_links, sample_cabinet
+
+@register_env("SimreelTestUnboundedCabinet-v1", max_episode_steps=20)
+class UnboundedCabinet(BaseEnv):
+    \"\"\"A cabinet of 1 or 2 joints per episode, merged without a state_dof bound: its layout follows the seed.\"\"\"
+    SUPPORTED_ROBOTS = ["panda"]
+
+    def __init__(self, *args, robot_uids="panda", **kwargs):
+        super().__init__(*args, robot_uids=robot_uids, reconfiguration_freq=1, **kwargs)
+
+    def _load_agent(self, options):
+        super()._load_agent(options, sapien.Pose(p=[-0.615, 0, 0]))
+
+    def _load_scene(self, options):
+        self.table_scene = TableSceneBuilder(self)
+        self.table_scene.build()
+        seeds = self._batched_episode_rng.randint(0, 2**31 - 1)
+        specs = [sample_cabinet(np.random.RandomState(int(s))) for s in seeds]
+        self.cab = build_heterogeneous_articulation(self.scene, lambda b, i: add_cabinet_links(b, specs[i], None),
+                                                    name="cab", state_dof=None, merged_links=["handle"],
+                                                    initial_pose=sapien.Pose(p=[0.1, 0, 0]))
+
+    def _initialize_episode(self, env_idx, options):
+        self.table_scene.initialize(env_idx)
+
+    def evaluate(self):
+        return {"success": torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)}
+
+    def compute_dense_reward(self, obs, action, info):
+        return torch.zeros(self.num_envs, device=self.device)
+
+    def compute_normalized_dense_reward(self, obs, action, info):
+        return self.compute_dense_reward(obs, action, info)
+"""
+
+
+def test_a_layout_that_differs_from_the_built_one_is_found(tmp_path, capsys):
+    """Seeds 0-2 all give this cabinet one joint, the env as gym.make built it (ManiSkill's own seed) two: the
+    audit compared seeds only and said "no findings", while a recorder made after gym.make refused every episode."""
+    task = tmp_path / "unbounded_cabinet.py"
+    task.write_text(UNBOUNDED_CABINET_TASK)
+    assert main(["audit", "SimreelTestUnboundedCabinet-v1", "--import", str(task), "--steps", "3", "-q"]) == 1
+    out = capsys.readouterr().out
+    assert "layout_build       env_states/articulations/cab" in out
+    assert "as gym.make built it and (15,) float32 after reset(seed=0)" in out
