@@ -260,7 +260,7 @@ def _report_records(report: Path) -> Iterator[Iterator[dict[str, Any]]]:
         yield read_log(log)
         return
     if not json_path.is_file():
-        raise ReportFileError(json_path, "no such report")
+        raise ReportFileError(report, "no such report")
     try:
         doc = json.loads(json_path.read_text(encoding="utf-8"))
         records = [{"type": "file", **f} for f in doc["files"]] + [{"type": "episode", **e} for e in doc["episodes"]]

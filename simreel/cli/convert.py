@@ -30,7 +30,8 @@ def add_parser(sub: Any) -> None:
         "convert",
         help="convert a recording between .h5 and .mcap, or to another obs/control mode (verified)",
         description="Copy every episode of IN to OUT; the suffix of OUT picks the format (.h5 or .mcap). Arrays are "
-        "copied bit-exactly both ways. With --obs-mode and/or --control-mode, convert instead: observations are "
+        "copied as they are, bit for bit, both ways (the copy is not read back: `simreel merge IN -o OUT` copies and "
+        "checks every array). With --obs-mode and/or --control-mode, convert instead: observations are "
         "re-rendered from the recorded states, actions converted to the control mode and replayed from each reset, "
         "and every episode is checked step by step against IN (exit 1 when one is not verified).",
     )
@@ -54,8 +55,8 @@ def add_parser(sub: Any) -> None:
                    help="write only episodes that are all of (comma-separated): verified (their check passed), "
                    "success (at their last step), not_truncated (they did not end at the time limit)")
     g.add_argument("--tol", type=_tracking_tolerance, action="append", default=[], metavar="GROUP=X",
-                   help="tracking tolerance of a control-mode conversion, repeatable; groups: ee_pos, ee_rot (rad), "
-                   "obj_pos, obj_rot, obj_qpos, success (steps)")
+                   help="tracking tolerance of a control-mode conversion, repeatable; groups: cmd_pos (m), cmd_rot "
+                   "(rad), ee_pos (m), ee_rot (rad), obj_pos (m), obj_rot (rad), obj_qpos, success (steps)")
     g.add_argument("--report", default=None, metavar="REPORT.json", help="write the JSON report here (per-step errors)")
     g.add_argument("--workers", type=int, default=1, metavar="N", help="parallel processes (default 1)")
     g.add_argument("--sim-backend", default=None, help="convert on this sim backend (physx_cpu for a GPU recording)")
@@ -108,6 +109,10 @@ def _link_poses(args: argparse.Namespace) -> Callable[[Any], Any]:
     def transform(meta: Any) -> Any:
         if meta.pose_bodies:
             return None
+        if not meta.state_layout:
+            raise UsageError(f"--poses: {args.input} holds no env states, from which the poses are computed; "
+                             "convert it without --poses (or replay it with `simreel replay -o` first, which "
+                             "records the states it reaches)")
         from simreel.sim.poses import LinkPoses
         from simreel.sim.user_code import resolve_task_imports
 

@@ -16,7 +16,9 @@ def add_parser(sub: Any) -> None:
                        description="Print episodes, lengths, success, state layout, contact channels and metadata, "
                                    "what the file does not hold and what is wrong with it. Several recordings (files, "
                                    "folders, glob patterns): one line per file and the totals. Exit status 2 when one "
-                                   "cannot be read, 1 when part of one is damaged.")
+                                   "cannot be read, 1 when part of one is damaged: what the file says of itself (its index, "
+                                   "MCAP's checksums); HDF5 data chunks are checked when read (replay, convert, "
+                                   "merge), not by inspect.")
     p.add_argument("paths", nargs="+", metavar="PATH", help="recordings, folders of recordings, or glob patterns")
     p.add_argument("--json", action="store_true",
                    help="print the summary as JSON (several recordings: a list, with an error entry for each "

@@ -98,7 +98,9 @@ def open_reader(path: str | Path) -> EpisodeReader:
 
     p = Path(path)
     if not p.is_file():
-        raise RecordingFileError(p, "no such file")
+        from simreel.formats.base import not_a_file
+
+        raise not_a_file(p)
     with open(p, "rb") as fh:
         head = fh.read(8)
     if head == HDF5_MAGIC:

@@ -47,6 +47,17 @@ _MAX_BLOCK_ROWS = 4096
 """At most this many steps per block (state-only rows are small; longer blocks gain nothing)."""
 
 
+def not_a_file(path: Path) -> RecordingFileError:
+    """The error for a recording path that is not a regular file: missing, a folder, or a device, pipe or socket."""
+    if path.is_dir():
+        reason = "a folder, not a recording file"
+    elif path.exists():
+        reason = "not a regular file"
+    else:
+        reason = "no such file"
+    return RecordingFileError(path, reason)
+
+
 def block_rows(fields: Sequence[FieldSpec], budget: int = BLOCK_BYTES) -> int:
     """Steps per block of an episode with `fields`: as many as fit in `budget` bytes, between 1 and 4096."""
     row = sum(np.dtype(f.dtype).itemsize * int(np.prod(f.shape, dtype=np.int64)) for f in fields)

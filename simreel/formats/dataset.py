@@ -36,7 +36,7 @@ from simreel import FORMAT_VERSION
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import OutputCheckError, RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
-from simreel.formats.base import EpisodeRows, PassedRows
+from simreel.formats.base import EpisodeRows, PassedRows, not_a_file
 from simreel.formats.copy import Target, write_episodes
 from simreel.formats.durable import deferred_signals, raise_if_stopped
 from simreel.formats.inputs import file_identity
@@ -665,7 +665,7 @@ def report_verdicts(path: str | Path, verdicts: Mapping[tuple[str, int], str],
     size or mtime differ): its verdicts would be about another file."""
     p = Path(path)
     if not p.is_file():
-        raise RecordingFileError(path, "no such file")
+        raise not_a_file(p)
     entry = next((f for f in files if Path(f).resolve() == p.resolve()), None)
     if entry is None:
         raise UsageError(f"{report} holds no verdict for {path}: replay it with --report first (simreel replay "

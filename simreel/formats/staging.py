@@ -108,17 +108,24 @@ class RecordingTarget:
     def publish(self, side_files: list[str] = (), *, replace: bool = True) -> None:
         """Move a staged recording (and its `side_files`, by name) over the old one; then give up the locks.
         `replace=False` (a recording stopped before it was complete) leaves a staged one in the side folder, where
-        readers of the old one are told about it (`replacement_note`), and the old one as it is."""
+        readers of the old one are told about it (`replacement_note`), and the old one as it is.
+
+        The side files go first and the recording last (a reader that finds the new recording finds its sidecar),
+        with SIGINT and SIGTERM held until all are moved: a signal between two moves left the new recording beside
+        the old one's sidecar, which ManiSkill's loader reads (other seeds, other episodes)."""
+        from simreel.formats.durable import deferred_signals
+
         if self.staged and not replace:
             self.release()
             return
         try:
             if self.staged:
-                os.replace(self.write_path, self.path)
-                for name in side_files:
-                    staged = self.folder / name
-                    if staged.exists():
-                        os.replace(staged, self.path.parent / name)
+                with deferred_signals():
+                    for name in side_files:
+                        staged = self.folder / name
+                        if staged.exists():
+                            os.replace(staged, self.path.parent / name)
+                    os.replace(self.write_path, self.path)
             self.remove_folder_if_empty()
         finally:
             self.release()

@@ -122,3 +122,26 @@ def test_a_block_that_fails_its_checksum_mid_episode_leaves_no_output(tmp_path, 
     [line] = capsys.readouterr().err.splitlines()
     assert line.startswith(f"simreel convert: error: {src}: ") and "traj_1/actions" in line, line
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_poses_of_a_file_without_env_states_is_one_line(tmp_path, capsys):
+    """A ManiSkill file recorded without env states (`record_env_state=False`) is valid input; `--poses`, which
+    computes every body's pose from the states, ended in `internal error: StopIteration` (exit 3)."""
+    from support.maniskill_files import record_maniskill
+
+    src = record_maniskill(tmp_path, "PickCube-v1", name="nostate", episodes=1, steps=3, record_env_state=False)
+    capsys.readouterr()  # ManiSkill's own warnings while recording
+    assert main(["convert", str(src), str(tmp_path / "out.mcap"), "--poses", "-q"]) == 2
+    assert capsys.readouterr().err == (
+        f"simreel convert: error: --poses: {src} holds no env states, from which the poses are computed; convert it "
+        "without --poses (or replay it with `simreel replay -o` first, which records the states it reaches)\n")
+    assert not (tmp_path / "out.mcap").exists()
+
+
+def test_the_help_names_every_tracking_tolerance_group(capsys):
+    from simreel.replay.tracking import TRACKING_GROUPS
+
+    with pytest.raises(SystemExit):
+        main(["convert", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert all(f"{group} (" in text or f"{group}," in text for group in TRACKING_GROUPS)

@@ -134,6 +134,8 @@ BAD_INPUT = [
     # convert
     ("convert-suffix", ["convert", "{rec}", "{tmp}/out.txt"], "unknown recording suffix '.txt'"),
     ("convert-missing", ["convert", "{tmp}/missing.h5", "{tmp}/out.mcap"], "missing.h5: no such file"),
+    ("convert-folder", ["convert", "{tmp}", "{tmp}/out.mcap"], ": a folder, not a recording file"),
+    ("inspect-device", ["inspect", "/dev/null"], "/dev/null: not a regular file"),
     ("convert-same", ["convert", "{rec}", "{rec}"], "OUT {rec} is IN; write it to another file"),
     ("convert-o-shares-sidecar", ["convert", "{rec}", "{rec_twin}", "--overwrite"], "is a file of IN"),
     # recover

@@ -6,6 +6,7 @@ one (lavapipe) that `make setup` fetches, made visible to ManiSkill through VK_I
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -32,6 +33,20 @@ def test_maniskill_replay_trajectory_replays_a_simreel_recording(record, maniski
             # ManiSkill's replay reproduced simreel's recording bit for bit (same seeds, same reset kwargs)
             for key in ("actors/cube", "articulations/panda"):
                 np.testing.assert_array_equal(f[f"traj_{i}/env_states/{key}"][()], ep.env_states[key])
+
+
+def test_maniskills_replay_re_renders_rgb_from_a_state_only_recording(record, maniskill_env, tmp_path):
+    """ManiSkill builds demos for training by re-rendering them (`replay_trajectory -o rgb`). The sidecar of a
+    state-only recording said render_backend "none", which ManiSkill passed on and then failed ("'NoneType' object
+    has no attribute 'visibility'"); a copy of a ManiSkill file that named no render backend said so too."""
+    src = record("PickCube-v1", 1, 5)
+    h5 = tmp_path / "pick.h5"
+    shutil.copy(src, h5)
+    shutil.copy(src.with_suffix(".json"), h5.with_suffix(".json"))
+    assert "render_backend" not in json.loads(h5.with_suffix(".json").read_text())["env_info"]["env_kwargs"]
+    replayed = replay_maniskill(h5, maniskill_env, "-o", "rgb")
+    with h5py.File(replayed, "r") as f:
+        assert f["traj_0/obs/sensor_data/base_camera/rgb"].shape == (6, 128, 128, 3)
 
 
 def test_states_mode_re_renders_rgb_observations(record, lavapipe_env, tmp_path):

@@ -121,3 +121,35 @@ def test_a_copy_that_fails_keeps_the_output_it_was_to_replace(tmp_path, suffix):
     with pytest.raises(RuntimeError, match="boom"):
         convert(src, out, overwrite=True, transform=Failing)
     assert out.read_bytes() == before and not side_folder(out).exists()
+
+
+def test_a_signal_while_a_staged_hdf5_is_published_never_pairs_it_with_the_old_sidecar(record, tmp_path, monkeypatch):
+    """`convert --overwrite` to .h5 moved the new OUT.h5 into place, then its sidecar OUT.json: a SIGTERM between the
+    two moves left the new recording beside the old sidecar (other episodes and seeds, which ManiSkill's loader
+    reads). The signal is sent from inside the first move, the moment it can land in a real run."""
+    import json
+    import os
+
+    from simreel.cli.main import main
+
+    old, new = record("PickCube-v1", 2, 5), record("PickCube-v1", 3, 5)
+    out = tmp_path / "OUT.h5"
+    shutil.copy(old, out)
+    shutil.copy(old.with_suffix(".json"), tmp_path / "OUT.json")
+    real_replace, moves = os.replace, []
+
+    def replace_then_signal(src, dst, *args, **kwargs):
+        real_replace(src, dst, *args, **kwargs)
+        if os.path.dirname(dst) == str(tmp_path):  # a move to a final name, not one inside the side folder
+            moves.append(os.path.basename(dst))
+            if len(moves) == 1:
+                os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(os, "replace", replace_then_signal)
+    code = main(["convert", str(new), str(out), "--overwrite", "-q"])
+    monkeypatch.undo()
+    assert code == 143 and sorted(moves) == ["OUT.h5", "OUT.json"]
+    with open_reader(out) as r:
+        held = [(m.index, m.seed) for m in r.episodes]
+    listed = [(e["episode_id"], e["episode_seed"]) for e in json.loads((tmp_path / "OUT.json").read_text())["episodes"]]
+    assert held == listed and len(held) == 3

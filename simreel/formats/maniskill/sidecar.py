@@ -42,13 +42,15 @@ _PAD = 4096
 # ------------------------------------------------------------------------------------------------ writing
 def sidecar_document(meta: RecordingMeta, episodes: list[EpisodeMeta]) -> dict[str, Any]:
     """The sidecar's JSON of a simreel recording: `env_info` (env id, gym.make kwargs, time limit) and one
-    entry per committed episode."""
+    entry per committed episode. A render backend of "none" (state-only, or none known: a ManiSkill file that named
+    none) is left out: ManiSkill's `replay_trajectory` passes the kwargs on, and with "none" its `-o rgb` re-rendering
+    of the demos fails; without it ManiSkill picks the machine's device."""
     env_kwargs = {
         **meta.env_kwargs,
         "obs_mode": meta.obs_mode,
         "control_mode": meta.control_mode,
         "sim_backend": meta.sim_backend,
-        "render_backend": meta.render_backend,
+        "render_backend": None if meta.render_backend == "none" else meta.render_backend,
         "reward_mode": meta.reward_mode,
     }
     return {

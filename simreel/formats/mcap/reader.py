@@ -26,7 +26,7 @@ import numpy as np
 from simreel import FORMAT_VERSION
 from simreel.episode import EpisodeMeta, StepBlock, episode_fields
 from simreel.errors import RecordingFileError
-from simreel.formats.base import EpisodeReader, EpisodeRows, block_rows
+from simreel.formats.base import EpisodeReader, EpisodeRows, block_rows, not_a_file
 from simreel.formats.lock import lock_file
 from simreel.formats.mcap.blocks import (
     fields_from_schema,
@@ -110,7 +110,7 @@ class McapReader(EpisodeReader):
     def __init__(self, path: str | Path, *, recover: bool = False) -> None:
         self.path = Path(path)
         if not self.path.is_file():
-            raise RecordingFileError(self.path, "no such file")
+            raise not_a_file(self.path)
         self._fh: IO[bytes] = open(self.path, "rb")
         try:
             self._open(recover)
