@@ -18,6 +18,7 @@ import functools
 import os
 import re
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -95,14 +96,26 @@ def _on_signal(signum: int, frame: Any) -> None:
 @contextmanager
 def stopping_signals() -> Iterator[None]:
     """SIGINT raises KeyboardInterrupt and SIGTERM `Terminated`, each noted for `raise_if_stopped`; the previous
-    handlers are put back after. Only the main thread handles signals: elsewhere this changes nothing."""
+    handlers are put back after. Only the main thread handles signals: elsewhere this changes nothing.
+
+    Meanwhile Python's report of an exception it could not raise ("Exception ignored in ...", with a traceback on
+    stderr) is left out for these two: raised in a finalizer or a weakref callback, the signal is noted all the same,
+    and the command's one line says it was stopped."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous_hook = sys.unraisablehook
+
+    def unraisable(report: Any) -> None:
+        if not isinstance(report.exc_value, KeyboardInterrupt):  # Terminated is one too
+            previous_hook(report)
+
+    sys.unraisablehook = unraisable
     try:
         yield
     finally:
+        sys.unraisablehook = previous_hook
         for s, handler in previous.items():
             signal.signal(s, handler)
         _received.clear()

@@ -55,3 +55,40 @@ def test_a_signal_held_while_the_block_fails_does_not_hide_its_error():
 def test_a_signal_held_by_a_block_that_ends_well_is_raised_after_it():
     with stopping_signals(), pytest.raises(KeyboardInterrupt), deferred_signals():
         signal.raise_signal(signal.SIGINT)
+
+
+def test_a_signal_swallowed_in_a_finalizer_prints_no_traceback_but_other_unraisable_errors_still_do():
+    """Python reports an exception raised in a finalizer as "Exception ignored in ..." with a traceback on stderr:
+    a Ctrl-C landing in one printed that before the command's own line ("simreel merge: interrupted")."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import gc, signal, sys, weakref
+        from simreel.formats.durable import raise_if_stopped, stopping_signals
+
+        class Thing:
+            pass
+
+        def unraisable(exc):
+            thing = Thing()
+            weakref.finalize(thing, exc)
+            del thing
+            gc.collect()
+
+        def value_error():
+            raise ValueError("a finalizer's own bug")
+
+        with stopping_signals():
+            unraisable(lambda: signal.raise_signal(signal.SIGINT))
+            unraisable(value_error)
+            try:
+                raise_if_stopped()
+            except KeyboardInterrupt:
+                print("stopped")
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.stdout == "stopped\n"
+    assert "KeyboardInterrupt" not in done.stderr
+    assert "ValueError: a finalizer's own bug" in done.stderr
