@@ -22,9 +22,10 @@ this process and ``workers - 1`` more (`simreel.replay.workers.run_pool`).
 Both read, convert, check and write an episode a block of rows at a time (the camera frames of a long episode never
 sit in memory whole): into the output when the episode is next in its order, else into a scratch recording of its
 own (`simreel.replay.output.ScratchEpisode`), copied in at its turn. What outlives a block is per-row errors, a
-control-mode conversion's commanded poses and success flags (a few dozen bytes a step). Every written episode is
-read back a block at a time and its arrays' digests compared with those of what was written
-(`simreel.formats.dataset.FieldHashes`).
+control-mode conversion's commanded poses and success flags (a few dozen bytes a step). The output is written in
+the run's scratch folder, and every written episode read back from there a block at a time, its arrays' digests
+compared with those of what was written (`simreel.formats.dataset.FieldHashes`), before the output is moved to its
+name: one that fails the check is never published (`OutputCheckError`), and an old file it was to replace stays.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ import numpy as np
 
 from simreel.compare import CompareScope, Tolerances, format_number
 from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock
-from simreel.errors import SimreelError, UsageError
+from simreel.errors import OutputCheckError, SimreelError, UsageError
 from simreel.formats import EpisodeReader, check_writable, format_of, open_reader, recording_files
 from simreel.formats.dataset import FieldHashes, field_digests
 from simreel.formats.durable import raise_if_stopped
@@ -52,7 +53,9 @@ from simreel.replay.output import (
     ReplayOutput,
     ScratchEpisode,
     ScratchFolder,
+    publish_checked,
     published,
+    staged_path,
 )
 from simreel.replay.report import EpisodeReport, episode_lines, recording_limits
 from simreel.replay.tracking import Commands, EndEffector, TrackingBlocks, tracking_tolerances
@@ -470,7 +473,7 @@ class ConversionReport:
         lines.append(f"checked: {self.conversion['checked']}")
         if self.written_check:
             lines.append(f"written: {self.written_check}")
-        n_ok = sum(e.ok for e in self.episodes)
+        n_ok = sum(e.ok and e.index not in self.written_mismatch for e in self.episodes)
         dropped = f"; {len(self.dropped)} left out by --keep" if self.dropped else ""
         lines.append(f"{n_ok} of {len(self.episodes)} episode(s) verified; {len(self.written)} written to {self.output}"
                      + dropped)
@@ -575,9 +578,10 @@ class ConversionRun:
                           imports=tuple(opts.imports), converter=opts.converter, keep=tuple(opts.keep),
                           output=output, scratch=scratch, block_rows=opts.block_rows)
 
-    def _output_spec(self, worker: ConvertWorker) -> ReplayOutput:
+    def _output_spec(self, worker: ConvertWorker, staged: Path) -> ReplayOutput:
+        """The output as it is written: at `staged` in the run's scratch folder, moved to its name once checked."""
         poses = () if self.options.control_mode else tuple(self.reader.meta.pose_bodies)  # a re-render keeps them
-        return ReplayOutput(self.output, self.options.overwrite, pose_bodies=poses, command=self.options.command,
+        return ReplayOutput(str(staged), pose_bodies=poses, command=self.options.command,
                             changes={**worker.output_changes(), "provenance": self._provenance()})
 
     def _conversion(self) -> dict[str, Any]:
@@ -602,39 +606,56 @@ class ConversionRun:
                                                                      "keep": list(opts.keep)}}
 
     def execute(self, progress: Callable[[EpisodeReport], None] | None = None) -> ConversionReport:
-        """Convert every episode, calling `progress` with each one's report as it finishes; closes the input."""
+        """Convert every episode, calling `progress` with each one's report as it finishes; closes the input. The
+        output is written in the run's scratch folder (`ScratchFolder`, removed when the run ends, however it ends),
+        read back and checked there, and only then moved to its name (`publish_checked`): a file that fails its
+        check is never published, and an old output it was to replace stays as it was (`OutputCheckError`)."""
         meta = self.reader.meta
         report = ConversionReport(path=self.path, output=self.output, env_id=meta.env_id,
                                   conversion=self._conversion(), tolerances=self.tolerances.to_json(),
                                   limits=self._limits(meta))
+        with ScratchFolder(self.output) as scratch:
+            staged = staged_path(scratch)
+            digests = self._convert(report, staged, scratch, progress)
+            _check_written(self.path, staged, report, digests, states_too=self.options.control_mode is None)
+            if report.written_mismatch:
+                raise OutputCheckError(f"{self.output}: {report.written_check}; nothing was written to {self.output}")
+            if report.written:
+                publish_checked(staged, self.output, meta, overwrite=self.options.overwrite)
+        return report
+
+    def _convert(self, report: ConversionReport, staged: Path, scratch: ScratchFolder,
+                 progress: Callable[[EpisodeReport], None] | None) -> dict[int, dict[str, str]]:
+        """Convert every episode into `report` and the recording `staged` (complete and closed on return, or removed
+        when nothing is written); returns each written episode's arrays' digests, to check it against."""
         worker = ConvertWorker(self._job(), self.reader)  # closes the reader
         try:
             report.warnings = _fingerprint_warnings(worker)
-            spec = self._output_spec(worker)
-            with published(ReplayedWriter(spec, meta, list(self.indices)), keep=lambda: bool(report.written)) as writer:
+            spec = self._output_spec(worker, staged)
+            with published(ReplayedWriter(spec, self.reader.meta, list(self.indices)),
+                           keep=lambda: bool(report.written), final=self.output) as writer:
                 worker.output = writer
                 collector = _Collector(report, writer, progress)
-                self._run(worker, spec, collector)
+                self._run(worker, spec, collector, scratch)
         finally:
             worker.close()
         order = {i: k for k, i in enumerate(self.indices)}
         report.episodes.sort(key=lambda e: order[e.index])
         report.written.sort(key=order.__getitem__)  # the input's order, as the output has them, however workers finished
-        _check_written(self.path, report, collector.digests, states_too=self.options.control_mode is None)
-        return report
+        return collector.digests
 
-    def _run(self, worker: ConvertWorker, spec: ReplayOutput, collect: Callable[[ConvertResult], None]) -> None:
+    def _run(self, worker: ConvertWorker, spec: ReplayOutput, collect: Callable[[ConvertResult], None],
+             scratch: ScratchFolder) -> None:
         """Convert every episode here, or here and in `workers - 1` pool processes, which write each re-rendered
-        episode to the run's scratch folder (removed when the run ends, however it ends)."""
+        episode to the run's scratch folder."""
         workers = min(self.options.workers, len(self.indices))
         items = [WorkItem(key=self.reader.meta.env_id, path=self.path, index=i) for i in self.indices]
         if workers == 1:
             for item in items:
                 collect(worker.run(item))
             return
-        with ScratchFolder(self.output) as scratch:
-            worker.job = self._job(spec, str(scratch.path))
-            run_pool(worker, items, workers, collect)
+        worker.job = self._job(spec, str(scratch.path))
+        run_pool(worker, items, workers, collect)
 
 
 def _fingerprint_warnings(worker: ConvertWorker) -> list[str]:
@@ -684,14 +705,15 @@ def _left_out(report: EpisodeReport, last: tuple[bool | None, bool | None], keep
     return ""
 
 
-def _check_written(src: str, report: ConversionReport, digests: Mapping[int, dict[str, str]], *,
+def _check_written(src: str, written: Path, report: ConversionReport, digests: Mapping[int, dict[str, str]], *,
                    states_too: bool) -> None:
-    """Read every written episode back, a block at a time: its arrays must be byte for byte those that were written
-    (`digests`), and for a re-render its states and actions those of the input."""
+    """Read every episode of the recording `written` back (the output before it is published), a block at a time:
+    its arrays must be byte for byte those that were written (`digests`), and for a re-render its states and
+    actions those of the input. Those that are not go to `report.written_mismatch`."""
     if not report.written:
         report.written_check = "nothing written"
         return
-    with open_reader(src) as source, open_reader(report.output) as out:
+    with open_reader(src) as source, open_reader(written) as out:
         for index in sorted(report.written):
             written = field_digests(out.open_episode(index))
             same = written == digests[index]
@@ -702,7 +724,8 @@ def _check_written(src: str, report: ConversionReport, digests: Mapping[int, dic
     report.written_check = (f"every written episode read back byte-identical to the {'re-rendered' if states_too else 'converted'} "
                             "one" + ("; its states and actions equal the input's exactly" if states_too else ""))
     if report.written_mismatch:
-        report.written_check = f"episodes {report.written_mismatch} read back differ from what was written"
+        report.written_check = (f"episodes {report.written_mismatch} do not read back as they were written"
+                                + (" (or their states and actions are not the input's)" if states_too else ""))
 
 
 def _states_and_actions(digests: Mapping[str, str]) -> dict[str, str]:

@@ -24,13 +24,14 @@ import numpy as np
 from simreel.episode import OPTIONAL_STEP_FIELDS, Episode, EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import SimreelError, StorageError, UsageError
 from simreel.formats import EpisodeSink, format_of
-from simreel.formats.durable import raise_if_stopped
+from simreel.formats.durable import deferred_signals, raise_if_stopped
 from simreel.formats.lock import WriterLock, being_written
 from simreel.replay.engine import BlockSink
 from simreel.state_tree import layout_of
 
 __all__ = ["ReplayOutput", "ReplayedWriter", "EpisodeStream", "RecordedContacts", "output_pose_bodies",
-           "ScratchFolder", "ScratchEpisode", "scratch_folder", "OutputFailed", "published"]
+           "ScratchFolder", "ScratchEpisode", "scratch_folder", "OutputFailed", "published", "staged_path",
+           "publish_checked"]
 
 _PRODUCED = ("versions", *OPTIONAL_STEP_FIELDS)
 """What a replay knows even where the recording did not hold it: this machine's versions, rewards and flags."""
@@ -70,11 +71,13 @@ def _writing_output() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def published(writer: ReplayedWriter, keep: Callable[[], bool] = lambda: True) -> Iterator[ReplayedWriter]:
+def published(writer: ReplayedWriter, keep: Callable[[], bool] = lambda: True,
+              final: str | Path | None = None) -> Iterator[ReplayedWriter]:
     """Run the block that writes `writer`'s episodes, then publish the output (`close`) if `keep()`, else drop it.
     When the block raises — an error that stops the run, the output's own (`OutputFailed`: raised as the writer's
     error), Ctrl-C or SIGTERM — the output is dropped (`abort`): no part of a run is published, and an old file the
-    output was to replace stays as it was."""
+    output was to replace stays as it was. `final`: the output's name when `writer` writes it in the run's scratch
+    folder first (`publish_checked` moves it there), for the messages."""
     try:
         yield writer
         raise_if_stopped()  # a Ctrl-C that landed in a finalizer (h5py's) was printed and dropped by Python
@@ -86,12 +89,34 @@ def published(writer: ReplayedWriter, keep: Callable[[], bool] = lambda: True) -
         writer.abort()
         error = e.error if isinstance(e, OutputFailed) else e
         if isinstance(error, StorageError):
-            out = writer.spec.path
+            out = str(final or writer.spec.path)
             named = out if Path(error.path).parent == scratch_folder(out) else error.path  # not a hidden scratch file
             error = error.dropped(f"; nothing was written to {out}", named)
         if error is e:
             raise
         raise error from None
+
+
+def staged_path(scratch: ScratchFolder) -> Path:
+    """Where a run that checks its output before publishing it (`publish_checked`) writes it: in its scratch folder,
+    under a name no `ScratchEpisode` takes, with the output's suffix (its format)."""
+    return scratch.path / f"output{scratch.output.suffix}"
+
+
+def publish_checked(staged: Path, final: str | Path, meta: RecordingMeta, *, overwrite: bool) -> None:
+    """Move the complete, checked recording `staged` and its side files to `final`, as `simreel merge` publishes its
+    outputs (`simreel.formats.dataset`, one copy of the rule): its side files first, without `overwrite` never over a
+    file that appeared there meanwhile, never over a recording another process is writing now, and with SIGINT and
+    SIGTERM held until every file is moved. An old recording at `final` stays whole until then."""
+    from simreel.formats import check_writable
+    from simreel.formats.copy import Target
+    from simreel.formats.dataset import StagedOutput
+
+    output = StagedOutput(Target(Path(final), meta, overwrite), Target(staged, meta, True))
+    output.check_free()
+    check_writable(final, overwrite=overwrite)  # a recording begun there since the run started is not replaced
+    with deferred_signals():
+        output.publish()
 
 
 def output_pose_bodies(meta: RecordingMeta, output: str | Path | None) -> tuple[str, ...]:

@@ -45,7 +45,7 @@ from simreel.formats.targets import check_distinct
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
            "FieldHashes", "HashedRows", "episode_digest", "field_digests", "describe_provenance", "describe_origin",
-           "VERIFIED", "DIVERGED", "report_verdicts"]
+           "VERIFIED", "DIVERGED", "report_verdicts", "StagedOutput"]
 
 VERIFIED = ("exact", "within_tolerance")
 """The verdicts `filter --verified` keeps: the episodes a replay verified."""
@@ -433,8 +433,9 @@ def _check_outputs(outputs: Sequence[str | Path], inputs: Sequence[str | Path], 
 
 
 @dataclass
-class _Output:
-    """One output while it is made: written under a staging name beside its final one, checked, then moved."""
+class StagedOutput:
+    """One output while it is made: written under a staging name beside its final one, checked, then moved
+    (`publish`: merge and filter, and `simreel.replay.output.publish_checked` for convert)."""
 
     final: Target
     staged: Target
@@ -444,7 +445,7 @@ class _Output:
     """`episode_digest` of each episode as read from its source (renumbered, with its origin)."""
 
     @classmethod
-    def of(cls, target: Target) -> _Output:
+    def of(cls, target: Target) -> StagedOutput:
         staged = target.path.with_name(f".{target.path.stem}.simreel-{os.getpid()}{target.path.suffix}")
         return cls(target, dataclasses.replace(target, path=staged, overwrite=True))
 
@@ -491,7 +492,7 @@ def _run(sources: Sequence[_Source], targets: Sequence[Target], decide: Decide, 
     items = _plan(sources, decide, len(targets))
     if not any(item.target == 0 for item in items):
         raise UsageError(f"no episode to write to {targets[0].path}: nothing matches; nothing written")
-    outputs = [_Output.of(t) for t in targets]
+    outputs = [StagedOutput.of(t) for t in targets]
     for item in items:
         outputs[item.target].items.append(item)
     try:
@@ -516,7 +517,7 @@ def _run(sources: Sequence[_Source], targets: Sequence[Target], decide: Decide, 
 
 
 # ---------------------------------------------------------------------------------------------------- the check
-def _check(output: _Output, sources: Sequence[_Source], options: DatasetOptions) -> None:
+def _check(output: StagedOutput, sources: Sequence[_Source], options: DatasetOptions) -> None:
     """Read the staged output back: its metadata as planned, episodes 0..N-1, each equal to its source (digests).
     Messages name the output by its final name."""
     name, digests = output.final.path, output.digests

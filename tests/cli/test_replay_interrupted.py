@@ -160,7 +160,11 @@ def test_ctrl_c_of_a_conversion_with_workers_publishes_nothing(long_run, tmp_pat
     out = tmp_path / "out.h5"
     proc = subprocess.Popen([sys.executable, "-m", "simreel", "convert", str(long_run), str(out), "--obs-mode", "state",
                              "--workers", "2", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    _ctrl_c_once_scratch_is_written(proc, out)
+    _wait_for_scratch(proc, scratch_folder(out))
+    _wait_for_output(proc, scratch_folder(out) / "output.h5")  # the output is written there until it is checked
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
     assert list(tmp_path.iterdir()) == []
 
 
