@@ -238,3 +238,57 @@ def test_only_the_group_name_maniskill_looks_up_is_an_episodes():
     assert [group_index(n) for n in ("traj_0", "traj_1", "traj_10", "traj_01", "traj_00", "traj_x")] == \
         [0, 1, 10, None, None, None]
     assert all(group_index(group_name(i)) == i for i in (0, 7, 12345))
+
+
+@pytest.mark.parametrize(
+    ("add", "named"),
+    [
+        (lambda group: group.create_dataset("my_extra", data=np.arange(10)), "my_extra"),
+        (lambda group: group.create_dataset("obs_extra_group/z", data=np.zeros((11, 2))), "obs_extra_group/z"),
+    ],
+    ids=["dataset", "group-of-observations"],
+)
+def test_datasets_simreel_has_no_place_for_are_refused_by_name_never_dropped(ms_dir, tmp_path, capsys, add, named):
+    """Another tool's additions to every episode (here the state file's only one): `inspect` names them, and each
+    command that reads the episodes refuses them in one line saying what to do, by the rule of simreel's own .h5
+    files, rather than copy the rest and call the copy checked."""
+    path = copy_recording(ms_dir, "state", tmp_path)
+    with h5py.File(path, "a") as f:
+        add(f["traj_0"])
+    problem = (f"traj_0 holds {named}, which the recording's layout does not list (simreel reads ManiSkill's own "
+               "datasets only, and refuses an episode holding others rather than drop them: keep ManiSkill's tools "
+               "for this file, or delete them from a copy (h5py: del f['traj_N/<name>']) to use simreel on the rest)")
+    assert main(["inspect", str(path)]) == 0
+    assert f"note: {problem}\n" in capsys.readouterr().out
+    for command in (["merge", str(path), "-o", str(tmp_path / "out.h5")],
+                    ["convert", str(path), str(tmp_path / "out.mcap")],
+                    ["filter", str(path), "-o", str(tmp_path / "out.h5"), "--min-steps", "1"]):
+        assert main(command) == 2, command
+        captured = capsys.readouterr()
+        assert captured.err.count("\n") == 1 and captured.err.endswith(f"{problem}\n"), captured.err
+        assert "checked" not in captured.out
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(("out", ".out"))]
+
+
+def test_sidecar_keys_simreel_does_not_map_are_kept(ms_dir, tmp_path, capsys):
+    """An episode entry's own keys travel in a note on the episode into every copy (a long one is named, with its
+    size); the top level's and env_info's in the recording's `source`, as the source type and description do."""
+    path = copy_recording(ms_dir, "state", tmp_path)
+
+    def add_keys(doc):
+        doc["episodes"][0].update(my_note="keep me", my_big=list(range(100)))
+        doc["episodes"][0]["reset_kwargs"]["my_flag"] = True
+        doc["my_top"] = {"x": 1}
+        doc["env_info"]["my_env_note"] = "v2"
+
+    edit_sidecar(path, add_keys)
+    note = ("its sidecar entry holds keys simreel's episode metadata has no field for, kept only in this note (a copy's "
+            'sidecar lacks them): my_note="keep me", my_big (390 characters of JSON, not kept), reset_kwargs.my_flag=true')
+    assert main(["merge", str(path), "-o", str(tmp_path / "merged.h5"), "-q"]) == 0
+    for copy in (path, tmp_path / "merged.h5"):
+        with open_reader(copy) as r:
+            assert r.episodes[0].notes == [note]
+            assert r.meta.source["other_sidecar_keys"] == {"my_top": {"x": 1}, "env_info.my_env_note": "v2"}
+            assert (r.meta.source["source_type"], r.meta.source["source_desc"]) == ("scripted", "joint-space random walks")
+    assert main(["inspect", str(tmp_path / "merged.h5")]) == 0
+    assert f"note: {note}" in capsys.readouterr().out

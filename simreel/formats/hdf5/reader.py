@@ -11,6 +11,10 @@ every episode against the recording's own layout, and naming what it cannot read
   (`open_episode`), the checksum of each chunk when a block of rows that it holds is read (`Hdf5Rows`).
 - Files of earlier simreel versions keep their attributes in HDF5 global heaps, where some corruptions make
   libhdf5 loop forever; those heaps are checked before libhdf5 reads them (`_check_global_heaps`).
+- The JSON sidecar beside the file (for ManiSkill's tools, which read it instead of the .h5's metadata) is compared
+  with the sidecar simreel writes for what the .h5 holds (`_sidecar_disagreement`): one that lists fewer or more
+  episodes, or other seeds, reset options, lengths, env id, obs or control mode, is named in `notes` (`inspect`,
+  `recover`, which rewrites it); simreel itself reads the .h5 alone.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from __future__ import annotations
 import json
 import mmap
 import struct
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
@@ -26,9 +30,9 @@ from typing import Any
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import EpisodeMeta, FieldSpec, RecordingMeta, StepBlock, episode_fields
+from simreel.episode import EpisodeMeta, FieldSpec, RecordingMeta, StepBlock, episode_fields, json_default
 from simreel.errors import RecordingFileError
-from simreel.formats.base import EpisodeReader, EpisodeRows
+from simreel.formats.base import EpisodeReader, EpisodeRows, not_a_file
 from simreel.formats.hdf5.layout import (
     EPISODE_ATTR,
     HDF5_MAGIC,
@@ -41,11 +45,11 @@ from simreel.formats.hdf5.layout import (
     scratch_path,
 )
 from simreel.formats.lock import CommitLock, being_written
-from simreel.formats.maniskill.layout import dataset_name, group_index
-from simreel.formats.maniskill.sidecar import sidecar_episodes
+from simreel.formats.maniskill.layout import dataset_name, group_index, sidecar_path
+from simreel.formats.maniskill.sidecar import sidecar_document
 from simreel.formats.staging import replacement_note
 
-__all__ = ["Hdf5Reader", "Hdf5Rows", "open_hdf5", "holds_simreel_metadata", "H5PY_ERRORS"]
+__all__ = ["Hdf5Reader", "Hdf5Rows", "open_hdf5", "holds_simreel_metadata", "unlisted_datasets_problem", "H5PY_ERRORS"]
 
 
 H5PY_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError)
@@ -120,7 +124,7 @@ class Hdf5Reader(EpisodeReader):
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         if not self.path.is_file():
-            raise RecordingFileError(self.path, "no such file")
+            raise not_a_file(self.path)
         with open(self.path, "rb") as fh:
             if fh.read(len(HDF5_MAGIC)) != HDF5_MAGIC:
                 raise RecordingFileError(self.path, "not an HDF5 file")
@@ -220,12 +224,10 @@ class Hdf5Reader(EpisodeReader):
         unfinished = [_describe_running(folder, index, line) for index, line in sorted(running.items())]
         unfinished += [f"episode {_scratch_index(s)} (a scratch file, {_scratch_steps(s)} step(s))"
                        for s in sorted(folder.glob("traj_*.h5")) if _scratch_index(s) not in running]
-        notes = []
-        listed = sidecar_episodes(self.path)
-        if listed is not None and listed < len(self.episodes):
-            notes.append(f"its JSON sidecar (for ManiSkill's tools) lists {listed} of the {len(self.episodes)} "
-                         f"episodes; `simreel recover {self.path}` rewrites it")
-        return unfinished, notes
+        stale = _sidecar_disagreement(self.path, self.meta, self.episodes)
+        if stale is None:
+            return unfinished, []
+        return unfinished, [f"its JSON sidecar (for ManiSkill's tools) {stale}; `simreel recover {self.path}` rewrites it"]
 
     # ---------------------------------------------------------------- data
     def open_episode(self, index: int) -> Hdf5Rows:
@@ -236,12 +238,12 @@ class Hdf5Reader(EpisodeReader):
         try:
             names = {f.name: self._dataset(group, f.name) for f in self.fields}
             datasets = {f.name: self._field(group, where, f, names[f.name], meta.length) for f in self.fields}
-            extra = sorted(set(_datasets(group)) - set(names.values()))
+            unlisted = unlisted_datasets_problem(where, _datasets(group), names.values(),
+                                                 why="a damaged or altered file")
         except H5PY_ERRORS as e:
             raise RecordingFileError(self.path, f"{where} is corrupt: its structure cannot be read ({e})") from None
-        if extra:
-            raise RecordingFileError(self.path, f"{where} holds {', '.join(extra[:3])}, which the recording's layout "
-                                                "does not list (a damaged or altered file)")
+        if unlisted:
+            raise RecordingFileError(self.path, unlisted)
         return Hdf5Rows(self.path, meta, self.fields, datasets)
 
     def _dataset(self, group: Any, field: str) -> str:
@@ -296,6 +298,92 @@ class Hdf5Rows(EpisodeRows):
             raise RecordingFileError(
                 self.path, f"{ds.name.lstrip('/')} is corrupt: its data fails its checksum or cannot be decompressed ({e})"
             ) from None
+
+
+# ------------------------------------------------------------------------------------- the JSON sidecar
+_SIDECAR_USED = ("episode_id", "episode_seed", "control_mode", "elapsed_steps")
+"""The keys of a sidecar's episode entry that ManiSkill's tools go by (with `reset_kwargs`' seed and options): which
+group to read, the seed to reset with, the control mode of its actions, how many steps it has."""
+
+
+def _sidecar_disagreement(path: Path, meta: RecordingMeta, episodes: list[EpisodeMeta]) -> str | None:
+    """How the JSON sidecar beside the recording `path` disagrees with what the .h5 holds (`meta`, `episodes`), in
+    what ManiSkill's tools take from it instead of the .h5 (env id and modes, the episodes listed, their seeds,
+    reset options, control mode and length), as text following "its JSON sidecar"; None when it agrees, or there is
+    none (simreel reads the .h5 alone). The sidecar the .h5 should have is the one simreel writes for it
+    (`sidecar_document`), so a sidecar left from another recording, one that lags, or an edited one is told apart
+    from a current one by the writer's own rule."""
+    try:
+        found = json.loads(sidecar_path(path).read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError, ValueError) as e:
+        return f"cannot be read ({e})"
+    want = sidecar_document(meta, episodes)
+    if not isinstance(found, dict) or not isinstance(found.get("episodes"), list) \
+            or not isinstance(found.get("env_info"), dict):
+        return "is no ManiSkill sidecar (no env_info and episodes list)"
+    return _env_disagreement(found["env_info"], want["env_info"]) or _episodes_disagreement(found["episodes"],
+                                                                                            want["episodes"])
+
+
+def _env_disagreement(found: dict[str, Any], want: dict[str, Any]) -> str | None:
+    """Where the sidecar's `env_info` names another env id, obs mode or control mode than the .h5's (`want`)."""
+    kwargs = found.get("env_kwargs") if isinstance(found.get("env_kwargs"), dict) else {}
+    pairs = [("env_info.env_id", found.get("env_id"), want["env_id"])]
+    pairs += [(f"env_info.env_kwargs.{k}", kwargs.get(k), want["env_kwargs"].get(k)) for k in ("obs_mode", "control_mode")]
+    return _first_difference(pairs)
+
+
+def _episodes_disagreement(found: list[Any], want: list[dict[str, Any]]) -> str | None:
+    """Where the sidecar's episode list is not the .h5's (`want`), entries matched by episode id (ManiSkill's tools
+    read group ``traj_<episode_id>``, in any order): episodes the .h5 holds that it does not list, ones it lists that
+    the .h5 lacks, or the first entry whose seed, reset seed or options, control mode or length differ."""
+    listed = {e.get("episode_id"): (i, e) for i, e in enumerate(found) if isinstance(e, dict)}
+    held = {e["episode_id"]: e for e in want}
+    foreign = [i for i in listed if i not in held]
+    if foreign:
+        shown = ", ".join(f"traj_{i}" for i in foreign[:3])
+        return f"lists {len(found)} episodes, {len(foreign)} of them not in the .h5 ({shown}: ManiSkill's tools fail there)"
+    if len(listed) < len(held):
+        return f"lists {len(listed)} of the {len(held)} episodes"
+    for index, expected in held.items():
+        i, entry = listed[index]
+        differs = _first_difference(_entry_pairs(f"episodes[{i}]", entry, expected))
+        if differs:
+            return differs
+    return None
+
+
+def _entry_pairs(where: str, found: dict[str, Any], want: dict[str, Any]) -> list[tuple[str, Any, Any]]:
+    """(key, sidecar's value, .h5's value) of each key of episode entry `found` that ManiSkill's tools use
+    (`_SIDECAR_USED`, `reset_kwargs`' seed and options), against the .h5's entry `want`."""
+    reset = found.get("reset_kwargs") if isinstance(found.get("reset_kwargs"), dict) else {}
+    pairs = [(f"{where}.{k}", found.get(k), want.get(k)) for k in _SIDECAR_USED]
+    return pairs + [(f"{where}.reset_kwargs.seed", reset.get("seed"), want["reset_kwargs"].get("seed")),
+                    (f"{where}.reset_kwargs.options", reset.get("options") or {}, want["reset_kwargs"].get("options") or {})]
+
+
+def _first_difference(pairs: list[tuple[str, Any, Any]]) -> str | None:
+    """``says <key> <sidecar's value> where the .h5 says <its value>`` for the first (key, sidecar's, .h5's) of
+    `pairs` whose values differ (compared as JSON: the sidecar's were read from it); None when none do."""
+    for key, got, expected in pairs:
+        expected = json.loads(json.dumps(expected, default=json_default))
+        if got != expected:
+            return f"says {key} {json.dumps(got, default=str)} where the .h5 says {json.dumps(expected)}"
+    return None
+
+
+def unlisted_datasets_problem(where: str, held: Iterable[str], listed: Iterable[str], *, why: str) -> str | None:
+    """What is wrong with an episode group `where` whose datasets (`held`, paths below the group) include some that no
+    field of the layout reads (`listed`: the fields' dataset paths), naming them and saying `why` they are there and
+    what to do; None when there are none. A reader refuses such an episode rather than read it: its copy would lack
+    them and a check would pass them unchecked (the one rule of both HDF5 readers, simreel's and ManiSkill's)."""
+    extra = sorted(set(held) - set(listed))
+    if not extra:
+        return None
+    shown = ", ".join(extra[:4]) + (f" and {len(extra) - 4} more" if len(extra) > 4 else "")
+    return f"{where} holds {shown}, which the recording's layout does not list ({why})"
 
 
 def _datasets(group: Any) -> list[str]:

@@ -17,12 +17,20 @@ fail and env_states. Quirks found in the file go to the episode's `EpisodeMeta.n
 
 The first listed episode's datasets are the file's layout (its fields, and what the file is said to lack): an
 episode holding other datasets, or some in another dtype or row shape, is refused when opened (an error naming it
-and them), so that no array is left unchecked or uncopied while the rest of the episode passes.
+and them), so that no array is left unchecked or uncopied while the rest of the episode passes. So is one holding
+datasets none of ManiSkill's fields is (another tool's additions: `traj_N/my_extra`), by the rule of simreel's own
+HDF5 files (`unlisted_datasets_problem`); the first episode's are named in `notes` when the file is opened, so that
+`inspect` shows them.
+
+Nothing in the sidecar is dropped unsaid either: keys the reader does not map are kept in `RecordingMeta.source`
+(``other_sidecar_keys``: the top level's and ``env_info``'s, beside ``source_type``, ``source_desc``,
+``commit_info``) or, for an episode entry's, quoted in a note on the episode, which every copy carries.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -38,8 +46,8 @@ from simreel.episode import (
     episode_fields,
 )
 from simreel.errors import RecordingFileError
-from simreel.formats.base import EpisodeReader
-from simreel.formats.hdf5.reader import H5PY_ERRORS, Hdf5Rows, open_hdf5
+from simreel.formats.base import EpisodeReader, not_a_file
+from simreel.formats.hdf5.reader import H5PY_ERRORS, Hdf5Rows, open_hdf5, unlisted_datasets_problem
 from simreel.formats.maniskill.layout import OBS, dataset_name, field_name, group_index, group_name
 from simreel.formats.maniskill.sidecar import Sidecar
 from simreel.state_tree import LeafSpec
@@ -50,6 +58,19 @@ ALWAYS_UNKNOWN = ("versions", "sim_config", "control_freq", "contacts", "body_po
 """What no ManiSkill trajectory file holds (besides the fields a given file lacks)."""
 _DEFAULT_SIM_BACKEND = "physx_cpu"
 """ManiSkill's replay_trajectory assumes the CPU sim for files that do not name a backend."""
+_UNLISTED_WHY = ("simreel reads ManiSkill's own datasets only, and refuses an episode holding others rather than drop "
+                 "them: keep ManiSkill's tools for this file, or delete them from a copy (h5py: "
+                 "del f['traj_N/<name>']) to use simreel on the rest")
+"""Why a dataset of a ``traj_N`` group that no field reads is refused (`unlisted_datasets_problem`), and what to do."""
+_SIDECAR_KEYS = ("env_info", "episodes", "source_type", "source_desc", "commit_info")
+_ENV_INFO_KEYS = ("env_id", "env_kwargs", "max_episode_steps")
+_ENTRY_KEYS = ("episode_id", "episode_seed", "control_mode", "elapsed_steps", "reset_kwargs", "success", "fail")
+_RESET_KEYS = ("seed", "options")
+"""The sidecar's keys, as ManiSkill 3.0.1 writes them, that the reader maps onto simreel's metadata (an episode's
+``fail`` is the last row of its ``fail`` data): any other key is kept in `RecordingMeta.source` (top level and
+``env_info``) or in a note on its episode (`_note_sidecar_keys`), never dropped unsaid."""
+_NOTE_VALUE_CHARS = 200
+"""The longest JSON of an episode entry's own key that its note quotes (a longer one is named, with its size)."""
 
 
 def _datasets(group: Any) -> dict[str, Any]:
@@ -90,7 +111,7 @@ class ManiskillReader(EpisodeReader):
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         if not self.path.is_file():
-            raise RecordingFileError(self.path, "no such file")
+            raise not_a_file(self.path)
         self._file = open_hdf5(self.path)
         try:
             self._open()
@@ -103,13 +124,17 @@ class ManiskillReader(EpisodeReader):
         groups = self._groups()
         self.sidecar = Sidecar.read(self.path)
         self.episodes = _episode_metas(self.sidecar, groups)
-        self.notes = _unlisted(self.sidecar, groups)
+        self.notes = _unlisted_groups(self.sidecar, groups)
         """Recording-level quirks (groups the sidecar does not list)."""
         first = self._held(self.episodes[0].index) if self.episodes else None
         self._first = _layout(first) if first is not None else {}
         """The first listed episode's datasets (`_layout`): the file's layout, which every episode must have."""
         self.meta = _recording_meta(self.sidecar, first, self.episodes)
         self.fields = episode_fields(self.meta)
+        self._names = {f.name: dataset_name(f.name, self.meta) for f in self.fields}
+        """Each field's dataset in a ``traj_N`` group: what the reader reads, and all an episode may hold."""
+        unlisted = self._unlisted(self.episodes[0].index, first) if first is not None else None
+        self.notes += [unlisted] if unlisted else []
         self.kind = f"ManiSkill trajectory file (JSON sidecar {self.sidecar.path.name})"
 
     def _groups(self) -> dict[int, str]:
@@ -172,12 +197,20 @@ class ManiskillReader(EpisodeReader):
             first = group_name(self.episodes[0].index)
             raise RecordingFileError(self.path, f"{group_name(index)} differs from {first} (the first episode, whose "
                                                 f"datasets set the file's layout): {'; '.join(differences)}")
-        names = {f.name: dataset_name(f.name, self.meta) for f in self.fields}
-        absent = [name for name in names.values() if name not in held]
+        absent = [name for name in self._names.values() if name not in held]
         if absent:
             raise RecordingFileError(self.path, f"{group_name(index)} has no {_names(absent)}, which every episode of "
                                                 "a ManiSkill trajectory file holds")
-        return {field: held[name] for field, name in names.items()}
+        unlisted = self._unlisted(index, held)
+        if unlisted:
+            raise RecordingFileError(self.path, unlisted)
+        return {field: held[name] for field, name in self._names.items()}
+
+    def _unlisted(self, index: int, held: dict[str, Any]) -> str | None:
+        """What is wrong with episode `index` when its datasets (`held`) include some that no field reads (another
+        tool's additions: `my_extra`, an extra group of observations): simreel's HDF5 rule
+        (`unlisted_datasets_problem`), so that no copy drops them and no check passes them unchecked; None: none."""
+        return unlisted_datasets_problem(group_name(index), held, self._names.values(), why=_UNLISTED_WHY)
 
     def close(self) -> None:
         self._file.close()
@@ -214,9 +247,38 @@ def _recording_meta(sidecar: Sidecar, held: dict[str, Any] | None, episodes: lis
         state_layout=_layout(states),
         obs_layout=_layout(obs),
         command=str(sidecar.source.get("source_desc", "")),
-        source={"format": "maniskill", **sidecar.source, "sidecar": str(sidecar.path)},
+        source={"format": "maniskill", **sidecar.source, "sidecar": str(sidecar.path),
+                **_other_sidecar_keys(sidecar.path)},
         unknown=[*ALWAYS_UNKNOWN, *lacking, *([] if states or held is None else ["env_states"])],
     )
+
+
+def _other_sidecar_keys(path: Path) -> dict[str, Any]:
+    """``{"other_sidecar_keys": {key: value}}`` for the keys of the sidecar at `path` (top level, and ``env_info`` as
+    ``env_info.<key>``) that the reader does not map (another tool's additions), so that the recording's metadata
+    keeps them; empty when there are none. The document was read and checked by `Sidecar.read` just before."""
+    doc = json.loads(path.read_text())
+    other = {k: v for k, v in doc.items() if k not in _SIDECAR_KEYS}
+    other.update({f"env_info.{k}": v for k, v in doc["env_info"].items() if k not in _ENV_INFO_KEYS})
+    return {"other_sidecar_keys": other} if other else {}
+
+
+def _note_sidecar_keys(entry: dict[str, Any], notes: list[str]) -> None:
+    """A note quoting the keys of episode `entry` (and of its ``reset_kwargs``) that simreel's episode metadata has
+    no field for, so that every copy of the episode carries them in its notes and no command calls it copied whole
+    unsaid (a value longer than `_NOTE_VALUE_CHARS` of JSON is named with its size, not quoted)."""
+    reset = entry.get("reset_kwargs") or {}
+    other = {k: v for k, v in entry.items() if k not in _ENTRY_KEYS}
+    other.update({f"reset_kwargs.{k}": v for k, v in reset.items() if k not in _RESET_KEYS})
+    if not other:
+        return
+    quoted = []
+    for key, value in other.items():
+        text = json.dumps(value, default=str)
+        quoted.append(f"{key}={text}" if len(text) <= _NOTE_VALUE_CHARS else
+                      f"{key} ({len(text)} characters of JSON, not kept)")
+    notes.append("its sidecar entry holds keys simreel's episode metadata has no field for, kept only in this note (a "
+                 f"copy's sidecar lacks them): {', '.join(quoted)}")
 
 
 def _episode_control_mode(sidecar: Sidecar) -> str | None:
@@ -252,10 +314,12 @@ def _episode_metas(sidecar: Sidecar, groups: dict[int, str]) -> list[EpisodeMeta
     metas = []
     for entry in sidecar.episodes:
         notes: list[str] = []
+        seed = _seed(entry, notes)
+        _note_sidecar_keys(entry, notes)
         options = dict((entry.get("reset_kwargs") or {}).get("options") or {})
         metas.append(EpisodeMeta(
             index=entry["episode_id"],
-            seed=_seed(entry, notes),
+            seed=seed,
             reset_options=options,
             reconfigured=True if options.get("reconfigure") else None,
             length=int(entry.get("elapsed_steps") or 0),
@@ -265,7 +329,7 @@ def _episode_metas(sidecar: Sidecar, groups: dict[int, str]) -> list[EpisodeMeta
     return metas
 
 
-def _unlisted(sidecar: Sidecar, groups: dict[int, str]) -> list[str]:
+def _unlisted_groups(sidecar: Sidecar, groups: dict[int, str]) -> list[str]:
     listed = {e["episode_id"] for e in sidecar.episodes}
     extra = sorted(set(groups) - listed)
     if not extra:
