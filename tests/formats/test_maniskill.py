@@ -292,3 +292,6 @@ def test_sidecar_keys_simreel_does_not_map_are_kept(ms_dir, tmp_path, capsys):
             assert (r.meta.source["source_type"], r.meta.source["source_desc"]) == ("scripted", "joint-space random walks")
     assert main(["inspect", str(tmp_path / "merged.h5")]) == 0
     assert f"note: {note}" in capsys.readouterr().out
+    # and the copy's sidecar says where the demos came from, for ManiSkill's tools: not "simreel"
+    written = json.loads((tmp_path / "merged.json").read_text())
+    assert (written["source_type"], written["source_desc"]) == ("scripted", "joint-space random walks")

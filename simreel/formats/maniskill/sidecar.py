@@ -59,10 +59,16 @@ def sidecar_document(meta: RecordingMeta, episodes: list[EpisodeMeta]) -> dict[s
             "env_kwargs": {k: v for k, v in env_kwargs.items() if v is not None},
             "max_episode_steps": meta.max_episode_steps,
         },
-        "source_type": "simreel",
-        "source_desc": meta.command,
+        **_source(meta),
         "episodes": [_episode_entry(meta, e) for e in episodes],
     }
+
+
+def _source(meta: RecordingMeta) -> dict[str, Any]:
+    """``source_type`` and ``source_desc``: a ManiSkill file's own (a copy of motion-planning demos stays one),
+    else simreel and the command that made the recording."""
+    given = meta.source if meta.source.get("format") == "maniskill" else {}
+    return {"source_type": given.get("source_type", "simreel"), "source_desc": given.get("source_desc", meta.command)}
 
 
 def _episode_entry(meta: RecordingMeta, e: EpisodeMeta) -> dict[str, Any]:
