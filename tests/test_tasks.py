@@ -12,6 +12,7 @@ configure_vulkan()  # the project lavapipe, before sapien creates a device (as m
 import gymnasium as gym  # noqa: E402
 
 import simreel.tasks  # noqa: E402
+from simreel.sim.make import make_env  # noqa: E402
 from simreel.tasks.policies import DEFAULT_POLICIES  # noqa: E402
 
 TASK_IDS = simreel.tasks.TASK_IDS
@@ -24,7 +25,7 @@ def make():
     def _make(env_id, **kwargs):
         key = (env_id, tuple(sorted(kwargs.items())))
         if key not in envs:
-            envs[key] = gym.make(env_id, obs_mode="state", render_backend="cpu", **kwargs)
+            envs[key] = make_env(env_id, **kwargs)  # the render device this machine has (state obs)
         return envs[key]
 
     yield _make

@@ -166,11 +166,10 @@ def test_flat_state_of_another_layout_is_refused():
 # --------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def lift_env():
-    import gymnasium as gym
-
     import simreel.tasks  # noqa: F401  (registers the tasks)
+    from simreel.sim.make import make_env
 
-    env = gym.make("SimreelLiftCube-v1", obs_mode="state", render_backend="cpu")
+    env = make_env("SimreelLiftCube-v1")  # the render device this machine has (state obs)
     yield env
     env.close()
 

@@ -71,15 +71,14 @@ def test_no_parts_is_refused():
 # --------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def make():
-    import gymnasium as gym
-
     import simreel.tasks  # noqa: F401  (registers the tasks)
+    from simreel.sim.make import make_env
 
     envs = {}
 
     def _make(env_id):
         if env_id not in envs:
-            envs[env_id] = gym.make(env_id, obs_mode="state", render_backend="cpu")
+            envs[env_id] = make_env(env_id)  # the render device this machine has (state obs)
         return envs[env_id]
 
     yield _make
