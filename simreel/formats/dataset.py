@@ -41,7 +41,7 @@ from simreel.formats.copy import Target, write_episodes
 from simreel.formats.durable import deferred_signals, raise_if_stopped
 from simreel.formats.inputs import file_identity
 from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS, check_same_env
-from simreel.formats.targets import check_distinct
+from simreel.formats.targets import check_distinct, move_into_place
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
            "FieldHashes", "HashedRows", "episode_digest", "field_digests", "describe_provenance", "describe_origin",
@@ -467,14 +467,11 @@ class StagedOutput:
         the new one lacks (its `.partial/` scratch folder) go: with `overwrite` only, as the output rule checked at
         the start. A name taken since the start (a file made after `check_free`) is never replaced."""
         for src, dst in self._pairs():
-            if src.exists() and self.final.overwrite:
-                os.replace(src, dst)
-            elif src.exists():
+            if src.exists():
                 try:
-                    os.link(src, dst)
+                    move_into_place(src, dst, overwrite=self.final.overwrite)
                 except FileExistsError:
                     raise self._taken(dst) from None
-                src.unlink()
             elif self.final.overwrite and dst.is_dir():
                 shutil.rmtree(dst)
             elif self.final.overwrite:

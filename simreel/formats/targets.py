@@ -19,7 +19,8 @@ from typing import IO
 
 from simreel.errors import UsageError
 
-__all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output"]
+__all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output",
+           "move_into_place"]
 
 
 def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path] = (), option: str = "") -> Path:
@@ -119,23 +120,34 @@ def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[
 
 
 def _publish(partial: Path, path: Path, *, overwrite: bool, option: str) -> None:
-    """Move the complete `partial` to `path`; without `overwrite`, never over a file that is there (a hard link
-    fails if the name exists, where a check and a rename leave a moment for another run to write it)."""
+    """Move the complete `partial` to `path` (`move_into_place`); `UsageError` when a file appeared there meanwhile."""
+    try:
+        move_into_place(partial, path, overwrite=overwrite)
+    except FileExistsError:
+        label = f"{option} {path}" if option else str(path)
+        raise UsageError(f"{label}: a file appeared there while this one was written (another run?); it is kept; "
+                         "pass --overwrite to replace it") from None
+
+
+def move_into_place(partial: Path, path: Path, *, overwrite: bool) -> None:
+    """Move the complete file `partial` to `path`. Without `overwrite`, never over a file that is there:
+    `FileExistsError` (a hard link fails if the name exists, where a check and a rename leave a moment for another
+    run to write it; on a file system without hard links, a check and a rename)."""
     if overwrite:
         os.replace(partial, path)
         return
     try:
         os.link(partial, path)
     except FileExistsError:
-        label = f"{option} {path}" if option else str(path)
-        raise UsageError(f"{label}: a file appeared there while this one was written (another run?); it is kept; "
-                         "pass --overwrite to replace it") from None
+        raise
     except OSError as e:
         if e.errno not in (errno.EPERM, errno.ENOTSUP, errno.EXDEV, errno.EMLINK):
             raise
-        if path.exists() or path.is_symlink():  # a file system without hard links: check, then rename
-            raise UsageError(f"{path} already exists; pass --overwrite to replace it") from None
+        if path.exists() or path.is_symlink():
+            raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(path)) from None
         os.replace(partial, path)
+        return
+    partial.unlink()
 
 
 def _umask() -> int:

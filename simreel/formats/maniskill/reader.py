@@ -62,13 +62,11 @@ _UNLISTED_WHY = ("simreel reads ManiSkill's own datasets only, and refuses an ep
                  "them: keep ManiSkill's tools for this file, or delete them from a copy (h5py: "
                  "del f['traj_N/<name>']) to use simreel on the rest")
 """Why a dataset of a ``traj_N`` group that no field reads is refused (`unlisted_datasets_problem`), and what to do."""
-_SIDECAR_KEYS = ("env_info", "episodes", "source_type", "source_desc", "commit_info")
-_ENV_INFO_KEYS = ("env_id", "env_kwargs", "max_episode_steps")
 _ENTRY_KEYS = ("episode_id", "episode_seed", "control_mode", "elapsed_steps", "reset_kwargs", "success", "fail")
 _RESET_KEYS = ("seed", "options")
-"""The sidecar's keys, as ManiSkill 3.0.1 writes them, that the reader maps onto simreel's metadata (an episode's
-``fail`` is the last row of its ``fail`` data): any other key is kept in `RecordingMeta.source` (top level and
-``env_info``) or in a note on its episode (`_note_sidecar_keys`), never dropped unsaid."""
+"""An episode entry's keys, as ManiSkill 3.0.1 writes them, that the reader maps onto simreel's metadata (its
+``fail`` is the last row of the ``fail`` data): any other key is quoted in a note on the episode
+(`_note_sidecar_keys`), never dropped unsaid; the top level's and ``env_info``'s others are `Sidecar.other`."""
 _NOTE_VALUE_CHARS = 200
 """The longest JSON of an episode entry's own key that its note quotes (a longer one is named, with its size)."""
 
@@ -248,19 +246,9 @@ def _recording_meta(sidecar: Sidecar, held: dict[str, Any] | None, episodes: lis
         obs_layout=_layout(obs),
         command=str(sidecar.source.get("source_desc", "")),
         source={"format": "maniskill", **sidecar.source, "sidecar": str(sidecar.path),
-                **_other_sidecar_keys(sidecar.path)},
+                **({"other_sidecar_keys": sidecar.other} if sidecar.other else {})},
         unknown=[*ALWAYS_UNKNOWN, *lacking, *([] if states or held is None else ["env_states"])],
     )
-
-
-def _other_sidecar_keys(path: Path) -> dict[str, Any]:
-    """``{"other_sidecar_keys": {key: value}}`` for the keys of the sidecar at `path` (top level, and ``env_info`` as
-    ``env_info.<key>``) that the reader does not map (another tool's additions), so that the recording's metadata
-    keeps them; empty when there are none. The document was read and checked by `Sidecar.read` just before."""
-    doc = json.loads(path.read_text())
-    other = {k: v for k, v in doc.items() if k not in _SIDECAR_KEYS}
-    other.update({f"env_info.{k}": v for k, v in doc["env_info"].items() if k not in _ENV_INFO_KEYS})
-    return {"other_sidecar_keys": other} if other else {}
 
 
 def _note_sidecar_keys(entry: dict[str, Any], notes: list[str]) -> None:

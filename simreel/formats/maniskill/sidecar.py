@@ -32,7 +32,7 @@ from simreel.errors import RecordingFileError
 from simreel.formats.maniskill.layout import sidecar_path
 from simreel.formats.targets import write_text_atomic
 
-__all__ = ["Sidecar", "SidecarFile", "sidecar_document", "sidecar_episodes", "write_sidecar"]
+__all__ = ["Sidecar", "SidecarFile", "sidecar_document", "write_sidecar"]
 
 _TAIL = b"\n  ]\n}\n"
 _PAD = 4096
@@ -86,15 +86,6 @@ def write_sidecar(path: Path, meta: RecordingMeta, episodes: list[EpisodeMeta]) 
     """(Re)write the sidecar of the recording `path` atomically."""
     doc = sidecar_document(meta, episodes)
     write_text_atomic(sidecar_path(path), json.dumps(doc, indent=2, default=json_default))
-
-
-def sidecar_episodes(path: Path) -> int | None:
-    """How many episodes the sidecar of the recording `path` lists (None: no sidecar, or not readable JSON)."""
-    try:
-        doc = json.loads(sidecar_path(path).read_text())
-        return len(doc["episodes"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
 
 
 class SidecarFile:
@@ -155,6 +146,9 @@ class Sidecar:
     episodes: list[dict[str, Any]]
     source: dict[str, Any] = field(default_factory=dict)
     """``source_type``, ``source_desc``, ``commit_info`` as the file gives them."""
+    other: dict[str, Any] = field(default_factory=dict)
+    """Keys of the top level and of ``env_info`` (as ``env_info.<key>``) that ManiSkill 3.0.1 does not write and
+    the reader does not map (another tool's additions), with their values."""
 
     @classmethod
     def read(cls, h5_path: Path) -> Sidecar:
@@ -188,8 +182,15 @@ class Sidecar:
         _check_types(path, "env_info.env_kwargs", kwargs, _KWARG_TYPES)
         steps = info.get("max_episode_steps")
         source = {k: doc[k] for k in ("source_type", "source_desc", "commit_info") if doc.get(k) is not None}
+        other = {k: v for k, v in doc.items() if k not in _DOCUMENT_KEYS}
+        other.update({f"env_info.{k}": v for k, v in info.items() if k not in _ENV_INFO_KEYS})
         return cls(path, info["env_id"], dict(kwargs), steps if isinstance(steps, int) else None,
-                   [_episode_read(path, i, e) for i, e in enumerate(episodes)], source)
+                   [_episode_read(path, i, e) for i, e in enumerate(episodes)], source, other)
+
+
+_DOCUMENT_KEYS = ("env_info", "episodes", "source_type", "source_desc", "commit_info")
+_ENV_INFO_KEYS = ("env_id", "env_kwargs", "max_episode_steps")
+"""The sidecar's top-level and ``env_info`` keys as ManiSkill 3.0.1 writes them (`Sidecar.other`: the rest)."""
 
 
 _WHOLE = "a whole number"
