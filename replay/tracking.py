@@ -195,7 +195,7 @@ class TrackingBlocks:
     def comparison(self, commands: Commands | None = None) -> EpisodeComparison:
         """The judged errors of every block so far, with the commands' (`commands`: of the whole episode)."""
         table = ErrorTable(self.tolerances, CompareScope(initial=self.initial))
-        if commands is not None and not np.isnan(commands.poses).any():
+        if _commands_judged(commands):
             judged = commands.poses.copy()
             judged[list(commands.clipped), 1] = judged[list(commands.clipped), 0]
             for key, err, group in _pose_errors(f"command/{self.ee.link_name}", (judged[:, 0], judged[:, 1]),
@@ -207,6 +207,13 @@ class TrackingBlocks:
             original, converted = (np.concatenate(flags) if flags else np.zeros(0, bool) for flags in self._success)
             table.add("success", success_timing(original, converted), "success", per_state=False)
         return table.comparison()
+
+
+def _commands_judged(commands: Commands | None) -> bool:
+    """Whether the commands are judged: every step has both poses and the target mode reached some step's target (an
+    episode clipped at every step has no command error to judge, and its report says so: no command keys)."""
+    return (commands is not None and not np.isnan(commands.poses).any()
+            and len(set(commands.clipped)) < len(commands.poses))
 
 
 def _env_states(block: StepBlock) -> dict[str, np.ndarray]:

@@ -128,6 +128,35 @@ def test_a_wrong_gain_is_caught_at_the_step_it_starts(demos, mode, tmp_path):
     assert max(before) <= report.tolerances["cmd_pos" if episode.first_divergence.key.endswith("[p]") else "cmd_rot"]
 
 
+class AlwaysClipped:
+    """The right converter, but every converted action reported clipped (the target mode reaching no step's
+    target)."""
+
+    def __init__(self, inner) -> None:
+        self.inner, self.target_mode = inner, inner.target_mode
+
+    def bind(self, unwrapped) -> None:
+        self.inner.bind(unwrapped)
+
+    def __call__(self, action):
+        converted = self.inner(action)
+        return ConvertedAction(converted.action, True, converted.wanted)
+
+    def commanded(self):
+        return self.inner.commanded()
+
+
+def test_an_episode_clipped_at_every_step_has_its_commands_shown_unjudged(demos, tmp_path):
+    src = demos("PickCube-v1")
+    report = convert_recording(src, tmp_path / "out.h5", control_mode="pd_joint_delta_pos", episodes=[0],
+                               converter=lambda *args: AlwaysClipped(converter_for(*args)))
+    [episode] = report.episodes
+    assert episode.checked == ["end-effector pose", "object poses", "success"]
+    assert not any(key.startswith("command/") for key in episode.max_abs_error)
+    [row] = [line for line in report.summary().splitlines() if line.lstrip().startswith("0 ")]
+    assert row.split()[3:5] == ["-", "-"], row  # episode, steps, verdict, then the two command columns
+
+
 def test_keep_verified_writes_only_the_episodes_that_pass(demos, tmp_path, capsys):
     src = demos("PickCube-v1")
 
