@@ -307,18 +307,23 @@ class ReplayRun:
                         log.write({"type": "end"})
             ended = True
         except WorkerDiedError as e:
-            raise ReplayError(f"{e}; {self._how_to_finish('(with fewer --workers if memory ran out)')}") from None
+            raise ReplayError(f"{e}; {self.how_to_finish('(with fewer --workers if memory ran out)')}") from None
         finally:
             worker.close()
             self._write_report(ended)
         return self.tally
 
-    def _how_to_finish(self, advice: str) -> str:
-        """What a run that stopped early kept and the command that finishes it (`advice` goes with it)."""
+    def how_to_finish(self, advice: str = "") -> str:
+        """What a run that stopped early kept and the command that finishes it (`advice` goes with it): a resume of
+        its report, except for a run that wrote replayed episodes (-o), which `--resume` refuses (`_logged`)."""
+        advice = f" {advice}" if advice else ""
+        if self.options.output is not None:
+            return (f"{self.options.output} was not written; run it again{advice} (a run that writes replayed episodes "
+                    "cannot be resumed)")
         if self.report_json is None:
-            return f"run it again {advice} (with --report, a stopped run keeps its verdicts for --resume)"
+            return f"run it again{advice} (with --report, a stopped run keeps its verdicts for --resume)"
         return (f"{self.tally.total} of {self.tally.planned} episodes have their verdict in {self.report_json}; "
-                f"finish with: simreel replay --resume {self.report_json} {advice}")
+                f"finish with: simreel replay --resume {self.report_json}{advice}")
 
     def _write_report(self, ended: bool) -> None:
         """Write REPORT.json from the lines. When the run ended well, a storage error doing so is the run's one line

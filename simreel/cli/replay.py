@@ -111,10 +111,8 @@ def run(args: argparse.Namespace) -> int:
         with bar:
             tally = replay.execute(progress)
     except KeyboardInterrupt:
-        if replay.report_json is not None:
-            sys.stderr.write(f"simreel replay: {replay.tally.total} of {replay.tally.planned} episodes have their "
-                             f"verdict in {replay.report_json}; finish with: simreel replay --resume "
-                             f"{replay.report_json}\n")
+        if replay.report_json is not None or replay.options.output is not None:
+            sys.stderr.write(f"simreel replay: {replay.how_to_finish()}\n")
         raise
     _print(tally, replay)
     return tally.exit_status()

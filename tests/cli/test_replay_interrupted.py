@@ -129,15 +129,16 @@ def _wait_for_output(proc: subprocess.Popen, out: Path) -> None:
         time.sleep(0.05)
 
 
-def _ctrl_c_once_scratch_is_written(proc: subprocess.Popen, out: Path) -> None:
+def _ctrl_c_once_scratch_is_written(proc: subprocess.Popen, out: Path) -> str:
     """Ctrl-C `proc` once its scratch folder holds an episode and its output is being written: it stops (130) and
-    nothing of the folder stays."""
+    nothing of the folder stays. Returns what it said on stderr."""
     _wait_for_scratch(proc, scratch_folder(out))
     _wait_for_output(proc, out)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     assert not scratch_folder(out).exists()
+    return err
 
 
 def _files(folder: Path) -> dict[str, bytes]:
@@ -150,8 +151,16 @@ def test_ctrl_c_of_a_run_writing_replays_keeps_the_output_it_was_to_replace(long
     for suffix in (".h5", ".json"):
         out.with_suffix(suffix).write_bytes(old.with_suffix(suffix).read_bytes())
     before = _files(tmp_path)
-    _ctrl_c_once_scratch_is_written(_replay(str(long_run), "-o", str(out), "--workers", "2", "--overwrite", "-q"), out)
+    report = tmp_path / "r.json"
+    err = _ctrl_c_once_scratch_is_written(_replay(str(long_run), "-o", str(out), "--report", str(report),
+                                                  "--workers", "2", "--overwrite", "-q"), out)
+    assert report.exists() and report.with_name("r.jsonl").exists()
+    report.unlink()
+    report.with_name("r.jsonl").unlink()
     assert _files(tmp_path) == before  # not a part of the run's replays in place of the old file
+    # such a run cannot be resumed (`--resume` refuses it): the way on it names is to run it again
+    assert f"simreel replay: {out} was not written; run it again (a run that writes replayed episodes cannot be " \
+           "resumed)" in err and "--resume" not in err, err
 
 
 def test_ctrl_c_of_a_conversion_with_workers_publishes_nothing(long_run, tmp_path):
