@@ -232,16 +232,29 @@ class _Auditor:
         resets an env while building it, with a seed of its own; a recorder made then takes that layout), nor, on a
         GPU, depends on num_envs."""
         seeds = [self.seed, self.seed + 1, self.seed + 2]
-        layouts = []
+        states = []
         for s in seeds:
             env.reset(seed=s, options={"reconfigure": True})
-            layouts.append(layout_of(read_state(env.unwrapped), batched=True))
+            states.append(read_state(env.unwrapped))
+        layouts = [layout_of(state, batched=True) for state in states]
         base = layouts[0]
         for s, layout in zip(seeds[1:], layouts[1:], strict=True):
             self._layout_findings("layout_seed", base, layout, f"with seed {self.seed}", f"with seed {s}")
         self._layout_findings("layout_build", built, base, "as gym.make built it", f"after reset(seed={self.seed})")
         self.report.checks.append(f"state-dict layout is the same as built and for seeds {', '.join(map(str, seeds))}")
+        self._check_reset_repeats(env, states[0])
         self._check_num_envs(base)
+
+    def _check_reset_repeats(self, env: Any, first: Mapping[str, np.ndarray]) -> None:
+        """The same seed gives the same scene and initial state again, after other seeds' resets (`first`: the state
+        after the first reset with `self.seed`): a replay starts every episode from its seed, so a reset that draws
+        from something the seed does not set (numpy's or torch's global RNG) is reproduced by no replay."""
+        env.reset(seed=self.seed, options={"reconfigure": True})
+        why = (f"reset(seed={self.seed}) gives another initial state than it gave before: the reset draws from "
+               "something the seed does not set (numpy's or Python's global RNG, a counter); draw from the env's "
+               "seeded RNGs (self._batched_episode_rng, or torch inside _initialize_episode, which ManiSkill seeds)")
+        compare_states(self.report, Check("reset_seed", self.tol_restore, why=why), first, read_state(env.unwrapped))
+        self.report.checks.append(f"reset(seed={self.seed}) gives the same initial state again after other seeds")
 
     def _layout_findings(self, kind: str, a: Any, b: Any, as_a: str, as_b: str) -> None:
         for key in sorted(set(a) | set(b)):

@@ -98,3 +98,31 @@ def test_a_layout_that_differs_from_the_built_one_is_found(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "layout_build       env_states/articulations/cab" in out
     assert "as gym.make built it and (15,) float32 after reset(seed=0)" in out
+
+
+GLOBAL_RNG_TASK = """
+import numpy as np
+from mani_skill.utils.registration import register_env
+from simreel.tasks.lift_cube import LiftCubeEnv
+
+@register_env("SimreelTestGlobalRng-v1", max_episode_steps=20)
+class GlobalRng(LiftCubeEnv):
+    \"\"\"Moves the cube by a draw of numpy's global RNG at every reset: no seed reproduces an episode.\"\"\"
+    def _initialize_episode(self, env_idx, options):
+        super()._initialize_episode(env_idx, options)
+        p = self.cube.pose.p.clone()
+        p[:, 1] += float(np.random.uniform(-0.05, 0.05))
+        self.cube.set_pose(type(self.cube.pose).create_from_pq(p, self.cube.pose.q))
+"""
+
+
+def test_a_reset_the_seed_does_not_reproduce_is_found(tmp_path, capsys):
+    """Restoring its state dict restores everything this task computes, so the restore checks pass; but its reset
+    draws from numpy's global RNG, and a replay, which starts each episode from its seed, never reproduces it."""
+    task = tmp_path / "global_rng.py"
+    task.write_text(GLOBAL_RNG_TASK)
+    out = tmp_path / "audit.json"
+    assert main(["audit", "SimreelTestGlobalRng-v1", "--import", str(task), "--steps", "3", "--json", str(out)]) == 1
+    assert "reset(seed=0) gives another initial state than it gave before" in capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    assert {(f["kind"], f["key"]) for f in doc["findings"]} == {("reset_seed", "env_states/actors/cube[p]")}
