@@ -13,12 +13,16 @@ build), and then a replay diverges for reasons no state comparison can name. The
                 "panda/panda_link1": {"type": "link", ..., "joint": {"type": "revolute", "limits": [[lo, hi]],
                                       "stiffness": 1000.0, "damping": 100.0, "force_limit": 100.0,
                                       "friction": 0.0, "armature": [0.0], "drive_mode": "force"}}},
-     "controllers": {"panda": {"arm": {"class": "PDEEPosController", "stiffness": 1000.0, ...}}}}
+     "controllers": {"panda": {"arm": {"class": "PDEEPosController", "stiffness": 1000.0, ...}}},
+     "code": {"PickCubeEnv": "5f0c2a9e1b7d3c44", "BaseEnv": "a81e...", ...}}
 
 Bodies are named as everywhere in simreel (`simreel.sim.describe.scene_bodies`); a link's entry holds the
 joint that moves it. Floats are float32 values (what PhysX holds), so the same build gives equal numbers and
 any difference is real; meshes are a hash of their vertices and triangles. The sim config is the recording's
-`RecordingMeta.sim_config`, compared separately.
+`RecordingMeta.sim_config`, compared separately. ``code`` holds, per class the task is made of (its own class and
+every base class up to ManiSkill's `BaseEnv`), a hash of the source file that defines it: a task whose code
+changed since the recording (a reward, a constant, a reset) is named as such, where no state comparison could
+say why its replay diverged. A recording made before simreel kept it has no ``code``: nothing is compared.
 
 A recording keeps the fingerprint of the scene its recorder found (`RecordingMeta.scene_fingerprint`) and,
 per episode, the entries of that episode's scene that differ from it (`EpisodeMeta.scene_changes`:
@@ -30,11 +34,14 @@ difference between two fingerprints: ``cube: mass 0.064 → 0.08``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
+import inspect
 import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -51,7 +58,7 @@ __all__ = [
     "scene_differences",
 ]
 
-FINGERPRINT_SECTIONS = ("bodies", "controllers")
+FINGERPRINT_SECTIONS = ("bodies", "controllers", "code")
 """Top-level sections of a fingerprint, each a mapping of named entries."""
 
 _CONTROLLER_SKIPPED = ("urdf_path", "path")
@@ -162,7 +169,27 @@ def scene_fingerprint(unwrapped: Any, *, env_idx: int = 0) -> dict[str, Any]:
     """The fingerprint of sub-scene `env_idx` of a live ManiSkill env (see the module docstring); ~3 ms for a
     Panda scene on the CPU, so it is taken when a scene is built, never per step."""
     bodies = {b.name: _body(b.entity, b.body_type) for b in scene_bodies(unwrapped, env_idx=env_idx)}
-    return {"bodies": bodies, "controllers": _controllers(unwrapped)}
+    return {"bodies": bodies, "controllers": _controllers(unwrapped), "code": dict(_task_code(type(unwrapped)))}
+
+
+@functools.cache
+def _task_code(task: type) -> tuple[tuple[str, str], ...]:
+    """(class name, hash of the source file that defines it) of `task` and each of its bases that has a Python
+    source file, up to the interpreter's and gymnasium's own; read once per class in a process."""
+    digests: dict[str, str] = {}
+    for cls in task.__mro__:
+        if cls.__module__.split(".")[0] in _CODE_SKIPPED or cls.__name__ in digests:
+            continue
+        try:
+            path = inspect.getsourcefile(cls)
+            digests[cls.__name__] = hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16] if path else ""
+        except (TypeError, OSError):  # a class without a source file (built in, or made at run time)
+            continue
+    return tuple((name, digest) for name, digest in digests.items() if digest)
+
+
+_CODE_SKIPPED = ("builtins", "abc", "typing", "gymnasium")
+"""Modules whose classes a task derives from that are not task code."""
 
 
 # ------------------------------------------------------------------------------------------- per episode
@@ -273,6 +300,9 @@ def scene_differences(recorded: Mapping[str, Any], replaying: Mapping[str, Any])
     out: list[SceneDifference] = []
     for section in FINGERPRINT_SECTIONS:
         old, new = recorded.get(section, {}), replaying.get(section, {})
+        if section == "code":
+            out += _code_differences(old, new)
+            continue
         for name in list(old) + [n for n in new if n not in old]:
             subject = name if section == "bodies" else f"controller {name}"
             if name not in new or name not in old:
@@ -285,4 +315,19 @@ def scene_differences(recorded: Mapping[str, Any], replaying: Mapping[str, Any])
                     _leaf_differences(f"controller {name}/{part}", "", old[name].get(part), new[name].get(part), out)
             else:
                 _leaf_differences(subject, "", old[name], new[name], out)
+    return out
+
+
+def _code_differences(recorded: Mapping[str, str], replaying: Mapping[str, str]) -> list[SceneDifference]:
+    """The task classes whose source file differs from the recorded one's (none where the recording has no hashes:
+    made before simreel kept them)."""
+    if not recorded:
+        return []
+    out = []
+    for name in list(recorded) + [n for n in replaying if n not in recorded]:
+        old, new = recorded.get(name), replaying.get(name)
+        if old != new:
+            subject = f"task code {name}"
+            out.append(SceneDifference(subject, "", old and "present", new and "present") if old is None or new is None
+                       else SceneDifference(subject, "source file hash", old, new))
     return out

@@ -89,3 +89,44 @@ def test_differences_format_just_enough_digits():
     assert SceneDifference("table", "", "present", None).describe() == "table: only in the recording"
     assert SceneDifference("controller panda/arm", "stiffness", 1000.0, 500.0).describe() == \
         "controller panda/arm: stiffness 1000 → 500"
+
+
+def test_it_holds_a_hash_of_each_task_class_source_file(lift):
+    code = scene_fingerprint(lift)["code"]
+    assert list(code)[0] == "LiftCubeEnv" and "BaseEnv" in code  # the task's own class first, up to ManiSkill's
+    assert all(len(digest) == 16 for digest in code.values())
+    older = {section: entries for section, entries in scene_fingerprint(lift).items() if section != "code"}
+    assert scene_differences(older, scene_fingerprint(lift)) == []  # recorded before simreel kept it: not compared
+
+
+REWARD_TASK = """
+from mani_skill.utils.registration import register_env
+from simreel.tasks.lift_cube import LiftCubeEnv
+
+REWARD_SCALE = {scale}
+
+
+@register_env("SimreelTestScaledReward-v1", max_episode_steps=20)
+class ScaledReward(LiftCubeEnv):
+    def compute_dense_reward(self, obs, action, info):
+        return REWARD_SCALE * super().compute_dense_reward(obs, action, info)
+"""
+
+
+def test_a_task_whose_code_changed_since_the_recording_is_named(tmp_path):
+    """Its reward is scaled by a constant of its file: a change no state comparison can name, the code hash does."""
+    import subprocess
+    import sys
+
+    from simreel.cli.main import main
+
+    task, recording = tmp_path / "scaled.py", tmp_path / "scaled.h5"
+    task.write_text(REWARD_TASK.format(scale=1.0))
+    assert main(["record", "SimreelTestScaledReward-v1", "--import", str(task), "-n", "1", "--max-steps", "5",
+                 "-o", str(recording), "-q"]) == 0
+    task.write_text(REWARD_TASK.format(scale=1.5))
+    done = subprocess.run([sys.executable, "-m", "simreel", "replay", str(recording), "-q"], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "why: the replaying scene differs from the recorded one (task code ScaledReward: source file hash" \
+        in done.stdout, done.stdout
