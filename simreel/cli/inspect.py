@@ -5,10 +5,17 @@ simreel did not write (ManiSkill's own), what they do not hold."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from typing import Any
 
-__all__ = ["add_parser", "run", "summarize"]
+__all__ = ["add_parser", "run", "summarize", "OPENED_EPISODES"]
+
+OPENED_EPISODES = 50
+"""How many episodes `inspect FILE` opens, as every command that reads them does, to name what only opening an
+episode shows: quirks found in its data (a ManiSkill file's first state off by one: two state rows read), an
+episode every command refuses. The first ones only, so that a file of thousands stays fast (an episode opened:
+~5 ms); replay, convert, merge and filter open every one."""
 
 
 def add_parser(sub: Any) -> None:
@@ -38,15 +45,37 @@ def problems(reader: Any) -> dict[str, list[str]]:
     return {"damaged": damaged, "unfinished": list(reader.unfinished), "notes": list(reader.notes)}
 
 
-def summarize(reader: Any, found: dict[str, list[str]] | None = None) -> dict[str, Any]:
-    """The JSON-able summary `inspect --json` prints."""
+def opened_episodes(reader: Any, found: dict[str, list[str]]) -> list[Any]:
+    """The episodes' metadata, the first `OPENED_EPISODES` as opened (`EpisodeReader.open_episode`: with the notes
+    and flags only their data gives, or a note saying why every command refuses the episode, unless a note of the
+    file's says it already); a note in `found` when more are not opened."""
+    from simreel.errors import FileProblemError
+
+    episodes = list(reader.episodes)
+    for k, listed in enumerate(episodes[:OPENED_EPISODES]):
+        try:
+            episodes[k] = reader.open_episode(listed.index).meta
+        except FileProblemError as e:
+            if e.problem not in found["notes"]:
+                episodes[k] = dataclasses.replace(listed, notes=[*listed.notes, f"refused when read: {e.problem}"])
+    if len(episodes) > OPENED_EPISODES:
+        found["notes"].append(f"the first {OPENED_EPISODES} of {len(episodes)} episodes were opened for what only "
+                              "their data shows (a first state off by one, an episode every command refuses); "
+                              "`simreel replay` opens every one")
+    return episodes
+
+
+def summarize(reader: Any, found: dict[str, list[str]] | None = None,
+              episodes: list[Any] | None = None) -> dict[str, Any]:
+    """The JSON-able summary `inspect --json` prints (`episodes`: the episodes' metadata, by default as listed)."""
     m = reader.meta
+    episodes = reader.episodes if episodes is None else episodes
     return {
         "path": str(reader.path),
         "kind": reader.kind,
         "meta": m.to_json(),
-        "episodes": [e.to_json() for e in reader.episodes],
-        "total_steps": sum(e.length for e in reader.episodes),
+        "episodes": [e.to_json() for e in episodes],
+        "total_steps": sum(e.length for e in episodes),
         **(found if found is not None else problems(reader)),
     }
 
@@ -79,10 +108,9 @@ def _print_header(reader: Any) -> None:
         print(f"  unknown    not in the file: {', '.join(m.unknown)}")
 
 
-def _print_episodes(reader: Any) -> None:
+def _print_episodes(eps: list[Any]) -> None:
     from simreel.formats.dataset import describe_origin
 
-    eps = reader.episodes
     succ = sum(1 for e in eps if e.success)
     origins = [describe_origin(e.origin) for e in eps]
     width = max(map(len, origins), default=0)
@@ -123,9 +151,9 @@ def _print_tools(reader: Any) -> None:
     print("ManiSkill tools: " + "; ".join(maniskill_tools(reader.meta, hdf5=not isinstance(reader, McapReader))))
 
 
-def _print_text(reader: Any, found: dict[str, list[str]]) -> None:
+def _print_text(reader: Any, found: dict[str, list[str]], episodes: list[Any]) -> None:
     _print_header(reader)
-    _print_episodes(reader)
+    _print_episodes(episodes)
     _print_layouts(reader.meta)
     _print_tools(reader)
     for note in found["notes"]:
@@ -145,10 +173,11 @@ def run(args: argparse.Namespace) -> int:
     if len(files) == 1 and files[0][1]:
         with open_reader(args.paths[0]) as reader:
             found = problems(reader)
+            episodes = opened_episodes(reader, found)
             if args.json:
-                print(json.dumps(summarize(reader, found), indent=2))
+                print(json.dumps(summarize(reader, found, episodes), indent=2))
             else:
-                _print_text(reader, found)
+                _print_text(reader, found, episodes)
         return 1 if found["damaged"] else 0
     return _inspect_many([path for path, _ in files], as_json=args.json)
 

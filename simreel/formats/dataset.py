@@ -40,7 +40,7 @@ from simreel.formats.base import EpisodeRows, PassedRows, not_a_file
 from simreel.formats.copy import Target, write_episodes
 from simreel.formats.durable import deferred_signals, raise_if_stopped
 from simreel.formats.inputs import file_identity
-from simreel.formats.same_env import PHYSICS_NEUTRAL_VERSIONS, check_same_env
+from simreel.formats.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.targets import check_distinct, move_into_place
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
@@ -113,29 +113,49 @@ class EpisodeCriteria:
 
     def keeps(self, meta: EpisodeMeta) -> bool:
         """Whether the episode of `meta` meets every criterion."""
-        return (
-            (self.episodes is None or meta.index in self.episodes)
-            and (self.success is None or meta.success is self.success)
-            and (self.min_steps is None or meta.length >= self.min_steps)
-            and (self.max_steps is None or meta.length <= self.max_steps)
-            and (self.verdicts is None or self.verdicts.get(meta.index) in self.keep_verdicts)
-        )
+        return all(meets(meta) for _, meets in self._each())
+
+    def _each(self) -> list[tuple[str, Callable[[EpisodeMeta], bool]]]:
+        """Each criterion given: what it is, for people (``episodes 0,3,4``, ``success``, ``>= 20 steps``), and
+        whether an episode's metadata meets it."""
+        parts: list[tuple[str, Callable[[EpisodeMeta], bool]]] = []
+        if self.episodes is not None:
+            shown = ",".join(str(i) for i in self.episodes[:10])
+            parts.append((f"episodes {shown}{',...' if len(self.episodes) > 10 else ''}",
+                          lambda m: m.index in self.episodes))
+        if self.success is not None:
+            parts.append(("success" if self.success else "no success", lambda m: m.success is self.success))
+        if self.min_steps is not None:
+            parts.append((f">= {self.min_steps} steps", lambda m: m.length >= self.min_steps))
+        if self.max_steps is not None:
+            parts.append((f"<= {self.max_steps} steps", lambda m: m.length <= self.max_steps))
+        if self.verdicts is not None:
+            parts.append((f"{' or '.join(self.keep_verdicts)} in {Path(self.report).name}",
+                          lambda m: self.verdicts.get(m.index) in self.keep_verdicts))
+        return parts
 
     def describe(self) -> str:
         """The criteria given, for people: ``episodes 0,3,4; success; >= 20 steps``."""
-        parts = []
-        if self.episodes is not None:
-            shown = ",".join(str(i) for i in self.episodes[:10])
-            parts.append(f"episodes {shown}{',...' if len(self.episodes) > 10 else ''}")
-        if self.success is not None:
-            parts.append("success" if self.success else "no success")
-        if self.min_steps is not None:
-            parts.append(f">= {self.min_steps} steps")
-        if self.max_steps is not None:
-            parts.append(f"<= {self.max_steps} steps")
-        if self.verdicts is not None:
-            parts.append(f"{' or '.join(self.keep_verdicts)} in {Path(self.report).name}")
-        return "; ".join(parts)
+        return "; ".join(what for what, _ in self._each())
+
+    def why_none(self, episodes: Sequence[EpisodeMeta]) -> str:
+        """Why none of `episodes` is kept, for people: how many meet each criterion alone, and how many hold no
+        final success (with a success criterion) or lack a verdict (with a verdict one)."""
+        if not episodes:
+            return "the file holds no episode"
+        met = [f"{sum(1 for m in episodes if meets(m))} meet {what}" for what, meets in self._each()]
+        why = f"of {len(episodes)} episode(s): {', '.join(met)}{', none all' if len(met) > 1 else ''}"
+        no_success, uncovered = self.no_success(episodes), self.uncovered(episodes)
+        why += f"; {_no_success_note(no_success)}" if no_success else ""
+        return why + (f"; {_uncovered_note(uncovered)}" if uncovered else "")
+
+    def no_success(self, episodes: Sequence[EpisodeMeta]) -> int:
+        """With a success criterion, how many of `episodes` hold no final success (0 without one)."""
+        return sum(1 for m in episodes if m.success is None) if self.success is not None else 0
+
+    def uncovered(self, episodes: Sequence[EpisodeMeta]) -> int:
+        """With a verdict criterion, how many of `episodes` its report does not cover (0 without one)."""
+        return sum(1 for m in episodes if m.index not in self.verdicts) if self.verdicts is not None else 0
 
     def to_json(self) -> dict[str, Any]:
         """The criteria given, for the provenance (the verdicts as the report's path and the verdicts kept)."""
@@ -146,6 +166,14 @@ class EpisodeCriteria:
         if self.verdicts is not None:
             d.update(report=self.report, verdicts=list(self.keep_verdicts))
         return d
+
+
+def _no_success_note(count: int) -> str:
+    return f"{count} episode(s) hold no final success: neither --success nor --no-success keeps them"
+
+
+def _uncovered_note(count: int) -> str:
+    return f"{count} episode(s) are not in the replay report: not kept"
 
 
 @dataclass
@@ -180,6 +208,8 @@ class DatasetReport:
     """`EpisodeCriteria.describe` of a filter."""
     unfinished: list[str] = field(default_factory=list)
     """``<input>: <episode>`` for each episode an input holds uncommitted (a killed recording): not copied."""
+    notes: list[str] = field(default_factory=list)
+    """What else the output does not take from its inputs as they are (a render_mode they differ in)."""
 
     def summary(self) -> str:
         """What was written, from where, and what was checked: the text the CLI prints."""
@@ -196,11 +226,9 @@ class DatasetReport:
             lines = [f"filter {path.name} ({self.criteria}): kept {out.episodes} of {total}, {out.line()}"]
             lines += [f"rest: {o.line()}" for o in self.outputs[1:]]
         lines += [f"note: {u} was never committed (a killed recording) and is not copied" for u in self.unfinished]
-        if self.no_success:
-            lines.append(f"note: {self.no_success} episode(s) hold no final success: neither --success nor "
-                         "--no-success keeps them")
-        if self.uncovered:
-            lines.append(f"note: {self.uncovered} episode(s) are not in the replay report: not kept")
+        lines += [f"note: {n}" for n in self.notes]
+        lines += [f"note: {_no_success_note(self.no_success)}"] if self.no_success else []
+        lines += [f"note: {_uncovered_note(self.uncovered)}"] if self.uncovered else []
         lines.append(f"checked: {self.checked} episodes, every array equal to its source")
         return "\n".join(lines)
 
@@ -350,6 +378,17 @@ Decide = Callable[[_Source, EpisodeMeta], "int | None"]
 """Which output an episode goes to (its number in the target list), or None: not copied."""
 
 
+@dataclass(frozen=True)
+class _Selection:
+    """Which episodes an operation copies where, as `_run` needs it."""
+
+    decide: Decide
+    what: str
+    """The operation, for its progress bar: ``merge``, ``filter``."""
+    why_none: Callable[[], str]
+    """Why no episode goes to OUT, when none does (the error says it)."""
+
+
 def _plan(sources: Sequence[_Source], decide: Decide, n_targets: int) -> list[_Item]:
     counts = [0] * n_targets
     items = []
@@ -373,8 +412,9 @@ def _read(items: Sequence[_Item], sources: Sequence[_Source], decide: Decide,
           digests: list[list[bytes]]) -> Iterator[tuple[int, HashedRows]]:
     """Each item's episode, renumbered with its origin, to be read a block at a time, source by source (one
     reader open at a time); once it has been read, its digest goes to `digests[target]`. The decision is made
-    again on the episode as opened (a ManiSkill file's reader corrects a length the sidecar misstates): a
-    different one is an error, not a silent change."""
+    again on the episode as opened: readers list each episode as it opens (a ManiSkill file's length is its
+    actions' count from the start, not its sidecar's word), so a different one is simreel's bug (exit 3), never a
+    silent change of the selection."""
     for k, group in groupby(items, key=lambda item: item.source):
         source = sources[k]
         with source.reopen() as reader:
@@ -382,10 +422,10 @@ def _read(items: Sequence[_Item], sources: Sequence[_Source], decide: Decide,
                 raise_if_stopped()  # a Ctrl-C that landed in a finalizer (h5py's) was printed and dropped by Python
                 rows = reader.open_episode(item.index)
                 if decide(source, rows.meta) != item.target:
-                    raise RecordingFileError(
-                        source.label, f"episode {item.index} is listed as {_episode_meta(source, item.index).length} "
-                        f"steps but holds {rows.length}: selected by a length its file misstates; select it by "
-                        "index or fix the file's listing")
+                    listed = _episode_meta(source, item.index)
+                    raise RuntimeError(f"{source.label}: episode {item.index} opens as {rows.length} steps, success "
+                                       f"{rows.meta.success}, but was listed, and selected, as {listed.length} "
+                                       f"steps, success {listed.success}")
                 meta = dataclasses.replace(rows.meta, index=item.new_index, origin=_origin(source, rows.meta))
                 hashed = HashedRows(rows, meta)
                 yield item.target, hashed
@@ -412,10 +452,38 @@ def _versions(sources: Sequence[_Source]) -> dict[str, str]:
     return versions
 
 
+def _env_kwargs(sources: Sequence[_Source]) -> dict[str, Any]:
+    """The inputs' gym.make arguments (equal by the same-env rule but for `PHYSICS_NEUTRAL_ENV_KWARGS`): those
+    kept where every input gives the same value, and left out where they differ (gym.make's default: no
+    ``render_mode``, which needs no render device), since no one value is every episode's (`_neutral_differences`
+    says so)."""
+    shared = _common([s.meta.env_kwargs for s in sources])
+    return {k: v for k, v in sources[0].meta.env_kwargs.items() if k not in PHYSICS_NEUTRAL_ENV_KWARGS or k in shared}
+
+
+def _neutral_differences(sources: Sequence[_Source]) -> list[str]:
+    """A note for each `PHYSICS_NEUTRAL_ENV_KWARGS` entry the inputs give different values, left out of the output."""
+    notes = []
+    for key in PHYSICS_NEUTRAL_ENV_KWARGS:
+        labels: dict[str, list[str]] = {}
+        for s in sources:
+            value = s.meta.env_kwargs.get(key)
+            labels.setdefault("none" if value is None else repr(value), []).append(s.label)
+        if len(labels) > 1:
+            given = "; ".join(f"{value} in {_some(names)}" for value, names in labels.items())
+            notes.append(f"{key} differs between the inputs ({given}); it changes neither the physics nor the "
+                         "arrays, and the output records none")
+    return notes
+
+
+def _some(labels: list[str]) -> str:
+    return ", ".join(labels[:3]) + (f" and {len(labels) - 3} more" if len(labels) > 3 else "")
+
+
 def _output_meta(sources: Sequence[_Source], provenance: dict[str, Any], command: str) -> RecordingMeta:
     return dataclasses.replace(
         sources[0].meta, created_utc=_now(), command=command, format_version=FORMAT_VERSION,
-        source=_common([s.meta.source for s in sources]), versions=_versions(sources),
+        source=_common([s.meta.source for s in sources]), versions=_versions(sources), env_kwargs=_env_kwargs(sources),
         provenance={**provenance, "inputs": [s.identity for s in sources]},
     )
 
@@ -482,13 +550,15 @@ class StagedOutput:
                           "now); it is left as it is and nothing was written (pass --overwrite to replace it)")
 
 
-def _run(sources: Sequence[_Source], targets: Sequence[Target], decide: Decide, options: DatasetOptions,
-         what: str) -> tuple[list[OutputSummary], list[_Item]]:
+def _run(sources: Sequence[_Source], targets: Sequence[Target], selection: _Selection,
+         options: DatasetOptions) -> tuple[list[OutputSummary], list[_Item]]:
     """Plan, copy, check and publish: the work both operations share. The outputs are written under staging names
     (an old OUT stays until the new one is checked) and removed on any failure or Ctrl-C."""
+    decide, what = selection.decide, selection.what
     items = _plan(sources, decide, len(targets))
     if not any(item.target == 0 for item in items):
-        raise UsageError(f"no episode to write to {targets[0].path}: nothing matches; nothing written")
+        raise UsageError(f"no episode to write to {targets[0].path}: nothing matches ({selection.why_none()}); "
+                         "nothing written")
     outputs = [StagedOutput.of(t) for t in targets]
     for item in items:
         outputs[item.target].items.append(item)
@@ -572,10 +642,11 @@ def merge(inputs: Sequence[str | Path], output: str | Path, options: DatasetOpti
     sources = [_Source.read(p) for p in inputs]
     check_same_env([(s.label, s.meta) for s in sources])
     target = Target(Path(output), _output_meta(sources, {"operation": "merge"}, opts.command), opts.overwrite)
-    outputs, items = _run(sources, [target], lambda source, meta: 0, opts, "merge")
+    everything = _Selection(lambda source, meta: 0, "merge", lambda: "the inputs hold no episode")
+    outputs, items = _run(sources, [target], everything, opts)
     taken = [sum(1 for i in items if i.source == k) for k in range(len(sources))]
     return DatasetReport("merge", outputs, [(s.path, len(s.episodes), n) for s, n in zip(sources, taken, strict=True)],
-                         outputs[0].episodes, unfinished=_unfinished(sources))
+                         outputs[0].episodes, unfinished=_unfinished(sources), notes=_neutral_differences(sources))
 
 
 def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCriteria,
@@ -601,12 +672,10 @@ def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCrit
     def decide(_: _Source, meta: EpisodeMeta) -> int | None:
         return 0 if criteria.keeps(meta) else (1 if rest is not None else None)
 
-    written, _ = _run([source], targets, decide, opts, "filter")
+    written, _ = _run([source], targets, _Selection(decide, "filter", lambda: criteria.why_none(source.episodes)), opts)
     return DatasetReport(
         "filter", written, [(source.path, len(source.episodes), written[0].episodes)], sum(o.episodes for o in written),
-        no_success=sum(1 for m in source.episodes if m.success is None) if criteria.success is not None else 0,
-        uncovered=sum(1 for m in source.episodes if m.index not in criteria.verdicts)
-        if criteria.verdicts is not None else 0,
+        no_success=criteria.no_success(source.episodes), uncovered=criteria.uncovered(source.episodes),
         criteria=criteria.describe(), unfinished=_unfinished([source]),
     )
 

@@ -76,7 +76,10 @@ def test_criteria_combine_with_and(src, tmp_path, options, kept):
         (["--episodes", "0,x"], "bad episode list '0,x': expected e.g. 0,3-7"),
         (["--episodes", ","], "--episodes ',' names no episode"),
         (["--episodes", "9"], "src.h5: no episode 9 (episodes: 0, 1, 2, 3)"),
-        (["--min-steps", "6"], "nothing matches; nothing written"),
+        (["--min-steps", "6"], "nothing matches (of 4 episode(s): 0 meet >= 6 steps); nothing written"),
+        (["--success", "--episodes", "0,3"],
+         "nothing matches (of 4 episode(s): 2 meet episodes 0,3, 1 meet success, none all; 1 episode(s) hold no "
+         "final success: neither --success nor --no-success keeps them); nothing written"),
         (["--min-steps", "4", "--max-steps", "3"], "--min-steps 4 is above --max-steps 3: no episode fits"),
         (["--max-steps", "two"], "argument --max-steps: invalid int value: 'two'"),
         (["--success", "--rest", "{out}"], "--rest {out} is also written by -o; write it to another file"),
@@ -134,7 +137,8 @@ def test_episodes_a_report_does_not_cover_are_not_kept_and_counted(replayed, tmp
     assert "kept 1 of 2" in out and "note: 1 episode(s) are not in the replay report: not kept" in out
     assert _origins(tmp_path / "ok.h5") == [0]
     assert main(["filter", str(rec), "-o", str(tmp_path / "bad.h5"), "--diverged", str(partial), "-q"]) == 2
-    assert "nothing matches; nothing written" in capsys.readouterr().err
+    assert ("nothing matches (of 2 episode(s): 0 meet diverged in partial.json; 1 episode(s) are not in the replay "
+            "report: not kept); nothing written") in capsys.readouterr().err
 
 
 def test_a_split_whose_rest_another_command_wrote_meanwhile_publishes_neither(src, tmp_path):

@@ -2,6 +2,13 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
+import h5py
+import pytest
+from support.maniskill_files import copy_recording, record_maniskill
+
 from simreel.cli.main import main
 
 
@@ -12,3 +19,56 @@ def test_inspect_file_without_frequencies(tmp_path, capsys):
     open_writer(tmp_path / "api.h5", RecordingMeta(env_id="PickCube-v1")).close()
     assert main(["inspect", str(tmp_path / "api.h5")]) == 0
     assert "? Hz sim / ? Hz control" in capsys.readouterr().out
+
+
+@pytest.fixture(scope="module")
+def ms_dir(tmp_path_factory) -> Path:
+    """A RecordEpisode file of PickCube-v1: 2 episodes of 6 steps, env states."""
+    folder = tmp_path_factory.mktemp("maniskill")
+    record_maniskill(folder, "PickCube-v1", name="demos", episodes=2, steps=6)
+    return folder
+
+
+def _off_by_one(path: Path, index: int) -> None:
+    """Episode `index`'s first state made its second, as replay_trajectory --use-env-states writes it."""
+    with h5py.File(path, "a") as f:
+        states = f[f"traj_{index}/env_states"]
+        states.visititems(lambda _, ds: ds.__setitem__(0, ds[1]) if isinstance(ds, h5py.Dataset) else None)
+
+
+def _inspected(path: Path, capsys) -> tuple[str, list[dict]]:
+    """inspect's text, and the episodes of inspect --json."""
+    assert main(["inspect", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert main(["inspect", "--json", str(path)]) == 0
+    return text, json.loads(capsys.readouterr().out)["episodes"]
+
+
+def test_quirks_only_an_episodes_data_shows_are_named(ms_dir, tmp_path, capsys):
+    """The first state off by one (found in state rows 0 and 1), and an episode every command refuses, are named
+    per episode as replay names them, not only the quirks of the listing."""
+    path = copy_recording(ms_dir, "demos", tmp_path)
+    _off_by_one(path, 1)
+    text, episodes = _inspected(path, capsys)
+    assert [e["initial_state_known"] for e in episodes] == [True, False]
+    assert "as in files replay_trajectory writes with --use-env-states" in episodes[1]["notes"][0]
+    assert "note: env_states[0] and env_states[1] agree within restore noise" in text
+    with h5py.File(path, "a") as f:
+        del f["traj_1/rewards"]
+    text, episodes = _inspected(path, capsys)
+    assert episodes[1]["notes"] == ["refused when read: traj_1 differs from traj_0 (the first episode, whose datasets "
+                                    "set the file's layout): it lacks rewards"]
+    assert "note: refused when read: traj_1 differs from traj_0" in text
+
+
+def test_only_the_first_episodes_are_opened_and_it_says_so(ms_dir, tmp_path, capsys, monkeypatch):
+    """Opening reads data: inspect opens the first `OPENED_EPISODES` only (a file of thousands stays fast) and says
+    how many of how many it opened."""
+    monkeypatch.setattr("simreel.cli.inspect.OPENED_EPISODES", 1)
+    path = copy_recording(ms_dir, "demos", tmp_path)
+    _off_by_one(path, 0)
+    _off_by_one(path, 1)
+    text, episodes = _inspected(path, capsys)
+    assert [e["initial_state_known"] for e in episodes] == [False, True]
+    assert ("note: the first 1 of 2 episodes were opened for what only their data shows (a first state off by one, "
+            "an episode every command refuses); `simreel replay` opens every one\n") in text

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from support.maniskill_files import copy_recording, edit_sidecar, record_maniskill
 from support.mcap_samples import long_sample, synthetic_episode, synthetic_meta, write
 
 from simreel.cli.main import main
@@ -74,6 +75,49 @@ def test_different_envs_are_one_line_and_exit_2(inputs, tmp_path, capsys):
                    f"there, None in {inputs[0]}; only recordings of one env (same settings, layouts and simulator "
                    "versions) become one file\n")
     assert not (tmp_path / "out.h5").exists()
+
+
+@pytest.fixture(scope="module")
+def ms_dir(tmp_path_factory) -> Path:
+    """RecordEpisode files of PickCube-v1 (pd_joint_pos, no observations): with rewards, and without."""
+    folder = tmp_path_factory.mktemp("maniskill")
+    record_maniskill(folder, "PickCube-v1", name="plain", episodes=2, steps=6)
+    record_maniskill(folder, "PickCube-v1", name="noreward", episodes=1, steps=6, record_reward=False)
+    return folder
+
+
+def test_a_long_value_that_differs_is_shown_where_it_differs(ms_dir, tmp_path, capsys):
+    """Long lists are not cut to the same first characters (which never showed the difference): what one holds and
+    the other lacks."""
+    plain, noreward = ms_dir / "plain.h5", ms_dir / "noreward.h5"
+    assert main(["merge", str(plain), str(noreward), "-o", str(tmp_path / "out.h5")]) == 2
+    err = capsys.readouterr().err
+    assert f"records another env than {plain}: unknown holds ['rewards'] there, not in {plain};" in err
+    assert err.count("\n") == 1
+
+
+def test_a_render_mode_of_replay_trajectory_does_not_keep_files_apart_and_the_merge_replays(ms_dir, tmp_path, capsys):
+    """ManiSkill's replay_trajectory writes ``render_mode: rgb_array`` into every file it makes; it changes neither
+    the physics nor the arrays, so such a file merges with a RecordEpisode one: the output records no render_mode
+    (the inputs give none in common), says so, and replays verified."""
+    rendered = copy_recording(ms_dir, "plain", tmp_path)
+    edit_sidecar(rendered, lambda doc: doc["env_info"]["env_kwargs"].update(render_mode="rgb_array"))
+    out = tmp_path / "out.h5"
+    assert main(["merge", str(ms_dir / "plain.h5"), str(rendered), "-o", str(out), "-q"]) == 0
+    assert (f"note: render_mode differs between the inputs (none in {ms_dir / 'plain.h5'}; 'rgb_array' in "
+            f"{rendered}); it changes neither the physics nor the arrays, and the output records none\n"
+            ) in capsys.readouterr().out
+    with open_reader(out) as r:
+        assert "render_mode" not in r.meta.env_kwargs and len(r.episodes) == 4
+    assert main(["replay", str(out), "-q"]) == 0
+    assert "4 of 4 episode(s) verified" in capsys.readouterr().out
+    again = tmp_path / "again" / "plain.h5"
+    again.parent.mkdir()
+    copy_recording(tmp_path, "plain", again.parent)
+    assert main(["merge", str(rendered), str(again), "-o", str(tmp_path / "both.h5"), "-q"]) == 0
+    assert "note:" not in capsys.readouterr().out
+    with open_reader(tmp_path / "both.h5") as r:
+        assert r.meta.env_kwargs["render_mode"] == "rgb_array"  # the value every input gives is kept
 
 
 def test_overwrite_replaces_out(inputs, tmp_path):

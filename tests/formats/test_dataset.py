@@ -273,17 +273,23 @@ def test_a_filtered_maniskill_file_is_read_by_maniskills_loaders(ms_files, tmp_p
         np.testing.assert_array_equal(_loader_arrays(path)["actions"], episodes[0].actions)
 
 
-def test_a_length_the_sidecar_misstates_is_an_error_not_a_silent_selection(ms_files, tmp_path):
-    """ManiSkill's reader corrects `elapsed_steps` from the arrays; a selection made by the misstated length is
-    refused when the episode is read."""
+def test_episodes_are_selected_by_the_steps_they_hold_not_by_the_sidecars_word(ms_files, tmp_path):
+    """A sidecar that understates `elapsed_steps`, or gives none, does not drop the episode from a selection by
+    length (nor keep one it overstates): filter goes by the actions each episode holds (7 here)."""
     src = tmp_path / "stale.h5"
     src.write_bytes(ms_files[1].read_bytes())
     doc = json.loads(ms_files[1].with_suffix(".json").read_text())
-    doc["episodes"][1]["elapsed_steps"] = 50
+    doc["episodes"][0]["elapsed_steps"] = 3
+    del doc["episodes"][1]["elapsed_steps"]
     src.with_suffix(".json").write_text(json.dumps(doc))
-    with pytest.raises(RecordingFileError, match=r"stale.h5: episode 1 is listed as 50 steps but holds 7"):
-        filter_recording(src, tmp_path / "long.h5", EpisodeCriteria(min_steps=40))
-    assert not (tmp_path / "long.h5").exists() and not (tmp_path / "long.json").exists()
+    report = filter_recording(src, tmp_path / "long.h5", EpisodeCriteria(min_steps=5))
+    assert report.outputs[0].episodes == 2 and report.outputs[0].steps == 14
+    assert [e.length for e in _episodes(tmp_path / "long.h5")] == [7, 7]
+    doc["episodes"][0]["elapsed_steps"] = 50
+    src.with_suffix(".json").write_text(json.dumps(doc))
+    with pytest.raises(UsageError, match="nothing matches"):
+        filter_recording(src, tmp_path / "longer.h5", EpisodeCriteria(min_steps=40))
+    assert not (tmp_path / "longer.h5").exists()
 
 
 # ------------------------------------------------------------------------------------------ nothing half-written
@@ -370,7 +376,7 @@ def test_an_input_that_changes_during_the_copy_is_refused(synthetic, tmp_path, m
         (lambda a, b, t: filter_recording(a, t / "o.h5", EpisodeCriteria(episodes=(7,))), RecordingFileError,
          r"a.h5: no episode 7 \(episodes: 0, 1, 2\)"),
         (lambda a, b, t: filter_recording(a, t / "o.h5", EpisodeCriteria(min_steps=1000)), UsageError,
-         "no episode to write to .*o.h5: nothing matches; nothing written"),
+         "no episode to write to .*o.h5: nothing matches \\(of 3 episode\\(s\\): 0 meet >= 1000 steps\\); nothing written"),
         (lambda a, b, t: filter_recording(a, t / "o.h5", EpisodeCriteria()), UsageError, "no criterion"),
         (lambda a, b, t: filter_recording(a, t / "o.h5", EpisodeCriteria(min_steps=1), rest=t / "o.h5"),
          UsageError, r"--rest .*o.h5 is also written by -o"),

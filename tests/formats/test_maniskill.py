@@ -12,6 +12,7 @@ import pytest
 from support.maniskill_files import copy_recording, edit_sidecar, record_maniskill, replay_maniskill
 
 from simreel.cli.main import main
+from simreel.errors import RecordingFileError
 from simreel.formats import open_reader
 from simreel.formats.maniskill.reader import ALWAYS_UNKNOWN, ManiskillReader
 
@@ -196,6 +197,32 @@ def test_quirks_of_a_file_are_named(ms_dir, tmp_path):
         assert r.notes == ["1 group(s) the sidecar does not list (traj_9) are skipped, as ManiSkill's tools skip them"]
 
 
+def test_an_episodes_length_is_the_actions_it_holds_from_the_listing_on(ms_dir, tmp_path, capsys):
+    """The listing (what filter, inspect and merge go by) gives each episode the actions its group holds, and notes
+    an `elapsed_steps` that says otherwise or nothing, before any episode is opened."""
+    path = copy_recording(ms_dir, "demos", tmp_path)
+    edit_sidecar(path, lambda doc: (doc["episodes"][0].update(elapsed_steps=3), doc["episodes"][1].pop("elapsed_steps")))
+    with open_reader(path) as r:
+        assert [(e.length, e.notes) for e in r.episodes] == [
+            (15, ["elapsed_steps 3 in the sidecar, 15 actions in the file"]),
+            (15, ["the sidecar gives no elapsed_steps; 15 actions in the file"])]
+        assert r.read_episode(0).meta.notes == r.episodes[0].notes
+    assert main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "episodes: 2, steps: 30," in out and "note: elapsed_steps 3 in the sidecar, 15 actions in the file" in out
+
+
+def test_an_episode_whose_actions_cannot_be_found_leaves_the_rest_readable(ms_dir, tmp_path):
+    """Listing the lengths reads one dataset's shape per episode; where it is not there, that episode alone is
+    refused when opened, as before, with what is wrong."""
+    path = copy_recording(ms_dir, "demos", tmp_path)
+    _tamper(path, lambda f: f.__delitem__("traj_1/actions"))
+    with open_reader(path) as r:
+        assert [e.length for e in r.episodes] == [15, 15] and r.read_episode(0).length == 15
+        with pytest.raises(RecordingFileError, match="traj_1 differs from traj_0 .*: it lacks actions"):
+            r.open_episode(1)
+
+
 def test_a_gpu_recording_names_what_it_does_not_hold_and_asks_for_the_cpu_sim(ms_dir, tmp_path, capsys):
     """The sidecar of a GPU-sim recording (physx_cuda, 4 envs: reset_kwargs {}); its arrays here are CPU ones."""
     path = copy_recording(ms_dir, "demos", tmp_path)
@@ -229,6 +256,8 @@ def test_a_state_mode_output_of_replay_trajectory_is_found_off_by_one(ms_dir, ma
     # checked as it was made (restore, step, compare): the reset row is skipped, step 0 starts from the reset
     assert main(["replay", str(converted), "-q", "--mode", "step"]) == 0
     assert "the reset state is not compared" in capsys.readouterr().out
+    assert main(["inspect", "--json", str(converted)]) == 0  # named per episode by inspect too
+    assert [e["initial_state_known"] for e in json.loads(capsys.readouterr().out)["episodes"]] == [False, False]
 
 
 def test_only_the_group_name_maniskill_looks_up_is_an_episodes():

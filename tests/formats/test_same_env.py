@@ -59,3 +59,30 @@ def test_first_difference_walks_objects_in_order_and_lists_item_by_item():
     assert first_difference({"a": [1]}, {"a": [1, 2]}) == ("a", [1], [1, 2])
     assert first_difference({"a": 1}, {"a": 1.0}) == ("a", 1, 1.0)  # JSON of another type: not the same setting
     assert first_difference({"x": 1}, {"x": 1, "y": 2}) == ("y", "<absent>", 2)
+
+
+_LONG = ["versions", "sim_config", "control_freq", "contacts", "body_poses", "info", "scene_seeds", "fail"]
+
+
+@pytest.mark.parametrize(
+    ("first", "other", "message"),
+    [
+        ({"unknown": _LONG}, {"unknown": [*_LONG[:-1], "rewards", "fail"]},
+         "unknown holds ['rewards'] there, not in a.h5"),
+        ({"unknown": [*_LONG, "rewards"]}, {"unknown": _LONG}, "unknown holds ['rewards'] in a.h5, not there"),
+        ({"unknown": [*_LONG, "rewards"]}, {"unknown": [*_LONG, "env_states", "obs"]},
+         "unknown holds ['env_states', 'obs'] there, not in a.h5, and ['rewards'] in a.h5, not there"),
+        ({"unknown": _LONG}, {"unknown": [*_LONG, "fail"]},
+         "unknown is ...scene_seeds', 'fail', 'fail'] there, ...scene_seeds', 'fail'] in a.h5"),
+        ({"env_kwargs": {"robot_uids": "panda_" + "x" * 100 + "1"}}, {"env_kwargs": {"robot_uids": "panda_" + "x" * 100 + "2"}},
+         f"env_kwargs.robot_uids is ...{'x' * 20}2' there, ...{'x' * 20}1' in a.h5"),
+    ],
+    ids=["one-holds-more", "one-holds-less", "each-holds-another", "an-item-twice", "long-text"],
+)
+def test_a_long_value_is_shown_by_what_differs_never_cut_before_it(first, other, message):
+    """Values too long for the line are shown where they differ: what each list holds that the other lacks, or
+    both values from just before their first differing character."""
+    a = dataclasses.replace(synthetic_meta(), **first)
+    with pytest.raises(EnvMismatchError) as e:
+        check_same_env([("a.h5", a), ("b.mcap", dataclasses.replace(a, **other))])
+    assert str(e.value).startswith(f"b.mcap records another env than a.h5: {message}; only recordings of one env")

@@ -8,7 +8,8 @@ fail and env_states. Quirks found in the file go to the episode's `EpisodeMeta.n
 
 - seeds stored as one-element lists in `reset_kwargs`, or a `reset_kwargs.seed` that is not the
   `episode_seed` (ManiSkill's replay_trajectory uses `episode_seed`, and so does simreel);
-- `elapsed_steps` that is not the number of actions;
+- `elapsed_steps` that is not the number of actions (or none: the length is the actions' count, noted when the
+  reader is opened, so that every command selects and counts episodes by what they hold);
 - a state row 0 equal to row 1 within restore noise: files that replay_trajectory wrote in its state modes
   (`--use-env-states`, `--use-first-env-state`) store the state *after* step 0 as the first state (off by
   one), so row 0 is not the reset state (`EpisodeMeta.initial_state_known` is False and replays skip it);
@@ -32,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -121,7 +123,7 @@ class ManiskillReader(EpisodeReader):
     def _open(self) -> None:
         groups = self._groups()
         self.sidecar = Sidecar.read(self.path)
-        self.episodes = _episode_metas(self.sidecar, groups)
+        self.episodes = _episode_metas(self.sidecar, groups, self._action_rows)
         self.notes = _unlisted_groups(self.sidecar, groups)
         """Recording-level quirks (groups the sidecar does not list)."""
         first = self._held(self.episodes[0].index) if self.episodes else None
@@ -140,8 +142,8 @@ class ManiskillReader(EpisodeReader):
         ``traj_N`` is no group (not a trajectory file, or a damaged one)."""
         import h5py
 
-        try:
-            found = {i: (name, isinstance(self._file[name], h5py.Group))
+        try:  # the object's kind from its header (h5o), without opening it: cheap for tens of thousands of groups
+            found = {i: (name, h5py.h5o.get_info(self._file.id, name.encode()).type == h5py.h5o.TYPE_GROUP)
                      for name in self._file if (i := group_index(name)) is not None}
         except H5PY_ERRORS as e:
             raise RecordingFileError(self.path, f"corrupt HDF5 file: its list of groups cannot be read ({e})") from None
@@ -165,6 +167,18 @@ class ManiskillReader(EpisodeReader):
             raise RecordingFileError(self.path, f"{group_name(index)} is corrupt: its structure cannot be read "
                                                 f"({e})") from None
 
+    def _action_rows(self, index: int) -> int | None:
+        """How many actions episode `index` holds: the row count of its ``actions`` dataset, from the HDF5 metadata
+        (no row is read: cheap for files of tens of thousands of episodes). None when it cannot be told (a group
+        whose structure cannot be read, no ``actions``): `open_episode` names what is wrong with that episode, and
+        the rest of the file stays readable."""
+        import h5py
+
+        try:
+            return int(h5py.h5d.open(self._file.id, f"{group_name(index)}/actions".encode()).shape[0])
+        except H5PY_ERRORS:
+            return None
+
     def open_episode(self, index: int) -> Hdf5Rows:
         """Episode `index`: its datasets checked (`_episode_datasets`) and their row counts (T actions, T + 1 states),
         and the file's quirks noted in its metadata (`_note_quirks`: reads state rows 0 and 1 only)."""
@@ -177,9 +191,9 @@ class ManiskillReader(EpisodeReader):
             if rows != f.row_count(steps):
                 raise RecordingFileError(self.path, f"{group_name(index)}: episode {index}: {f.name} has {rows} rows, "
                                                     f"expected {f.row_count(steps)}")
-        if meta.length != steps:
-            meta.notes.append(f"elapsed_steps {meta.length} in the sidecar, {steps} actions in the file")
-            meta.length = steps
+        if meta.length != steps:  # listed from the same dataset's shape: only a file changed since it was opened
+            raise RecordingFileError(self.path, f"{group_name(index)}: episode {index} holds {steps} actions, "
+                                                f"{meta.length} when the file was opened: it changed meanwhile")
         _note_success(meta, datasets.get("success"))
         episode = Hdf5Rows(self.path, meta, self.fields, datasets)
         _note_quirks(episode)
@@ -287,9 +301,11 @@ def _seed(entry: dict[str, Any], notes: list[str]) -> int | None:
     return int(seed) if isinstance(seed, (int, np.integer)) else None
 
 
-def _episode_metas(sidecar: Sidecar, groups: dict[int, str]) -> list[EpisodeMeta]:
-    """One `EpisodeMeta` per episode the sidecar lists, in its order; an error for those the .h5 lacks, and for an
-    episode listed twice (its group would be read twice, under the seeds of two entries)."""
+def _episode_metas(sidecar: Sidecar, groups: dict[int, str],
+                   action_rows: Callable[[int], int | None]) -> list[EpisodeMeta]:
+    """One `EpisodeMeta` per episode the sidecar lists, in its order, its length the actions its group holds
+    (`action_rows` of its index: `_length`); an error for those the .h5 lacks, and for an episode listed twice (its
+    group would be read twice, under the seeds of two entries)."""
     twice = [i for i, n in Counter(e["episode_id"] for e in sidecar.episodes).items() if n > 1]
     if twice:
         raise RecordingFileError(sidecar.path, f"lists {group_name(twice[0])} more than once: a sidecar lists each "
@@ -310,11 +326,25 @@ def _episode_metas(sidecar: Sidecar, groups: dict[int, str]) -> list[EpisodeMeta
             seed=seed,
             reset_options=options,
             reconfigured=True if options.get("reconfigure") else None,
-            length=int(entry.get("elapsed_steps") or 0),
+            length=_length(entry, action_rows(entry["episode_id"]), notes),
             success=entry.get("success") if isinstance(entry.get("success"), bool) else None,
             notes=notes,
         ))
     return metas
+
+
+def _length(entry: dict[str, Any], actions: int | None, notes: list[str]) -> int:
+    """An episode's length: the actions its group holds (`actions`), which filter, inspect, merge and replay go by,
+    with a note where the sidecar's ``elapsed_steps`` says otherwise or nothing (a hand-edited or foreign sidecar).
+    Where `actions` is None (its group cannot be read: opening it is an error), the sidecar's word, as listed."""
+    listed = entry.get("elapsed_steps")
+    if actions is None:
+        return int(listed or 0)
+    if listed is None:
+        notes.append(f"the sidecar gives no elapsed_steps; {actions} actions in the file")
+    elif listed != actions:
+        notes.append(f"elapsed_steps {listed} in the sidecar, {actions} actions in the file")
+    return actions
 
 
 def _unlisted_groups(sidecar: Sidecar, groups: dict[int, str]) -> list[str]:
