@@ -11,12 +11,33 @@ in this order and keeping the first the data supports:
    each other but not with the recording: ``input_inconsistent`` (the seed or options do not produce the recorded
    initial state); they disagree: ``reset_not_reproducible``.
 3. The one-step errors of ``--mode step`` (restore the recorded state t, step action t, compare with recorded
-   t + 1), judged by step mode's tolerances, at the divergent step k and the steps around it, and the same from
-   an instance reset to another episode first: step k depends on what the env held before the restore, or
-   reproduces the state but not what the task computes from it: ``state_not_captured``; off at k only, and alike
-   from the other instance: ``input_inconsistent`` (the recorded step is not what its action gives).
+   t + 1) at the divergent step k and the `NEIGHBOURS` steps on each side, and the same from a second instance,
+   reset to another episode first. In ``--mode step`` the replay's own comparison is the one-step errors (a second
+   run would start from another PhysX history and could contradict the report). A step is off when it leaves step
+   mode's tolerances, or when what the task computes there (reward, info, a flag) is off by at least half the
+   replay's own divergence while the state after the step is reproduced within the replay's tolerances (the same
+   state gave another value). Then, in this order:
+
+   - the two instances disagree at k: step k depends on what the env held before the restore:
+     ``state_not_captured``;
+   - only step k is off: ``input_inconsistent`` (the recorded action k does not give the recorded step k, or the
+     recorded reward / info / flag at k is not what the task computes there);
+   - only k and k + 1 are off, the state after k among what is off: the recorded state after step k (row k + 1) is
+     not what action k gives, and does not lead to row k + 2: ``input_inconsistent`` naming that state row;
+   - every step checked is off in what the task computes only, the states reproduced, and the second instance
+     agrees: the task computes something else from the same state than was recorded (its code or build changed, or
+     the recorded values were altered): ``task_differs``. Without a second instance (ManiSkill's files: their
+     scenes cannot be rebuilt for certain) the evidence cannot tell that from state the dict lacks: undetermined,
+     naming both.
+
+   Nothing is decided at k while step k reproduces; then the same is tried at the onset of the state difference
+   when it lies before the steps checked (an action altered long before the error left its tolerance). Without a
+   second instance the causes above say that its check could not run. A file without env states gets none of the
+   checks that need them (the one-step errors, the reset's state, the other control modes), and says so.
 4. Each step alone reproduces the recording, but the state began to differ by float noise and grew:
-   ``amplification`` (through the contact events on the way, when there are some).
+   ``amplification`` (through the contact events on the way, when there are some). Only where the replay steps
+   on from its own states (``actions``, ``--resync``): in ``--mode step`` and ``states`` every step starts from a
+   restored recorded state, so nothing can grow across steps.
 5. The difference appeared in the first step after the replay restored a recorded state (``--resync``, an
    unseeded episode's start) and is no larger than one step from a restored state is: ``restore_difference``.
 6. No step around k gives its recorded state from the restored one, but each does in another of the robot's
@@ -41,7 +62,7 @@ from simreel.compare import (
     components_of,
     format_number,
 )
-from simreel.divergence import Cause, Explanation, describe_divergence
+from simreel.divergence import Cause, Explanation, compares_states, describe_divergence
 from simreel.episode import ContactChannel, Episode
 from simreel.replay.engine import EpisodeReplayer, ReplayedEpisode
 from simreel.sim.fingerprint import SceneDifference
@@ -53,6 +74,12 @@ __all__ = ["ExplainContext", "explain_divergence", "NEIGHBOURS"]
 NEIGHBOURS = 2
 """Steps on each side of the divergent step whose one-step errors are checked."""
 _SCENE_LINES = 8
+SHARE_OF_DIVERGENCE = 0.5
+"""A value the task computes that one step from a restored state puts off by at least this share of the replay's own
+divergence on the same key, the state after the step reproduced within the replay's tolerances, is off whatever step
+mode's (looser) tolerance says: a one-step error as large as the divergence itself is not a reproduction."""
+_NO_STATES = ("the file holds no states: the one-step errors, the second instance, the reset's state and the other "
+              "control modes need them and were not checked, and where a state difference began cannot be told")
 
 
 @dataclass(frozen=True)
@@ -76,6 +103,8 @@ class _Worst:
     key: str
     error: float
     tolerance: float
+    judged_by: str = "step tolerance"
+    """What `tolerance` is: step mode's tolerance, or a share of the replay's divergence (`SHARE_OF_DIVERGENCE`)."""
 
     @property
     def ratio(self) -> float:
@@ -86,7 +115,7 @@ class _Worst:
 
     def describe(self) -> str:
         """One step's worst key, with the step tolerance it is judged by."""
-        return f"{self.key} off by {format_number(self.error)} (step tolerance {format_number(self.tolerance)})"
+        return f"{self.key} off by {format_number(self.error)} ({self.judged_by} {format_number(self.tolerance)})"
 
     def describe_states(self) -> str:
         """Two states' largest difference, or that they are identical."""
@@ -106,7 +135,7 @@ def _worst_at(cmp: EpisodeComparison, step: int, *, only: str | tuple[str, ...] 
     their velocity entries carry the same cache noise as the state's velocities, which step mode's observation
     tolerance is not made for."""
     best = _Worst(step, "", 0.0, 1.0)
-    has_states = any(k.startswith("env_states/") for k in cmp.errors)
+    has_states = compares_states(cmp)
     for key, err in cmp.errors.items():
         per_state = key.startswith(("env_states/", "obs/"))
         if not key.startswith(only) or (has_states and key.startswith("obs/")):
@@ -133,6 +162,14 @@ def _inconsistent_step(k: int, physics: _Worst, worst: _Worst, length: int) -> s
     return said
 
 
+@dataclass(frozen=True)
+class _Unexplained:
+    """What the one-step check found without deciding a cause: a phrase for the summary and its evidence lines."""
+
+    found: str
+    evidence: list[str]
+
+
 class _Explainer:
     """One diverged episode's explanation: the data part first, then the causes tried in the module's order."""
 
@@ -149,10 +186,24 @@ class _Explainer:
         self.one_step: EpisodeComparison | None = None
         self.between: EpisodeComparison | None = None
         self.other_seed: int | None = None
+        self.no_second: str | None = None
+        """Why there is no second instance (None: there is one, or the one-step errors were not measured)."""
+        self.unexplained: _Unexplained | None = None
 
     @property
     def checked(self) -> list[str]:
         return self.explanation.checked
+
+    @property
+    def has_states(self) -> bool:
+        """Whether the recording holds env states (a ManiSkill file recorded with record_env_state=False holds none)."""
+        return bool(self.recorded.env_states)
+
+    @property
+    def steps_on(self) -> bool:
+        """Whether the replay stepped on from its own states, so a difference could grow across steps (``actions``,
+        with or without ``--resync``); in ``step`` and ``states`` mode every step starts from a restored state."""
+        return self.ctx.mode == "actions"
 
     def run(self) -> Explanation:
         scene = self._scene()
@@ -194,21 +245,29 @@ class _Explainer:
         second = self.replayer.initial_state(ep)
         tol = Tolerances.for_mode("states")
         again = _state_difference(first, second, tol)
-        recorded = _state_difference(state_row(self.recorded.env_states, 0), first, tol)
         self.checked.append(f"reset twice with seed {ep.seed} and the recorded options")
         how = f"seed {ep.seed}" + (f" and options {ep.reset_options}" if ep.reset_options else "")
         if again.ratio > 1:
             return Cause("reset_not_reproducible", f"the task's reset is not reproducible: two resets with {how} give "
                          f"different states ({again.describe_states()}), so it draws from something the seed does not "
                          "set (torch or numpy's global RNG, say)", step=-1, key=again.key,
-                         evidence=[f"reset 1 vs reset 2: {again.describe_states()}",
-                                   f"reset 1 vs the recording: {recorded.describe_states()}"])
+                         evidence=[f"reset 1 vs reset 2: {again.describe_states()}"] + self._reset_vs_recorded(first))
+        if not self.has_states:
+            self.checked.append(_NO_STATES)
+            return None
+        recorded = _state_difference(state_row(self.recorded.env_states, 0), first, tol)
         if recorded.ratio > 1:
             return Cause("input_inconsistent", f"input inconsistent with the recording at the reset: {how} gives the same "
                          f"initial state twice, but not the recorded one ({recorded.describe_states()})", step=-1,
                          key=recorded.key, evidence=[f"reset 1 vs reset 2: {again.describe_states()}",
                                                      f"reset vs the recording: {recorded.describe_states()}"])
         return None
+
+    def _reset_vs_recorded(self, reset: dict[str, Any]) -> list[str]:
+        if not self.has_states:
+            return ["reset 1 vs the recording: not compared (the file holds no states)"]
+        recorded = _state_difference(state_row(self.recorded.env_states, 0), reset, Tolerances.for_mode("states"))
+        return [f"reset 1 vs the recording: {recorded.describe_states()}"]
 
     # -- 3. one step from the restored state
     def _stepped(self, episode: Episode) -> Episode | None:
@@ -220,19 +279,21 @@ class _Explainer:
             return None
 
     def _one_step_errors(self) -> None:
-        """A: one step from each restored state, the env reset to the episode (``--mode step``); B: the same with the env
-        reset to another episode of the same scene first. A vs the recording says whether a transition is reproduced;
-        A vs B whether it depends on what the env held before the restore (state the dict lacks)."""
+        """A: one step from each restored state, the env reset to the episode (``--mode step``; in that mode the
+        replay's own comparison); B: the same with the env reset to another episode of the same scene first. A vs the
+        recording says whether a transition is reproduced; A vs B whether it depends on what the env held before the
+        restore (state the dict lacks)."""
         tol = Tolerances.for_mode("step")
-        a = self.replayed.episode if self.ctx.mode == "step" and self.replayed.episode is not None else \
-            self._stepped(self.recorded)
+        own = self.ctx.mode == "step"
+        a = self.replayed.episode if own and self.replayed.episode is not None else self._stepped(self.recorded)
         if a is None:
             return
-        self.one_step = compare_episode(self.recorded, a, tol, channels=self.ctx.channels)
+        self.one_step = self.cmp if own else compare_episode(self.recorded, a, tol, channels=self.ctx.channels)
         other = _other_episode(self.recorded)
         if other is None:
-            self.checked.append("no second instance: the episode's scene cannot be rebuilt for certain (built by an "
-                                "unseeded reset, or the file does not say whether its reset rebuilt it)")
+            self.no_second = ("no second instance: the episode's scene cannot be rebuilt for certain (built by an "
+                              "unseeded reset, or the file does not say whether its reset rebuilt it)")
+            self.checked.append(self.no_second)
             return
         b = self._stepped(other)
         if b is not None:
@@ -240,75 +301,198 @@ class _Explainer:
             self.other_seed = other.meta.seed
 
     def _one_step_cause(self) -> Cause | None:
-        self._one_step_errors()
-        one = self.one_step
-        if one is None:
+        """The cause the one-step errors show at the divergent step, else at the onset of the state difference when
+        that lies before the steps checked around it."""
+        if not self.has_states:
+            self.checked.append(_NO_STATES)
             return None
-        k, T = self.step, self.recorded.length
-        steps = self._window()
-        worst = {t: _worst_at(one, t) for t in steps}
-        self.checked.append("one-step errors (restore state t, step action t; step tolerances) at steps "
-                            + ", ".join(map(str, steps)))
-        at_k = f"step {k} from the exactly restored state {k}: " + (worst[k].describe() if worst[k].error else "exact")
+        self._one_step_errors()
+        if self.one_step is None:
+            return None
+        cause = self._cause_at(self.step, self.cmp.first_divergence.key)
+        onset = self.explanation.onset
+        if cause is None and onset is not None and 0 <= onset.step < self._window()[0]:
+            cause = self._cause_at(onset.step, onset.key)
+            if cause is not None:
+                cause.evidence.append(f"the state began to differ there ({onset.describe()}), before step {self.step} "
+                                      "where the replay left its tolerance")
+        return cause
+
+    def _cause_at(self, k: int, key: str) -> Cause | None:
+        """The cause the one-step errors around step k support (see the module's item 3), or None."""
+        steps = self._window(k)
+        worst = {t: self._worst(self.one_step, t) for t in steps}
+        how = "the replay's own (--mode step)" if self.ctx.mode == "step" else \
+            "restore state t, step action t; step tolerances"
+        self.checked.append(f"one-step errors ({how}) at steps {_listed(steps)}")
         apart = None
         if self.between is not None:
-            self.checked.append(f"the same after resetting to another episode (seed {self.other_seed}) first")
-            apart = _worst_at(self.between, k)
-        physics = _worst_at(one, k, only="env_states/")
-        others = [t for t in steps if t != k]
-        bad = [t for t in others if worst[t].ratio > 1]
-        # step k alone is off, and alike from an instance that held another episode: what it computes depends on
-        # the restored state and the action only, so the recording is what is off, not state the dict lacks
-        held_nothing = apart is not None and apart.ratio <= 1 and not bad
-        if (apart is not None and apart.ratio > 1) or (worst[k].ratio > 1 and physics.ratio <= 1 and not held_nothing):
-            return self._state_not_captured(k, worst, at_k, apart)
-        if worst[k].ratio <= 1:
+            self.checked.append(f"the same after resetting to another episode (seed {self.other_seed}) first, step {k}")
+            apart = self._worst(self.between, k)
+        off = [t for t in steps if worst[t].ratio > 1]
+        if apart is not None and apart.ratio > 1:
+            return self._state_not_captured(k, key, worst, apart)
+        if k not in off:
             return None
-        if bad:
-            return None  # not reproduced around k either, whatever the env held: see _undetermined
-        fine = max((worst[t] for t in others), key=lambda w: w.ratio, default=None)
-        near = ", ".join(map(str, others)) or "none"
-        largest = f" (largest: {fine.describe()})" if fine is not None and fine.error > 0 else " (exactly)"
-        evidence = [at_k, f"steps {near} reproduce the recording from their restored states{largest}"]
-        if self.between is not None:
-            same = _worst_at(self.between, k)
-            evidence.append(f"an instance reset to another episode (seed {self.other_seed}) before the restore gives the "
-                            "same step " + (f"(largest difference: {same.describe()})" if same.error else "exactly"))
-        return Cause("input_inconsistent", f"input inconsistent with the recording at step {k}: "
-                     + _inconsistent_step(k, physics, worst[k], T), step=k, key=self.cmp.first_divergence.key,
+        physics = _worst_at(self.one_step, k, only="env_states/")
+        if off == [k]:
+            return self._inconsistent(k, key, _inconsistent_step(k, physics, worst[k], self.recorded.length), worst,
+                                      apart)
+        if off == [k, k + 1] and physics.ratio > 1:
+            return self._inconsistent_state_row(k, key, worst, apart)
+        if off == steps and all(_worst_at(self.one_step, t, only="env_states/").ratio <= 1 for t in steps):
+            return self._task_differs(k, key, worst, apart)
+        self.unexplained = _Unexplained(
+            f"steps {_listed(off)} are not reproduced from their restored states",
+            [f"steps {_listed(off)} are not reproduced from their restored states"
+             + (", whatever the env held before the restore" if apart is not None else "")
+             + f" ({worst[k].describe()} at step {k})"
+             + (f"; steps {_listed([t for t in steps if t not in off])} are" if len(off) < len(steps) else ""),
+             "not decided what differs there: the recorded actions or states, the physics, or a tolerance tighter "
+             "than one step from a restored state holds could each do that", *self._second_instance(k, apart)])
+        return None
+
+    def _worst(self, cmp: EpisodeComparison, step: int) -> _Worst:
+        """`_worst_at`, with the divergent key also judged against the divergence itself (`SHARE_OF_DIVERGENCE`)."""
+        worst, share = _worst_at(cmp, step), self._divergence_share(cmp, step)
+        return share if share is not None and share.ratio > worst.ratio else worst
+
+    def _divergence_share(self, cmp: EpisodeComparison, step: int) -> _Worst | None:
+        """The divergent key at `step` of `cmp` judged by `SHARE_OF_DIVERGENCE` of the divergence's error, where it is a
+        value the task computes and the state after the step is reproduced within the replay's own tolerances (else
+        None: a state off by more than those explains a computed value off too)."""
+        d = self.cmp.first_divergence
+        if not d.key.startswith(_COMPUTED) or d.key.startswith("obs/") or d.key not in cmp.errors or not d.error > 0:
+            return None
+        err = cmp.errors[d.key]
+        if not 0 <= step < len(err) or not self._state_within_verdict(cmp, step):
+            return None
+        return _Worst(step, d.key, float(err[step]), SHARE_OF_DIVERGENCE * d.error,
+                      judged_by=f"{format_number(SHARE_OF_DIVERGENCE)} × the replay's divergence,")
+
+    def _state_within_verdict(self, cmp: EpisodeComparison, step: int) -> bool:
+        """Whether every state key of `cmp` after `step` is within the tolerance the replay's verdict used."""
+        keys = [key for key in cmp.errors if key.startswith("env_states/") and key in self.cmp.tolerance]
+        return bool(keys) and all(float(cmp.errors[key][step + 1]) <= float(self.cmp.tolerance[key]) for key in keys)
+
+    def _second_instance(self, k: int, apart: _Worst | None) -> list[str]:
+        """The line on the second instance at step k: what it gave, or why it could not run."""
+        if apart is not None:
+            return [f"an instance reset to another episode (seed {self.other_seed}) before the restore gives the same "
+                    "step " + (f"(largest difference: {apart.describe()})" if apart.error else "exactly")]
+        if self.no_second is not None:
+            return [f"whether step {k} depends on what the env held before the restore was not checked: "
+                    f"{self.no_second}"]
+        return []
+
+    def _at(self, k: int, worst: dict[int, _Worst]) -> str:
+        return f"step {k} from the exactly restored state {k}: " + (worst[k].describe() if worst[k].error else "exact")
+
+    def _reproduced(self, worst: dict[int, _Worst], off: list[int]) -> str:
+        """The line on the steps of the window that reproduce the recording."""
+        fine = [w for t, w in worst.items() if t not in off]
+        largest = max(fine, key=lambda w: w.ratio, default=None)
+        tail = f" (largest: {largest.describe()})" if largest is not None and largest.error > 0 else " (exactly)"
+        return f"steps {_listed([w.step for w in fine]) or 'none'} reproduce the recording from their restored " \
+               f"states{tail}"
+
+    def _inconsistent(self, k: int, key: str, why: str, worst: dict[int, _Worst], apart: _Worst | None) -> Cause:
+        """Only step k is off: the recording's step k is not what its action gives (`why`: which part, and how)."""
+        evidence = [self._at(k, worst), self._reproduced(worst, [k]), *self._second_instance(k, apart)]
+        return Cause("input_inconsistent", f"input inconsistent with the recording at step {k}: " + why, step=k,
+                     key=key, evidence=evidence)
+
+    def _inconsistent_state_row(self, k: int, key: str, worst: dict[int, _Worst], apart: _Worst | None) -> Cause:
+        """Steps k and k + 1 off, the rest reproduced: the recorded state after step k (row k + 1) is what is off: step
+        k does not give it, and the step from it does not give the next recorded state."""
+        evidence = [self._at(k, worst), f"step {k + 1} from the recorded state {k + 1}: {worst[k + 1].describe()}",
+                    self._reproduced(worst, [k, k + 1])]
+        later = _worst_at(self.cmp, k + 1, only="env_states/")
+        confirmed = self.steps_on and k + 1 not in self.replayed.restored_at and later.ratio <= 1
+        if confirmed:
+            evidence.append(f"the replay, which stepped on from its own state {k + 1} rather than the recorded one, "
+                            f"gives the recorded state {k + 2} (" + ("exactly" if later.error == 0 else
+                                                                     f"largest: {later.describe_states()}") + ")")
+        evidence += self._second_instance(k, apart)
+        alternative = "" if confirmed else f" (or actions {k} and {k + 1} both are)"
+        return Cause("input_inconsistent", f"input inconsistent with the recording at step {k}: the recorded state after "
+                     f"step {k} (state row {k + 1}) is not what action {k} gives from the exactly restored state {k}, "
+                     f"and the step from it does not give the recorded state {k + 2}, while the steps around them "
+                     f"reproduce the recording: that state row is off{alternative}", step=k, key=key, evidence=evidence)
+
+    def _task_differs(self, k: int, key: str, worst: dict[int, _Worst], apart: _Worst | None) -> Cause | None:
+        """Every step checked reproduces the state but not what the task computes from it: with a second instance that
+        agrees, the task computes something else from the same state than was recorded (``task_differs``); without
+        one, that cannot be told from state the dict lacks (left undetermined, naming both)."""
+        steps = list(worst)
+        computed = _worst_at(self.one_step, k, only=_COMPUTED)
+        evidence = [self._at(k, worst), f"at every step checked ({_listed(steps)}) the state after the step is "
+                    f"reproduced, but not what the task computes from it ({computed.describe()} at step {k})"]
+        if apart is None:
+            self.unexplained = _Unexplained(
+                f"what the task computes is off at every step checked ({_listed(steps)}) while the state is reproduced: "
+                "its code or build (a reward, evaluate(), the reward mode) differs from the recording's, or it depends "
+                "on state its dict lacks; no second instance could tell which", [*evidence, *self._second_instance(k, None)])
+            return None
+        evidence += self._second_instance(k, apart) + list(self.ctx.build_differences)
+        return Cause("task_differs", "task differs: from the same state the task computes something else than was "
+                     f"recorded ({computed.key}), at every step checked and alike in an instance that held another "
+                     "episode, so no missing state explains it: the task's code or build (its reward, evaluate(), the "
+                     "reward mode) differs from the recording's, or the recorded values were altered", step=k, key=key,
                      evidence=evidence)
 
-    def _state_not_captured(self, k: int, worst: dict[int, _Worst], at_k: str, apart: _Worst | None) -> Cause:
-        """The step from a restored state depends on what the env held before the restore (two instances disagree),
-        or reproduces the physics state but not what the task computes from it."""
-        evidence = [at_k]
+    def _state_not_captured(self, k: int, key: str, worst: dict[int, _Worst], apart: _Worst) -> Cause:
+        """The step from a restored state depends on what the env held before the restore: two instances restored to
+        the same state and given the same action disagree."""
+        evidence = [self._at(k, worst)]
         physics = _worst_at(self.one_step, k, only="env_states/")
         computed = _worst_at(self.one_step, k, only=_COMPUTED)
         if physics.ratio <= 1 and computed.ratio > 1:
             evidence.append(f"the state after step {k} is reproduced ("
                             + (f"largest: {physics.describe()}" if physics.error > 0 else "exactly")
                             + f"), but not what the task computes from it: {computed.describe()}")
-        if apart is not None:
-            same = "differs" if apart.ratio > 1 else "agrees"
-            evidence.append(f"restored into an instance reset to another episode (seed {self.other_seed}) first, step {k} "
-                            f"{same}: " + (apart.describe() if apart.error else "exactly") + " between the two")
+        evidence.append(f"restored into an instance reset to another episode (seed {self.other_seed}) first, step {k} "
+                        f"differs: {apart.describe()} between the two")
         evidence += [f"step {t}: {w.describe()}" for t, w in worst.items() if t != k and w.ratio > 1]
         evidence.append(f"find the state the task keeps outside its state dict with `simreel audit {self.ctx.env_id}` "
                         "(--trajectory to audit along this recording)")
         return Cause("state_not_captured", f"state not captured: restoring the recorded state does not reproduce step {k}, "
-                     "which depends on state the task's state dict does not hold", step=k,
-                     key=self.cmp.first_divergence.key, evidence=evidence)
+                     "which depends on state the task's state dict does not hold", step=k, key=key, evidence=evidence)
 
     # -- 4. and 5. small differences that grew, or came from a restore
     def _one_step_fine(self) -> str:
+        """The one-step check at the divergent step, with how large its error on the divergent key is beside the
+        replay's own divergence: within step mode's tolerances but as large as the divergence is no reproduction."""
         if self.one_step is None:
             return "one-step errors not measured"
         w = _worst_at(self.one_step, self.step)
-        return f"step {self.step} alone reproduces the recording ({w.describe() if w.error > 0 else 'exactly'})"
+        share = self._share_of_divergence()
+        found = w.describe() if w.error > 0 else "exactly"
+        if share is not None and share >= SHARE_OF_DIVERGENCE:
+            return f"step {self.step} alone is within step mode's tolerances ({found}), but {self._divergence_part()}"
+        said = f"step {self.step} alone reproduces the recording ({found})"
+        return said + (f"; {self._divergence_part()}" if share is not None else "")
+
+    def _share_of_divergence(self) -> float | None:
+        """The one-step error at the divergent step on the divergent key over the divergence's own error (None: not
+        measured, or no error to compare with)."""
+        d = self.cmp.first_divergence
+        row = self.step + 1 if d.key.startswith(("env_states/", "obs/")) else self.step
+        if self.one_step is None or d.key not in self.one_step.errors or not d.error > 0:
+            return None
+        err = self.one_step.errors[d.key]
+        return float(err[row]) / d.error if 0 <= row < len(err) else None
+
+    def _divergence_part(self) -> str:
+        d, share = self.cmp.first_divergence, self._share_of_divergence()
+        one = share * d.error
+        return (f"one step alone puts {d.key} off by {format_number(one)}, {format_number(100 * share)}% of the replay's "
+                f"own divergence there ({format_number(d.error)})")
 
     def _amplification(self) -> Cause | None:
         onset = self.explanation.onset
-        if onset is None or not onset.float_noise or not onset.growth >= 10 or onset.step >= self.step:  # NaN: no ratio
+        if not self.steps_on or onset is None or not onset.float_noise or not onset.growth >= 10 \
+                or onset.step >= self.step:  # NaN: no ratio
             return None
         contacts = [e for e in self.explanation.events
                     if onset.step <= e.step <= self.step and e.kind in ("contact_begins", "contact_ends", "grasp_begins",
@@ -380,9 +564,9 @@ class _Explainer:
                             f"recorded size ({_listed(modes) or 'none'}): none reproduces steps {_listed(window)}")
         return None
 
-    def _window(self) -> list[int]:
-        """The divergent step and its `NEIGHBOURS` on each side that the episode has."""
-        k = self.step
+    def _window(self, k: int | None = None) -> list[int]:
+        """Step k (None: the divergent step) and its `NEIGHBOURS` on each side that the episode has."""
+        k = self.step if k is None else k
         return [t for t in range(k - NEIGHBOURS, k + NEIGHBOURS + 1) if 0 <= t < self.recorded.length]
 
     # -- 7.
@@ -392,17 +576,25 @@ class _Explainer:
         found = ["the scene matches" if self.replayed.scene_differences is not None else
                  "the scene was not compared (the recording has no fingerprint)"]
         evidence = []
-        if k >= 0 and self.one_step is not None and _worst_at(self.one_step, k).ratio > 1:
-            held = ", whatever the env held before the restore" if self.between is not None else ""
-            found.append(f"step {k} and the steps around it are not reproduced from their restored states")
-            evidence.append(f"{found[-1]}{held}: the recorded actions or the physics differ at each of them")
+        if not self.has_states:
+            found.append("the file holds no states")
+            evidence.append(_NO_STATES)
+        elif self.unexplained is not None:
+            found.append(self.unexplained.found)
+            evidence += self.unexplained.evidence
         elif k >= 0:
             evidence.append(self._one_step_fine())
-            if self.one_step is not None:
+            share = self._share_of_divergence()
+            if self.one_step is not None and (share is None or share < SHARE_OF_DIVERGENCE):
                 found.append("each step alone reproduces the recording")
-        if k >= 0:
+            elif self.one_step is not None:
+                found.append(f"step {k} alone is within step mode's tolerances but as far off as the divergence")
+        if k >= 0 and self.has_states and self.steps_on:
             found.append("the difference did not start at float noise nor right after a restore")
-        evidence.append(onset.describe() if onset is not None else "the state matched the recording up to the divergence")
+        if onset is not None:
+            evidence.append(onset.describe())
+        elif compares_states(self.cmp):
+            evidence.append("the state matched the recording up to the divergence")
         return Cause("undetermined", "undetermined: " + ", ".join(found) + "; checked: " + "; ".join(self.checked),
                      step=k, key=self.cmp.first_divergence.key, evidence=evidence)
 

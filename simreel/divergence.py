@@ -44,6 +44,7 @@ __all__ = [
     "Explanation",
     "describe_divergence",
     "step_of_state_row",
+    "compares_states",
 ]
 
 CAUSES = (
@@ -51,6 +52,7 @@ CAUSES = (
     "input_inconsistent",
     "reset_not_reproducible",
     "state_not_captured",
+    "task_differs",
     "amplification",
     "restore_difference",
     "control_mode_differs",
@@ -309,6 +311,12 @@ class DivergenceOnset:
         return cls(int(d["step"]), str(d["key"]), float(d["error"]), float(d["ratio"]), float(d["growth"]))
 
 
+def compares_states(comparison: EpisodeComparison) -> bool:
+    """Whether `comparison` holds state keys: a file recorded without env states has none, so nothing can say where a
+    state difference began, nor that the state matched."""
+    return any(k.startswith("env_states/") for k in comparison.errors)
+
+
 def _state_ratios(comparison: EpisodeComparison) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """(largest error/tolerance per state row, largest error per state row, the key of each) over state keys."""
     keys = [k for k in comparison.errors if k.startswith("env_states/")]
@@ -324,7 +332,8 @@ def _state_ratios(comparison: EpisodeComparison) -> tuple[np.ndarray, np.ndarray
 
 
 def divergence_onset(comparison: EpisodeComparison, step: int) -> DivergenceOnset | None:
-    """The onset of the state error leading into the divergence at `step` (None: the state matched up to it)."""
+    """The onset of the state error leading into the divergence at `step` (None: the state matched up to it, or no
+    state was compared: `compares_states`)."""
     ratio, err, worst = _state_ratios(comparison)
     row = min(step + 1, len(err) - 1)
     if row < 0 or not len(err) or err[row] == 0 and (row == 0 or err[row - 1] == 0):
