@@ -326,6 +326,8 @@ class EpisodeReplayer:
         collected = Collected(obs=obs)
         out = self.replay_rows(EpisodeRows.of(episode), collected, mode=mode, resync=resync)
         out.episode = collected.episode(episode.meta)
+        for key in collected.info_unreturned:  # not a value the replay produced: compare_episode names it
+            del out.episode.info[key]
         return out
 
     def replay_rows(self, source: EpisodeRows, sink: BlockSink, *, mode: str = "actions", resync: int | None = None,
@@ -429,6 +431,7 @@ class EpisodeReplayer:
         """Reset the replay as `run.mode` starts, then replay the recorded blocks one by one into `run.sink`."""
         source = run.source
         out = run.out = ReplayedEpisode(None)
+        run.info_returned = set()  # a replay again after a rebuild starts afresh
         recorded = source.reset()
         states = run.states = _States(recorded)
         if run.mode == "states" or (run.mode == "actions" and source.meta.seed is None):
@@ -447,9 +450,21 @@ class EpisodeReplayer:
             for i in range(block.rows):
                 step(run, buf, i, actions[i])
             run.sink.steps(first, block, buf.block())
+            run.info_returned |= buf.info_returned
+        self._tell_unreturned_info(run)
         if run.resync:
             out.notes.append(f"restored the recorded state every {run.resync} steps")
         return out
+
+    @staticmethod
+    def _tell_unreturned_info(run: _Run) -> None:
+        """Tell `run.sink` the recorded info keys the replaying task returned at no step of the episode (it no longer
+        returns them): their replayed rows hold the zeros they were filled with, not values to compare. A key returned
+        at some steps only is compared, absent rows as zeros: the recorder's rule for absent entries."""
+        recorded = [f.name[len("info/"):] for f in run.source.fields if f.name.startswith("info/")]
+        unreturned = [key for key in recorded if key not in run.info_returned]
+        if unreturned and run.source.length:
+            run.sink.info_not_returned(unreturned)
 
     def _step_actions(self, run: _Run, buf: _Block, i: int, action: Any) -> None:
         t = run.states.first + i
@@ -516,6 +531,7 @@ class EpisodeReplayer:
             value = info.get(key)
             if value is not None:
                 dst[i] = _scalar(value)
+                buf.info_returned.add(key)
         if buf.contact_forces is not None:
             buf.contact_forces[i] = self._contacts.sample()[0]
         self._after_state(buf, i, obs)
@@ -626,6 +642,8 @@ class _Run:
     """What the replay found so far (notes, limits, restores)."""
     states: _States | None = None
     """The recorded states at hand: set as the replay begins."""
+    info_returned: set[str] = field(default_factory=set)
+    """The recorded info keys the replaying task returned at some step so far."""
 
 
 class _Block:
@@ -642,6 +660,8 @@ class _Block:
         self.env_states = {n[len("env_states/"):]: np.zeros_like(a) for n, a in recorded.arrays.items()
                            if n.startswith("env_states/")}
         self.info = {n[len("info/"):]: np.zeros_like(a) for n, a in recorded.arrays.items() if n.startswith("info/")}
+        self.info_returned: set[str] = set()
+        """The keys of `info` the task returned at some step of the block (the others hold only their zeros)."""
         self.contact_forces = np.zeros((k, n_channels, 3), np.float32) if n_channels and self.per_step else None
         self.obs: dict[str, np.ndarray] = {}
         self.body_poses = np.zeros((k, n_poses, 7), np.float32) if n_poses else None
@@ -689,6 +709,10 @@ class BlockSink:
     def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
         """The block of steps `first`.. , recorded and replayed."""
 
+    def info_not_returned(self, keys: list[str]) -> None:
+        """After the last block: the recorded info `keys` the replaying task returned at no step (their replayed rows
+        hold zeros, as the recorder writes an absent entry, not values it produced)."""
+
 
 class Collected(BlockSink):
     """Keeps every replayed block, to put the replayed episode together (`episode`); `obs=False` drops the
@@ -701,6 +725,8 @@ class Collected(BlockSink):
     def start(self) -> None:
         self._reset: StepBlock | None = None
         self._blocks: list[StepBlock] = []
+        self.info_unreturned: list[str] = []
+        """The recorded info keys the replay never returned (`BlockSink.info_not_returned`)."""
 
     def _kept(self, block: StepBlock) -> StepBlock:
         return block if self.obs else StepBlock({k: a for k, a in block.arrays.items() if not k.startswith("obs/")},
@@ -711,6 +737,9 @@ class Collected(BlockSink):
 
     def steps(self, first: int, recorded: StepBlock, replayed: StepBlock) -> None:
         self._blocks.append(self._kept(replayed))
+
+    def info_not_returned(self, keys: list[str]) -> None:
+        self.info_unreturned = list(keys)
 
     def episode(self, meta: EpisodeMeta) -> Episode:
         """The replayed episode (a copy of `meta`; per-step fields empty when it has no step)."""

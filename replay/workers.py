@@ -145,6 +145,11 @@ class VerifySink(BlockSink):
         if self.then is not None:
             self.then.steps(first, recorded, replayed)
 
+    def info_not_returned(self, keys: list[str]) -> None:
+        self.blocks.info_not_returned(keys)
+        if self.then is not None:
+            self.then.info_not_returned(keys)
+
     def comparison(self) -> EpisodeComparison:
         return self.blocks.comparison()
 
@@ -304,13 +309,14 @@ _WORKER: Any = None
 """A worker process's worker, or the user error that building it raised (given back with each item)."""
 
 
-def _worker_init(job: Any, first: WorkItem | None = None) -> None:
+def _worker_init(job: Any, parent: int, first: WorkItem | None = None) -> None:
     """Build this process's worker: ``job.open_worker()`` (a `ReplayJob`, or another picklable job, such as a
     conversion's), and where `first` is given, build its env now (`start_pool`): the error that stops it comes
-    back with the item, as any other."""
+    back with the item, as any other. `parent`: the pid of the process that started the pool (`start_pool` gives
+    it): this process ends when that one is gone, even if it was gone before this one got here."""
     global _WORKER
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool
-    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     _one_thread_per_process()
     try:
         _WORKER = job.open_worker()
@@ -333,8 +339,10 @@ def _ready() -> None:
 
 
 def _exit_with_parent(parent: int) -> None:
-    """End this worker process when its parent is gone (killed with -9, it cannot stop the pool): a pool worker
-    waiting for work does not notice by itself, and would replay on, orphaned."""
+    """End this worker process when its parent `parent` is gone (killed with -9, it cannot stop the pool): a pool
+    worker waiting for work does not notice by itself, and would wait on, orphaned. The pid comes from the parent,
+    not from `os.getppid()` here: a parent killed while this process was still starting has already handed it to
+    init (pid 1, or a subreaper), which would then pass for the parent forever."""
     while os.getppid() == parent:
         time.sleep(0.5)
     os._exit(1)
@@ -354,7 +362,7 @@ def start_pool(job: Any, workers: int, first: WorkItem | None = None) -> Process
     steps). Hand it to `run_pool`, which shuts it down."""
     ctx = multiprocessing.get_context("spawn")  # sapien/torch state must not be forked
     pool = ProcessPoolExecutor(max_workers=workers - 1, mp_context=ctx, initializer=_worker_init,
-                               initargs=(job, first))
+                               initargs=(job, os.getpid(), first))
     for _ in range(workers - 1):
         pool.submit(_ready)  # each submit starts one more process while none is idle
     return pool

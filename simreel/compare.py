@@ -19,6 +19,8 @@ part. Every state leaf is split into named components, each of one kind (group) 
 
 Quaternions are compared as rotations, so q and -q are equal. An error is the largest absolute
 difference over a component's elements (for quaternions: the angle of the relative rotation) at one step.
+A quaternion whose norm is off 1 by more than `QUAT_UNIT_TOLERANCE` (0, a scaled one, NaN) is no rotation: its
+error is inf on either side, so a file holding one never verifies, even against a replay that holds it too.
 
 Steps: state row 0 (after reset) is reported as ``at="reset"``, step 0; state row t+1 and the rewards,
 flags, info and contacts of row t are the outcome of action t, reported as ``at="step"``, step t.
@@ -44,6 +46,7 @@ __all__ = [
     "Component",
     "components_of",
     "component_error",
+    "QUAT_UNIT_TOLERANCE",
     "Divergence",
     "EpisodeComparison",
     "CompareScope",
@@ -204,11 +207,25 @@ def component_error(recorded: np.ndarray, replayed: np.ndarray, comp: Component 
     return _abs_diff(rec, rep).max(axis=1)
 
 
+QUAT_UNIT_TOLERANCE = 1e-4
+"""How far a quaternion's norm may be from 1 and still be a rotation: PhysX's own test (``PxQuat::isUnit``). Float32
+quaternions the simulator writes are within ~1e-7 of 1; a zeroed or scaled one is far outside."""
+
+
+def _not_rotations(q: np.ndarray) -> np.ndarray:
+    """Rows of (N, 4) `q` that are no rotation: a norm off 1 by more than `QUAT_UNIT_TOLERANCE` (or NaN)."""
+    with np.errstate(invalid="ignore"):
+        return ~(np.abs(np.linalg.norm(q, axis=1) - 1.0) <= QUAT_UNIT_TOLERANCE)
+
+
 def _quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angle (rad) of the rotation taking wxyz quaternion a to b, per row; q and -q are the same rotation."""
+    """Angle (rad) of the rotation taking wxyz quaternion a to b, per row; q and -q are the same rotation. inf where
+    either is no rotation (`_not_rotations`): normalised, a zeroed quaternion would be 0 rad from anything, a scaled
+    one 0 rad from the rotation it scales."""
     na = np.linalg.norm(a, axis=1, keepdims=True)
     nb = np.linalg.norm(b, axis=1, keepdims=True)
     same = np.all(a == b, axis=1) | np.all(a == -b, axis=1)
+    no_rotation = _not_rotations(a) | _not_rotations(b)
     with np.errstate(invalid="ignore", divide="ignore"):
         a = a / np.where(na == 0, 1, na)
         b = b / np.where(nb == 0, 1, nb)
@@ -221,7 +238,7 @@ def _quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         rz = aw * bz - ax * by + ay * bx - az * bw
         angle = 2.0 * np.arctan2(np.sqrt(rx * rx + ry * ry + rz * rz), np.abs(rw))
     angle = np.where(same, 0.0, angle)
-    return np.where(np.isnan(angle), np.inf, angle)
+    return np.where(no_rotation | np.isnan(angle), np.inf, angle)
 
 
 @dataclass
@@ -294,6 +311,9 @@ def worst_keys(max_abs_error: Mapping[str, float], tolerance: Mapping[str, float
     return [(k, max_abs_error[k], tolerance.get(k, 0.0)) for k in keys[:n]]
 
 
+_INFO_NOT_RETURNED = "the replay's info has no such key"
+"""Why a recorded info entry was not compared: the replaying task returned it at no step."""
+
 _CATEGORY_ORDER = {"env_states": 0, "obs": 1, "contacts": 2, "info": 3, "rewards": 4}
 
 
@@ -344,7 +364,8 @@ class ErrorTable:
                 continue
             identical = rec.shape == rep.shape and np.array_equal(rec, rep)  # the common case, ~10x cheaper
             for comp in components_of(path, rec.shape[1:]):
-                err = np.zeros(rec.shape[0]) if identical else component_error(rec, rep, comp)
+                # a quaternion is checked even where both sides are equal: restoring a zeroed one keeps it zeroed
+                err = np.zeros(rec.shape[0]) if identical and not comp.quat else component_error(rec, rep, comp)
                 self.add(comp.key, err, comp.group, per_state=True)
 
     def observations(self, recorded: Mapping[str, np.ndarray], replayed: Mapping[str, np.ndarray]) -> None:
@@ -367,9 +388,12 @@ class ErrorTable:
             self.add(f"contacts/{name}", per_channel[:, c], "contact", per_state=False)
 
     def info(self, recorded: Mapping[str, np.ndarray], replayed: Mapping[str, np.ndarray], steps: int) -> None:
+        """Each recorded info entry against the replay's; one the replay lacks (a task that no longer returns it) is
+        kept in `skipped`, never compared with the zeros a missing entry would read as."""
         for key, rec in recorded.items():
             rep = replayed.get(key)
             if rep is None:
+                self.skipped[f"info/{key}"] = _INFO_NOT_RETURNED
                 continue
             if rec.dtype.kind in "biu":  # booleans and integers: exactly
                 err = (np.asarray(rec) != np.asarray(rep)).reshape(steps, -1).any(axis=1).astype(np.float64)
@@ -474,6 +498,11 @@ class BlockComparison:
             raise ValueError(f"a block of {recorded.rows} recorded steps was replayed as {replayed.rows}")
         self._add(recorded, replayed)
 
+    def info_not_returned(self, keys: Iterable[str]) -> None:
+        """The recorded info `keys` the replay returned at no step: named as not compared (their replayed rows are the
+        zeros they were filled with), whatever the blocks held."""
+        self._table.skipped.update({f"info/{key}": _INFO_NOT_RETURNED for key in keys})
+
     def _add(self, recorded: StepBlock, replayed: StepBlock) -> None:
         part = ErrorTable(self.tolerances, dataclasses.replace(self.scope, initial=True))
         part.rows(recorded.arrays, replayed.arrays, channels=self.channels)
@@ -486,6 +515,10 @@ class BlockComparison:
     def comparison(self) -> EpisodeComparison:
         table = self._table
         for key, parts in self._parts.items():
+            if key in table.skipped:  # not compared in some block: never counted as checked
+                table.tol.pop(key, None)
+                table.per_state.pop(key, None)
+                continue
             err = np.concatenate(parts) if len(parts) > 1 else parts[0]
             if table.per_state[key] and not self.scope.initial:
                 err = err.copy()

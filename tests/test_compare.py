@@ -90,6 +90,28 @@ def test_quaternions_compare_as_rotations():
     assert component_error(a, b, comp)[0] == pytest.approx(angle, rel=1e-6)
 
 
+def test_a_quaternion_that_is_no_rotation_is_never_equal_even_to_itself():
+    """Normalised, [0, 0, 0, 0] was 0 rad from anything and 2q 0 rad from q: such rows are inf; a norm off 1 by float
+    noise is still a rotation, and q, -q still the same one."""
+    comp = components_of("actors/x", (13,))[1]
+    q = np.array([0.5, 0.5, -0.5, 0.5])
+
+    def rows(*quats: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(quats), 13))
+        out[:, 3:7] = quats
+        return out
+
+    zero, doubled, noisy = np.zeros(4), 2 * q, q * (1 + 3e-7)
+    err = component_error(rows(zero, doubled, zero, doubled, q), rows(q, q, zero, doubled, doubled), comp)
+    assert np.isinf(err).all()
+    assert component_error(rows(noisy, q, noisy), rows(noisy, -q, -noisy), comp).tolist() == [0.0, 0.0, 0.0]
+    assert component_error(rows(noisy), rows(q), comp)[0] < 1e-6
+    ep = _episode()
+    ep.env_states["actors/cube"][2, 3:7] = 0.0
+    cmp = compare_episode(ep, _copy(ep), TOL)  # a restored state keeps a zeroed quaternion: both sides hold it
+    assert (cmp.verdict, cmp.first_divergence.key, cmp.first_divergence.step) == ("diverged", "env_states/actors/cube[q]", 1)
+
+
 def test_identical_episodes_are_exact():
     ep = _episode()
     cmp = compare_episode(ep, _copy(ep), TOL, channels=CHANNELS)
@@ -196,3 +218,23 @@ def test_observation_keys_that_cannot_be_compared_are_named_never_skipped_silent
     assert cmp.not_compared == ["obs/agent/qvel not compared: (8,) a row in the file, (9,) in the replay",
                                 "obs/extra/tcp_renamed not compared: the replay's observation has no such key"]
     assert compare_episode(rep, _copy(rep), TOL).not_compared == []
+
+
+def test_info_the_replay_lacks_is_named_never_compared():
+    """A recorded info entry the replay lacks (its task no longer returns it) is not compared and says so, whether
+    the replayed episode lacks it or a block replay says the task never returned it (its rows are only zeros)."""
+    from simreel.compare import BlockComparison
+
+    rec = _episode()
+    rep = _copy(rec)
+    del rep.info["is_grasped"]
+    line = "info/is_grasped not compared: the replay's info has no such key"
+    cmp = compare_episode(rec, rep, TOL)
+    assert cmp.verdict == "exact" and cmp.not_compared == [line] and "info/is_grasped" not in cmp.max_abs_error
+    blocks = BlockComparison(TOL)
+    blocks.reset(rec.reset_block(), _copy(rec).reset_block())
+    blocks.steps(rec.steps_block(), _copy(rec).steps_block())
+    blocks.info_not_returned(["is_grasped"])
+    cmp = blocks.comparison()
+    assert cmp.not_compared == [line] and "info/is_grasped" not in cmp.max_abs_error | cmp.tolerance
+    assert "info/height_error" in cmp.max_abs_error

@@ -33,6 +33,8 @@ def camera_recording(tmp_path):
     episodes = []
     for index, T in enumerate((7, 12)):
         ep = synthetic_episode(meta, index, T)
+        for leaf in ("actors/cube", "articulations/robot"):  # rotations (a replay checks them), not random numbers
+            ep.env_states[leaf][:, 3:7] = (1.0, 0.0, 0.0, 0.0)
         frames = np.zeros((T + 1, 30, 40, 3), np.uint8)
         for row in range(T + 1):
             frames[row, 10:20, row : row + 8] = 255
