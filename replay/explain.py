@@ -180,7 +180,7 @@ class _Explainer:
         self.replayed = replayed
         self.cmp = cmp
         self.ctx = ctx
-        self.explanation = describe_divergence(recorded, cmp, ctx.channels)
+        self.explanation = describe_divergence(recorded, cmp, ctx.channels, steps_on=self.steps_on)
         d = cmp.first_divergence
         self.step = -1 if d.at == "reset" else d.step
         self.one_step: EpisodeComparison | None = None

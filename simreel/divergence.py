@@ -435,14 +435,16 @@ def _growth_keys(comparison: EpisodeComparison, first: str, n: int) -> list[str]
 
 
 def describe_divergence(recorded: Episode, comparison: EpisodeComparison, channels: Iterable[ContactChannel] = (),
-                        *, growth_keys: int = 3) -> Explanation | None:
+                        *, growth_keys: int = 3, steps_on: bool = True) -> Explanation | None:
     """The data part of an explanation (events, error growth, onset; no cause) of `comparison`'s first divergence,
-    from the recorded episode and the comparison alone; None when nothing diverged."""
+    from the recorded episode and the comparison alone; None when nothing diverged. `steps_on`: whether the replay
+    stepped on from its own states (``actions`` mode); where every step started from a restored recorded state
+    (``step``, ``states``), no difference carries from one step to the next, and no onset is given."""
     d = comparison.first_divergence
     if d is None:
         return None
     step = -1 if d.at == "reset" else d.step
-    onset = divergence_onset(comparison, step)
+    onset = divergence_onset(comparison, step) if steps_on else None
     start = step - EVENTS_BEFORE if onset is None else min(step - EVENTS_BEFORE, onset.step)
     window = (max(start, -1), step + EVENTS_AFTER)
     events = episode_events(recorded, list(channels), first=window[0], last=window[1])
