@@ -6,7 +6,9 @@ in this order and keeping the first the data supports:
 
 1. ``scene_differs``: the replaying scene's fingerprint (masses, shapes, materials, joints, controllers) differs
    from the recording's; found at the reset, before any step. (Another build, i.e. versions, sim backend or sim
-   config, is named the same way, but only when none of the step-level causes below holds.)
+   config, is named the same way, but only when none of the step-level causes below holds.) Then a recorded
+   quaternion that is no rotation (its norm off 1: zeroed, scaled): ``input_inconsistent``, the file's data is
+   what no simulator writes.
 2. For a divergence right after the reset: two more resets with the recorded seed and options. They agree with
    each other but not with the recording: ``input_inconsistent`` (the seed or options do not produce the recorded
    initial state); they disagree: ``reset_not_reproducible``.
@@ -61,6 +63,7 @@ from simreel.compare import (
     component_error,
     components_of,
     format_number,
+    not_rotations,
 )
 from simreel.divergence import Cause, Explanation, compares_states, describe_divergence
 from simreel.episode import ContactChannel, Episode
@@ -206,7 +209,7 @@ class _Explainer:
         return self.ctx.mode == "actions"
 
     def run(self) -> Explanation:
-        scene = self._scene()
+        scene = self._scene() or self._no_rotation()
         if self.step < 0:
             cause = scene or self._reset()
         else:
@@ -237,6 +240,23 @@ class _Explainer:
         return Cause("scene_differs", f"the replaying {what} differs from the recorded one ({lines[0]}), found at the "
                      "reset before any step was compared; a replay of another scene is expected to diverge",
                      step=None, key=None, evidence=lines[:_SCENE_LINES] + more)
+
+    def _no_rotation(self) -> Cause | None:
+        """The first recorded quaternion that is no rotation (its norm off 1: zeroed, scaled; `not_rotations`): data
+        no simulator wrote, so the file is what is off, whatever else differs."""
+        for path, rows in self.recorded.env_states.items():
+            for comp in components_of(path, rows.shape[1:]):
+                if not comp.quat:
+                    continue
+                bad = np.flatnonzero(not_rotations(np.asarray(rows[:, comp.start:comp.stop], np.float64)))
+                if bad.size:
+                    row, q = int(bad[0]), rows[int(bad[0]), comp.start:comp.stop]
+                    norm = format_number(float(np.linalg.norm(np.asarray(q, np.float64))))
+                    return Cause("input_inconsistent", f"input inconsistent: the recording's {comp.key} at state row "
+                                 f"{row} is [{', '.join(format_number(float(x)) for x in q)}], no rotation (norm {norm}); no "
+                                 "simulator writes that: the file was damaged or altered", step=self.step, key=comp.key,
+                                 evidence=[f"{bad.size} state row(s) of {comp.key} hold no rotation, the first row {row}"])
+        return None
 
     # -- 2. the reset
     def _reset(self) -> Cause | None:

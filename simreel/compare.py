@@ -47,6 +47,7 @@ __all__ = [
     "components_of",
     "component_error",
     "QUAT_UNIT_TOLERANCE",
+    "not_rotations",
     "Divergence",
     "EpisodeComparison",
     "CompareScope",
@@ -212,7 +213,7 @@ QUAT_UNIT_TOLERANCE = 1e-4
 quaternions the simulator writes are within ~1e-7 of 1; a zeroed or scaled one is far outside."""
 
 
-def _not_rotations(q: np.ndarray) -> np.ndarray:
+def not_rotations(q: np.ndarray) -> np.ndarray:
     """Rows of (N, 4) `q` that are no rotation: a norm off 1 by more than `QUAT_UNIT_TOLERANCE` (or NaN)."""
     with np.errstate(invalid="ignore"):
         return ~(np.abs(np.linalg.norm(q, axis=1) - 1.0) <= QUAT_UNIT_TOLERANCE)
@@ -220,12 +221,12 @@ def _not_rotations(q: np.ndarray) -> np.ndarray:
 
 def _quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angle (rad) of the rotation taking wxyz quaternion a to b, per row; q and -q are the same rotation. inf where
-    either is no rotation (`_not_rotations`): normalised, a zeroed quaternion would be 0 rad from anything, a scaled
+    either is no rotation (`not_rotations`): normalised, a zeroed quaternion would be 0 rad from anything, a scaled
     one 0 rad from the rotation it scales."""
     na = np.linalg.norm(a, axis=1, keepdims=True)
     nb = np.linalg.norm(b, axis=1, keepdims=True)
     same = np.all(a == b, axis=1) | np.all(a == -b, axis=1)
-    no_rotation = _not_rotations(a) | _not_rotations(b)
+    no_rotation = not_rotations(a) | not_rotations(b)
     with np.errstate(invalid="ignore", divide="ignore"):
         a = a / np.where(na == 0, 1, na)
         b = b / np.where(nb == 0, 1, nb)

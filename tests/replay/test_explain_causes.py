@@ -170,3 +170,18 @@ def test_a_file_without_states_skips_what_needs_them_and_says_so(tmp_path):
     assert cause.evidence == ["the file holds no states: the one-step errors, the second instance, the reset's state "
                               "and the other control modes need them and were not checked, and where a state "
                               "difference began cannot be told"]
+
+
+def test_a_recorded_quaternion_that_is_no_rotation_is_named_in_every_mode(record, tmp_path):
+    """A zeroed quaternion in the file diverges (no rotation is equal to anything); the explanation names that datum,
+    not the seed (actions mode) nor missing state (states mode, where the restore keeps it as it was)."""
+    def zero_cube_rotation(ep):
+        ep.env_states["actors/cube"][4:, 3:7] = 0.0
+
+    path = _copy(record("SimreelLiftCube-v1", 1, 10), tmp_path / "q0.h5", zero_cube_rotation)
+    for mode in ("actions", "states", "step"):
+        ep = verify_recording(path, mode=mode).episodes[0]
+        cause = ep.explanation.cause
+        assert (ep.verdict, cause.kind, cause.key) == ("diverged", "input_inconsistent", "env_states/actors/cube[q]"), \
+            (mode, cause)
+        assert "at state row 4 is [0, 0, 0, 0], no rotation (norm 0)" in cause.summary, (mode, cause.summary)
