@@ -185,6 +185,7 @@ def test_quirks_of_a_file_are_named(ms_dir, tmp_path):
         doc["episodes"][0]["reset_kwargs"]["seed"] = [0]  # a seed list, as some ManiSkill versions write it
         doc["episodes"][1]["reset_kwargs"]["seed"] = 5  # not the episode_seed
         doc["episodes"][1]["elapsed_steps"] = 14
+        doc["episodes"][1]["control_mode"] = "pd_joint_delta_pos"  # not env_kwargs' pd_joint_pos
         doc["extra_episode_not_listed"] = True
 
     edit_sidecar(path, change)
@@ -193,7 +194,9 @@ def test_quirks_of_a_file_are_named(ms_dir, tmp_path):
     with open_reader(path) as r:
         assert r.episodes[0].seed == 0 and "reset_kwargs.seed is a list ([0])" in r.episodes[0].notes[0]
         assert r.episodes[1].seed == 1 and "reset_kwargs.seed 5 is not episode_seed 1" in r.episodes[1].notes[0]
-        assert "elapsed_steps 14 in the sidecar, 15 actions in the file" in r.read_episode(1).meta.notes[-1]
+        assert "elapsed_steps 14 in the sidecar, 15 actions in the file" in r.read_episode(1).meta.notes
+        assert ("the sidecar lists this episode's control mode as pd_joint_delta_pos, its env_kwargs as pd_joint_pos: "
+                "replayed in pd_joint_pos") in r.episodes[1].notes and r.meta.control_mode == "pd_joint_pos"
         assert r.notes == ["1 group(s) the sidecar does not list (traj_9) are skipped, as ManiSkill's tools skip them"]
 
 

@@ -130,6 +130,7 @@ class ManiskillReader(EpisodeReader):
         self._first = _layout(first) if first is not None else {}
         """The first listed episode's datasets (`_layout`): the file's layout, which every episode must have."""
         self.meta = _recording_meta(self.sidecar, first, self.episodes)
+        _note_control_modes(self.sidecar, self.episodes, self.meta.control_mode)
         self.fields = episode_fields(self.meta)
         self._names = {f.name: dataset_name(f.name, self.meta) for f in self.fields}
         """Each field's dataset in a ``traj_N`` group: what the reader reads, and all an episode may hold."""
@@ -281,6 +282,16 @@ def _note_sidecar_keys(entry: dict[str, Any], notes: list[str]) -> None:
                       f"{key} ({len(text)} characters of JSON, not kept)")
     notes.append("its sidecar entry holds keys simreel's episode metadata has no field for, kept only in this note (a "
                  f"copy's sidecar lacks them): {', '.join(quoted)}")
+
+
+def _note_control_modes(sidecar: Sidecar, episodes: list[EpisodeMeta], mode: str | None) -> None:
+    """A note on each episode whose sidecar entry names another control mode than the recording's (`mode`, from the
+    sidecar's env_kwargs, in which every episode is replayed): a sidecar that contradicts itself."""
+    for meta, entry in zip(episodes, sidecar.episodes, strict=True):
+        listed = entry.get("control_mode")
+        if listed and mode and listed != mode:
+            meta.notes.append(f"the sidecar lists this episode's control mode as {listed}, its env_kwargs as {mode}: "
+                              f"replayed in {mode}")
 
 
 def _episode_control_mode(sidecar: Sidecar) -> str | None:
