@@ -248,7 +248,7 @@ class _Auditor:
     def _check_reset_repeats(self, env: Any, first: Mapping[str, np.ndarray]) -> None:
         """The same seed gives the same scene and initial state again, after other seeds' resets (`first`: the state
         after the first reset with `self.seed`): a replay starts every episode from its seed, so a reset that draws
-        from something the seed does not set (numpy's or torch's global RNG) is reproduced by no replay."""
+        from something the seed does not set (numpy's or Python's global RNG) is reproduced by no replay."""
         env.reset(seed=self.seed, options={"reconfigure": True})
         why = (f"reset(seed={self.seed}) gives another initial state than it gave before: the reset draws from "
                "something the seed does not set (numpy's or Python's global RNG, a counter); draw from the env's "

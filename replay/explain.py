@@ -511,8 +511,8 @@ class _Explainer:
 
     def _amplification(self) -> Cause | None:
         onset = self.explanation.onset
-        if not self.steps_on or onset is None or not onset.float_noise or not onset.growth >= 10 \
-                or onset.step >= self.step:  # NaN: no ratio
+        # no onset where every step started from a restored state (`steps_on`): nothing grows across steps there
+        if onset is None or not onset.float_noise or not onset.growth >= 10 or onset.step >= self.step:  # NaN: no ratio
             return None
         contacts = [e for e in self.explanation.events
                     if onset.step <= e.step <= self.step and e.kind in ("contact_begins", "contact_ends", "grasp_begins",

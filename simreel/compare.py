@@ -215,8 +215,20 @@ quaternions the simulator writes are within ~1e-7 of 1; a zeroed or scaled one i
 
 def not_rotations(q: np.ndarray) -> np.ndarray:
     """Rows of (N, 4) `q` that are no rotation: a norm off 1 by more than `QUAT_UNIT_TOLERANCE` (or NaN)."""
+    return _off_unit(np.linalg.norm(q, axis=1))
+
+
+def _off_unit(norms: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore"):
-        return ~(np.abs(np.linalg.norm(q, axis=1) - 1.0) <= QUAT_UNIT_TOLERANCE)
+        return ~(np.abs(norms - 1.0) <= QUAT_UNIT_TOLERANCE)
+
+
+def _identical_error(rows: np.ndarray, comp: Component) -> np.ndarray:
+    """Per-row error of `comp` where both sides hold `rows`: 0, but inf where a quaternion is no rotation (what
+    `component_error` gives there, without comparing anything)."""
+    if not comp.quat:
+        return np.zeros(rows.shape[0])
+    return np.where(not_rotations(_rows(rows)[:, comp.start : comp.stop]), np.inf, 0.0)
 
 
 def _quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -226,7 +238,7 @@ def _quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     na = np.linalg.norm(a, axis=1, keepdims=True)
     nb = np.linalg.norm(b, axis=1, keepdims=True)
     same = np.all(a == b, axis=1) | np.all(a == -b, axis=1)
-    no_rotation = not_rotations(a) | not_rotations(b)
+    no_rotation = _off_unit(na[:, 0]) | _off_unit(nb[:, 0])
     with np.errstate(invalid="ignore", divide="ignore"):
         a = a / np.where(na == 0, 1, na)
         b = b / np.where(nb == 0, 1, nb)
@@ -366,7 +378,7 @@ class ErrorTable:
             identical = rec.shape == rep.shape and np.array_equal(rec, rep)  # the common case, ~10x cheaper
             for comp in components_of(path, rec.shape[1:]):
                 # a quaternion is checked even where both sides are equal: restoring a zeroed one keeps it zeroed
-                err = np.zeros(rec.shape[0]) if identical and not comp.quat else component_error(rec, rep, comp)
+                err = _identical_error(rec, comp) if identical else component_error(rec, rep, comp)
                 self.add(comp.key, err, comp.group, per_state=True)
 
     def observations(self, recorded: Mapping[str, np.ndarray], replayed: Mapping[str, np.ndarray]) -> None:
