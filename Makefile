@@ -11,7 +11,15 @@ PARALLEL := -n auto --dist loadfile
 
 .PHONY: setup demo test test-all test-gpu lint bench clean
 
-setup: $(STAMP)
+NODE_TOOL := tools/mcap_ts
+
+setup: $(STAMP) $(NODE_TOOL)/node_modules/.package-lock.json
+
+# The TypeScript MCAP reader Foxglove uses, for the tests that read simreel's files with it (skipped without npm).
+$(NODE_TOOL)/node_modules/.package-lock.json: $(NODE_TOOL)/package-lock.json
+	@if command -v npm >/dev/null 2>&1; then \
+	   (cd $(NODE_TOOL) && npm ci --no-audit --no-fund --loglevel=error) || echo "warning: npm ci failed in $(NODE_TOOL)"; \
+	 else echo "warning: no npm: the tests with the TypeScript MCAP reader will be skipped"; fi
 
 $(STAMP): pyproject.toml tools/install_torch.sh tools/fetch_lavapipe.sh
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)

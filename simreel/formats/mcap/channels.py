@@ -148,15 +148,16 @@ class McapChannels:
         return ids
 
     def _plots_schema(self) -> dict[str, Any]:
-        kinds = {"b": "boolean", "i": "integer", "u": "integer", "f": "number"}
-        info = {k: {"type": kinds.get(np.dtype(s.dtype).kind, "number")} for k, s in self.meta.info_layout.items()}
+        number = {"type": ["number", "null"]}  # `_json_column` writes NaN and infinities as null
+        kinds = {"b": {"type": "boolean"}, "i": {"type": "integer"}, "u": {"type": "integer"}}
+        info = {k: kinds.get(np.dtype(s.dtype).kind, number) for k, s in self.meta.info_layout.items()}
         props: dict[str, Any] = {
             "episode": {"type": "integer"},
             "step": {"type": "integer"},
-            "reward": {"type": "number"},
+            "reward": number,
             **{f: {"type": "boolean"} for f in FLAG_FIELDS},
             "info": {"type": "object", "properties": info},
-            "action": {"type": "array", "items": {"type": "number"}},
+            "action": {"type": "array", "items": number},
         }
         return {"title": "simreel.StepScalars", "type": "object", "properties": props}
 

@@ -132,11 +132,11 @@ class McapWriter(EpisodeWriter):
         from mcap.writer import CompressionType, IndexType
 
         kind = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-        # Chunk and metadata indexes, no per-message indexes: readers find an episode by its chunks' time span
-        # and read whole chunks; message indexes would add 16 uncompressed bytes per message.
+        # Every index, message indexes too (16 uncompressed bytes per message): simreel's readers find an episode
+        # by its chunks' time span and need none, but the TypeScript reader Foxglove opens a file with refuses a
+        # chunk index without them.
         mcap = writer_class(self._fh, chunk_size=self.options.chunk_size, compression=kind[self.options.compression],
-                            index_types=IndexType.CHUNK | IndexType.METADATA | IndexType.ATTACHMENT,
-                            enable_data_crcs=True)
+                            index_types=IndexType.ALL, enable_data_crcs=True)
         mcap.start(profile="", library=f"simreel {__version__}")
         return mcap
 
