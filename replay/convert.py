@@ -14,8 +14,8 @@ same trajectory: what `simreel convert IN OUT --obs-mode ... --control-mode ...`
   object poses, success timing), each episode getting its largest tracking errors, the first step one leaves
   its tolerance, and a verdict.
 
-Filters: `episodes`, `count` (the first N of those), `keep` (``verified``, ``success``, ``not_truncated``: which
-episodes are written). The output's metadata says where it came from (`RecordingMeta.provenance`: source file,
+Filters: `episodes`, `count` (the first N of those are converted), `keep` (``verified``, ``success``,
+``not_truncated``: which of the converted episodes are written). The output's metadata says where it came from (`RecordingMeta.provenance`: source file,
 episodes, the conversion, the tolerances) and each episode's verdict (`EpisodeMeta.provenance`). Episodes run in
 this process and ``workers - 1`` more (`simreel.replay.workers.run_pool`).
 
@@ -57,7 +57,7 @@ from simreel.replay.output import (
     published,
     staged_path,
 )
-from simreel.replay.report import EpisodeReport, episode_lines, recording_limits
+from simreel.replay.report import CHECK_ORDER, EpisodeReport, episode_lines, recording_limits
 from simreel.replay.tracking import Commands, EndEffector, TrackingBlocks, tracking_tolerances
 from simreel.replay.workers import EpisodeResult, VerifySink, run_pool
 from simreel.replay.worklist import WorkItem
@@ -83,7 +83,8 @@ class ConvertOptions:
         camera_size: (width, height) of every sensor camera (ManiSkill's ``sensor_configs``).
         shader: ManiSkill's ``shader_dir`` for every camera (``"default"``, ``"rt"``, ...).
         episodes: episode indices to convert (None: all, in file order); `count`: only the first N of them.
-        keep: write only episodes that are ``verified``, ended in ``success``, and/or ``not_truncated``.
+        keep: write only episodes that are ``verified``, ended in ``success``, and/or ``not_truncated``: chosen
+            among the `count` converted (the first N episodes are converted, at most N written).
         group_tolerances: tracking tolerances overriding the defaults (`simreel.replay.tracking`), e.g.
             ``{"ee_pos": 1e-3}``.
         workers: processes converting episodes in parallel (this one and workers - 1 more).
@@ -205,11 +206,14 @@ class ConvertWorker:
             raise
 
     def _replayer_options(self) -> ReplayerOptions:
+        """The replayer's modes; a control-mode conversion also samples the recorded bodies' poses of its own run
+        (a re-render writes the recorded ones: its states are the recorded ones)."""
         job = self.job
         need_obs = job.obs_mode is not None or bool(self.meta.obs_layout)
+        poses = tuple(self.meta.pose_bodies) if job.control_mode else ()
         return ReplayerOptions(obs_mode=job.obs_mode or (self.meta.obs_mode if need_obs else None), need_obs=need_obs,
                                control_mode=job.control_mode, env_kwargs=dict(job.env_kwargs),
-                               sim_backend=job.sim_backend)
+                               sim_backend=job.sim_backend, pose_bodies=poses)
 
     def _converter(self) -> Any:
         from simreel.replay.control import converter_for
@@ -226,12 +230,14 @@ class ConvertWorker:
     def output_changes(self) -> dict[str, Any]:
         """The output's metadata fields that this conversion changes."""
         from simreel.sim.describe import action_space_json
+        from simreel.sim.fingerprint import with_controllers
 
         u = self.replayer.u
         return {"obs_mode": self.replayer.obs_mode if self.replayer.need_obs else self.meta.obs_mode,
                 "control_mode": u.control_mode,
                 "action_space": action_space_json(self.meta.env_id, u.single_action_space),
-                "env_kwargs": {**self.meta.env_kwargs, **self.job.env_kwargs}}
+                "env_kwargs": {**self.meta.env_kwargs, **self.job.env_kwargs},
+                "scene_fingerprint": with_controllers(self.meta.scene_fingerprint, u)}
 
     def run(self, item: WorkItem) -> ConvertResult:
         """Convert and check episode `item.index` of this worker's file; a `SimreelError` comes back in the result."""
@@ -292,6 +298,27 @@ class ConvertWorker:
         for closing in (getattr(self, "replayer", None), self.source_env, self.reader):
             if closing is not None:
                 closing.close()
+
+
+_RENDER_CHECKS = {"env_states": "each restored state read back within the 'states' tolerances",
+                  "contacts": "recorded contact forces against one step simulated from the state",
+                  "info": "recorded info", "rewards": "recomputed rewards"}
+"""What a re-render compares of each group (`CHECK_ORDER`; the flags, `_FLAGS`, as one) when the file holds it."""
+_FLAGS = ("terminated", "truncated", "success", "fail")
+
+
+def _checked_text(unknown: list[str], *, tracked: bool) -> str:
+    """What a conversion compares per step of a file that does not hold `unknown` (`RecordingMeta.unknown`, which
+    also gives the limits lines): a re-render what a replay in mode 'states' compares of what the file holds, a
+    control-mode conversion the tracking groups (success timing when the file holds success)."""
+    if tracked:
+        groups = ["commanded and reached tool-centre pose", "object poses", "success timing"]
+        groups = groups if "success" not in unknown else groups[:-1]
+        return "per step, the converted run against the recorded one: " + ", ".join(groups)
+    held = [g for g in CHECK_ORDER if g != "obs" and g not in unknown]
+    flags = [g for g in held if g in _FLAGS]
+    parts = [_RENDER_CHECKS[g] for g in held if g not in _FLAGS] + [f"recomputed flags ({', '.join(flags)})"]
+    return "per step, " + ", ".join(parts) + "; the output's states and actions equal the input's"
 
 
 def _tracked(keys: list[str]) -> list[str]:
@@ -580,7 +607,7 @@ class ConversionRun:
 
     def _output_spec(self, worker: ConvertWorker, staged: Path) -> ReplayOutput:
         """The output as it is written: at `staged` in the run's scratch folder, moved to its name once checked."""
-        poses = () if self.options.control_mode else tuple(self.reader.meta.pose_bodies)  # a re-render keeps them
+        poses = tuple(self.reader.meta.pose_bodies)  # a re-render's recorded ones, a control-mode conversion's own
         return ReplayOutput(str(staged), pose_bodies=poses, command=self.options.command,
                             changes={**worker.output_changes(), "provenance": self._provenance()})
 
@@ -591,12 +618,7 @@ class ConversionRun:
             changed["obs_mode"] = [meta.obs_mode, opts.obs_mode]
         if opts.control_mode is not None:
             changed["control_mode"] = [meta.control_mode, opts.control_mode]
-        checked = ("per step, the converted run against the recorded one: commanded and reached tool-centre pose, "
-                   "object poses, success timing" if opts.control_mode else
-                   "per step, each restored state read back within the 'states' tolerances, recomputed rewards and "
-                   "flags, recorded contact forces against one step simulated from the state; the output's states and "
-                   "actions equal the input's")
-        return {**changed, **opts.env_kwargs(), "checked": checked}
+        return {**changed, **opts.env_kwargs(), "checked": _checked_text(meta.unknown, tracked=bool(opts.control_mode))}
 
     def _provenance(self) -> dict[str, Any]:
         opts = self.options

@@ -261,12 +261,34 @@ def _report_records(report: Path) -> Iterator[Iterator[dict[str, Any]]]:
         return
     if not json_path.is_file():
         raise ReportFileError(report, "no such report")
+    yield iter(_document_records(json_path))
+
+
+_REPLAY_REPORT = "--verified and --diverged take the report that `simreel replay --report REPORT.json` writes"
+
+
+def _document_records(json_path: Path) -> list[dict[str, Any]]:
+    """The file and episode entries of the report document `json_path`; `ReportFileError` saying what the file is
+    instead (not JSON, a conversion's report, another JSON document) and which report to give."""
     try:
         doc = json.loads(json_path.read_text(encoding="utf-8"))
-        records = [{"type": "file", **f} for f in doc["files"]] + [{"type": "episode", **e} for e in doc["episodes"]]
-    except (json.JSONDecodeError, KeyError, TypeError) as e:
-        raise ReportFileError(json_path, f"not a simreel replay report ({type(e).__name__}: {e})") from None
-    yield iter(records)
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise ReportFileError(json_path, f"not a simreel replay report (not a JSON document); {_REPLAY_REPORT}") from None
+    try:
+        files = [{"type": "file", **f, "path": str(f["path"])} for f in doc["files"]]
+        return files + [{"type": "episode", **e, "file": str(e["file"]), "index": int(e["index"]),
+                         "verdict": str(e["verdict"])} for e in doc["episodes"]]
+    except (KeyError, TypeError, ValueError):
+        raise ReportFileError(json_path, f"{_what_document(doc)}, not a replay report; {_REPLAY_REPORT}") from None
+
+
+def _what_document(doc: Any) -> str:
+    """What a JSON document that is no replay report is, as far as its keys tell."""
+    if isinstance(doc, dict) and "conversion" in doc and "written" in doc:
+        return "a conversion's report (`simreel convert --report`)"
+    if isinstance(doc, dict) and "env_info" in doc:
+        return "a recording's JSON sidecar (ManiSkill's trajectory JSON)"
+    return "a JSON document without a replay report's files and episodes"
 
 
 def read_verdicts(report: str | Path) -> Verdicts:

@@ -50,7 +50,8 @@ def add_parser(sub: Any) -> None:
     g.add_argument("--camera-size", type=parse_size, default=None, metavar="WxH", help="size of every sensor camera")
     g.add_argument("--shader", default=None, help="ManiSkill shader of every camera (default, rt, rt-fast, ...)")
     g.add_argument("--episodes", default=None, metavar="LIST", help="episodes to convert, e.g. 0,3-7 (default: all)")
-    g.add_argument("--count", type=int, default=None, metavar="N", help="convert only the first N of those episodes")
+    g.add_argument("--count", type=int, default=None, metavar="N", help="convert only the first N of those episodes; --keep then chooses "
+                   "which of them are written (N converted, at most N written)")
     g.add_argument("--keep", type=_keep, default=(), metavar="WHAT",
                    help="write only episodes that are all of (comma-separated): verified (their check passed), "
                    "success (at their last step), not_truncated (they did not end at the time limit)")

@@ -22,7 +22,6 @@ import dataclasses
 import datetime
 import hashlib
 import json
-import os
 import shutil
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -41,6 +40,7 @@ from simreel.formats.copy import Target, write_episodes
 from simreel.formats.durable import deferred_signals, raise_if_stopped
 from simreel.formats.inputs import file_identity
 from simreel.formats.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
+from simreel.formats.staging import staging_path
 from simreel.formats.targets import check_distinct, move_into_place
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
@@ -514,8 +514,7 @@ class StagedOutput:
 
     @classmethod
     def of(cls, target: Target) -> StagedOutput:
-        staged = target.path.with_name(f".{target.path.stem}.simreel-{os.getpid()}{target.path.suffix}")
-        return cls(target, dataclasses.replace(target, path=staged, overwrite=True))
+        return cls(target, dataclasses.replace(target, path=staging_path(target.path), overwrite=True))
 
     def _pairs(self) -> list[tuple[Path, Path]]:
         """(staged file, final name) of the recording's side files, then of the recording (a reader that finds it

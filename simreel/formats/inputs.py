@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import glob
 import os
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from simreel.errors import UsageError
 from simreel.formats import HDF5_SUFFIXES, MCAP_SUFFIXES, recording_files
+from simreel.formats.staging import is_staging_path
 
 __all__ = ["RECORDING_SUFFIXES", "expand_inputs", "file_identity", "shown_path"]
 
@@ -49,19 +51,41 @@ def _found_in(spec: str) -> list[Path]:
                   and not any(part.endswith(".partial") for part in x.parts))
 
 
+def _without_staged(found: list[Path]) -> tuple[list[Path], list[Path]]:
+    """(recordings, staged outputs) of the files a scan found: a file under a merge's or filter's staging name is
+    an output not yet checked (being made, or left by a run that was killed), never a recording to read."""
+    staged = [f for f in found if is_staging_path(f)]
+    return [f for f in found if f not in staged], staged
+
+
+def _say_skipped(staged: Sequence[Path]) -> None:
+    """One line on stderr naming the staged outputs a scan skipped (if any), and what to do with them."""
+    if not staged:
+        return
+    names = ", ".join(shown_path(f) for f in staged)
+    sys.stderr.write(f"simreel: warning: skipped {names}: unchecked output(s) of a merge or filter that was "
+                     "interrupted (or still runs); once none runs, delete them and the files beside them of the same name "
+                     "(name one to inspect it)\n")
+
+
 def expand_inputs(specs: Sequence[str | Path]) -> list[tuple[Path, bool]]:
     """(absolute path, named explicitly) for every input file: a file as given; a folder or glob as the
-    recordings it holds (`UsageError` when it holds none). Each file once, in the order given."""
+    recordings it holds (`UsageError` when it holds none), without the staged outputs of a merge or filter, which
+    are named once on stderr. Each file once, in the order given."""
     out: dict[Path, tuple[Path, bool]] = {}
+    skipped: dict[Path, None] = {}
     for spec in map(str, specs):
         if Path(spec).is_dir() or (_is_pattern(spec) and not Path(spec).exists()):
-            found = _found_in(spec)
+            found, staged = _without_staged(_found_in(spec))
+            skipped.update(dict.fromkeys(staged))
             if not found:
+                _say_skipped(list(skipped))
                 kind = "folder" if Path(spec).is_dir() else "pattern"
                 raise UsageError(f"{spec}: no recordings (.h5, .hdf5, .mcap) found in this {kind}")
             out.update((f.resolve(), (Path(os.path.abspath(f)), False)) for f in found if f.resolve() not in out)
         else:
             out.setdefault(Path(spec).resolve(), (Path(os.path.abspath(spec)), True))
+    _say_skipped(list(skipped))
     return list(out.values())
 
 

@@ -14,6 +14,7 @@ the same name is refused with one line, and on the file it writes.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,8 @@ from simreel.errors import UsageError
 from simreel.formats.lock import WriterLock, being_written
 from simreel.formats.targets import check_output
 
-__all__ = ["RecordingTarget", "side_folder", "replacement_note", "refuse_kept_recording"]
+__all__ = ["RecordingTarget", "side_folder", "replacement_note", "refuse_kept_recording", "staging_path",
+           "is_staging_path"]
 
 
 def side_folder(path: Path) -> Path:
@@ -155,3 +157,20 @@ class RecordingTarget:
         for lock in self.locks:
             lock.release()
         self.locks = []
+
+
+_STAGING_STEM = re.compile(r"\.(?P<stem>.+)\.simreel-(?P<pid>[0-9]+)")
+"""The stem of a staging name (`staging_path`): ``.OUT-STEM.simreel-PID``."""
+
+
+def staging_path(final: Path) -> Path:
+    """The name an output of merge or filter is written under beside `final` (``.merged.simreel-PID.h5`` for
+    ``merged.h5``) until it is checked and moved there: hidden, and this process's own, so that two commands writing
+    one OUT never share it."""
+    return final.with_name(f".{final.stem}.simreel-{os.getpid()}{final.suffix}")
+
+
+def is_staging_path(path: str | os.PathLike[str]) -> bool:
+    """Whether `path` has a staging name (`staging_path`): an output being made, or one a killed merge or filter
+    left behind, never a finished recording (folder scans skip it: `simreel.formats.inputs`)."""
+    return _STAGING_STEM.fullmatch(Path(path).stem) is not None

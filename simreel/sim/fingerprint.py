@@ -172,6 +172,12 @@ def scene_fingerprint(unwrapped: Any, *, env_idx: int = 0) -> dict[str, Any]:
     return {"bodies": bodies, "controllers": _controllers(unwrapped), "code": dict(_task_code(type(unwrapped)))}
 
 
+def with_controllers(fingerprint: Mapping[str, Any], unwrapped: Any) -> dict[str, Any]:
+    """`fingerprint` (a recording's) with the controllers of the live env `unwrapped`: what a conversion to another
+    control mode changes of the scene, and all it changes (its bodies and task code are the recording's)."""
+    return {**fingerprint, "controllers": _controllers(unwrapped)} if fingerprint else {}
+
+
 @functools.cache
 def _task_code(task: type) -> tuple[tuple[str, str], ...]:
     """(class name, hash of the source file that defines it) of `task` and each of its bases that has a Python

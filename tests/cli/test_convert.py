@@ -145,3 +145,13 @@ def test_the_help_names_every_tracking_tolerance_group(capsys):
         main(["convert", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert all(f"{group} (" in text or f"{group}," in text for group in TRACKING_GROUPS)
+
+
+def test_the_help_says_count_is_applied_before_keep(capsys):
+    """--count N converts the first N episodes; --keep then chooses among them: the help must not read as "N kept"
+    (`--keep success --count 1` writes none when the first episode has no success)."""
+    with pytest.raises(SystemExit):
+        main(["convert", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert ("convert only the first N of those episodes; --keep then chooses which of them are written (N converted, "
+            "at most N written)") in text

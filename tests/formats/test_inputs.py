@@ -1,12 +1,19 @@
 """Which recordings a command's inputs name (`simreel.formats.inputs`): files as given, folders searched below,
-glob patterns; each file once; never the scratch files of a running HDF5 recording."""
+glob patterns; each file once; never the scratch files of a running HDF5 recording, nor the staged output a killed
+merge or filter left."""
 
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
+from support.mcap_samples import synthetic_episode, synthetic_meta, write
 
+from simreel.cli.main import main
 from simreel.errors import UsageError
 from simreel.formats.inputs import expand_inputs, shown_path
 
@@ -66,3 +73,38 @@ def test_a_recordings_identity_covers_the_sidecar_a_reader_reads(tmp_path):
     linked = file_identity(link)
     os.utime(link.with_suffix(".json"), ns=(0, linked[1] + 10**9))  # edited later
     assert file_identity(link) != linked and file_identity(link)[0] == 108 + 17
+
+
+def test_a_killed_filters_staged_output_is_skipped_by_scans_and_named_once(tmp_path, capsys):
+    """Regression: a `kill -9`'d merge or filter leaves its staged output (``.OUT.simreel-PID.h5``) beside OUT, and
+    `simreel inspect DIR` / `replay DIR` took it for a recording. A scan skips it and says so once on stderr; named
+    explicitly it is still read (to inspect what is left)."""
+    data = tmp_path / "data"
+    data.mkdir()
+    meta = synthetic_meta()
+    src = write(data / "src.h5", meta, [synthetic_episode(meta, i, 3) for i in range(4)])
+    support = Path(__file__).resolve().parents[1] / "support"
+    child = subprocess.Popen([sys.executable, str(support / "paused_copy.py"), "filter", str(src), "-o",
+                              str(data / "kept.h5"), "--episodes", "0-3"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "copying"  # two episodes written to its staged output
+    finally:
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=60)
+    leftover = data / f".kept.simreel-{child.pid}.h5"
+    assert leftover.is_file() and not (data / "kept.h5").exists()
+
+    for spec in (data, data / "*.h5", f"{data}/.*.h5"):
+        capsys.readouterr()
+        if spec == f"{data}/.*.h5":
+            with pytest.raises(UsageError, match="no recordings"):
+                expand_inputs([spec])
+        else:
+            assert expand_inputs([spec, data]) == [(src, False)]
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith(f"simreel: warning: skipped {shown_path(leftover)}: ")
+        assert "interrupted" in err and "delete them" in err
+    assert expand_inputs([leftover]) == [(leftover, True)]
+    assert main(["inspect", str(data)]) == 0
+    out = capsys.readouterr().out
+    assert "src.h5" in out and "simreel-" not in out and "1 recording" in out
