@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import inspect
 import json
+import numbers
 import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -25,18 +27,18 @@ import numpy as np
 
 from simreel.episode import EpisodeMeta, StepBlock, json_default
 from simreel.errors import SimreelError, StateLayoutError, Terminated, UsageError
-from simreel.formats import open_writer, records_poses_by_default
+from simreel.formats import format_of, open_writer, records_poses_by_default
 from simreel.formats.durable import deferred_signals
 from simreel.formats.writer_process import ProcessWriter
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.recorders.step_scalars import StepScalars, scalar_info
 from simreel.sim.actions import ActionCheck
-from simreel.sim.contacts import ContactSampler, contact_channels
+from simreel.sim.contacts import ContactSampler, contact_channels, contacts_spec
 from simreel.sim.describe import flatten_obs, recording_meta
 from simreel.sim.fingerprint import fingerprint_changes, scene_fingerprint
 from simreel.sim.poses import pose_body_names, sample_body_poses
 from simreel.sim.state import FastStateReader, check_same_layout, read_state
-from simreel.sim.user_code import recorded_spec
+from simreel.sim.user_code import found_spec
 from simreel.state_tree import layout_of, to_numpy
 
 __all__ = ["RecordWrapper", "RecordOptions", "what_stopped"]
@@ -48,16 +50,18 @@ class RecordOptions:
 
     Attributes:
         contacts: "auto" (net force on every moving body + the task's or the robot fingers' pairs), "none",
-            or explicit pairs "panda/panda_leftfinger:cube,...".
+            or explicit pairs "panda/panda_leftfinger:cube,..." (or a list of "A:B" strings).
         record_obs: also record observations (T+1 rows per episode).
         poses: also record world poses of every body (needed by MCAP's transform channel; costs about as much
             per step as the state dict). None: the format's default (on for .mcap, off for .h5).
         overwrite: replace an existing file instead of refusing.
         block_steps: steps buffered in memory before they are streamed to the file.
-        imports: `--import` specs that registered the task, stored so replay can import them again (a file by
-            its absolute path: `simreel.sim.user_code.recorded_spec`).
+        imports: `--import` specs that registered the task (a .py file or a module name; one string is one spec),
+            stored so replay can import them again (a file by its absolute path: `simreel.sim.user_code.found_spec`);
+            each must be found when the recorder starts.
         command: the command line, stored for provenance.
-        writer_options: keyword options for the format's writer (e.g. HDF5 `compression`).
+        writer_options: keyword options for the format's writer (HDF5: `compression`; MCAP: `McapOptions`); another
+            name is refused when the recorder starts, naming those the format takes.
         writer_process: write the file from a child process (`simreel.formats.writer_process`), so an episode's
             commit runs beside the env's reset; `reset()` still returns only once the episodes it ended are
             committed. False: write in this process (one process less; each commit then adds to the reset).
@@ -74,9 +78,17 @@ class RecordOptions:
     writer_process: bool = True
 
     def __post_init__(self) -> None:
-        if self.block_steps < 1:
-            raise UsageError(f"block_steps must be ≥ 1, got {self.block_steps}")
-        object.__setattr__(self, "imports", tuple(self.imports))
+        """Check the options whose wrong type would fail later as a raw Python error, and put them in one form: contacts
+        as one string (`contacts_spec`), imports as a tuple."""
+        steps = self.block_steps
+        if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 1:
+            raise UsageError(f"block_steps={steps!r}: give the number of steps to buffer, an int ≥ 1 (default 256)")
+        object.__setattr__(self, "block_steps", int(steps))
+        object.__setattr__(self, "contacts", contacts_spec(self.contacts))
+        object.__setattr__(self, "imports", _import_specs(self.imports))
+        if not isinstance(self.writer_options, Mapping) or not all(isinstance(k, str) for k in self.writer_options):
+            raise UsageError(f"writer_options={self.writer_options!r}: give a dict of the format's writer options, "
+                             "e.g. {\"compression\": \"gzip\"}")
 
 
 class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -92,10 +104,12 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
 
     def __init__(self, env: gym.Env, path: str | Path, options: RecordOptions | None = None, **overrides: Any) -> None:
+        _refuse_unknown_options(overrides)
         opts = dataclasses.replace(options or RecordOptions(), **overrides)
         gym.utils.RecordConstructorArgs.__init__(self, path=str(path), **_constructor_options(opts))
         gym.Wrapper.__init__(self, env)
         _refuse_reshaping_wrappers(env, opts.record_obs)
+        _check_writer_options(path, opts.writer_options)
         self.options = opts
         starting = ProcessWriter(path) if opts.writer_process else None  # its imports run while the env is described
         try:
@@ -159,7 +173,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             info_layout=layout_of(scalar_info(u.get_info(), self._n), batched=True),
             obs_layout=obs_layout,
             pose_bodies=pose_body_names(u) if poses else [],
-            imports=[recorded_spec(spec) for spec in opts.imports],  # a file by its absolute path
+            imports=[found_spec(spec) for spec in opts.imports],  # a file by its absolute path
             command=opts.command,
         )
 
@@ -176,6 +190,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if not idxs or len(set(idxs)) != len(idxs) or not all(0 <= i < self._n for i in idxs):
             raise UsageError(f"reset(options={{'env_idx': {idxs}}}): name each env to reset once, from 0 to "
                              f"{self._n - 1} (an env named twice would begin two episodes at once)")
+        self._check_seed_count(seed, idxs)
         for i in idxs:
             self._finish(i)
         if self._buffer.rows and all(s is None for s in self._sinks):
@@ -202,6 +217,18 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._start(i, meta, StepBlock({k: a[i : i + 1] for k, a in reset_rows.items()}, 1))
         self._settle()
         return obs, info
+
+    def _check_seed_count(self, seed: Any, idxs: list[int]) -> None:
+        """Refuse a seed list of another length than one seed, one per env, or one per env reset (`idxs`), before
+        anything changes: ManiSkill 3.0.1 takes any list as the episode seeds of all its envs, so with another length
+        no seed belongs to an env and the recording would lose its seed (`_episode_seeds`)."""
+        if seed is None or isinstance(seed, str) or not np.iterable(seed):
+            return
+        count = to_numpy(seed).size
+        if count not in (1, self._n, len(idxs)):
+            per_reset = f" or one per env reset ({len(idxs)})" if len(idxs) != self._n else ""
+            raise UsageError(f"reset(seed=...) got {count} seeds for {self._n} env(s); give one seed, or a list of one "
+                             f"seed per env ({self._n}){per_reset}")
 
     def _settle(self) -> None:
         """Wait until the writer has committed the episodes this reset ended (a writer process commits them while the
@@ -475,20 +502,130 @@ def _constructor_options(opts: RecordOptions) -> dict[str, Any]:
     return out
 
 
+_MANISKILL_STEP_CHANGERS = {
+    "mani_skill.utils.wrappers.action_repeat.ActionRepeatWrapper": "steps the task several times in one step()",
+    "mani_skill.utils.wrappers.cached_reset.CachedResetWrapper": "resets the task to cached states, not to the state "
+                                                                 "its seed gives",
+}
+"""ManiSkill 3.0.1's plain `gym.Wrapper`s (matched by class name, so mani_skill is not imported here) that change what
+a step or a reset does, and what they do. Its CPUGymWrapper is `_cpu_gym_change`."""
+
+_GYMNASIUM_STEP_CHANGERS = {
+    "Autoreset": "starts the next episode inside step(), where the recorder cannot see it: the recording would join "
+                 "two episodes",
+    "RepeatAction": "steps the task several times in one step()",
+    "MaxAndSkipObservation": "steps the task several times in one step()",
+    "AtariPreprocessing": "skips frames and adds no-op steps after each reset",
+    "NormalizeReward": "changes the task's rewards",
+}
+"""gymnasium 1.x's plain `gym.Wrapper`s that change what a step or a reset does (those of other versions that lack one
+are skipped), and what they do."""
+
+
+def _refuse_unknown_options(overrides: Mapping[str, Any]) -> None:
+    """A keyword `RecordOptions` has no field for is a TypeError, as Python's own for a call, but one that names them."""
+    fields = [f.name for f in dataclasses.fields(RecordOptions)]
+    unknown = [name for name in overrides if name not in fields]
+    if unknown:
+        raise TypeError(f"RecordWrapper() got an unexpected keyword argument {unknown[0]!r}; its options are the "
+                        f"fields of RecordOptions: {', '.join(fields)}")
+
+
+def _import_specs(imports: Any) -> tuple[str, ...]:
+    """The `imports` option as a tuple of specs: one string is one spec; anything but strings is `UsageError`."""
+    specs = (imports,) if isinstance(imports, str) else tuple(imports) if isinstance(imports, Iterable) else None
+    if specs is None or not all(isinstance(spec, str) for spec in specs):
+        raise UsageError(f"imports={imports!r}: give the .py files or modules that register the task, as a tuple of "
+                         "strings, e.g. (\"my_tasks.py\",)")
+    return specs
+
+
+def _check_writer_options(path: str | Path, options: Mapping[str, Any]) -> None:
+    """Refuse writer options the format's writer does not take, naming those it takes, before anything is started."""
+    unknown = sorted(set(options) - set(_writer_option_names(path))) if options else []
+    if unknown:
+        raise UsageError(f"writer_options {', '.join(unknown)}: not an option of the {format_of(path).upper()} "
+                         f"writer, which takes {', '.join(_writer_option_names(path))}")
+
+
+def _writer_option_names(path: str | Path) -> list[str]:
+    """The keyword options the writer of `path`'s format takes, read from their signature: HDF5's writer takes them
+    itself, MCAP's through `McapOptions`."""
+    if format_of(path) == "hdf5":
+        from simreel.formats.hdf5.writer import Hdf5Writer as takes_options
+    else:
+        from simreel.formats.mcap.writer import McapOptions as takes_options
+    parameters = inspect.signature(takes_options).parameters.values()
+    return [p.name for p in parameters if p.default is not p.empty and p.name != "overwrite"]
+
+
 def _refuse_reshaping_wrappers(env: gym.Env, record_obs: bool) -> None:
-    """Actions (and observations, when recorded) must be the task's own: replay feeds them to the task. Episodes must
-    start at the recorder's resets: one that an autoreset wrapper below it starts inside step() would be recorded
-    as a continuation of the episode before."""
+    """Refuse, in one line that says to put it above the recorder, every wrapper below it that changes what a step or
+    a reset does: a replay steps and resets the task itself, so it could never reproduce the recording.
+
+    The rule: below the recorder, the task must step once per step() with the action the recorder records, reset
+    only when the recorder resets and as its seed says, and hand back its own rewards and flags (and its own
+    observations, when they are recorded). Refused are every gymnasium `ActionWrapper` and `RewardWrapper`, every
+    `ObservationWrapper` when observations are recorded (by base class: ClipAction, ManiSkill's FrameStack, ...), and
+    the plain wrappers of ManiSkill 3.0.1 and gymnasium 1.x that do the same (`_MANISKILL_STEP_CHANGERS`,
+    `_GYMNASIUM_STEP_CHANGERS`, `_cpu_gym_change`, gymnasium's FrameStackObservation when observations are
+    recorded). Accepted are those that leave steps and resets as the task's (TimeLimit, OrderEnforcing,
+    PassiveEnvChecker, RecordEpisodeStatistics, rendering and array-conversion wrappers, ManiSkill's RecordEpisode,
+    another RecordWrapper), and any other plain wrapper, a user's own among them: what it does cannot be known here.
+    """
     e = env
     while isinstance(e, gym.Wrapper):
-        if isinstance(e, gym.ActionWrapper) or (record_obs and isinstance(e, gym.ObservationWrapper)):
-            raise UsageError(
-                f"RecordWrapper wraps {type(e).__name__}, which changes the task's "
-                f"{'actions' if isinstance(e, gym.ActionWrapper) else 'observations'}; a replay could not "
-                "reproduce them. Put RecordWrapper directly around the ManiSkill env, below such wrappers"
-            )
-        if isinstance(e, gym.wrappers.Autoreset):
-            raise UsageError(
-                "RecordWrapper wraps Autoreset, which starts the next episode inside step(), where the recorder cannot "
-                "see it: the recording would join two episodes. Put Autoreset above RecordWrapper")
+        change = _step_change(e, record_obs)
+        if change is not None:
+            name = type(e).__name__
+            raise UsageError(f"RecordWrapper wraps {name}, which {change}; a replay could not reproduce the recording. "
+                             f"Put {name} above RecordWrapper: {name}(RecordWrapper(env, ...), ...)")
         e = e.env
+
+
+def _step_change(wrapper: gym.Wrapper, record_obs: bool) -> str | None:
+    """What `wrapper` changes of a step or a reset that the recorder records (`_refuse_reshaping_wrappers`), or None
+    where it leaves them as the task's (or is not known to change them)."""
+    return _base_class_change(wrapper, record_obs) or _library_wrapper_change(wrapper, record_obs)
+
+
+def _base_class_change(wrapper: gym.Wrapper, record_obs: bool) -> str | None:
+    """What a wrapper changes by its gymnasium base class: actions, rewards, observations (those only when recorded)."""
+    if isinstance(wrapper, gym.ActionWrapper):
+        return "changes the task's actions"
+    if isinstance(wrapper, gym.RewardWrapper):
+        return "changes the task's rewards"
+    if record_obs and isinstance(wrapper, gym.ObservationWrapper):
+        return "changes the task's observations"
+    return None
+
+
+def _library_wrapper_change(wrapper: gym.Wrapper, record_obs: bool) -> str | None:
+    """What a plain wrapper of gymnasium or ManiSkill changes of a step or a reset, known by its class (or a class it
+    derives from)."""
+    for name, change in _GYMNASIUM_STEP_CHANGERS.items():
+        if isinstance(wrapper, _gymnasium_classes([name])):
+            return change
+    if record_obs and isinstance(wrapper, _gymnasium_classes(["FrameStackObservation"])):
+        return "changes the task's observations"
+    classes = {f"{c.__module__}.{c.__qualname__}" for c in type(wrapper).__mro__}
+    change = next((change for name, change in _MANISKILL_STEP_CHANGERS.items() if name in classes), None)
+    if change is None and "mani_skill.utils.wrappers.gymnasium.CPUGymWrapper" in classes:
+        return _cpu_gym_change(wrapper, record_obs)
+    return change
+
+
+def _cpu_gym_change(wrapper: gym.Wrapper, record_obs: bool) -> str | None:
+    """What ManiSkill's CPUGymWrapper changes: it unbatches the observations (recorded ones keep the env axis), and
+    with `ignore_terminations` it reports no step as terminated. Otherwise it only converts arrays to numpy."""
+    if getattr(wrapper, "ignore_terminations", False):
+        return "reports the task's terminated steps as not terminated (ignore_terminations=True)"
+    if record_obs:
+        return "unbatches the task's observations (record_obs=True records them with their env axis)"
+    return None
+
+
+def _gymnasium_classes(names: list[str]) -> tuple[type, ...]:
+    """gymnasium's wrapper classes of these names that this gymnasium has."""
+    found = (getattr(gym.wrappers, name, None) for name in names)
+    return tuple(c for c in found if isinstance(c, type))

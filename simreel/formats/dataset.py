@@ -41,7 +41,7 @@ from simreel.formats.durable import deferred_signals, raise_if_stopped
 from simreel.formats.inputs import file_identity
 from simreel.formats.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.staging import staging_path
-from simreel.formats.targets import check_distinct, move_into_place
+from simreel.formats.targets import OVERWRITE_HINT, check_distinct, move_into_place
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
            "FieldHashes", "HashedRows", "episode_digest", "field_digests", "describe_provenance", "describe_origin",
@@ -546,7 +546,7 @@ class StagedOutput:
 
     def _taken(self, dst: Path) -> UsageError:
         return UsageError(f"{self.final.path} was written by another command while this one ran ({dst.name} is there "
-                          "now); it is left as it is and nothing was written (pass --overwrite to replace it)")
+                          f"now); it is left as it is and nothing was written ({OVERWRITE_HINT})")
 
 
 def _run(sources: Sequence[_Source], targets: Sequence[Target], selection: _Selection,

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import IO
 
 from simreel.errors import RecordingFileError, UsageError
+from simreel.formats.targets import OVERWRITE_HINT
 
 __all__ = ["lock_file", "being_written", "WriterLock", "CommitLock"]
 
@@ -84,7 +85,7 @@ class WriterLock:
         try:
             fd = os.open(path, flags, 0o666)
         except FileExistsError:
-            raise UsageError(f"{path} already exists; pass --overwrite to replace it") from None
+            raise UsageError(f"{path} already exists; {OVERWRITE_HINT}") from None
         except OSError as e:
             raise UsageError(f"cannot write {path}: {e.strerror or e}") from None
         if not _flock(fd, "exclusive"):

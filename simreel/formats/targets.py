@@ -20,7 +20,10 @@ from typing import IO
 from simreel.errors import UsageError
 
 __all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output",
-           "move_into_place"]
+           "move_into_place", "OVERWRITE_HINT"]
+
+OVERWRITE_HINT = "pass --overwrite to replace it (overwrite=True from Python)"
+"""How every refusal to replace a file says what to do: the CLI's option and the Python API's keyword."""
 
 
 def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path] = (), option: str = "") -> Path:
@@ -44,11 +47,10 @@ def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path
     if overwrite:
         return p
     if p.exists() or p.is_symlink():
-        raise UsageError(f"{p} already exists; pass --overwrite to replace it")
+        raise UsageError(f"{p} already exists; {OVERWRITE_HINT}")
     for side in side_paths:
         if side.exists() or side.is_symlink():
-            raise UsageError(f"{side} already exists and writing {p.name} would replace it; "
-                             "pass --overwrite to replace it")
+            raise UsageError(f"{side} already exists and writing {p.name} would replace it; {OVERWRITE_HINT}")
     return p
 
 
@@ -126,7 +128,7 @@ def _publish(partial: Path, path: Path, *, overwrite: bool, option: str) -> None
     except FileExistsError:
         label = f"{option} {path}" if option else str(path)
         raise UsageError(f"{label}: a file appeared there while this one was written (another run?); it is kept; "
-                         "pass --overwrite to replace it") from None
+                         f"{OVERWRITE_HINT}") from None
 
 
 def move_into_place(partial: Path, path: Path, *, overwrite: bool) -> None:

@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 
 from simreel.episode import ContactChannel
-from simreel.errors import ContactSpecError
+from simreel.errors import ContactSpecError, UsageError
 from simreel.sim.describe import dynamic_actor_names, named_bodies
 
-__all__ = ["contact_channels", "ContactSampler", "parse_pairs"]
+__all__ = ["contact_channels", "contacts_spec", "ContactSampler", "parse_pairs"]
 
 _FINGER_HINTS = ("finger", "tip", "pad")
 
@@ -49,6 +49,17 @@ def parse_pairs(spec: str) -> list[tuple[str, str]]:
     return pairs
 
 
+def contacts_spec(contacts: Any) -> str | None:
+    """The `contacts` option as one spec string: a string (or None) as it is, a list or tuple of "A:B" pairs joined
+    with "," (the natural form from Python). Anything else is `UsageError` saying what the option takes."""
+    if contacts is None or isinstance(contacts, str):
+        return contacts
+    if isinstance(contacts, list | tuple) and all(isinstance(pair, str) for pair in contacts):
+        return ",".join(contacts)
+    raise UsageError(f"contacts={contacts!r}: give \"auto\", \"none\", or contact pairs as a string "
+                     "\"panda/panda_leftfinger:cube,cube:table-workspace\" or a list of \"A:B\" strings")
+
+
 def _auto_pairs(unwrapped: Any) -> list[tuple[str, str]]:
     """The task's declared pairs, else each robot finger-like link × each dynamic actor."""
     declared = getattr(unwrapped, "simreel_contact_pairs", None)
@@ -68,12 +79,13 @@ def _agents(unwrapped: Any) -> list[Any]:
     return list(agent.agents) if hasattr(agent, "agents") else [agent]
 
 
-def contact_channels(unwrapped: Any, spec: str | None) -> list[ContactChannel]:
-    """The channels for a `--contacts` spec: "auto" (default), "none", or "A:B,..." pairs.
+def contact_channels(unwrapped: Any, spec: str | list[str] | tuple[str, ...] | None) -> list[ContactChannel]:
+    """The channels for a `--contacts` spec: "auto" (default), "none", or "A:B,..." pairs (`contacts_spec`).
 
     Net channels cover every non-static registry actor and every articulation link; pair channels are
     the named (or automatic) pairs. Unknown body names raise ContactSpecError listing the known ones.
     """
+    spec = contacts_spec(spec)
     spec = "auto" if spec is None else spec.strip()
     if spec == "none":
         return []

@@ -22,11 +22,11 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
 
-from simreel.errors import EnvBuildError, TaskCodeError
+from simreel.errors import EnvBuildError, TaskCodeError, UsageError
 from simreel.sim.render_device import configure_vulkan
 
-__all__ = ["import_user_code", "imported_user_code", "quiet_sapien_import", "recorded_spec", "resolve_task_imports",
-           "task_code_error"]
+__all__ = ["found_spec", "import_user_code", "imported_user_code", "quiet_sapien_import", "recorded_spec",
+           "resolve_task_imports", "task_code_error"]
 
 _IMPORTED: dict[str, str] = {}
 """Every spec `import_user_code` imported in this process, in order, and the name of the module it gave."""
@@ -89,6 +89,19 @@ def recorded_spec(spec: str, *, base: str | Path | None = None) -> str:
     if not _is_path(spec):
         return spec
     return str((Path(base or os.getcwd()) / Path(spec).expanduser()).resolve())
+
+
+def found_spec(spec: str) -> str:
+    """`recorded_spec` of an ``--import`` spec that a recorder stores now: it must name a .py file that is there or a
+    module that can be imported (the same rule `import_user_code` applies, without importing it again), else
+    `UsageError`. A spec that resolves nowhere when it is recorded could never be imported by a replay."""
+    stored = recorded_spec(spec)
+    if _is_path(spec) and not os.path.isfile(stored):
+        raise UsageError(f"imports: {spec}: no such file ({stored}); name the .py file that registers the task")
+    if not _is_path(spec) and not _module_found(spec):
+        raise UsageError(f"imports: {spec}: no module of that name on sys.path or in {os.getcwd()}; name the module "
+                         "or the .py file that registers the task")
+    return stored
 
 
 def resolve_task_imports(recorded: Sequence[str], *, explicit: Sequence[str] = (),

@@ -119,7 +119,8 @@ def test_existing_side_files_are_not_replaced_unless_asked(tmp_path, make_side, 
     with pytest.raises(UsageError) as err:
         open_writer(path, _meta())
     assert str(err.value) == (
-        f"{tmp_path / existing} already exists and writing r.h5 would replace it; pass --overwrite to replace it"
+        f"{tmp_path / existing} already exists and writing r.h5 would replace it; pass --overwrite to replace it "
+        "(overwrite=True from Python)"
     )
     assert not path.exists() and (tmp_path / existing).exists()
     if existing.endswith(".json"):

@@ -430,7 +430,7 @@ def test_recover_o_keeps_an_output_it_refuses(tmp_path, capsys):
     keep.write_text("x\n")
     assert main(["recover", str(bad), "-o", str(keep)]) == 2
     err = capsys.readouterr().err
-    assert err == f"simreel recover: error: {keep} already exists; pass --overwrite to replace it\n"
+    assert err == f"simreel recover: error: {keep} already exists; pass --overwrite to replace it (overwrite=True from Python)\n"
     assert keep.read_text() == "x\n" and bad.read_bytes() == cut
     meta = synthetic_meta()
     live = tmp_path / "live.mcap"

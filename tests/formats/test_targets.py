@@ -15,7 +15,7 @@ from simreel.formats.targets import check_distinct, check_output, write_text_ato
     [
         ("new.json", False, None),
         ("old.json", True, None),
-        ("old.json", False, "{tmp}/old.json already exists; pass --overwrite to replace it"),
+        ("old.json", False, "{tmp}/old.json already exists; pass --overwrite to replace it (overwrite=True from Python)"),
         ("dir", False, "--report {tmp}/dir: that is a folder; name the file to write"),
         ("dir", True, "--report {tmp}/dir: that is a folder; name the file to write"),
         ("missing/r.json", True, "cannot write {tmp}/missing/r.json: folder {tmp}/missing does not exist"),
@@ -40,7 +40,7 @@ def test_a_side_file_is_named_as_what_the_recording_would_replace(tmp_path):
     with pytest.raises(UsageError) as e:
         check_output(tmp_path / "out.h5", overwrite=False, side_paths=[tmp_path / "out.json"])
     assert str(e.value) == (f"{tmp_path}/out.json already exists and writing out.h5 would replace it; "
-                            "pass --overwrite to replace it")
+                            "pass --overwrite to replace it (overwrite=True from Python)")
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from simreel.errors import EnvBuildError
-from simreel.sim.user_code import import_user_code, recorded_spec, resolve_task_imports
+from simreel.errors import EnvBuildError, UsageError
+from simreel.sim.user_code import found_spec, import_user_code, recorded_spec, resolve_task_imports
 
 
 def test_import_user_file(tmp_path: Path):
@@ -54,6 +54,25 @@ def test_a_recording_stores_a_file_by_its_absolute_path(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert recorded_spec("tasks/my_tasks.py") == str(tmp_path / "tasks" / "my_tasks.py")
     assert recorded_spec("my_package.tasks") == "my_package.tasks"
+
+
+def test_a_recorder_stores_only_a_spec_found_now(tmp_path, monkeypatch):
+    """A spec found nowhere was stored as it was, and replay then said the file "is not found here" as if it had
+    moved; it is refused when the recorder starts, by the rule `import_user_code` applies (a file that is there, a
+    module that imports), without importing it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "tasks").mkdir()
+    (tmp_path / "tasks" / "found_tasks.py").write_text("raise RuntimeError('not imported by the check')\n")
+    assert found_spec("tasks/found_tasks.py") == str(tmp_path / "tasks" / "found_tasks.py")
+    assert found_spec("simreel.tasks") == "simreel.tasks"
+    with pytest.raises(UsageError) as refused:
+        found_spec("tasks/lost_tasks.py")
+    assert str(refused.value) == (f"imports: tasks/lost_tasks.py: no such file ({tmp_path}/tasks/lost_tasks.py); name "
+                                  "the .py file that registers the task")
+    with pytest.raises(UsageError) as refused:
+        found_spec("simreel_lost_tasks.sub")
+    assert str(refused.value) == (f"imports: simreel_lost_tasks.sub: no module of that name on sys.path or in "
+                                  f"{tmp_path}; name the module or the .py file that registers the task")
 
 
 @pytest.fixture
