@@ -652,7 +652,7 @@ class ConversionRun:
         when nothing is written); returns each written episode's arrays' digests, to check it against."""
         worker = ConvertWorker(self._job(), self.reader)  # closes the reader
         try:
-            report.warnings = _fingerprint_warnings(worker)
+            report.warnings = _fingerprint_warnings(worker) + self._one_process_note()
             spec = self._output_spec(worker, staged)
             with published(ReplayedWriter(spec, self.reader.meta, list(self.indices)),
                            keep=lambda: bool(report.written), final=self.output) as writer:
@@ -666,11 +666,18 @@ class ConversionRun:
         report.written.sort(key=order.__getitem__)  # the input's order, as the output has them, however workers finished
         return collector.digests
 
+    def _one_process_note(self) -> list[str]:
+        """Why a control-mode conversion asked for several workers runs in one process: each converted episode is a
+        new trajectory, stepped from its reset; an exact replay of the output steps it after the output's episodes
+        before it, in one scene, so the conversion must have stepped them so too. Empty where nothing changes."""
+        workers = min(self.options.workers, len(self.indices))
+        return [_ONE_PROCESS.format(workers=workers)] if self.options.control_mode and workers > 1 else []
+
     def _run(self, worker: ConvertWorker, spec: ReplayOutput, collect: Callable[[ConvertResult], None],
              scratch: ScratchFolder) -> None:
         """Convert every episode here, or here and in `workers - 1` pool processes, which write each re-rendered
         episode to the run's scratch folder."""
-        workers = min(self.options.workers, len(self.indices))
+        workers = 1 if self._one_process_note() else min(self.options.workers, len(self.indices))
         items = [WorkItem(key=self.reader.meta.env_id, path=self.path, index=i) for i in self.indices]
         if workers == 1:
             for item in items:
@@ -678,6 +685,11 @@ class ConversionRun:
             return
         worker.job = self._job(spec, str(scratch.path))
         run_pool(worker, items, workers, collect)
+
+
+_ONE_PROCESS = ("converted in one process, not {workers}: a control-mode conversion steps each episode after the "
+                "ones before it in one scene, as a replay of the output will (PhysX results depend on the scene's "
+                "history: `simreel.replay.history`)")
 
 
 def _fingerprint_warnings(worker: ConvertWorker) -> list[str]:

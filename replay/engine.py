@@ -300,6 +300,12 @@ class EpisodeReplayer:
                 self._contacts = None
         return done
 
+    def forget_scene(self) -> None:
+        """Take the env's scene for unknown: the next reset rebuilds it (`reset_to_episode` with ``scene_seed=None``),
+        which gives the state of an env fresh from ``gym.make`` again, history included: PhysX's CPU results depend on
+        what the scene ran since it was built (`simreel.replay.history`)."""
+        self._scene_seed = None
+
     def scene_check(self, ep: EpisodeMeta) -> list[SceneDifference] | None:
         """Every difference between episode `ep`'s recorded scene fingerprint and the scene the env holds now (after
         `reset_for(ep)`); None when the recording has no fingerprint. The live fingerprint is taken once per scene

@@ -3,7 +3,10 @@ worker process of a pool (`run_pool`), each replaying episodes of any file of th
 and answering with an `EpisodeResult`.
 
 A worker keeps the env it built for the last env key (`simreel.replay.worklist.env_key`) and rebuilds only when
-the key changes; the work list is ordered by key so that is rare. A `ReplayJob` is everything a worker needs,
+the key changes; the work list is ordered by key so that is rare. In mode ``actions`` it also keeps what its env's
+scene ran since it was built (`SceneRun`), and before an episode replays the episodes that ran before it in the
+recorder's scene (`simreel.replay.history`) which its scene has not run, rebuilding the scene first when it ran
+anything else: PhysX's CPU results depend on that history. A `ReplayJob` is everything a worker needs,
 picklable so that worker processes (started with ``spawn``: sapien/torch state must not be forked) and Ray
 actors can build their own.
 """
@@ -33,6 +36,7 @@ from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows
 from simreel.replay.engine import BlockSink, Collected, EpisodeReplayer, ReplayedEpisode, ReplayerOptions
 from simreel.replay.explain import ExplainContext, explain_divergence
+from simreel.replay.history import describe_history, scene_history
 from simreel.replay.output import (
     EpisodeStream,
     RecordedContacts,
@@ -51,6 +55,9 @@ __all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "VerifySink", "run_pool
 _EPISODE_DATA_ERRORS = (RecordingFileError, EpisodeLayoutError, MetadataError)
 """Errors about one episode's data (damaged, missing, malformed); any other error is about the env its file
 needs (it does not build, another state layout) and stops every episode of that file alike."""
+_SHIPPED_HISTORY = ("replayed without the episodes that ran before it in the recorder's scene (sent without its file); "
+                    "PhysX results depend on the scene's history: a divergence may come from that alone")
+"""The limit of an episode shipped to a Ray actor whose history (`simreel.replay.history`) is not replayed."""
 _OPEN_READERS = 8
 """Recordings a worker keeps open (the work list visits files in turn, so few are ever needed again)."""
 
@@ -106,6 +113,9 @@ class EpisodeResult:
     """The replayed episode, whole: only where the job has no scratch folder (Ray)."""
     scratch: Path | None = None
     """The scratch recording holding the replayed episode (`ReplayJob.scratch`), for `ReplayedWriter.put`."""
+    history: list[int] = field(default_factory=list)
+    """Episodes of the item's file replayed (actions only, not verified) before it, to give its scene the history
+    it had when recorded (`simreel.replay.history`); empty when the scene had it already."""
     warnings: list[str] = field(default_factory=list)
     """What differs between the recording's machine and this one (`simreel.replay.fingerprint`); given with the
     first result of each file a worker replays."""
@@ -178,6 +188,43 @@ class ReaderCache:
             self._readers.popitem()[1].close()
 
 
+@dataclass(frozen=True)
+class SceneRun:
+    """What a worker's scene ran since it was built: episodes `indices` of the file at `path`, in that order
+    (``SceneRun()``: nothing, a scene fresh from ``gym.make`` or rebuilt)."""
+
+    path: str | None = None
+    indices: tuple[int, ...] = ()
+
+    def missing(self, path: str, history: list[EpisodeMeta]) -> list[EpisodeMeta] | None:
+        """The episodes of `history` (an episode's, in the file at `path`) this scene has still to run to hold it
+        exactly; None when it ran something else (another file, another episode): it must be rebuilt first."""
+        wanted = tuple(ep.index for ep in history)
+        if (self.indices and self.path != path) or wanted[:len(self.indices)] != self.indices:
+            return None
+        return history[len(self.indices):]
+
+
+@dataclass
+class ReplayedHistory:
+    """How a worker gave an episode's scene its recorded history (`ReplayWorker._replay_history`)."""
+
+    replayed: list[int] = field(default_factory=list)
+    """The predecessors replayed for it just now (the scene had run the others)."""
+    ran: tuple[int, ...] = ()
+    """Its whole history, which the scene has now run."""
+    lost: str | None = None
+    """Why its history could not be replayed (it is then replayed without), for its report's limits."""
+
+    def tell(self, report: EpisodeReport, index: int) -> None:
+        """Add to episode `index`'s `report` what was replayed before it, or what could not be."""
+        if self.replayed:
+            report.notes.append(describe_history(index, self.ran, self.replayed))
+        if self.lost:
+            report.notes.append(self.lost)
+            report.limits.append(self.lost)
+
+
 class ReplayWorker:
     """Replays work items of any file of a run: one process's readers and its one env (per env key)."""
 
@@ -189,6 +236,8 @@ class ReplayWorker:
         self._failed: dict[str, SimreelError] = {}
         """Env keys whose env could not be built, with why: their other episodes fail at once, the same way."""
         self._warned: set[str] = set()
+        self._scene: SceneRun | None = None
+        """What the env's scene ran since it was built (None: unknown, e.g. after a failed or explained replay)."""
         self.output: ReplayedWriter | None = None
         """The `-o` output when this process writes it: the episode next in its order is written as it is replayed."""
         self.where = f"{socket.gethostname()} pid {os.getpid()}"
@@ -201,12 +250,46 @@ class ReplayWorker:
         try:
             reader = shipped if shipped is not None else self._readers.get(item.path)
             replayer = self._replayer_for(item, reader.meta)
-            report, replayed = self._replay(reader, replayer, item.index)
+            scene, self._scene = self._scene, None  # unknown until the replay ends well
+            history = self._replay_history(reader, replayer, item, scene, shipped=shipped is not None)
+            report, replayed = self._replay(reader, replayer, item.index, history)
         except SimreelError as e:
             return EpisodeResult(item, error=e, worker=where)
+        if self.job.mode == "actions" and report.explanation is None:  # explaining replays steps again
+            self._scene = SceneRun(item.path, (*history.ran, item.index))
         episode, scratch = (None, replayed) if isinstance(replayed, Path) else (replayed, None)
-        return EpisodeResult(item, report, episode, scratch=scratch, worker=where,
+        return EpisodeResult(item, report, episode, scratch=scratch, worker=where, history=history.replayed,
                              warnings=self._warnings(item.path, reader, replayer))
+
+    def _replay_history(self, reader: EpisodeReader, replayer: EpisodeReplayer, item: WorkItem,
+                        scene: SceneRun | None, *, shipped: bool) -> ReplayedHistory:
+        """In mode ``actions``, give `replayer`'s scene (which ran `scene`) the history episode `item.index` had
+        when recorded (`simreel.replay.history.scene_history`): replay the predecessors it lacks (actions only,
+        nothing compared or written), after rebuilding the scene when it ran anything else. The other modes
+        restore recorded states: no history is replayed. Where the history cannot be replayed (a `shipped` episode
+        comes without its file; a predecessor's data is damaged) the episode is replayed on a rebuilt scene without
+        it, and its report says so."""
+        if self.job.mode != "actions":
+            return ReplayedHistory()
+        episode = reader.episode_meta(item.index)
+        if shipped:
+            replayer.forget_scene()  # a rebuilt scene at least: the same replay on every actor
+            return ReplayedHistory(lost=_SHIPPED_HISTORY if _has_history(episode) else None)
+        history = scene_history(reader.episodes, item.index)
+        missing = scene.missing(item.path, history) if scene is not None else None
+        if missing is None:
+            start = history[0] if history else episode
+            if not start.reconfigured:  # a chain that starts with a reconfiguring reset rebuilds the scene itself
+                replayer.forget_scene()
+            missing = history
+        for ep in missing:
+            try:
+                replayer.replay_rows(reader.open_episode(ep.index), BlockSink(), mode="actions",
+                                     rows=self.job.block_rows)
+            except _EPISODE_DATA_ERRORS as e:
+                replayer.forget_scene()  # the episode itself then starts from a rebuilt scene, with no history
+                return ReplayedHistory(lost=_lost_history(ep.index, e))
+        return ReplayedHistory([ep.index for ep in missing], tuple(ep.index for ep in history))
 
     def prepare(self, item: WorkItem) -> None:
         """Open `item`'s file and build its env now; raises the `SimreelError` that stops that."""
@@ -224,14 +307,15 @@ class ReplayWorker:
             except SimreelError as e:
                 self._failed[key] = e
                 raise
-            self._key = key
+            self._key, self._scene = key, SceneRun()
         return self._replayer
 
-    def _replay(self, reader: EpisodeReader, replayer: EpisodeReplayer,
-                index: int) -> tuple[EpisodeReport, Episode | Path | None]:
+    def _replay(self, reader: EpisodeReader, replayer: EpisodeReplayer, index: int,
+                history: ReplayedHistory) -> tuple[EpisodeReport, Episode | Path | None]:
         """Replay episode `index` block by block, comparing each block as it is replayed (and, for `-o`, writing it
-        where `_stream` says); only the per-key error curves outlive a block. Returns the report and, for `-o`, the
-        scratch recording the replay went to, or (no scratch folder) the replay collected whole."""
+        where `_stream` says); only the per-key error curves outlive a block. `history`: how its scene's history was
+        replayed just before (`_replay_history`), which its report notes. Returns the report and, for `-o`, the scratch
+        recording the replay went to, or (no scratch folder) the replay collected whole."""
         job = self.job
         source = reader.open_episode(index)
         scope = CompareScope(initial=source.meta.initial_state_known,
@@ -245,6 +329,7 @@ class ReplayWorker:
         try:
             replayed = replayer.replay_rows(source, verify, mode=job.mode, resync=job.resync, rows=job.block_rows)
             report = self._report(reader, replayer, source, replayed, verify.comparison)
+            history.tell(report, index)
         except BaseException:
             if stream is not None:
                 stream.discard()
@@ -298,11 +383,23 @@ class ReplayWorker:
     def _close_replayer(self) -> None:
         if self._replayer is not None:
             self._replayer.close()
-            self._replayer, self._key = None, None
+            self._replayer, self._key, self._scene = None, None, None
 
     def close(self) -> None:
         self._close_replayer()
         self._readers.close()
+
+
+def _lost_history(index: int, error: SimreelError) -> str:
+    """The limit of an episode whose predecessor `index` could not be replayed (`error`)."""
+    return (f"replayed without the episodes that ran before it in the recorder's scene: episode {index} cannot be "
+            f"read ({error}); PhysX results depend on the scene's history: a divergence may come from that alone")
+
+
+def _has_history(episode: EpisodeMeta) -> bool:
+    """Whether episodes may have run in `episode`'s scene before it (told by its metadata alone: its reset kept the
+    scene, and it is not its file's first)."""
+    return not episode.reconfigured and episode.index > 0
 
 
 _WORKER: Any = None

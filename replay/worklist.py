@@ -4,7 +4,9 @@ Inputs are recording files, folders of them and glob patterns (`simreel.formats.
 Each file's header is read once (metadata and episode list, no episode data); a file found by a folder or a
 glob that is no recording is kept as unreadable (with the reason) rather than ending the run. The work items
 are ordered by env key — the env a replay of the episode needs — so a worker that replays them in turn
-rebuilds its env only when the key changes.
+rebuilds its env only when the key changes, then by file, then by episode index (recorded order, whatever order
+``--episodes`` names them in): an actions replay first replays what ran in an episode's scene before it
+(`simreel.replay.history`), so episodes in recorded order replay no history twice.
 """
 
 from __future__ import annotations
@@ -100,8 +102,9 @@ def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None,
 def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | None = None,
                    done: Iterable[tuple[str, int]] = (), restores: str | None = None) -> WorkList:
     """Read every input's header and list its episodes to replay (`episodes`: these indices of every file),
-    ordered by env key, leaving out the (absolute path, index) pairs in `done` (a resumed run). `restores`: the
-    option that makes the run restore recorded states (``--mode step``), so a file without any cannot be replayed.
+    ordered by env key, file and episode index, leaving out the (absolute path, index) pairs in `done` (a resumed
+    run). `restores`: the option that makes the run restore recorded states (``--mode step``), so a file without any
+    cannot be replayed.
 
     A file given by name that cannot be read raises its `SimreelError`; one found in a folder or by a glob
     is kept with its error, so one bad file does not end a dataset run. A file of a dataset run (more than one
@@ -124,10 +127,10 @@ def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | Non
         if info.meta is None:
             continue
         key = env_key(info.meta)
-        for position, (index, steps) in enumerate(info.episodes.items()):
+        for index, steps in info.episodes.items():
             if (info.path, index) in done_set:
                 skipped += 1
             else:
-                items.append((key, order, position, WorkItem(key, info.path, index, steps)))
-    items.sort(key=lambda x: x[:3])  # env key, then input order, then the order asked for
+                items.append((key, order, index, WorkItem(key, info.path, index, steps)))
+    items.sort(key=lambda x: x[:3])  # env key, then input order, then recorded order (`simreel.replay.history`)
     return WorkList(files, [item for *_, item in items], skipped)

@@ -7,8 +7,9 @@ mani_skill is imported only when a function runs.
 
 Reproducing a reset: an episode whose reset rebuilt the scene (``reconfigured``) is reset with
 ``reconfigure=True`` and its own seed. Where that is unknown (``reconfigured`` None: ManiSkill's own files do
-not say) the reset is made as given, as ManiSkill's replay_trajectory makes it, on the scene the env holds. Otherwise the scene it ran in was built by the reset with seed
-``scene_seed`` (None: the scene ``gym.make`` built, i.e. seed `GYM_MAKE_SEED` + sub-scene index); if the
+not say) the reset is made as given, as ManiSkill's replay_trajectory makes it, on the scene the env holds (rebuilt
+first, as ``gym.make`` built it, when that scene is unknown). Otherwise the scene it ran in was built by the reset with
+seed ``scene_seed`` (None: the scene ``gym.make`` built, i.e. seed `GYM_MAKE_SEED` + sub-scene index); if the
 env's scene came from another seed it is rebuilt first with ``reset(seed=scene_seed,
 options={"reconfigure": True})``, then the episode is reset with its seed and options, with ManiSkill's
 periodic reconfiguration held off (the recorded reset did not reconfigure).
@@ -115,8 +116,8 @@ def reset_to_episode(env: Any, episode: EpisodeMeta, *, scene_seed: int | None =
         env: a (wrapped) ManiSkill env with ``num_envs=1``, e.g. from `env_from_meta`.
         episode: the episode's metadata (seed, reset options, sub-scene index, scene seed).
         scene_seed: seed of the scene `env` holds now: `GYM_MAKE_SEED` for an env fresh from ``gym.make``,
-            the returned `EpisodeReset.scene_seed` of the previous call, or None when unknown (the scene is
-            then rebuilt).
+            the returned `EpisodeReset.scene_seed` of the previous call, or None when unknown: the scene is
+            then rebuilt (unless the episode's own reset rebuilds it), which also clears its history.
     """
     out = EpisodeReset(scene_seed=scene_seed)
     options = {k: v for k, v in (episode.reset_options or {}).items() if k not in ("env_idx", "reconfigure")}
@@ -138,7 +139,11 @@ def _reconfigured(info: dict[str, Any]) -> bool:
 
 
 def _reset_as_given(env: Any, episode: EpisodeMeta, options: dict[str, Any], out: EpisodeReset) -> None:
-    """Whether the recorded reset rebuilt the scene is unknown: reset as ManiSkill's replay_trajectory does."""
+    """Whether the recorded reset rebuilt the scene is unknown: reset as ManiSkill's replay_trajectory does, on the
+    scene the env holds, or, that scene being unknown (``out.scene_seed`` None), on a scene rebuilt first as
+    ``gym.make`` built the recorder's (its scene seed, else `GYM_MAKE_SEED` + sub-scene index)."""
+    if out.scene_seed is None:
+        _rebuild_scene(env, episode, out)
     _, info = env.reset(seed=episode.seed, options=options or None)
     if _reconfigured(info):
         out.scene_seed = episode.seed
@@ -148,12 +153,8 @@ def _reset_as_given(env: Any, episode: EpisodeMeta, options: dict[str, Any], out
 def _reset_in_its_scene(env: Any, episode: EpisodeMeta, options: dict[str, Any], out: EpisodeReset) -> None:
     """The recorded reset kept its scene: get that scene back first, then reset without rebuilding it."""
     u = env.unwrapped
-    wanted = episode.scene_seed if episode.scene_seed is not None else GYM_MAKE_SEED + int(episode.env_idx)
-    if wanted != out.scene_seed:
-        env.reset(seed=wanted, options={"reconfigure": True})
-        out.scene_seed = wanted
-        out.scene_builds += 1
-        out.notes.append(f"rebuilt the scene with seed {wanted}")
+    if _scene_seed_of(episode) != out.scene_seed:
+        _rebuild_scene(env, episode, out)
     if getattr(u, "reconfiguration_freq", 0) and getattr(u, "_reconfig_counter", 1) == 0:
         u._reconfig_counter = 1  # the recorded reset did not reconfigure; hold ManiSkill's periodic one off
     _, info = env.reset(seed=episode.seed, options=options or None)
@@ -161,6 +162,21 @@ def _reset_in_its_scene(env: Any, episode: EpisodeMeta, options: dict[str, Any],
         out.scene_seed = episode.seed
         out.scene_builds += 1
         out.limits.append("the reset reconfigured the scene, the recorded one did not")
+
+
+def _scene_seed_of(episode: EpisodeMeta) -> int:
+    """Seed of the reset that built the scene `episode` ran in, when its own reset kept it."""
+    return episode.scene_seed if episode.scene_seed is not None else GYM_MAKE_SEED + int(episode.env_idx)
+
+
+def _rebuild_scene(env: Any, episode: EpisodeMeta, out: EpisodeReset) -> None:
+    """Rebuild the scene `episode` ran in (a reconfiguring reset with its seed): bit for bit the scene of an env
+    fresh from ``gym.make``, with no history (PhysX's CPU results depend on what a scene ran since it was built)."""
+    wanted = _scene_seed_of(episode)
+    env.reset(seed=wanted, options={"reconfigure": True})
+    out.scene_seed = wanted
+    out.scene_builds += 1
+    out.notes.append(f"rebuilt the scene with seed {wanted}")
 
 
 def another_episode(episode: EpisodeMeta) -> EpisodeMeta | None:

@@ -43,9 +43,9 @@ def test_a_file_named_explicitly_that_cannot_be_read_is_bad_input(dataset):
         build_worklist([dataset / "a_pick.h5", dataset / "d_junk.h5"])
 
 
-def test_episodes_asked_for_keep_their_order_and_a_missing_one_is_named(dataset):
+def test_episodes_asked_for_come_in_recorded_order_and_a_missing_one_is_named(dataset):
     work = build_worklist([dataset / "a_pick.h5"], episodes=[1, 0, 1])
-    assert [w.index for w in work.items] == [1, 0]
+    assert [w.index for w in work.items] == [0, 1]  # recorded order: no scene history replayed twice
     with pytest.raises(RecordingFileError, match=r"no episode 5 \(episodes: 0, 1\)"):
         build_worklist([dataset / "a_pick.h5"], episodes=[5])
 
