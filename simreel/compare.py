@@ -311,6 +311,15 @@ class EpisodeComparison:
         return worst_keys(self.max_abs_error, self.tolerance, n)
 
 
+def _rows_differ(recorded: np.ndarray, replayed: np.ndarray, steps: int) -> np.ndarray:
+    """Per step, 1.0 where any value of that step's row differs, else 0.0 (`steps` rows, none for an episode of no
+    steps, whose rows cannot be reshaped by a length to infer)."""
+    differs = np.asarray(recorded) != np.asarray(replayed)
+    if steps == 0:
+        return np.zeros(0)
+    return differs.reshape(steps, -1).any(axis=1).astype(np.float64)
+
+
 def worst_keys(max_abs_error: Mapping[str, float], tolerance: Mapping[str, float],
                n: int) -> list[tuple[str, float, float]]:
     """Up to n keys with a non-zero error, largest error/tolerance first (an error where the tolerance is 0 ranks
@@ -409,7 +418,7 @@ class ErrorTable:
                 self.skipped[f"info/{key}"] = _INFO_NOT_RETURNED
                 continue
             if rec.dtype.kind in "biu":  # booleans and integers: exactly
-                err = (np.asarray(rec) != np.asarray(rep)).reshape(steps, -1).any(axis=1).astype(np.float64)
+                err = _rows_differ(rec, rep, steps)
                 self.add(f"info/{key}", err, "flag", per_state=False)
             else:
                 self.add(f"info/{key}", component_error(rec, rep), "info", per_state=False)

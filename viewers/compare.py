@@ -40,10 +40,28 @@ class ViewComparison:
     """Steps compared (the shorter episode's length)."""
     note: str = ""
     """Why fewer steps were compared than the recording has, if so."""
+    recorded_steps: int | None = None
+    """The recording's steps (None: `steps`); more than `steps` when the replay is shorter."""
 
     @property
     def divergence(self) -> Divergence | None:
         return self.comparison.first_divergence
+
+    @property
+    def unchecked_steps(self) -> int:
+        """Steps of the recording the replay does not reach, so never compared."""
+        return max(0, (self.recorded_steps or self.steps) - self.steps)
+
+    def verdict(self) -> str:
+        """The verdict in words: the core's (``exact``, ``within tolerance``, ``diverged``), or, when the replay ends
+        before the recording without diverging, ``incomplete`` with how far it holds: steps that were never
+        compared are never called exact (``incomplete: exact for the first 20 of 30 steps``)."""
+        verdict = self.comparison.verdict.replace("_", " ")
+        if self.divergence is not None or not self.unchecked_steps:
+            return verdict
+        if not self.steps:
+            return f"incomplete: {verdict} at the reset, none of the {self.recorded_steps} steps compared"
+        return f"incomplete: {verdict} for the first {self.steps} of {self.recorded_steps} steps"
 
     def error_rows(self) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
         """`{key: (rows, errors, tolerance)}`: state and observation keys have a row per state (0..T), per-step keys
@@ -90,7 +108,7 @@ def compare_for_view(
     rows = rows or block_rows(recorded.fields)
     for (start, ours), (_, theirs) in zip(recorded.blocks(rows), replayed.blocks(rows), strict=False):  # to the shorter
         blocks.steps(_first_rows(ours, steps - start), _first_rows(theirs, steps - start))
-    return ViewComparison(blocks.comparison(), steps, note)
+    return ViewComparison(blocks.comparison(), steps, note, recorded.length)
 
 
 def _first_rows(block: StepBlock, n: int) -> StepBlock:

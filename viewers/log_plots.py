@@ -118,7 +118,7 @@ def log_contact_magnitudes(rec: rr.RecordingStream, channels: ActiveChannels, fo
 
 def log_errors(rec: rr.RecordingStream, comparison: ViewComparison, period: float | None) -> None:
     """``plots/error/<key>``: the replay's error per compared key (as `simreel replay` computes it) beside its
-    tolerance, a flat line. State keys are always plotted; other keys only when they are ever off."""
+    tolerance, a flat line. The keys plotted are `ViewComparison.plotted_keys`: those ever off, else the state keys."""
     rows_by_key = comparison.error_rows()
     first = comparison.divergence.key if comparison.divergence is not None else None
     for key in comparison.plotted_keys():
@@ -186,8 +186,7 @@ def episode_events(
     events += [_episode_event(e) for e in core_episode_events(episode, channels)]
     if comparison is not None:
         label = compare_label or "the replay"
-        verdict = comparison.comparison.verdict.replace("_", " ")
-        events.append(Event(0, "INFO", f"compared with {label}: {verdict}"))
+        events.append(Event(0, "INFO", f"compared with {label}: {comparison.verdict()}"))
         if comparison.note:
             events.append(Event(0, "WARN", comparison.note))
         d = comparison.divergence

@@ -75,7 +75,7 @@ class ViewOptions:
         episode: the episode's index (default: the first episode in the file).
         compare: a replay of the same episode (a file written by ``simreel replay -o``, or any recording of
             the same env): drawn as a translucent ghost, with the per-key state error and its first
-            divergence. The episode with the same index is used, or the file's only episode.
+            divergence. The episode with the same index is used (never another).
         geometry: ``"auto"`` (visual shapes when a render device exists, else collision shapes),
             ``"visual"`` or ``"collision"``.
         mode, atol, tolerances: the comparison's tolerances, as for ``simreel replay --mode/--atol/--tol``: the

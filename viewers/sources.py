@@ -94,19 +94,20 @@ def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun
     return EpisodeRun(label, reader.meta, episode, name, rows, reader if owned else None)
 
 
-def read_compare(compare: Source, recorded: EpisodeRun) -> EpisodeRun:
-    """The replay of `recorded` in `compare`: its episode of the same index, or its only episode."""
+def read_compare(compare: Source, recorded: EpisodeRun, *, option: str = "--episode") -> EpisodeRun:
+    """The replay of `recorded` in `compare`: its episode of the same index (``simreel replay -o`` and ``simreel
+    convert`` keep the recording's indices), never another: a different episode's replay would be judged as this
+    one's. `option` is the one that picks episodes, named in the error when `compare` lacks this index."""
     reader, owned = _open(compare)
     try:
         index = recorded.episode.meta.index
         have = [m.index for m in reader.episodes]
         if index not in have:
-            if len(have) != 1:
-                raise ViewError(
-                    f"--compare {reader.path}: no episode {index} to compare with episode {index} of the recording "
-                    f"(it has {', '.join(map(str, have)) or 'none'}); replay that episode with `simreel replay -o`"
-                )
-            index = have[0]
+            raise ViewError(
+                f"--compare {reader.path}: no episode {index} to compare with episode {index} of "
+                f"{recorded.file_name} (it has {', '.join(map(str, have)) or 'none'}); pick an episode it has with "
+                f"{option}, or replay episode {index} with `simreel replay -o`"
+            )
         run = read_run(reader, index, role="replayed")
     except BaseException:
         if owned:

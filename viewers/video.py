@@ -7,7 +7,8 @@ ManiSkill's render camera (``render_mode="rgb_array"``) after restoring each rec
 (a render device is needed: a GPU or lavapipe); a ManiSkill file recorded without states has its actions stepped
 from the reset first, as ``simreel view`` does. With ``compare``, the other recording's episode of the same index
 is drawn on the right, and the verdict is that of its conversion (`EpisodeMeta.provenance`, written by
-``simreel convert``) or, for a replay, of comparing the two (`simreel.compare`, ``simreel replay``'s rules).
+``simreel convert``, used only when that file converted this very recording and episode) or, for a replay (or any
+other file), of comparing the two (`simreel.compare`, ``simreel replay``'s rules; a shorter replay is incomplete).
 Encoding: H.264 (yuv420p) by ffmpeg (imageio's binary), through a temporary file renamed when the video is whole.
 """
 
@@ -34,7 +35,11 @@ from simreel.viewers.compare import DEFAULT_MODE, compare_for_view
 from simreel.viewers.session import states_by_stepping
 from simreel.viewers.sources import read_compare, read_run
 
-__all__ = ["VideoOptions", "VideoRun", "EpisodeVideo", "video_path"]
+__all__ = ["VideoOptions", "VideoRun", "EpisodeVideo", "video_path", "MAX_SIDE"]
+
+MAX_SIDE = 8192
+"""The largest width or height of a video (``--size``), 8K: larger frames cost gigabytes of memory to render and
+encode (100000 x 100000 is 30 GB a frame), and get a process killed rather than a video."""
 
 
 @dataclass(frozen=True)
@@ -67,6 +72,9 @@ class VideoOptions:
         width, height = self.size
         if width < 2 or height < 2 or width % 2 or height % 2:
             raise UsageError(f"--size {width}x{height}: width and height must be even numbers >= 2 (H.264, yuv420p)")
+        if max(width, height) > MAX_SIDE:
+            raise UsageError(f"--size {width}x{height}: at most {MAX_SIDE} pixels a side (a frame that size already "
+                             "takes 200 MB of memory); choose a smaller size")
         if self.compare is not None and width % 4:
             raise UsageError(f"--size {width}x{height}: side by side, the width must be a multiple of 4")
         if self.fps is not None and not (math.isfinite(self.fps) and self.fps > 0):
@@ -152,11 +160,12 @@ class VideoRun:
         at a time as they are encoded."""
         with open_reader(self.path) as r:
             left = r.open_episode(index).episode(obs=False)
-        right = None
+        right, conversion = None, None
         if self.options.compare is not None:
             with open_reader(self.options.compare) as other:
                 right = other.open_episode(self.compared[index]).episode(obs=False)
-        labels = _labels(left, right, self.meta, self.options)
+                conversion = _stored_conversion(other.meta, right, self.path, index)
+        labels = _labels(left, right, self.meta, self.options, conversion)
         out = video_path(self.folder, self.path, index)
         count = _encode(out, self._frames(frames, left, right, labels, progress), self._fps(),
                         overwrite=self.options.overwrite)
@@ -183,13 +192,14 @@ class VideoRun:
 
 def _compared_indices(path: str | Path, compare: str, indices: list[int]) -> dict[int, int]:
     """For each episode of `indices`, the episode of `compare` drawn beside it, chosen and checked as ``view
-    --compare`` does (`simreel.viewers.sources.read_compare`: the same index or the file's only episode, of the
-    same env, with states in common): another env's states restored into this one's would draw nonsense."""
+    --compare`` does (`simreel.viewers.sources.read_compare`: the same index, of the same env, with states in
+    common): another env's states restored into this one's would draw nonsense. An episode `compare` lacks is
+    refused (naming the episodes it has), never shown beside another episode's replay or silently alone."""
     found = {}
     with open_reader(path) as r, open_reader(compare) as other:
         for i in indices:
             recorded = read_run(r, i)
-            found[i] = read_compare(other, recorded).episode.meta.index
+            found[i] = read_compare(other, recorded, option="--episodes").episode.meta.index
     return found
 
 
@@ -282,11 +292,15 @@ class _Labels:
     """State row from which the right-hand run is out of tolerance."""
     detail: str = ""
     success: np.ndarray | None = None
+    checked_rows: int | None = None
+    """State rows compared, when the right-hand run ends early (the rows after it were not checked)."""
 
     def text(self, row: int) -> list[str]:
         step = "reset" if row == 0 else f"step {row - 1}"
         lines = [f"{step} of {self.steps}" + (", success" if self._success(row) else "")]
-        if self.verdict and self.out_at is None:
+        if self.verdict and self.checked_rows is not None and row >= self.checked_rows:
+            lines.append(f"{self.verdict}: this step not checked (the right-hand run ended)")
+        elif self.verdict and self.out_at is None:
             lines.append(self.verdict)
         elif self.verdict:
             lines.append(f"{self.verdict}: {self.detail}" if row >= self.out_at else f"{self.verdict}: in tolerance so far")
@@ -296,24 +310,43 @@ class _Labels:
         return self.success is not None and row >= 1 and bool(self.success[row - 1])
 
 
-def _labels(left: Episode, right: Episode | None, meta: RecordingMeta, options: VideoOptions) -> _Labels:
+def _stored_conversion(compare_meta: RecordingMeta, right: Episode, path: str | Path, index: int) -> dict | None:
+    """The verdict ``simreel convert`` stored with `right` (`EpisodeMeta.provenance`), when it judged this very
+    episode: the compare file is a conversion of the recording `path` (its provenance names the same resolved file)
+    and `right` converts episode `index`. None otherwise: a conversion of another recording or episode says nothing
+    of this one, which is then compared as any other file is."""
+    judged = right.meta.provenance or {}
+    made = compare_meta.provenance or {}
+    if not judged.get("verdict") or made.get("operation") != "convert" or not made.get("source"):
+        return None
+    if Path(made["source"]).resolve() != Path(path).resolve() or judged.get("source_episode") != index:
+        return None
+    return judged
+
+
+def _labels(left: Episode, right: Episode | None, meta: RecordingMeta, options: VideoOptions,
+            conversion: dict | None = None) -> _Labels:
+    """The labels of a video of `left`, beside `right` when given: the verdict of `conversion` (the stored one of
+    `_stored_conversion`), else that of comparing the two (`ViewComparison.verdict`: a shorter `right` is
+    ``incomplete``, its frames past its end say they were not checked)."""
     labels = _Labels(left.length, success=left.success)
     if right is None:
         return labels
-    judged = right.meta.provenance or {}
-    if judged.get("verdict"):  # a conversion: its own per-step verdict
-        first = judged.get("first_exceeded")
-        labels.verdict = f"conversion {judged['verdict']}"
+    if conversion is not None:  # a conversion of this episode: its own per-step verdict
+        first = conversion.get("first_exceeded")
+        labels.verdict = f"conversion {conversion['verdict']}"
         if first:
             labels.out_at = int(first["step"]) + (0 if first.get("at") == "reset" else 1)
             labels.detail = f"{first['key']} off by {first['error']:.3g} at step {first['step']}"
         return labels
     cmp = compare_for_view(left, right, channels=meta.contact_channels, tolerances=Tolerances.for_mode(options.mode))
-    labels.verdict = f"replay {cmp.comparison.verdict}"
+    labels.verdict = f"replay {cmp.verdict()}"
     if cmp.divergence is not None:
         d = cmp.divergence
         labels.out_at = 0 if d.at == "reset" else d.step + 1
         labels.detail = f"{d.key} off by {d.error:.3g} at step {d.step}"
+    elif cmp.unchecked_steps:
+        labels.checked_rows = cmp.steps + 1
     return labels
 
 

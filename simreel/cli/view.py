@@ -269,8 +269,12 @@ def _print_comparison(c: Any, explanation: Any) -> None:
     if c.note:
         print(f"note: {c.note}")
     d = c.divergence
-    print(d.sentence("replay diverges") if d is not None
-          else f"replay {c.comparison.verdict.replace('_', ' ')}: no value leaves its tolerance")
+    if d is not None:
+        print(d.sentence("replay diverges"))
+    elif c.unchecked_steps and c.steps:
+        print(f"replay {c.verdict()}; steps {c.steps} to {c.steps + c.unchecked_steps - 1} were not checked")
+    else:
+        print(f"replay {c.verdict()}" + ("" if c.unchecked_steps else ": no value leaves its tolerance"))
     if explanation is not None and explanation.cause is not None:
         print(f"why: {explanation.cause.summary} (the events log shows the evidence)")
 

@@ -392,3 +392,38 @@ def test_serve_on_a_taken_port_is_refused_before_building_the_env(pickcube_h5, m
         assert main(["view", str(pickcube_h5), "--serve", option, str(port), other, str(free_port())]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{option} {port}: the port is taken" in err and f"{option} N" in err
+
+
+def _write_replay(src, dst, *, index=0, steps=None):
+    """Episode 0 of `src` written to `dst` as episode `index`, cut to its first `steps` when given: a replay file
+    that holds another episode, or a replay that ended early."""
+    import dataclasses
+
+    from simreel.formats import open_reader, open_writer
+
+    with open_reader(src) as r, open_writer(dst, r.meta) as w:
+        ep = r.read_episode(0)
+        ep = ep.first_steps(steps) if steps is not None else ep
+        w.write_episode(dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, index=index)))
+    return dst
+
+
+def test_compare_never_pairs_an_episode_with_another_episodes_replay(pickcube_h5, tmp_path, capsys):
+    """A file holding only episode 1's replay: episode 0 is refused, naming the episode the file has."""
+    other = _write_replay(pickcube_h5, tmp_path / "replayed.h5", index=1)
+    assert main(["view", str(pickcube_h5), "--compare", str(other), "--save", str(tmp_path / "c.rrd")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no episode 0 to compare with episode 0 of pickcube.h5 (it has 1)" in err, err
+    assert "pick an episode it has with --episode" in err and not (tmp_path / "c.rrd").exists()
+
+
+@pytest.mark.parametrize(("steps", "verdict"), [
+    (20, f"replay incomplete: exact for the first 20 of {STEPS} steps; steps 20 to {STEPS - 1} were not checked"),
+    (0, f"replay incomplete: exact at the reset, none of the {STEPS} steps compared"),
+], ids=["20-steps", "no-step"])
+def test_a_shorter_replay_is_incomplete_never_exact(pickcube_h5, tmp_path, capsys, steps, verdict):
+    cut = _write_replay(pickcube_h5, tmp_path / "cut.h5", steps=steps)
+    out = tmp_path / "cut.rrd"
+    assert main(["view", str(pickcube_h5), "--compare", str(cut), "--save", str(out), "--geometry", "collision"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert verdict in lines and not any("exact: no value" in line for line in lines), lines

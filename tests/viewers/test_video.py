@@ -101,8 +101,9 @@ def test_side_by_side_with_a_replay_draws_the_verdict(camera_recording, tmp_path
         (["--camera", "wrist"], "holds no rgb observations of camera 'wrist' (cameras: cam)"),
         (["-o", "missing-folder"], "not a folder (create it first)"),
         (["--episodes", "5"], "no episode 5"),
+        (["--size", "100000x100000"], "at most 8192 pixels a side"),
     ],
-    ids=["odd-size", "unknown-camera", "no-folder", "no-episode"],
+    ids=["odd-size", "unknown-camera", "no-folder", "no-episode", "huge-size"],
 )
 def test_bad_arguments_are_one_line_exit_2(camera_recording, tmp_path, capsys, args, message):
     args = [str(tmp_path / a) if a == "missing-folder" else a for a in args]
@@ -126,3 +127,62 @@ def test_rendered_from_states_beside_a_conversion(record, lavapipe_env, tmp_path
     assert done.returncode == 0, done.stderr[-3000:]
     frames, size, first = _read(video_path(tmp_path, src, 0))
     assert (frames, size) == (6, (96, 64)) and first.std() > 5  # a scene, not a blank frame
+
+
+def _write_episodes(src, dst, episodes, *, steps=None, provenance=None):
+    """Episodes `episodes` of `src` written to `dst` (a replay that holds only some of them), each cut to its
+    first `steps` when given; `provenance`: the file's and each episode's, as ``simreel convert`` writes them."""
+    from simreel.formats import open_reader, open_writer
+
+    with open_reader(src) as r:
+        meta = dataclasses.replace(r.meta, provenance=provenance or {})
+        with open_writer(dst, meta) as w:
+            for i in episodes:
+                ep = r.read_episode(i)
+                ep = ep.first_steps(steps) if steps is not None else ep
+                if provenance:
+                    ep.meta.provenance = {"source_episode": i, "verdict": "within_tolerance", "first_exceeded": None}
+                w.write_episode(ep)
+    return dst
+
+
+def test_an_episode_the_compare_file_lacks_is_refused_not_paired_with_another(camera_recording, tmp_path, capsys):
+    """A replay of episode 1 only: the video of episode 0 is refused (naming the episode it has), never drawn beside
+    episode 1's replay and judged by it; the video of episode 1 is made."""
+    only_1 = _write_episodes(camera_recording, tmp_path / "only1.h5", [1])
+    args = ["video", str(camera_recording), "-q", "-o", str(tmp_path), "--camera", "cam", "--size", "160x60",
+            "--compare", str(only_1)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no episode 0 to compare with episode 0 of cam.h5 (it has 1)" in err, err
+    assert "--episodes" in err and not list(tmp_path.glob("*.mp4"))
+    assert main([*args, "--episodes", "1"]) == 0
+    assert "episode 1: " in capsys.readouterr().out and video_path(tmp_path, camera_recording, 1).exists()
+
+
+def test_a_shorter_replay_is_incomplete_never_exact(camera_recording, tmp_path):
+    cut = _write_episodes(camera_recording, tmp_path / "cut.h5", [0, 1], steps=5)
+    [video] = VideoRun(camera_recording, tmp_path, camera="cam", size=(160, 60), compare=str(cut),
+                       episodes=(1,)).execute()
+    assert video.verdict == "replay incomplete: exact for the first 5 of 12 steps" and video.frames == 13
+
+
+@pytest.mark.parametrize("own", [True, False], ids=["its-recording", "another-recording"])
+def test_a_stored_conversion_verdict_is_used_only_for_the_recording_it_converted(camera_recording, tmp_path, own):
+    """A conversion's stored verdict judges the episode it converted; beside another recording (here a copy that
+    differs from step 3 on) the two are compared instead."""
+    recording = camera_recording
+    if not own:
+        from simreel.formats import open_reader, open_writer
+
+        with open_reader(camera_recording) as r, open_writer(tmp_path / "moved.h5", r.meta) as w:
+            for i in (0, 1):
+                ep = r.read_episode(i)
+                ep.env_states["actors/cube"][3:, 0] += 1.0
+                w.write_episode(ep)
+        recording = tmp_path / "moved.h5"
+    converted = _write_episodes(camera_recording, tmp_path / "conv.h5", [0, 1],
+                                provenance={"operation": "convert", "source": str(camera_recording)})
+    [video] = VideoRun(recording, tmp_path, camera="cam", size=(160, 60), compare=str(converted),
+                       episodes=(1,)).execute()
+    assert video.verdict == ("conversion within_tolerance" if own else "replay diverged")
