@@ -27,28 +27,49 @@ from collections.abc import Sequence
 
 from simreel.episode import EpisodeMeta
 
-__all__ = ["scene_history", "describe_history"]
+__all__ = ["scene_history", "chain_starts", "SceneChains", "describe_history"]
+
+
+def chain_starts(episodes: Sequence[EpisodeMeta]) -> dict[int, int]:
+    """Episode index → index of the episode that starts its chain: the episodes that ran one after another in one
+    scene since it was built. A chain starts at a sub-scene's (``env_idx``) first episode (the recorder's env was
+    fresh) and at each episode whose reset rebuilt the scene (``reconfigured`` True); ``reconfigured`` None
+    (unknown: ManiSkill's files) is taken as not rebuilt: replaying a predecessor too many costs time, one too few
+    gives a wrong verdict. One pass over the episodes in index order."""
+    starts: dict[int, int] = {}
+    current: dict[int, int] = {}
+    for ep in sorted(episodes, key=lambda e: e.index):
+        if ep.reconfigured or ep.env_idx not in current:
+            current[ep.env_idx] = ep.index
+        starts[ep.index] = current[ep.env_idx]
+    return starts
+
+
+class SceneChains:
+    """The chains of one recording's episodes (`chain_starts`), found once: each episode's chain and place in it, so
+    that a worker finds an episode's history without walking the whole episode list again (a file may hold tens of
+    thousands of episodes in one chain)."""
+
+    def __init__(self, episodes: Sequence[EpisodeMeta]) -> None:
+        self.start = chain_starts(episodes)
+        """Episode index → the index of the episode that starts its chain."""
+        self.members: dict[int, list[EpisodeMeta]] = {}
+        """Chain start → its episodes, first to last."""
+        for ep in sorted(episodes, key=lambda e: e.index):
+            self.members.setdefault(self.start[ep.index], []).append(ep)
+        self.position = {ep.index: k for chain in self.members.values() for k, ep in enumerate(chain)}
+        """Episode index → how many episodes of its chain ran before it."""
+
+    def history(self, index: int) -> list[EpisodeMeta]:
+        """The episodes that ran in episode `index`'s scene before it since the scene was built, first to last."""
+        return self.members[self.start[index]][: self.position[index]]
 
 
 def scene_history(episodes: Sequence[EpisodeMeta], index: int) -> list[EpisodeMeta]:
     """The episodes of `episodes` (a recording's episode list) that ran in episode `index`'s scene before it since
-    that scene was built, first to last: those of its sub-scene (``env_idx``) recorded before it, back to the
-    nearest whose reset rebuilt the scene (``reconfigured`` True), which starts the chain and is included; without
-    one, back to the sub-scene's first episode (the recorder's env was fresh). An episode whose own reset rebuilt
-    the scene has none. ``reconfigured`` None (unknown: ManiSkill's files) is taken as not rebuilt: replaying a
-    predecessor too many costs time, one too few gives a wrong verdict. `KeyError` when `index` is not listed."""
-    by_index = {ep.index: ep for ep in episodes}
-    episode = by_index[index]
-    if episode.reconfigured:
-        return []
-    chain: list[EpisodeMeta] = []
-    for ep in sorted(by_index.values(), key=lambda e: e.index, reverse=True):
-        if ep.index >= index or ep.env_idx != episode.env_idx:
-            continue
-        chain.append(ep)
-        if ep.reconfigured:
-            break
-    return chain[::-1]
+    that scene was built, first to last: those of its chain (`chain_starts`) recorded before it. An episode whose
+    own reset rebuilt the scene has none. `KeyError` when `index` is not listed."""
+    return SceneChains(episodes).history(index)
 
 
 def describe_history(index: int, history: Sequence[int], replayed: Sequence[int]) -> str:

@@ -36,7 +36,7 @@ from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows
 from simreel.replay.engine import BlockSink, Collected, EpisodeReplayer, ReplayedEpisode, ReplayerOptions
 from simreel.replay.explain import ExplainContext, explain_divergence
-from simreel.replay.history import describe_history, scene_history
+from simreel.replay.history import SceneChains, describe_history
 from simreel.replay.output import (
     EpisodeStream,
     RecordedContacts,
@@ -190,19 +190,22 @@ class ReaderCache:
 
 @dataclass(frozen=True)
 class SceneRun:
-    """What a worker's scene ran since it was built: episodes `indices` of the file at `path`, in that order
-    (``SceneRun()``: nothing, a scene fresh from ``gym.make`` or rebuilt)."""
+    """What a worker's scene ran since it was built: the first `ran` episodes of the chain that starts at episode
+    `chain` of the file at `path` (`simreel.replay.history.SceneChains`); ``SceneRun()``: nothing, a scene fresh from
+    ``gym.make`` or rebuilt."""
 
     path: str | None = None
-    indices: tuple[int, ...] = ()
+    chain: int | None = None
+    ran: int = 0
 
-    def missing(self, path: str, history: list[EpisodeMeta]) -> list[EpisodeMeta] | None:
-        """The episodes of `history` (an episode's, in the file at `path`) this scene has still to run to hold it
-        exactly; None when it ran something else (another file, another episode): it must be rebuilt first."""
-        wanted = tuple(ep.index for ep in history)
-        if (self.indices and self.path != path) or wanted[:len(self.indices)] != self.indices:
+    def missing(self, path: str, chains: SceneChains, index: int) -> list[EpisodeMeta] | None:
+        """The episodes of episode `index`'s history (in the file at `path`) this scene has still to run to hold it
+        exactly; None when it ran something else (another file, chain or episode): it must be rebuilt first."""
+        position = chains.position[index]
+        same_chain = self.path == path and self.chain == chains.start[index]
+        if self.ran and not (same_chain and self.ran <= position):
             return None
-        return history[len(self.indices):]
+        return chains.members[chains.start[index]][self.ran : position]
 
 
 @dataclass
@@ -211,8 +214,8 @@ class ReplayedHistory:
 
     replayed: list[int] = field(default_factory=list)
     """The predecessors replayed for it just now (the scene had run the others)."""
-    ran: tuple[int, ...] = ()
-    """Its whole history, which the scene has now run."""
+    ran: list[int] = field(default_factory=list)
+    """Its whole history, which the scene has now run (listed where some of it was `replayed`, for the note)."""
     lost: str | None = None
     """Why its history could not be replayed (it is then replayed without), for its report's limits."""
 
@@ -238,6 +241,8 @@ class ReplayWorker:
         self._warned: set[str] = set()
         self._scene: SceneRun | None = None
         """What the env's scene ran since it was built (None: unknown, e.g. after a failed or explained replay)."""
+        self._chains: tuple[str, SceneChains] | None = None
+        """The episode chains of the file last replayed (`_chains_of`)."""
         self.output: ReplayedWriter | None = None
         """The `-o` output when this process writes it: the episode next in its order is written as it is replayed."""
         self.where = f"{socket.gethostname()} pid {os.getpid()}"
@@ -255,8 +260,9 @@ class ReplayWorker:
             report, replayed = self._replay(reader, replayer, item.index, history)
         except SimreelError as e:
             return EpisodeResult(item, error=e, worker=where)
-        if self.job.mode == "actions" and report.explanation is None:  # explaining replays steps again
-            self._scene = SceneRun(item.path, (*history.ran, item.index))
+        if self.job.mode == "actions" and report.explanation is None and shipped is None:  # explaining steps again
+            chains = self._chains_of(item.path, reader)
+            self._scene = SceneRun(item.path, chains.start[item.index], chains.position[item.index] + 1)
         episode, scratch = (None, replayed) if isinstance(replayed, Path) else (replayed, None)
         return EpisodeResult(item, report, episode, scratch=scratch, worker=where, history=history.replayed,
                              warnings=self._warnings(item.path, reader, replayer))
@@ -264,7 +270,7 @@ class ReplayWorker:
     def _replay_history(self, reader: EpisodeReader, replayer: EpisodeReplayer, item: WorkItem,
                         scene: SceneRun | None, *, shipped: bool) -> ReplayedHistory:
         """In mode ``actions``, give `replayer`'s scene (which ran `scene`) the history episode `item.index` had
-        when recorded (`simreel.replay.history.scene_history`): replay the predecessors it lacks (actions only,
+        when recorded (`simreel.replay.history.SceneChains`): replay the predecessors it lacks (actions only,
         nothing compared or written), after rebuilding the scene when it ran anything else. The other modes
         restore recorded states: no history is replayed. Where the history cannot be replayed (a `shipped` episode
         comes without its file; a predecessor's data is damaged) the episode is replayed on a rebuilt scene without
@@ -275,9 +281,10 @@ class ReplayWorker:
         if shipped:
             replayer.forget_scene()  # a rebuilt scene at least: the same replay on every actor
             return ReplayedHistory(lost=_SHIPPED_HISTORY if _has_history(episode) else None)
-        history = scene_history(reader.episodes, item.index)
-        missing = scene.missing(item.path, history) if scene is not None else None
+        chains = self._chains_of(item.path, reader)
+        missing = scene.missing(item.path, chains, item.index) if scene is not None else None
         if missing is None:
+            history = chains.history(item.index)
             start = history[0] if history else episode
             if not start.reconfigured:  # a chain that starts with a reconfiguring reset rebuilds the scene itself
                 replayer.forget_scene()
@@ -289,7 +296,15 @@ class ReplayWorker:
             except _EPISODE_DATA_ERRORS as e:
                 replayer.forget_scene()  # the episode itself then starts from a rebuilt scene, with no history
                 return ReplayedHistory(lost=_lost_history(ep.index, e))
-        return ReplayedHistory([ep.index for ep in missing], tuple(ep.index for ep in history))
+        if not missing:
+            return ReplayedHistory()
+        return ReplayedHistory([ep.index for ep in missing], [ep.index for ep in chains.history(item.index)])
+
+    def _chains_of(self, path: str, reader: EpisodeReader) -> SceneChains:
+        """The chains of the file at `path` (`SceneChains`), found once per file the worker meets in a row."""
+        if self._chains is None or self._chains[0] != path:
+            self._chains = (path, SceneChains(reader.episodes))
+        return self._chains[1]
 
     def prepare(self, item: WorkItem) -> None:
         """Open `item`'s file and build its env now; raises the `SimreelError` that stops that."""
