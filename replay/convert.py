@@ -689,7 +689,7 @@ class ConversionRun:
 
 _ONE_PROCESS = ("converted in one process, not {workers}: a control-mode conversion steps each episode after the "
                 "ones before it in one scene, as a replay of the output will (PhysX results depend on the scene's "
-                "history: `simreel.replay.history`)")
+                "history: `simreel.scene_history`)")
 
 
 def _fingerprint_warnings(worker: ConvertWorker) -> list[str]:

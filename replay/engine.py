@@ -303,7 +303,7 @@ class EpisodeReplayer:
     def forget_scene(self) -> None:
         """Take the env's scene for unknown: the next reset rebuilds it (`reset_to_episode` with ``scene_seed=None``),
         which gives the state of an env fresh from ``gym.make`` again, history included: PhysX's CPU results depend on
-        what the scene ran since it was built (`simreel.replay.history`)."""
+        what the scene ran since it was built (`simreel.scene_history`)."""
         self._scene_seed = None
 
     def scene_check(self, ep: EpisodeMeta) -> list[SceneDifference] | None:

@@ -30,7 +30,7 @@ from simreel.formats import EpisodeReader
 from simreel.formats.base import EpisodeRows
 from simreel.formats.inputs import file_identity
 from simreel.replay.workers import EpisodeResult, ReaderCache, ReplayJob, ReplayWorker
-from simreel.replay.worklist import RecordingInfo, WorkItem
+from simreel.replay.worklist import RecordingInfo, WorkItem, chain_groups
 
 __all__ = ["run_ray", "RayOptions", "ShippedEpisode", "MAX_ATTEMPTS"]
 
@@ -185,6 +185,8 @@ class _Fleet:
         self.inflight: dict[Any, tuple[Any, WorkItem, bool]] = {}
         """Result ref → (actor, item, whether the driver sent the episode)."""
         self.attempts: dict[tuple[str, int], int] = {}
+        self.left: dict[Any, deque[WorkItem]] = {}
+        """Per actor, the items of its group (`chain_groups`) not yet handed to it."""
         self.deaths = 0
         self.replayed_again = 0
         self._readers = ReaderCache()
@@ -201,7 +203,7 @@ class _Fleet:
             self.actors.append(actor)
 
     def run(self, items: Iterable[WorkItem], collect: Callable[[EpisodeResult], Any]) -> None:
-        queue = deque(items)
+        queue = deque(chain_groups(items))
         while queue or self.inflight:
             self._hand_out(queue)
             done, _ = self.ray.wait(list(self.inflight), num_returns=1)
@@ -215,11 +217,16 @@ class _Fleet:
                 result.worker = self.where[actor] + (" (episode sent by the driver)" if shipped else "")
                 collect(result)
 
-    def _hand_out(self, queue: deque[WorkItem]) -> None:
+    def _hand_out(self, queue: deque[list[WorkItem]]) -> None:
+        """Top up each actor to `_AHEAD` episodes in flight from its group of items (`chain_groups`: the episodes of
+        one scene chain go to one actor, in order), then from the next group in `queue`."""
         for actor in self.actors:
             busy = sum(1 for a, *_ in self.inflight.values() if a is actor)
-            while queue and busy < _AHEAD:
-                item = queue.popleft()
+            left = self.left.setdefault(actor, deque())
+            while (left or queue) and busy < _AHEAD:
+                if not left:
+                    left.extend(queue.popleft())
+                item = left.popleft()
                 key = (item.path, item.index)
                 self.attempts[key] = self.attempts.get(key, 0) + 1
                 shipped = None if item.path in self.sees[actor] else self._ship(item)
@@ -230,10 +237,14 @@ class _Fleet:
         reader = self._readers.get(item.path)
         return ShippedEpisode(item.path, reader.meta, reader.read_episode(item.index))
 
-    def _lost(self, actor: Any, item: WorkItem, queue: deque[WorkItem], collect: Callable[[EpisodeResult], Any]) -> None:
-        """`item`'s actor died: replace the actor once, and hand the item out again or report it."""
+    def _lost(self, actor: Any, item: WorkItem, queue: deque[list[WorkItem]],
+              collect: Callable[[EpisodeResult], Any]) -> None:
+        """`item`'s actor died: replace the actor once, and hand the item out again or report it; the rest of the
+        actor's group goes back to the queue."""
         if actor in self.actors:
             self.actors.remove(actor)
+            if self.left.get(actor):
+                queue.appendleft(list(self.left.pop(actor)))
             self.deaths += 1
             self._start_actors(1)
         if self.attempts[(item.path, item.index)] >= MAX_ATTEMPTS:
@@ -242,7 +253,7 @@ class _Fleet:
             collect(EpisodeResult(item, error=error))
         else:
             self.replayed_again += 1
-            queue.appendleft(item)
+            queue.appendleft([item])
 
     def close(self) -> None:
         for actor in self.actors:

@@ -23,7 +23,6 @@ import datetime
 import math
 import os
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,6 +41,7 @@ from simreel.replay.report_log import LoggedRun, ReportLog, load_log, report_pat
 from simreel.replay.tally import FileTally, ReplayReport, RunTally
 from simreel.replay.workers import (
     EpisodeResult,
+    Lanes,
     ReplayJob,
     ReplayWorker,
     WorkerDiedError,
@@ -49,7 +49,7 @@ from simreel.replay.workers import (
     run_pool,
     start_pool,
 )
-from simreel.replay.worklist import RecordingInfo, WorkItem, WorkList, build_worklist
+from simreel.replay.worklist import RecordingInfo, WorkItem, WorkList, build_worklist, chain_groups
 from simreel.sim.user_code import import_user_code, recorded_spec
 
 __all__ = ["ReplayOptions", "ReplayRun", "verify_recording"]
@@ -173,7 +173,8 @@ class ReplayRun:
         logged = self._logged()
         restores = f"--mode {opts.mode}" if opts.mode != "actions" else ("--resync" if opts.resync else None)
         self.worklist: WorkList = build_worklist(self._recordings(logged), episodes=opts.episodes,
-                                                 restores=restores, done=logged.done if logged else ())
+                                                 restores=restores, done=logged.done if logged else (),
+                                                 chains=opts.mode == "actions")
         self._check_outputs()
         self.tally = self._tally(logged)
         self._new_files = [f for f in self.worklist.files if logged is None or f.path not in logged.files]
@@ -402,18 +403,26 @@ class ReplayRun:
 
     @property
     def _local_workers(self) -> int:
-        """Processes of the local pool (this one included); 1: no pool."""
-        return 1 if self.options.ray is not None else min(self.options.workers, len(self.worklist.items))
+        """Processes of the local pool (this one included); 1: no pool. No more than the run has groups of items
+        (`chain_groups`): an actions replay replays the episodes of one scene chain in one process."""
+        if self.options.ray is not None:
+            return 1
+        return min(self.options.workers, len(chain_groups(self.worklist.items)))
 
-    def _start_pool(self, job: ReplayJob) -> ProcessPoolExecutor | None:
+    def _start_pool(self, job: ReplayJob) -> Lanes | None:
         """The local pool's processes, started before this process builds its env so that both happen at once;
         each builds the env of the first item (the list is ordered by env key: most need no other)."""
         if self._local_workers <= 1:
             return None
         return start_pool(job, self._local_workers, self.worklist.items[0])
 
+    def _note(self, text: str, log: ReportLog | None) -> None:
+        self.tally.notes.append(text)
+        if log is not None:
+            log.write({"type": "note", "text": text})
+
     def _dispatch(self, worker: ReplayWorker, collect: Callable[[EpisodeResult], None], log: ReportLog | None,
-                  pool: ProcessPoolExecutor | None) -> None:
+                  pool: Lanes | None) -> None:
         items = self.worklist.items
         opts = self.options
         if opts.ray is not None:
@@ -422,15 +431,23 @@ class ReplayRun:
             notes = run_ray(worker.job, items, RayOptions(opts.ray, opts.workers, opts.ship), self.worklist.readable,
                             collect)
             for note in notes:
-                self.tally.notes.append(note)
-                if log is not None:
-                    log.write({"type": "note", "text": note})
+                self._note(note, log)
             return
+        if self._local_workers < min(opts.workers, len(items)):  # chains, not episodes, limit the processes
+            self._note(_few_chains_note(opts.workers, self._local_workers, len(items)), log)
         if pool is None:
             for item in items:
                 collect(worker.run(item))
         else:
             run_pool(worker, items, self._local_workers, collect, pool)
+
+
+def _few_chains_note(asked: int, chains: int, episodes: int) -> str:
+    """Why fewer processes replay than `--workers` asked for: the `episodes` form `chains` scene chains."""
+    processes = "1 process" if chains == 1 else f"{chains} processes"
+    return (f"--workers {asked}: {processes} replayed these {episodes} episodes, which form {chains} scene chain(s) "
+            "(episodes that ran one after another in one scene since it was built); an actions replay replays each "
+            "chain in turn in one process (PhysX results depend on the scene's history)")
 
 
 def _file_tally(f: RecordingInfo) -> FileTally:

@@ -5,7 +5,7 @@ and answering with an `EpisodeResult`.
 A worker keeps the env it built for the last env key (`simreel.replay.worklist.env_key`) and rebuilds only when
 the key changes; the work list is ordered by key so that is rare. In mode ``actions`` it also keeps what its env's
 scene ran since it was built (`SceneRun`), and before an episode replays the episodes that ran before it in the
-recorder's scene (`simreel.replay.history`) which its scene has not run, rebuilding the scene first when it ran
+recorder's scene (`simreel.scene_history`) which its scene has not run, rebuilding the scene first when it ran
 anything else: PhysX's CPU results depend on that history. A `ReplayJob` is everything a worker needs,
 picklable so that worker processes (started with ``spawn``: sapien/torch state must not be forked) and Ray
 actors can build their own.
@@ -21,9 +21,9 @@ import signal
 import socket
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import Counter, OrderedDict, deque
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +36,12 @@ from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows
 from simreel.replay.engine import BlockSink, Collected, EpisodeReplayer, ReplayedEpisode, ReplayerOptions
 from simreel.replay.explain import ExplainContext, explain_divergence
-from simreel.replay.history import SceneChains, describe_history
+from simreel.replay.history import (
+    SHIPPED_HISTORY,
+    describe_history,
+    describe_missing_history,
+    describe_unreadable_history,
+)
 from simreel.replay.output import (
     EpisodeStream,
     RecordedContacts,
@@ -46,18 +51,16 @@ from simreel.replay.output import (
     output_pose_bodies,
 )
 from simreel.replay.report import EpisodeReport
-from simreel.replay.worklist import WorkItem
+from simreel.replay.worklist import WorkItem, chain_groups
+from simreel.scene_history import SceneChains
 from simreel.sim.user_code import resolve_task_imports
 
-__all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "VerifySink", "run_pool", "start_pool", "stop_pool",
+__all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "VerifySink", "run_pool", "start_pool", "Lanes",
            "pool_closing", "WorkerDiedError"]
 
 _EPISODE_DATA_ERRORS = (RecordingFileError, EpisodeLayoutError, MetadataError)
 """Errors about one episode's data (damaged, missing, malformed); any other error is about the env its file
 needs (it does not build, another state layout) and stops every episode of that file alike."""
-_SHIPPED_HISTORY = ("replayed without the episodes that ran before it in the recorder's scene (sent without its file); "
-                    "PhysX results depend on the scene's history: a divergence may come from that alone")
-"""The limit of an episode shipped to a Ray actor whose history (`simreel.replay.history`) is not replayed."""
 _OPEN_READERS = 8
 """Recordings a worker keeps open (the work list visits files in turn, so few are ever needed again)."""
 
@@ -115,7 +118,7 @@ class EpisodeResult:
     """The scratch recording holding the replayed episode (`ReplayJob.scratch`), for `ReplayedWriter.put`."""
     history: list[int] = field(default_factory=list)
     """Episodes of the item's file replayed (actions only, not verified) before it, to give its scene the history
-    it had when recorded (`simreel.replay.history`); empty when the scene had it already."""
+    it had when recorded (`simreel.scene_history`); empty when the scene had it already."""
     warnings: list[str] = field(default_factory=list)
     """What differs between the recording's machine and this one (`simreel.replay.fingerprint`); given with the
     first result of each file a worker replays."""
@@ -190,22 +193,26 @@ class ReaderCache:
 
 @dataclass(frozen=True)
 class SceneRun:
-    """What a worker's scene ran since it was built: the first `ran` episodes of the chain that starts at episode
-    `chain` of the file at `path` (`simreel.replay.history.SceneChains`); ``SceneRun()``: nothing, a scene fresh from
-    ``gym.make`` or rebuilt."""
+    """What a worker's scene ran since it was built: the episodes `begin` to `upto` (not included) of chain `chain`
+    of the file at `path` (`simreel.scene_history.SceneChains`: places among the file's episodes of that chain);
+    ``SceneRun()``: nothing, a scene fresh from ``gym.make`` or rebuilt."""
 
     path: str | None = None
-    chain: int | None = None
-    ran: int = 0
+    chain: str | None = None
+    begin: int = 0
+    upto: int = 0
 
-    def missing(self, path: str, chains: SceneChains, index: int) -> list[EpisodeMeta] | None:
-        """The episodes of episode `index`'s history (in the file at `path`) this scene has still to run to hold it
-        exactly; None when it ran something else (another file, chain or episode): it must be rebuilt first."""
-        position = chains.position[index]
-        same_chain = self.path == path and self.chain == chains.start[index]
-        if self.ran and not (same_chain and self.ran <= position):
+    def missing(self, path: str, chains: SceneChains, index: int,
+                history: list[EpisodeMeta]) -> list[EpisodeMeta] | None:
+        """The episodes of episode `index`'s `history` (in the file at `path`) this scene has still to run to hold
+        it exactly; None when it ran something else (another file, chain or episode): it must be rebuilt first."""
+        if self.upto == self.begin:  # ran nothing
+            return history
+        at = chains.position[index]
+        same = self.path == path and self.chain == chains.key[index] and self.begin == at - len(history)
+        if not (same and self.upto <= at):
             return None
-        return chains.members[chains.start[index]][self.ran : position]
+        return chains.members[chains.key[index]][self.upto : at]
 
 
 @dataclass
@@ -260,9 +267,10 @@ class ReplayWorker:
             report, replayed = self._replay(reader, replayer, item.index, history)
         except SimreelError as e:
             return EpisodeResult(item, error=e, worker=where)
-        if self.job.mode == "actions" and report.explanation is None and shipped is None:  # explaining steps again
-            chains = self._chains_of(item.path, reader)
-            self._scene = SceneRun(item.path, chains.start[item.index], chains.position[item.index] + 1)
+        if self.job.mode == "actions" and report.explanation is None and shipped is None and history.lost is None:
+            chains = self._chains_of(item.path, reader)  # (an explanation steps again; a lost history ran none)
+            at = chains.position[item.index]
+            self._scene = SceneRun(item.path, chains.key[item.index], at - chains.ran_before[item.index], at + 1)
         episode, scratch = (None, replayed) if isinstance(replayed, Path) else (replayed, None)
         return EpisodeResult(item, report, episode, scratch=scratch, worker=where, history=history.replayed,
                              warnings=self._warnings(item.path, reader, replayer))
@@ -270,7 +278,7 @@ class ReplayWorker:
     def _replay_history(self, reader: EpisodeReader, replayer: EpisodeReplayer, item: WorkItem,
                         scene: SceneRun | None, *, shipped: bool) -> ReplayedHistory:
         """In mode ``actions``, give `replayer`'s scene (which ran `scene`) the history episode `item.index` had
-        when recorded (`simreel.replay.history.SceneChains`): replay the predecessors it lacks (actions only,
+        when recorded (`simreel.scene_history.SceneChains`): replay the predecessors it lacks (actions only,
         nothing compared or written), after rebuilding the scene when it ran anything else. The other modes
         restore recorded states: no history is replayed. Where the history cannot be replayed (a `shipped` episode
         comes without its file; a predecessor's data is damaged) the episode is replayed on a rebuilt scene without
@@ -280,11 +288,14 @@ class ReplayWorker:
         episode = reader.episode_meta(item.index)
         if shipped:
             replayer.forget_scene()  # a rebuilt scene at least: the same replay on every actor
-            return ReplayedHistory(lost=_SHIPPED_HISTORY if _has_history(episode) else None)
+            return ReplayedHistory(lost=SHIPPED_HISTORY if _has_history(episode) else None)
         chains = self._chains_of(item.path, reader)
-        missing = scene.missing(item.path, chains, item.index) if scene is not None else None
+        history = chains.history(item.index)
+        if history is None:
+            replayer.forget_scene()
+            return ReplayedHistory(lost=describe_missing_history(episode, chains.ran_before[item.index]))
+        missing = scene.missing(item.path, chains, item.index, history) if scene is not None else None
         if missing is None:
-            history = chains.history(item.index)
             start = history[0] if history else episode
             if not start.reconfigured:  # a chain that starts with a reconfiguring reset rebuilds the scene itself
                 replayer.forget_scene()
@@ -295,10 +306,9 @@ class ReplayWorker:
                                      rows=self.job.block_rows)
             except _EPISODE_DATA_ERRORS as e:
                 replayer.forget_scene()  # the episode itself then starts from a rebuilt scene, with no history
-                return ReplayedHistory(lost=_lost_history(ep.index, e))
-        if not missing:
-            return ReplayedHistory()
-        return ReplayedHistory([ep.index for ep in missing], [ep.index for ep in chains.history(item.index)])
+                return ReplayedHistory(lost=describe_unreadable_history(ep.index, e))
+        return ReplayedHistory([ep.index for ep in missing], [ep.index for ep in history]) if missing else \
+            ReplayedHistory()
 
     def _chains_of(self, path: str, reader: EpisodeReader) -> SceneChains:
         """The chains of the file at `path` (`SceneChains`), found once per file the worker meets in a row."""
@@ -405,15 +415,12 @@ class ReplayWorker:
         self._readers.close()
 
 
-def _lost_history(index: int, error: SimreelError) -> str:
-    """The limit of an episode whose predecessor `index` could not be replayed (`error`)."""
-    return (f"replayed without the episodes that ran before it in the recorder's scene: episode {index} cannot be "
-            f"read ({error}); PhysX results depend on the scene's history: a divergence may come from that alone")
-
-
 def _has_history(episode: EpisodeMeta) -> bool:
-    """Whether episodes may have run in `episode`'s scene before it (told by its metadata alone: its reset kept the
-    scene, and it is not its file's first)."""
+    """Whether episodes may have run in `episode`'s scene before it (told by its metadata alone: where a copy says
+    where it ran, that; else whether its reset kept the scene and it is not its file's first)."""
+    scene = episode.origin.get("scene") if episode.origin else None
+    if scene is not None:
+        return scene["position"] > 0
     return not episode.reconfigured and episode.index > 0
 
 
@@ -468,31 +475,51 @@ def _worker_run(item: WorkItem) -> EpisodeResult:
     return _WORKER.run(item)
 
 
-def start_pool(job: Any, workers: int, first: WorkItem | None = None) -> ProcessPoolExecutor:
+class Lanes:
+    """A local pool: `workers - 1` worker processes, each behind an executor of its own (a lane), so that the items
+    handed to one lane run in that process, in the order given. One shared pool would hand an actions replay's
+    chain (`WorkItem.chain`) to every process, and each would replay the others' episodes again as history."""
+
+    def __init__(self, executors: list[ProcessPoolExecutor]) -> None:
+        self.executors = executors
+
+    def stop(self) -> None:
+        """End the processes now (Ctrl-C, an error raised here): an episode they are replaying is not waited for."""
+        for executor in self.executors:
+            for process in list((getattr(executor, "_processes", None) or {}).values()):
+                process.terminate()
+
+    def shutdown(self) -> None:
+        for executor in self.executors:
+            executor.shutdown(wait=True, cancel_futures=True)
+
+
+def start_pool(job: Any, workers: int, first: WorkItem | None = None) -> Lanes:
     """`workers - 1` worker processes for `job`, started now: each imports, builds its worker and, given `first`,
     that item's env while this process prepares its own (a worker costs seconds to start, as long as tens of
-    steps). Hand it to `run_pool`, which shuts it down."""
+    steps). Hand them to `run_pool`; `pool_closing` shuts them down."""
     ctx = multiprocessing.get_context("spawn")  # sapien/torch state must not be forked
-    pool = ProcessPoolExecutor(max_workers=workers - 1, mp_context=ctx, initializer=_worker_init,
-                               initargs=(job, os.getpid(), first))
-    for _ in range(workers - 1):
-        pool.submit(_ready)  # each submit starts one more process while none is idle
-    return pool
+    lanes = Lanes([ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_worker_init,
+                                       initargs=(job, os.getpid(), first)) for _ in range(workers - 1)])
+    for executor in lanes.executors:
+        executor.submit(_ready)  # starts the lane's process now
+    return lanes
 
 
 def run_pool(worker: Any, items: Iterable[WorkItem], workers: int, collect: Callable[[EpisodeResult], Any],
-             pool: ProcessPoolExecutor | None = None) -> None:
+             pool: Lanes | None = None) -> None:
     """Replay `items` in `worker` (this process) and `workers - 1` worker processes (`pool`, from `start_pool`, or
-    started here); `collect` each result here, as it arrives. `worker` is a `ReplayWorker`, or another with ``job``
-    (whose ``open_worker()`` builds one in each process) and ``run(item) -> EpisodeResult``. When `collect` raises
-    (a strict run meeting an error, Ctrl-C), the queued items are dropped and the pool is shut down — by whoever
-    started it: here, or the caller that passed `pool`."""
+    started here); `collect` each result here, as it arrives. Items of one chain (`WorkItem.chain`) are replayed by
+    one process, in order. `worker` is a `ReplayWorker`, or another with ``job`` (whose ``open_worker()`` builds one
+    in each process) and ``run(item) -> EpisodeResult``. When `collect` raises (a strict run meeting an error,
+    Ctrl-C), the queued items are dropped and the pool is shut down — by whoever started it: here, or the caller
+    that passed `pool`."""
     with pool_closing(start_pool(worker.job, workers)) if pool is None else contextlib.nullcontext(pool) as owned:
-        _feed(worker, deque(items), workers, collect, owned)
+        _Feed(worker, owned, collect).run(deque(chain_groups(items)))
 
 
 @contextlib.contextmanager
-def pool_closing(pool: ProcessPoolExecutor | None) -> Iterator[ProcessPoolExecutor | None]:
+def pool_closing(pool: Lanes | None) -> Iterator[Lanes | None]:
     """Shut `pool` down when the block ends: at once (its processes ended, the episodes they were replaying not
     waited for) when the block raised, a strict run's error or Ctrl-C. None: no pool, nothing to do."""
     if pool is None:
@@ -501,34 +528,60 @@ def pool_closing(pool: ProcessPoolExecutor | None) -> Iterator[ProcessPoolExecut
     try:
         yield pool
     except BaseException:
-        stop_pool(pool)
+        pool.stop()
         raise
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+        pool.shutdown()
 
 
-def _feed(worker: Any, queue: deque[WorkItem], workers: int, collect: Callable[[EpisodeResult], Any],
-          pool: ProcessPoolExecutor) -> None:
-    """Hand `queue`'s items to `pool` a few at a time, replay the rest here, and `collect` every result.
-    `WorkerDiedError` when a worker process dies (killed from outside) with the items the pool then held."""
-    ahead = 2 * (workers - 1)  # items handed to the workers at a time; the rest stay for this process
-    pending: dict[Any, WorkItem] = {}
-    try:
-        while queue or pending:
-            while queue and len(pending) < ahead:
-                item = queue.popleft()
-                pending[pool.submit(_worker_run, item)] = item
-            if queue:
-                collect(worker.run(queue.popleft()))
-                done = {fut for fut in pending if fut.done()}
-            else:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                result = fut.result()
-                del pending[fut]
-                collect(result)
-    except BrokenProcessPool:
-        raise WorkerDiedError(list(pending.values())) from None
+_AHEAD = 2
+"""Items handed to a lane at a time: one replaying, one waiting, so its process never idles between two."""
+
+
+class _Feed:
+    """Hands groups of items (`simreel.replay.worklist.chain_groups`) to the lanes of a pool and to this process,
+    one group to each at a time, and collects every result here. `WorkerDiedError` when a worker process dies
+    (killed from outside) with the items the lanes then held."""
+
+    def __init__(self, worker: Any, pool: Lanes, collect: Callable[[EpisodeResult], Any]) -> None:
+        self.worker, self.collect = worker, collect
+        self.lanes: list[tuple[ProcessPoolExecutor, deque[WorkItem]]] = [(e, deque()) for e in pool.executors]
+        """Each lane's executor and the items of its group not yet handed to it."""
+        self.pending: dict[Future, tuple[WorkItem, ProcessPoolExecutor]] = {}
+        """Each item handed to a lane and not yet collected, with its lane."""
+        self.here: deque[WorkItem] = deque()
+        """The items of this process's group still to replay."""
+
+    def run(self, groups: deque[list[WorkItem]]) -> None:
+        try:
+            while True:
+                self._hand_out(groups)
+                if not self.here and groups:
+                    self.here.extend(groups.popleft())
+                if self.here:
+                    self.collect(self.worker.run(self.here.popleft()))
+                    done = {fut for fut in self.pending if fut.done()}
+                elif self.pending:
+                    done, _ = wait(self.pending, return_when=FIRST_COMPLETED)
+                else:
+                    return
+                for fut in done:
+                    result = fut.result()
+                    del self.pending[fut]
+                    self.collect(result)
+        except BrokenProcessPool:
+            raise WorkerDiedError([item for item, _ in self.pending.values()]) from None
+
+    def _hand_out(self, groups: deque[list[WorkItem]]) -> None:
+        """Top up each lane to `_AHEAD` items in flight, from its group, then from the next group."""
+        held = Counter(lane for _, lane in self.pending.values())
+        for executor, left in self.lanes:
+            while held[executor] < _AHEAD and (left or groups):
+                if not left:
+                    left.extend(groups.popleft())
+                item = left.popleft()
+                self.pending[executor.submit(_worker_run, item)] = (item, executor)
+                held[executor] += 1
 
 
 class WorkerDiedError(ReplayError):
@@ -545,9 +598,3 @@ class WorkerDiedError(ReplayError):
 
     def __reduce__(self) -> tuple[type, tuple[list[WorkItem]]]:
         return type(self), (self.lost,)
-
-
-def stop_pool(pool: ProcessPoolExecutor) -> None:
-    """End the pool's processes now (Ctrl-C, an error raised here): an episode they are replaying is not waited for."""
-    for process in list((getattr(pool, "_processes", None) or {}).values()):
-        process.terminate()

@@ -6,7 +6,7 @@ glob that is no recording is kept as unreadable (with the reason) rather than en
 are ordered by env key — the env a replay of the episode needs — so a worker that replays them in turn
 rebuilds its env only when the key changes, then by file, then by episode index (recorded order, whatever order
 ``--episodes`` names them in): an actions replay first replays what ran in an episode's scene before it
-(`simreel.replay.history`), so episodes in recorded order replay no history twice.
+(`simreel.scene_history`), so episodes in recorded order replay no history twice.
 """
 
 from __future__ import annotations
@@ -16,13 +16,15 @@ import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from simreel.episode import RecordingMeta, json_default
 from simreel.errors import FileProblemError, SimreelError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.inputs import expand_inputs, file_identity
+from simreel.scene_history import SceneChains
 
-__all__ = ["RecordingInfo", "WorkItem", "WorkList", "env_key", "build_worklist"]
+__all__ = ["RecordingInfo", "WorkItem", "WorkList", "env_key", "build_worklist", "chain_groups"]
 
 @dataclass(frozen=True)
 class WorkItem:
@@ -32,6 +34,10 @@ class WorkItem:
     path: str
     index: int
     steps: int = 0
+    chain: str | None = None
+    """In an actions replay, the scene chain of the recording it belongs to (`simreel.scene_history`): the items
+    of one chain are replayed by one process, in order, so no process replays another's episodes as history. None:
+    any process, in any order (the other modes restore recorded states)."""
 
 
 @dataclass
@@ -50,6 +56,8 @@ class RecordingInfo:
     """What identifies this version of the file: a resumed run refuses a file that changed."""
     lacking: list[int] = field(default_factory=list)
     """Episodes `--episodes` asks for that the file does not have (a dataset run replays the others)."""
+    chains: dict[int, str] = field(default_factory=dict)
+    """Index → its scene chain (`simreel.scene_history.SceneChains.key`)."""
 
     @property
     def identity(self) -> tuple[int | None, int | None]:
@@ -96,15 +104,17 @@ def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None,
             reader.episode_meta(lacking[0])  # raises RecordingFileError naming the episodes the file has
         if wanted is not None:
             steps = {i: steps[i] for i in dict.fromkeys(wanted) if i in steps}
-        return RecordingInfo(str(path), reader.meta, steps, size=size, mtime_ns=mtime_ns, lacking=lacking)
+        return RecordingInfo(str(path), reader.meta, steps, size=size, mtime_ns=mtime_ns, lacking=lacking,
+                             chains=SceneChains(reader.episodes).key)
 
 
 def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | None = None,
-                   done: Iterable[tuple[str, int]] = (), restores: str | None = None) -> WorkList:
+                   done: Iterable[tuple[str, int]] = (), restores: str | None = None,
+                   chains: bool = False) -> WorkList:
     """Read every input's header and list its episodes to replay (`episodes`: these indices of every file),
     ordered by env key, file and episode index, leaving out the (absolute path, index) pairs in `done` (a resumed
     run). `restores`: the option that makes the run restore recorded states (``--mode step``), so a file without any
-    cannot be replayed.
+    cannot be replayed. `chains`: the run replays actions, so each item names its scene chain (`WorkItem.chain`).
 
     A file given by name that cannot be read raises its `SimreelError`; one found in a folder or by a glob
     is kept with its error, so one bad file does not end a dataset run. A file of a dataset run (more than one
@@ -131,6 +141,17 @@ def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | Non
             if (info.path, index) in done_set:
                 skipped += 1
             else:
-                items.append((key, order, index, WorkItem(key, info.path, index, steps)))
-    items.sort(key=lambda x: x[:3])  # env key, then input order, then recorded order (`simreel.replay.history`)
+                chain = f"{info.path}{info.chains[index]}" if chains else None
+                items.append((key, order, index, WorkItem(key, info.path, index, steps, chain)))
+    items.sort(key=lambda x: x[:3])  # env key, then input order, then recorded order (`simreel.scene_history`)
     return WorkList(files, [item for *_, item in items], skipped)
+
+
+def chain_groups(items: Iterable[WorkItem]) -> list[list[WorkItem]]:
+    """`items` in the runs one process replays in turn: the items of one chain (`WorkItem.chain`; a recording with
+    parallel envs interleaves its sub-scenes' chains), in their order, where the chain's first item is; each item
+    without a chain alone."""
+    groups: dict[Any, list[WorkItem]] = {}
+    for item in items:
+        groups.setdefault(item.chain if item.chain is not None else object(), []).append(item)
+    return list(groups.values())

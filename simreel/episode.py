@@ -284,7 +284,9 @@ class EpisodeMeta:
     episode ended) and what the reader found about it in the file (quirks, mismatches), for reports."""
     origin: dict[str, Any] = field(default_factory=dict)
     """Where a merged or filtered episode was copied from: ``{"file": <absolute path>, "index": <its index
-    there>}``, and that episode's own ``"origin"`` when it had one (empty for a recorded episode)."""
+    there>}``, where it ran when it was recorded, ``"scene": {"file": <the recording>, "start": <index there of the
+    first episode of its scene chain>, "position": <episodes of that chain before it>}`` (`simreel.scene_history`;
+    absent where unknown), and that episode's own ``"origin"`` when it had one (empty for a recorded episode)."""
     provenance: dict[str, Any] = field(default_factory=dict)
     """For an episode of a converted recording: ``{"source_episode": index in the source, "verdict", "checked",
     "first_exceeded", "max_error"}`` as the conversion judged it (see `RecordingMeta.provenance`)."""
@@ -302,7 +304,20 @@ class EpisodeMeta:
         for name in ("index", "length", "env_idx"):
             if kw.get(name, 0) < 0:
                 raise MetadataError(f"episode metadata: {name} is {kw[name]}, expected >= 0")
+        _check_scene(kw.get("origin") or {})
         return cls(**kw)
+
+
+def _check_scene(origin: dict[str, Any]) -> None:
+    """`MetadataError` unless ``origin["scene"]``, where given, is what `EpisodeMeta.origin` describes."""
+    scene = origin.get("scene")
+    if scene is None:
+        return
+    ok = isinstance(scene, dict) and isinstance(scene.get("file"), str) and all(
+        type(scene.get(k)) is int and scene[k] >= 0 for k in ("start", "position"))
+    if not ok:
+        raise MetadataError(f"episode metadata: origin.scene is {json.dumps(scene, default=str)[:200]}, expected "
+                            '{"file": <path>, "start": <index>, "position": <count>}')
 
 
 @dataclass(frozen=True)

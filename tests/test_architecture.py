@@ -16,7 +16,8 @@ REPO = Path(__file__).resolve().parents[1]
 TESTS = REPO / "tests"
 ROOMS = {"recorders": "simreel.recorders", "replay": "simreel.replay", "viewers": "simreel.viewers"}
 PACKAGE_DIRS = {"simreel": REPO / "simreel", **{room: REPO / room for room in ROOMS}}
-CORE_TOP = {"__init__.py", "__main__.py", "errors.py", "episode.py", "state_tree.py", "compare.py", "divergence.py"}
+CORE_TOP = {"__init__.py", "__main__.py", "errors.py", "episode.py", "state_tree.py", "compare.py", "divergence.py",
+            "scene_history.py"}
 """The data model and what both the replay room and the viewer read from it: comparisons and divergence explanations."""
 
 

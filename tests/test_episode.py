@@ -211,6 +211,11 @@ def test_malformed_recording_metadata_is_named(doc, message):
         ({"index": 0, "length": -3}, "episode metadata: length is -3, expected >= 0"),
         ({"index": 0, "seed": 1.5}, "episode metadata: seed is 1.5, expected int | None"),
         ({"index": 0, "success": "yes"}, "episode metadata: success is 'yes', expected bool | None"),
+        ({"index": 0, "origin": {"file": "/a.h5", "index": 2, "scene": {"file": "/a.h5", "start": -1, "position": 2}}},
+         'episode metadata: origin.scene is {"file": "/a.h5", "start": -1, "position": 2}, expected {"file": <path>, '
+         '"start": <index>, "position": <count>}'),
+        ({"index": 0, "origin": {"file": "/a.h5", "index": 2, "scene": "a.h5#0"}},
+         'episode metadata: origin.scene is "a.h5#0", expected {"file": <path>, "start": <index>, "position": <count>}'),
     ],
 )
 def test_malformed_episode_metadata_is_named(doc, message):

@@ -42,6 +42,7 @@ from simreel.formats.inputs import file_identity
 from simreel.formats.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.staging import staging_path
 from simreel.formats.targets import OVERWRITE_HINT, check_distinct, move_into_place
+from simreel.scene_history import SceneChains
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
            "FieldHashes", "HashedRows", "episode_digest", "field_digests", "describe_provenance", "describe_origin",
@@ -247,6 +248,8 @@ class _Source:
     identity: dict[str, Any] = field(default_factory=dict)
     unfinished: list[str] = field(default_factory=list)
     """Episodes the file holds that were never committed (a killed recording): not listed, not copied."""
+    chains: SceneChains | None = None
+    """Its episodes' scene chains (`simreel.scene_history`), for each copy to keep where it ran."""
 
     @classmethod
     def read(cls, path: str | Path) -> _Source:
@@ -264,6 +267,7 @@ class _Source:
                 "created_utc": m.created_utc, "command": m.command, "source": m.source, "provenance": m.provenance,
             }
             source.unfinished = list(getattr(reader, "unfinished", []))
+            source.chains = SceneChains(source.episodes)
         return source
 
     def reopen(self) -> Any:
@@ -402,7 +406,12 @@ def _plan(sources: Sequence[_Source], decide: Decide, n_targets: int) -> list[_I
 
 
 def _origin(source: _Source, meta: EpisodeMeta) -> dict[str, Any]:
+    """`EpisodeMeta.origin` of a copy of `meta`: where it was copied from, and where it ran when it was recorded
+    (``scene``, for a replay to find its history: `simreel.scene_history`)."""
     origin: dict[str, Any] = {"file": str(source.path), "index": meta.index}
+    scene = source.chains.copied_scene(meta.index, str(source.path)) if source.chains is not None else None
+    if scene is not None:
+        origin["scene"] = scene
     if meta.origin:
         origin["origin"] = meta.origin
     return origin

@@ -43,10 +43,13 @@ def _episodes(path: Path) -> list[Episode]:
 
 
 def assert_copied(got: list[Episode], sources: list[tuple[Path, Episode]]) -> None:
-    """`got[k]` is episode k, with every array and all metadata of `sources[k]` but its index and origin."""
+    """`got[k]` is episode k, with every array and all metadata of `sources[k]` but its index and origin. The sources
+    are recordings of one scene chain each (episodes 0, 1, ... in one scene) or copies of them."""
     assert [e.meta.index for e in got] == list(range(len(sources)))
     for ep, (path, want) in zip(got, sources, strict=True):
         origin = {"file": str(path.resolve()), "index": want.meta.index}
+        origin["scene"] = want.meta.origin.get("scene") or {"file": str(path.resolve()), "start": 0,
+                                                            "position": want.meta.index}
         if want.meta.origin:
             origin["origin"] = want.meta.origin
         assert ep.meta.origin == origin
@@ -101,7 +104,9 @@ def test_episodes_of_many_blocks_merge_and_filter_bit_exactly(tmp_path, suffix):
     assert_copied(_episodes(merged), sources)
     filter_recording(merged, tmp_path / f"long{suffix}", EpisodeCriteria(min_steps=100))
     [got] = _episodes(tmp_path / f"long{suffix}")
-    assert got.meta.origin == {"file": str(merged.resolve()), "index": 1, "origin": {"file": str(a.resolve()), "index": 1}}
+    ran = {"file": str(a.resolve()), "start": 0, "position": 1}  # where it ran: episode 1 of a.h5's one chain
+    assert got.meta.origin == {"file": str(merged.resolve()), "index": 1, "scene": ran,
+                               "origin": {"file": str(a.resolve()), "index": 1, "scene": ran}}
     assert_same_episode(dataclasses.replace(got, meta=long[1].meta), long[1])
 
 
@@ -144,7 +149,8 @@ def test_filter_and_its_rest_split_the_input_and_keep_each_origin(synthetic, tmp
     assert_copied(_episodes(kept), [(merged, source[k]) for k in (0, 3)])
     assert_copied(_episodes(rest), [(merged, source[k]) for k in (1, 2, 4)])
     # the chain of origins: kept episode 1 was episode 3 of merged.h5, which was episode 0 of b.mcap
-    assert _episodes(kept)[1].meta.origin["origin"] == {"file": str(synthetic[1]), "index": 0}
+    assert _episodes(kept)[1].meta.origin["origin"] == {"file": str(synthetic[1]), "index": 0,
+                                                         "scene": {"file": str(synthetic[1]), "start": 0, "position": 0}}
     with open_reader(kept) as k, open_reader(rest) as r:
         assert k.meta.provenance["criteria"] == {"min_steps": 2, "max_steps": 100}
         assert (k.meta.provenance["part"], r.meta.provenance["part"]) == ("kept", "rest")
@@ -184,7 +190,8 @@ def test_a_real_recording_split_and_merged_back_keeps_contacts_poses_and_observa
     merge([first, rest], tmp_path / "again.h5")
     got, want = _episodes(tmp_path / "again.h5"), _episodes(src)
     for k, ep in enumerate(got):
-        assert ep.meta.origin["origin"] == {"file": str(src), "index": k}  # via first.mcap or rest.h5
+        assert ep.meta.origin["origin"] == {"file": str(src), "index": k,  # via first.mcap or rest.h5
+                                            "scene": {"file": str(src), "start": 0, "position": k}}
         assert_same_episode(dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, origin={})), want[k])
     assert got[2].contact_forces.shape[1] > 0 and got[2].body_poses.shape[1] > 0 and got[2].obs["state"].size
     assert [e.meta.seed for e in got] == [3, 4, 5]

@@ -138,11 +138,13 @@ def test_heterogeneous_scenes_are_rebuilt_for_any_episode_order(record, tmp_path
 
 
 def test_workers_replay_in_parallel_processes(record, tmp_path):
-    path = record("PushCube-v1", 3, 10)
+    path = record("PushCube-v1", 3, 10, "--env-kwargs", '{"reconfiguration_freq": 1}')  # three scene chains
     out = tmp_path / "replayed.h5"
-    report = verify_recording(path, workers=2, output=out)
+    report = verify_recording(path, workers=2, output=out, report=str(tmp_path / "r.json"))
     assert [e.index for e in report.episodes] == [0, 1, 2]
     assert [e.verdict for e in report.episodes] == ["exact"] * 3
+    log = [json.loads(line) for line in (tmp_path / "r.jsonl").read_text().splitlines()]
+    assert len({e["worker"] for e in log if e["type"] == "episode"}) == 2
     with open_reader(out) as r:
         assert [m.index for m in r.episodes] == [0, 1, 2]
 

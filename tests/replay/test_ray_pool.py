@@ -145,9 +145,14 @@ def _actor_pids() -> list[int]:
     return pids
 
 
+_OWN_SCENES = ("--env-kwargs", '{"reconfiguration_freq": 1}')
+"""Every reset rebuilds the scene: each episode is a scene chain of its own, so both actors have episodes to replay
+(the episodes of one chain go to one actor: `simreel.replay.worklist.chain_groups`)."""
+
+
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds the actor processes through /proc")
 def test_a_worker_killed_mid_run_has_its_episodes_replayed_elsewhere_once(cluster, record, tmp_path):
-    path = record("PickCube-v1", 16, 30)
+    path = record("PickCube-v1", 16, 30, *_OWN_SCENES)
     report = tmp_path / "r.json"
     proc = _replay_until_two_verdicts(cluster, path, report)
     actors = _actor_pids()
@@ -162,7 +167,7 @@ def test_a_worker_killed_mid_run_has_its_episodes_replayed_elsewhere_once(cluste
 
 
 def test_a_killed_driver_is_resumed_on_the_cluster_without_replaying_what_it_finished(cluster, record, tmp_path):
-    path = record("PickCube-v1", 16, 30)
+    path = record("PickCube-v1", 16, 30, *_OWN_SCENES)
     report = tmp_path / "r.json"
     proc = _replay_until_two_verdicts(cluster, path, report)
     proc.kill()

@@ -38,6 +38,11 @@ def _assert_same_output(a, b) -> None:
                 np.testing.assert_array_equal(x[name], y[name], err_msg=name)
 
 
+_OWN_SCENES = ("--env-kwargs", '{"reconfiguration_freq": 1}')
+"""Every reset rebuilds the scene: each episode is a scene chain of its own, which any process may replay (the
+episodes of one chain are replayed in one process: `simreel.replay.worklist.chain_groups`)."""
+
+
 def _workers_of(report) -> set[str]:
     lines = [json.loads(line) for line in report.with_name(report.name + "l").read_text().splitlines()]
     return {e["worker"] for e in lines if e["type"] == "episode"}
@@ -45,7 +50,7 @@ def _workers_of(report) -> set[str]:
 
 @pytest.mark.parametrize("fmt", ["h5", "mcap"])
 def test_output_of_two_workers_equals_output_of_one(record, tmp_path, fmt):
-    path = record("PickCube-v1", 4, 20)
+    path = record("PickCube-v1", 4, 20, *_OWN_SCENES)
     one, two = tmp_path / f"one.{fmt}", tmp_path / f"two.{fmt}"
     verify_recording(path, output=str(one))
     report = verify_recording(path, output=str(two), workers=2, report=str(tmp_path / "r.json"))
@@ -64,15 +69,16 @@ def test_output_of_two_workers_equals_output_of_one(record, tmp_path, fmt):
 
 def test_an_episode_that_fails_leaves_no_scratch_and_the_others_are_written(record, tmp_path):
     path = tmp_path / "damaged.h5"
-    shutil.copy(record("PickCube-v1", 4, 20), path)
+    shutil.copy(record("PickCube-v1", 4, 20, *_OWN_SCENES), path)
     corrupt_chunk(path, "traj_1/actions", 2)
     out = tmp_path / "out.h5"
-    report = verify_recording(path, output=str(out), workers=2)
+    report = verify_recording(path, output=str(out), workers=2, report=str(tmp_path / "r.json"))
+    assert len(_workers_of(tmp_path / "r.json")) == 2
     assert [e.verdict for e in report.episodes] == ["exact", "error", "exact", "exact"]
     with open_reader(out) as reader:
         assert [m.index for m in reader.episodes] == [0, 2, 3]
     assert not scratch_folder(out).exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.h5", "out.h5", "out.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["damaged.h5", "out.h5", "out.json", "r.json", "r.jsonl"]
 
 
 @pytest.mark.parametrize("fmt", ["h5", "mcap"])
@@ -106,7 +112,8 @@ def test_a_disk_that_fills_in_the_middle_of_the_last_episode_stops_the_run_and_d
 def test_a_run_whose_env_does_not_build_leaves_no_scratch(record, tmp_path):
     out = tmp_path / "out.h5"
     with pytest.raises(EnvBuildError):
-        verify_recording(record("PickCube-v1", 4, 20), output=str(out), workers=2, imports=("no_such_module_13",))
+        verify_recording(record("PickCube-v1", 4, 20, *_OWN_SCENES), output=str(out), workers=2,
+                         imports=("no_such_module_13",))
     assert list(tmp_path.iterdir()) == []
 
 

@@ -33,7 +33,7 @@ def _cmdline(pid: int) -> bytes:
 
 
 def test_a_worker_whose_driver_was_killed_while_it_started_ends(record):
-    path = record("SimreelLiftCube-v1", 2, 5)
+    path = record("PickCube-v1", 2, 5, "--env-kwargs", '{"reconfiguration_freq": 1}')  # two chains: a pool starts
     driver = subprocess.Popen(simreel_command("replay", str(path), "--workers", "2", "-q"),
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     children: list[int] = []

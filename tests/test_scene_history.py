@@ -1,0 +1,72 @@
+"""Which episodes ran in an episode's scene before it (`simreel.scene_history`), on hand-made episode lists: recorded
+ones (chains by sub-scene and rebuilding reset) and copies made by filter and merge (by where they say they ran)."""
+
+from __future__ import annotations
+
+from simreel.episode import EpisodeMeta
+from simreel.scene_history import SceneChains
+
+
+def _indices(episodes: list[EpisodeMeta], index: int) -> list[int] | None:
+    history = SceneChains(episodes).history(index)
+    return None if history is None else [ep.index for ep in history]
+
+
+def _copy(index: int, recording: str, position: int, start: int = 0) -> EpisodeMeta:
+    """Episode `index` of a filtered or merged file: a copy of the episode that ran `position` episodes after episode
+    `start` of `recording`, in one scene."""
+    scene = {"file": recording, "start": start, "position": position}
+    return EpisodeMeta(index, origin={"file": recording, "index": start + position, "scene": scene})
+
+
+def test_the_history_runs_back_to_the_first_episode_of_its_sub_scene():
+    episodes = [EpisodeMeta(i) for i in range(4)]
+    assert [_indices(episodes, i) for i in range(4)] == [[], [0], [0, 1], [0, 1, 2]]
+
+
+def test_a_reset_that_rebuilt_the_scene_starts_a_new_history():
+    episodes = [EpisodeMeta(0), EpisodeMeta(1), EpisodeMeta(2, reconfigured=True, seed=2), EpisodeMeta(3),
+                EpisodeMeta(4)]
+    assert _indices(episodes, 2) == []  # its own reset rebuilt the scene
+    assert _indices(episodes, 4) == [2, 3]  # the rebuilding episode starts the chain
+    assert _indices(episodes, 1) == [0]
+
+
+def test_only_episodes_of_the_same_sub_scene_count():
+    episodes = [EpisodeMeta(0, env_idx=0), EpisodeMeta(1, env_idx=1), EpisodeMeta(2, env_idx=0),
+                EpisodeMeta(3, env_idx=1, reconfigured=True), EpisodeMeta(4, env_idx=1)]
+    assert _indices(episodes, 2) == [0]
+    assert _indices(episodes, 1) == []  # the first of sub-scene 1: the recorder's env was fresh
+    assert _indices(episodes, 4) == [3]
+
+
+def test_an_unknown_rebuild_is_taken_as_none():
+    episodes = [EpisodeMeta(0, reconfigured=None), EpisodeMeta(1, reconfigured=None), EpisodeMeta(2, reconfigured=None)]
+    assert _indices(episodes, 2) == [0, 1]  # one predecessor too many costs time, one too few a wrong verdict
+
+
+def test_copies_of_two_recordings_have_each_their_own_history():
+    episodes = [_copy(0, "/a.h5", 0), _copy(1, "/a.h5", 1), _copy(2, "/b.h5", 0), _copy(3, "/b.h5", 1)]
+    assert [_indices(episodes, i) for i in range(4)] == [[], [0], [], [2]]  # b's first ran on a fresh scene
+
+
+def test_a_copy_whose_predecessors_were_left_out_has_no_history_here():
+    episodes = [_copy(0, "/a.h5", 0), _copy(1, "/a.h5", 2), _copy(2, "/a.h5", 3)]  # a's episode 1 left out
+    assert [_indices(episodes, i) for i in range(3)] == [[], None, None]
+
+
+def test_the_same_chain_copied_twice_takes_the_copies_just_before():
+    episodes = [_copy(0, "/a.h5", 0), _copy(1, "/a.h5", 1), _copy(2, "/a.h5", 0), _copy(3, "/a.h5", 1)]
+    assert [_indices(episodes, i) for i in range(4)] == [[], [0], [], [2]]
+
+
+def test_a_copy_that_does_not_say_where_it_ran_has_no_known_history():
+    episodes = [EpisodeMeta(0, origin={"file": "/a.h5", "index": 3})]
+    assert _indices(episodes, 0) is None and SceneChains(episodes).copied_scene(0, "/c.h5") is None
+
+
+def test_a_copy_of_a_copy_keeps_the_recording_it_ran_in():
+    copied = SceneChains([_copy(0, "/a.h5", 4, start=2)])  # a filtered file's episode
+    recorded = SceneChains([EpisodeMeta(0), EpisodeMeta(1)])
+    assert copied.copied_scene(0, "/f.h5") == {"file": "/a.h5", "start": 2, "position": 4}
+    assert recorded.copied_scene(1, "/r.h5") == {"file": "/r.h5", "start": 0, "position": 1}
