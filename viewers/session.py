@@ -160,6 +160,31 @@ def _listening(port: int) -> bool:
         return False
 
 
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+"""What an HTTP/2 client sends first: the connection preface and an empty SETTINGS frame."""
+_ANSWER_S = 5.0
+"""How long what listens on the viewer's port has to answer that preface (a Rerun viewer answers in microseconds)."""
+
+
+def _grpc_problem(port: int) -> str | None:
+    """Why what listens on ``port`` is no gRPC server (None: it answers the HTTP/2 preface with a SETTINGS frame, as
+    a Rerun viewer does). Rerun takes anything listening there for an open viewer, and its flush into a listener
+    that never answers would wait for ever."""
+    import socket
+
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=_ANSWER_S) as s:
+            s.sendall(_HTTP2_PREFACE)
+            answer = s.recv(9)
+    except TimeoutError:
+        return f"it did not answer a gRPC client in {_ANSWER_S:.0f} s"
+    except OSError as e:
+        return f"it dropped the connection: {e.strerror or e}"
+    if len(answer) < 4 or answer[3] != 4:  # byte 3 of a frame header is its type; 4: SETTINGS
+        return "it answered, but not as a gRPC server does"
+    return None
+
+
 def _viewer_gone(why: str) -> ViewError:
     return ViewError(f"the Rerun viewer did not take the session ({why}): it could not open its window, or it "
                      "closed; use --save OUT.rrd and open it elsewhere, or --serve")
@@ -328,8 +353,9 @@ class ViewSession:
         """Open the native Rerun viewer (a separate process) and stream the session to it.
 
         The viewer is the ``rerun`` executable on PATH, else the one beside this Python (a venv's bin/). A viewer
-        that cannot open its window binds its port and exits; it is refused before the stream connects, and one
-        that goes away while the session streams is reported, not waited on forever (`_flush_to_viewer`).
+        that cannot open its window binds its port and exits, and what listens on the port without answering as a
+        gRPC server (`_grpc_problem`) is no viewer: both are refused before the stream connects; a viewer that goes
+        away while the session streams is reported, not waited on forever (`_flush_to_viewer`).
         """
         import rerun as rr
 
@@ -341,6 +367,9 @@ class ViewSession:
                             "elsewhere") from e
         if not _listening(port):
             raise _viewer_gone(f"nothing listens on port {port}")
+        problem = _grpc_problem(port)
+        if problem is not None:
+            raise _refused(port, problem)
         rec.connect_grpc(f"rerun+http://127.0.0.1:{port}/proxy", default_blueprint=self.blueprint())
         self.log_to(rec)
         _flush_to_viewer(rec, port)

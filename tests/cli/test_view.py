@@ -339,6 +339,26 @@ def test_a_port_held_by_another_server_is_reported_not_waited_on(pickcube_h5, tm
     assert "--grpc-port" in ours[0]
 
 
+def test_a_port_held_by_a_silent_listener_is_reported_not_waited_on(pickcube_h5, tmp_path):
+    """Something listens on the port and never answers (a stuck process, a proxy): Rerun took it for an open viewer
+    and its flush waited for ever. One line naming the port, exit 2, within seconds."""
+    import socket
+
+    with socket.socket() as silent, answering_display() as env:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen()
+        port = silent.getsockname()[1]
+        started = time.perf_counter()
+        done = subprocess.run(simreel_command("view", str(pickcube_h5), "--spawn", "--geometry", "collision",
+                                              "--grpc-port", str(port)),
+                              env=env, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines() == [f"simreel view: error: what listens on port {port} refused the session (it "
+                                        "did not answer a gRPC client in 5 s): it is not a Rerun viewer, or one that "
+                                        "dropped the connection; use --grpc-port with a free port, or --save OUT.rrd"]
+    assert time.perf_counter() - started < 60
+
+
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_serve_serves_the_episode_until_stopped(pickcube_h5, tmp_path, rrd_reader, stop):
     """A real `simreel view --serve` on free ports: the page loads, the gRPC server named in the printed URL
