@@ -118,6 +118,8 @@ class VideoRun:
             """What is wrong with each episode that got no video because it is damaged."""
         self.compared = _compared_indices(path, opts.compare, self.indices) if opts.compare is not None else {}
         """Episode index → the index of the episode of `options.compare` drawn beside it."""
+        self.written: list[EpisodeVideo] = []
+        """The videos `execute` has written so far."""
         if opts.camera is not None and not any(k.startswith(f"sensor_data/{opts.camera}/rgb") for k in self.meta.obs_layout):
             have = sorted({k.split("/")[1] for k in self.meta.obs_layout if k.startswith("sensor_data/")})
             raise UsageError(f"{path} holds no rgb observations of camera {opts.camera!r} (cameras: "
@@ -132,9 +134,10 @@ class VideoRun:
 
     def execute(self, progress: Callable[[int], None] | None = None) -> list[EpisodeVideo]:
         """Write every video but those of damaged episodes (added to `damaged`); `progress(frames)` after each
-        frame written."""
+        frame written. Each video written is in `written` as soon as it is, also when a stop or an error ends the
+        run before the others."""
         frames = _FrameSource(self.meta, self.options, self.path)
-        written = []
+        written = self.written
         try:
             for i in self.indices:
                 try:

@@ -49,10 +49,12 @@ def run(args: argparse.Namespace) -> int:
                            camera=args.camera, fps=args.fps, mode=args.mode, overwrite=args.overwrite,
                            imports=tuple(args.imports))
     videos = VideoRun(args.path, args.output, options)  # bad files, episodes and targets fail here
-    with progress_bar(quiet=args.quiet, total=videos.frames, unit="frame", desc="video") as bar:
-        written = videos.execute(bar.update)
-    for v in written:
-        print(f"episode {v.index}: {v.path} ({v.frames} frames{', ' + v.verdict if v.verdict else ''})")
+    try:
+        with progress_bar(quiet=args.quiet, total=videos.frames, unit="frame", desc="video") as bar:
+            videos.execute(bar.update)
+    finally:  # a stop or an error: the videos written before it are named too
+        for v in videos.written:
+            print(f"episode {v.index}: {v.path} ({v.frames} frames{', ' + v.verdict if v.verdict else ''})")
     damaged = videos.damage_error()
     if damaged is not None:  # never left out silently
         raise damaged

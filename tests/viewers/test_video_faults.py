@@ -184,3 +184,29 @@ def test_a_maniskill_file_without_states_is_rendered_from_its_stepped_actions(la
         reader.close()
     assert len(frames) == 9 and frames[0].std() > 5  # a scene per state, not a blank frame
     assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 0.5  # the robot moved
+
+
+def test_ctrl_c_names_the_videos_written_before_it(tmp_path):
+    """Ctrl-C between two episodes' videos: each video already written is listed on stdout, as after a full run
+    (before, only "interrupted": which of the folder's videos were whole was left to guess), exit 130."""
+    import os
+    import signal
+    import time
+
+    recording = _camera_recording(tmp_path / "many.h5", (120,) * 12, side=96, noise=True)
+    out = tmp_path / "videos"
+    out.mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "simreel", "video", str(recording), "-o", str(out), "--camera",
+                             "cam", "--size", "96x96", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not any(p.suffix == ".mp4" and not p.name.startswith(".") for p in out.iterdir()):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert stderr.splitlines()[-1] == "simreel video: interrupted"
+    listed = {line.split(": ")[1].split(" (")[0] for line in stdout.splitlines()}
+    videos = {str(p) for p in out.iterdir() if p.suffix == ".mp4" and not p.name.startswith(".")}
+    assert listed == videos and 1 <= len(videos) < 12
+    assert all(_frames(Path(v)) == 121 for v in videos)
