@@ -61,6 +61,7 @@ from simreel.replay.report import CHECK_ORDER, EpisodeReport, episode_lines, rec
 from simreel.replay.tracking import Commands, EndEffector, TrackingBlocks, tracking_tolerances
 from simreel.replay.workers import EpisodeResult, VerifySink, run_pool
 from simreel.replay.worklist import WorkItem
+from simreel.scene_history import SceneChains, run_scenes
 from simreel.sim.user_code import resolve_task_imports
 
 __all__ = ["KEEP", "ConvertOptions", "ConvertJob", "ConvertWorker", "ConversionReport", "ConversionRun",
@@ -163,6 +164,10 @@ class ConvertJob:
     """The run's scratch folder (`ScratchFolder`), where a worker writes an episode that is not next in the output's
     order; None: such an episode comes back whole."""
     block_rows: int | None = None
+    scenes: dict[int, dict[str, Any]] = field(default_factory=dict)
+    """Episode index → where its conversion ran, kept in its provenance (``"scene"``, `simreel.scene_history`): a
+    re-rendered episode is the recorded trajectory, so its scene is the input's; a control-mode conversion steps the
+    episodes one after another in one env, so it ran in that run."""
 
     def open_worker(self) -> ConvertWorker:
         """The worker a pool process converts episodes in (`run_pool` calls it in each process)."""
@@ -265,8 +270,8 @@ class ConvertWorker:
             written.discard()
             raise
         meta = dataclasses.replace(source.meta, initial_state_known=True)
-        return written.finish(item, report, _provenance_meta(meta, report, clipped=len(run.clipped)), source.length,
-                              self.job.keep)
+        meta = _provenance_meta(meta, report, self.job.scenes.get(item.index), clipped=len(run.clipped))
+        return written.finish(item, report, meta, source.length, self.job.keep)
 
     def _render(self, item: WorkItem) -> ConvertResult:
         """Re-render episode `item.index` a block of rows at a time: each recorded block's states are restored and
@@ -283,7 +288,8 @@ class ConvertWorker:
         except BaseException:
             written.discard()
             raise
-        return written.finish(item, report, _provenance_meta(source.meta, report), source.length, self.job.keep)
+        meta = _provenance_meta(source.meta, report, self.job.scenes.get(item.index))
+        return written.finish(item, report, meta, source.length, self.job.keep)
 
     def _stream(self, episode: EpisodeMeta) -> EpisodeStream | None:
         """Where the conversion of `episode` is written as it comes: into the output when this process writes it and
@@ -428,8 +434,10 @@ def _last_flags(success: np.ndarray | None, truncated: np.ndarray) -> tuple[bool
     return (None if success is None else bool(success[-1])), bool(truncated[-1])
 
 
-def _provenance_meta(meta: EpisodeMeta, report: EpisodeReport, *, clipped: int | None = None) -> EpisodeMeta:
-    """The converted episode's metadata: `meta` with the conversion's verdict as its provenance."""
+def _provenance_meta(meta: EpisodeMeta, report: EpisodeReport, scene: dict[str, Any] | None, *,
+                     clipped: int | None = None) -> EpisodeMeta:
+    """The converted episode's metadata: `meta` with the conversion's verdict and where it ran (`scene`,
+    `ConvertJob.scenes`) as its provenance."""
     meta = dataclasses.replace(meta, notes=[])
     meta.provenance = {
         "source_episode": report.index,
@@ -438,6 +446,7 @@ def _provenance_meta(meta: EpisodeMeta, report: EpisodeReport, *, clipped: int |
         "first_exceeded": None if report.first_divergence is None else report.first_divergence.to_json(),
         "max_error": {k: float(v) if np.isfinite(v) else str(v) for k, v in report.max_abs_error.items()},
         **({"clipped_steps": clipped} if clipped is not None else {}),
+        **({"scene": scene} if scene is not None else {}),
     }
     return meta
 
@@ -603,7 +612,16 @@ class ConversionRun:
         return ConvertJob(path=self.path, obs_mode=opts.obs_mode, control_mode=opts.control_mode,
                           env_kwargs=opts.env_kwargs(), tolerances=self.tolerances, sim_backend=opts.sim_backend,
                           imports=tuple(opts.imports), converter=opts.converter, keep=tuple(opts.keep),
-                          output=output, scratch=scratch, block_rows=opts.block_rows)
+                          output=output, scratch=scratch, block_rows=opts.block_rows, scenes=self._scenes())
+
+    def _scenes(self) -> dict[int, dict[str, Any]]:
+        """`ConvertJob.scenes` of this conversion."""
+        listed = {m.index: m for m in self.reader.episodes}
+        if self.options.control_mode:
+            return run_scenes([listed[i] for i in self.indices], str(Path(self.output).resolve()))
+        chains = SceneChains(self.reader.episodes)
+        scenes = {i: chains.copied_scene(i, str(Path(self.path).resolve())) for i in self.indices}
+        return {i: scene for i, scene in scenes.items() if scene is not None}
 
     def _output_spec(self, worker: ConvertWorker, staged: Path) -> ReplayOutput:
         """The output as it is written: at `staged` in the run's scratch folder, moved to its name once checked."""

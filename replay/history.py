@@ -8,6 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from simreel.episode import EpisodeMeta
+from simreel.scene_history import recorded_scene
 
 __all__ = ["describe_history", "describe_missing_history", "describe_unreadable_history", "SHIPPED_HISTORY"]
 
@@ -27,13 +28,13 @@ def describe_history(index: int, history: Sequence[int], replayed: Sequence[int]
 def describe_missing_history(episode: EpisodeMeta, ran_before: int | None) -> str:
     """The limit of `episode`, a copy whose file does not hold the `ran_before` episodes (None: an unknown number)
     that ran in its scene before it when it was recorded: it is replayed on a rebuilt scene without them."""
-    scene = episode.origin.get("scene")
+    scene = recorded_scene(episode)
     if scene is None:
         return ("replayed on a rebuilt scene: copied by a simreel that did not note which episodes ran in its scene "
                 f"before it when it was recorded; {_MAY_DIVERGE}")
     return (f"replayed on a rebuilt scene without the {ran_before} episode(s) that ran in its scene before it when "
-            f"it was recorded ({Path(scene['file']).name}, from episode {scene['start']}): this file does not hold "
-            f"them all, in order (copied by simreel filter or merge); {_MAY_DIVERGE}")
+            f"it was recorded ({Path(scene['file']).name}, from episode {scene['start']}): this file, made from "
+            f"another by simreel filter, merge or convert, does not hold them all; {_MAY_DIVERGE}")
 
 
 def describe_unreadable_history(index: int, error: Exception) -> str:

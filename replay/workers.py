@@ -52,7 +52,7 @@ from simreel.replay.output import (
 )
 from simreel.replay.report import EpisodeReport
 from simreel.replay.worklist import WorkItem, chain_groups
-from simreel.scene_history import SceneChains
+from simreel.scene_history import SceneChains, recorded_scene
 from simreel.sim.user_code import resolve_task_imports
 
 __all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "VerifySink", "run_pool", "start_pool", "Lanes",
@@ -193,26 +193,21 @@ class ReaderCache:
 
 @dataclass(frozen=True)
 class SceneRun:
-    """What a worker's scene ran since it was built: the episodes `begin` to `upto` (not included) of chain `chain`
-    of the file at `path` (`simreel.scene_history.SceneChains`: places among the file's episodes of that chain);
-    ``SceneRun()``: nothing, a scene fresh from ``gym.make`` or rebuilt."""
+    """What a worker's scene ran since it was built: the first `ran` episodes (places 0 to `ran` - 1) of chain
+    `chain` of the file at `path` (`simreel.scene_history.SceneChains`); ``SceneRun()``: nothing, a scene fresh
+    from ``gym.make`` or rebuilt."""
 
     path: str | None = None
     chain: str | None = None
-    begin: int = 0
-    upto: int = 0
+    ran: int = 0
 
-    def missing(self, path: str, chains: SceneChains, index: int,
-                history: list[EpisodeMeta]) -> list[EpisodeMeta] | None:
-        """The episodes of episode `index`'s `history` (in the file at `path`) this scene has still to run to hold
-        it exactly; None when it ran something else (another file, chain or episode): it must be rebuilt first."""
-        if self.upto == self.begin:  # ran nothing
-            return history
-        at = chains.position[index]
-        same = self.path == path and self.chain == chains.key[index] and self.begin == at - len(history)
-        if not (same and self.upto <= at):
-            return None
-        return chains.members[chains.key[index]][self.upto : at]
+    def ran_of(self, path: str, chains: SceneChains, index: int) -> int | None:
+        """How many episodes of episode `index`'s history (in the file at `path`) this scene has run already; None
+        when it ran something else (another file, chain or episode): it must be rebuilt first."""
+        if not self.ran:
+            return 0
+        same = self.path == path and self.chain == chains.key[index]
+        return self.ran if same and self.ran <= (chains.ran_before[index] or 0) else None
 
 
 @dataclass
@@ -269,8 +264,7 @@ class ReplayWorker:
             return EpisodeResult(item, error=e, worker=where)
         if self.job.mode == "actions" and report.explanation is None and shipped is None and history.lost is None:
             chains = self._chains_of(item.path, reader)  # (an explanation steps again; a lost history ran none)
-            at = chains.position[item.index]
-            self._scene = SceneRun(item.path, chains.key[item.index], at - chains.ran_before[item.index], at + 1)
+            self._scene = SceneRun(item.path, chains.key[item.index], (chains.ran_before[item.index] or 0) + 1)
         episode, scratch = (None, replayed) if isinstance(replayed, Path) else (replayed, None)
         return EpisodeResult(item, report, episode, scratch=scratch, worker=where, history=history.replayed,
                              warnings=self._warnings(item.path, reader, replayer))
@@ -290,16 +284,13 @@ class ReplayWorker:
             replayer.forget_scene()  # a rebuilt scene at least: the same replay on every actor
             return ReplayedHistory(lost=SHIPPED_HISTORY if _has_history(episode) else None)
         chains = self._chains_of(item.path, reader)
-        history = chains.history(item.index)
-        if history is None:
+        if not chains.complete(item.index):
             replayer.forget_scene()
             return ReplayedHistory(lost=describe_missing_history(episode, chains.ran_before[item.index]))
-        missing = scene.missing(item.path, chains, item.index, history) if scene is not None else None
-        if missing is None:
-            start = history[0] if history else episode
-            if not start.reconfigured:  # a chain that starts with a reconfiguring reset rebuilds the scene itself
-                replayer.forget_scene()
-            missing = history
+        done = scene.ran_of(item.path, chains, item.index) if scene is not None else None
+        missing = chains.history(item.index, since=done or 0)
+        if done is None and not (missing or [episode])[0].reconfigured:
+            replayer.forget_scene()  # (a chain whose first reset rebuilt the scene rebuilds it itself)
         for ep in missing:
             try:
                 replayer.replay_rows(reader.open_episode(ep.index), BlockSink(), mode="actions",
@@ -307,8 +298,9 @@ class ReplayWorker:
             except _EPISODE_DATA_ERRORS as e:
                 replayer.forget_scene()  # the episode itself then starts from a rebuilt scene, with no history
                 return ReplayedHistory(lost=describe_unreadable_history(ep.index, e))
-        return ReplayedHistory([ep.index for ep in missing], [ep.index for ep in history]) if missing else \
-            ReplayedHistory()
+        if not missing:
+            return ReplayedHistory()
+        return ReplayedHistory([ep.index for ep in missing], [ep.index for ep in chains.history(item.index)])
 
     def _chains_of(self, path: str, reader: EpisodeReader) -> SceneChains:
         """The chains of the file at `path` (`SceneChains`), found once per file the worker meets in a row."""
@@ -418,7 +410,7 @@ class ReplayWorker:
 def _has_history(episode: EpisodeMeta) -> bool:
     """Whether episodes may have run in `episode`'s scene before it (told by its metadata alone: where a copy says
     where it ran, that; else whether its reset kept the scene and it is not its file's first)."""
-    scene = episode.origin.get("scene") if episode.origin else None
+    scene = recorded_scene(episode)
     if scene is not None:
         return scene["position"] > 0
     return not episode.reconfigured and episode.index > 0

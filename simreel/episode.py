@@ -289,7 +289,8 @@ class EpisodeMeta:
     absent where unknown), and that episode's own ``"origin"`` when it had one (empty for a recorded episode)."""
     provenance: dict[str, Any] = field(default_factory=dict)
     """For an episode of a converted recording: ``{"source_episode": index in the source, "verdict", "checked",
-    "first_exceeded", "max_error"}`` as the conversion judged it (see `RecordingMeta.provenance`)."""
+    "first_exceeded", "max_error"}`` as the conversion judged it (see `RecordingMeta.provenance`), and ``"scene"``,
+    where it ran (as in `origin`; `simreel.replay.convert.ConvertJob.scenes`)."""
     verification: dict[str, Any] = field(default_factory=dict)
     """In a file written by ``simreel replay -o``: the replay's verdict on this episode (verdict, first divergence,
     scene differences, explanation: `simreel.replay.report.EpisodeReport.verification`); empty elsewhere."""
@@ -304,19 +305,21 @@ class EpisodeMeta:
         for name in ("index", "length", "env_idx"):
             if kw.get(name, 0) < 0:
                 raise MetadataError(f"episode metadata: {name} is {kw[name]}, expected >= 0")
-        _check_scene(kw.get("origin") or {})
+        _check_scene(kw.get("origin") or {}, "origin")
+        _check_scene(kw.get("provenance") or {}, "provenance")
         return cls(**kw)
 
 
-def _check_scene(origin: dict[str, Any]) -> None:
-    """`MetadataError` unless ``origin["scene"]``, where given, is what `EpisodeMeta.origin` describes."""
-    scene = origin.get("scene")
+def _check_scene(holder: dict[str, Any], name: str) -> None:
+    """`MetadataError` unless ``holder["scene"]`` (of `EpisodeMeta` field `name`), where given, is what
+    `EpisodeMeta.origin` describes."""
+    scene = holder.get("scene")
     if scene is None:
         return
     ok = isinstance(scene, dict) and isinstance(scene.get("file"), str) and all(
         type(scene.get(k)) is int and scene[k] >= 0 for k in ("start", "position"))
     if not ok:
-        raise MetadataError(f"episode metadata: origin.scene is {json.dumps(scene, default=str)[:200]}, expected "
+        raise MetadataError(f"episode metadata: {name}.scene is {json.dumps(scene, default=str)[:200]}, expected "
                             '{"file": <path>, "start": <index>, "position": <count>}')
 
 

@@ -15,10 +15,11 @@ predecessor too many costs time, one too few gives a wrong verdict); episodes of
 
 An episode copied by ``simreel filter`` or ``merge`` keeps where it ran (``EpisodeMeta.origin["scene"]``,
 `SceneChains.copied_scene`): its recording, the index there of its chain's first episode and its place in that
-chain. A file's copies of one recorded chain form a chain of that file, and an episode's history is in the file
-only when the copies just before it in that chain are its recorded predecessors, all of them, in order
-(`SceneChains.history`); else (episodes left out, reordered, or copied by a simreel that did not note the scene)
-it is not.
+chain; so does a converted one (``provenance["scene"]``: the input's chain for a re-render, the conversion's own
+run for a control-mode conversion, `run_scenes`). A file's episodes made from one recorded chain form a chain of
+that file, whose history at each place is any of its episodes at that place (copies of one recorded episode); an
+episode's history is in the file when the file holds an episode at every place before it (`SceneChains.complete`),
+else (episodes left out, or copied by a simreel that did not note the scene) it is not.
 
 `simreel.replay.workers.ReplayWorker` replays the history before an episode in mode ``actions`` (actions only,
 nothing compared). The other modes restore recorded states and have tolerances of their own; they replay none.
@@ -31,61 +32,89 @@ from typing import Any
 
 from simreel.episode import EpisodeMeta
 
-__all__ = ["SceneChains"]
+__all__ = ["SceneChains", "recorded_scene", "run_scenes"]
+
+
+def recorded_scene(episode: EpisodeMeta) -> dict[str, Any] | None:
+    """Where `episode` says it ran, if it was made from another recording: ``provenance["scene"]`` of a converted
+    episode (first: a control-mode conversion of a copy ran in its own run), else ``origin["scene"]`` of a copy
+    (filter, merge); None for an episode recorded in its file (or a copy that does not say)."""
+    return (episode.provenance or {}).get("scene") or (episode.origin or {}).get("scene")
+
+
+def run_scenes(episodes: Sequence[EpisodeMeta], path: str) -> dict[int, dict[str, Any]]:
+    """Where each of `episodes` ran when a run (a control-mode conversion writing the recording at `path`) stepped
+    them one after another, in this order, in one env: its scene, as `recorded_scene` reads it. A reset that
+    rebuilt the scene starts a chain."""
+    scenes: dict[int, dict[str, Any]] = {}
+    start, ran = None, 0
+    for ep in episodes:
+        if start is None or ep.reconfigured:
+            start, ran = ep.index, 0
+        scenes[ep.index] = {"file": path, "start": start, "position": ran}
+        ran += 1
+    return scenes
 
 
 class SceneChains:
     """The chains of one file's episodes, found once (a file may hold tens of thousands of episodes in one chain):
-    each episode's chain (`key`), its place among the file's episodes of that chain (`position`), and how many
-    episodes ran before it in its scene when it was recorded (`ran_before`)."""
+    each episode's chain (`key`) and how many episodes ran before it in its scene when it was recorded
+    (`ran_before`, its place in the chain). Any two episodes of one chain at one place are the same recorded episode
+    (two copies of it), so a chain's history is its episodes at places 0, 1, ..., whichever copies hold them."""
 
     def __init__(self, episodes: Sequence[EpisodeMeta]) -> None:
         self.key: dict[int, str] = {}
         """Episode index → its chain: ``#<start>`` for a chain recorded in this file (the index of its first
-        episode), ``<recording>#<start>`` for copies of a chain recorded there, ``?<index>`` for a copy whose chain
-        is unknown."""
+        episode), ``<recording>#<start>`` for episodes made from a chain recorded there, ``?<index>`` for a copy
+        whose chain is unknown."""
         self.ran_before: dict[int, int | None] = {}
         """Episode index → the episodes that ran in its scene before it when it was recorded (None: unknown)."""
-        self.recorded: dict[int, tuple[str | None, int]] = {}
+        self._recorded: dict[int, tuple[str | None, int]] = {}
         """Episode index → (its recording, None for this file; the index there of its chain's first episode)."""
-        current: dict[int, int] = {}
+        self._at: dict[str, dict[int, list[EpisodeMeta]]] = {}
+        """Chain → place → its episodes in this file at that place, in index order."""
+        current: dict[int, tuple[int, int]] = {}  # sub-scene → (its chain's first episode, episodes in it so far)
         for ep in sorted(episodes, key=lambda e: e.index):
-            scene = ep.origin.get("scene") if ep.origin else None
+            scene = recorded_scene(ep)
             if scene is not None:
                 self._note(ep, f"{scene['file']}#{scene['start']}", scene["position"], (scene["file"], scene["start"]))
             elif ep.origin:
                 self._note(ep, f"?{ep.index}", None, (None, ep.index))
             else:
-                if ep.reconfigured or ep.env_idx not in current:
-                    current[ep.env_idx] = ep.index
-                self._note(ep, f"#{current[ep.env_idx]}", None, (None, current[ep.env_idx]))
-        self.members: dict[str, list[EpisodeMeta]] = {}
-        """Chain → its episodes in this file, in index order."""
-        for ep in sorted(episodes, key=lambda e: e.index):
-            self.members.setdefault(self.key[ep.index], []).append(ep)
-        self.position = {ep.index: k for chain in self.members.values() for k, ep in enumerate(chain)}
-        """Episode index → how many episodes of its chain this file holds before it."""
-        for index, ran in self.ran_before.items():
-            if ran is None and not self.key[index].startswith("?"):  # recorded here: its place in the chain
-                self.ran_before[index] = self.position[index]
+                start, ran = (ep.index, 0) if ep.reconfigured or ep.env_idx not in current else current[ep.env_idx]
+                current[ep.env_idx] = (start, ran + 1)
+                self._note(ep, f"#{start}", ran, (None, start))
+        self._complete = {key: next(p for p in range(len(at) + 1) if p not in at) for key, at in self._at.items()}
+        """Chain → its first place this file holds no episode at: the chain is whole here up to it."""
 
     def _note(self, ep: EpisodeMeta, key: str, ran_before: int | None, recorded: tuple[str | None, int]) -> None:
-        self.key[ep.index], self.ran_before[ep.index], self.recorded[ep.index] = key, ran_before, recorded
+        self.key[ep.index], self.ran_before[ep.index], self._recorded[ep.index] = key, ran_before, recorded
+        if ran_before is not None:
+            self._at.setdefault(key, {}).setdefault(ran_before, []).append(ep)
 
-    def history(self, index: int) -> list[EpisodeMeta] | None:
-        """The episodes of this file that ran in episode `index`'s scene before it since that scene was built, first
-        to last (empty for a chain's first episode); None when this file does not hold them all, in order."""
-        ran, k = self.ran_before[index], self.position[index]
-        if ran is None or ran > k:
-            return None
-        before = self.members[self.key[index]][k - ran : k]
-        return before if [self.ran_before[ep.index] for ep in before] == list(range(ran)) else None
+    def complete(self, index: int) -> bool:
+        """Whether this file holds every episode that ran in episode `index`'s scene before it since that scene was
+        built (true for a chain's first episode)."""
+        ran = self.ran_before[index]
+        return ran is not None and ran <= self._complete[self.key[index]]
+
+    def history(self, index: int, since: int = 0) -> list[EpisodeMeta]:
+        """The episodes that ran in episode `index`'s scene before it since that scene was built, from place `since`
+        on, first to last: at each place, the copy last before `index` in this file, else the first. The file must
+        hold them (`complete`)."""
+        at = self._at[self.key[index]]
+        return [_nearest_before(at[p], index) for p in range(since, self.ran_before[index] or 0)]
 
     def copied_scene(self, index: int, path: str) -> dict[str, Any] | None:
         """``EpisodeMeta.origin["scene"]`` of a copy of episode `index` of this file, at `path` (absolute): its
         recording, the index there of its chain's first episode, and the episodes of that chain that ran before it.
         None where that is unknown (a copy by a simreel that did not note it)."""
-        ran, (recording, start) = self.ran_before[index], self.recorded[index]
+        ran, (recording, start) = self.ran_before[index], self._recorded[index]
         if ran is None:
             return None
         return {"file": recording or path, "start": start, "position": ran}
+
+
+def _nearest_before(copies: list[EpisodeMeta], index: int) -> EpisodeMeta:
+    before = [ep for ep in copies if ep.index < index]
+    return before[-1] if before else copies[0]

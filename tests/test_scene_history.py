@@ -4,12 +4,13 @@ ones (chains by sub-scene and rebuilding reset) and copies made by filter and me
 from __future__ import annotations
 
 from simreel.episode import EpisodeMeta
-from simreel.scene_history import SceneChains
+from simreel.scene_history import SceneChains, run_scenes
 
 
 def _indices(episodes: list[EpisodeMeta], index: int) -> list[int] | None:
-    history = SceneChains(episodes).history(index)
-    return None if history is None else [ep.index for ep in history]
+    """Episode `index`'s history in the file of `episodes` (None: the file does not hold it all)."""
+    chains = SceneChains(episodes)
+    return [ep.index for ep in chains.history(index)] if chains.complete(index) else None
 
 
 def _copy(index: int, recording: str, position: int, start: int = 0) -> EpisodeMeta:
@@ -55,6 +56,11 @@ def test_a_copy_whose_predecessors_were_left_out_has_no_history_here():
     assert [_indices(episodes, i) for i in range(3)] == [[], None, None]
 
 
+def test_copies_in_another_order_than_they_ran_still_hold_their_history():
+    episodes = [_copy(0, "/a.h5", 1), _copy(1, "/a.h5", 0)]  # convert --episodes 1,0 of a control-mode conversion
+    assert [_indices(episodes, i) for i in range(2)] == [[1], []]
+
+
 def test_the_same_chain_copied_twice_takes_the_copies_just_before():
     episodes = [_copy(0, "/a.h5", 0), _copy(1, "/a.h5", 1), _copy(2, "/a.h5", 0), _copy(3, "/a.h5", 1)]
     assert [_indices(episodes, i) for i in range(4)] == [[], [0], [], [2]]
@@ -70,3 +76,15 @@ def test_a_copy_of_a_copy_keeps_the_recording_it_ran_in():
     recorded = SceneChains([EpisodeMeta(0), EpisodeMeta(1)])
     assert copied.copied_scene(0, "/f.h5") == {"file": "/a.h5", "start": 2, "position": 4}
     assert recorded.copied_scene(1, "/r.h5") == {"file": "/r.h5", "start": 0, "position": 1}
+
+
+def test_a_converted_episode_says_where_it_ran_in_its_provenance():
+    scene = {"file": "/a.h5", "start": 0, "position": 1}
+    episodes = [EpisodeMeta(3, provenance={"source_episode": 3, "scene": scene})]  # convert --episodes 3 of a.h5
+    assert _indices(episodes, 3) is None and SceneChains(episodes).copied_scene(3, "/c.h5") == scene
+
+
+def test_a_run_of_episodes_in_one_env_is_one_chain_until_a_rebuild():
+    episodes = [EpisodeMeta(5), EpisodeMeta(2), EpisodeMeta(7, reconfigured=True), EpisodeMeta(1)]
+    assert {i: (s["start"], s["position"]) for i, s in run_scenes(episodes, "/out.h5").items()} == \
+        {5: (5, 0), 2: (5, 1), 7: (7, 0), 1: (7, 1)}

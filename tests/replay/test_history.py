@@ -107,10 +107,33 @@ def test_a_filtered_episode_without_its_history_is_replayed_without_it_and_says_
     assert _replay(out, "--report", report) == 1  # diverged at step 9, as episode 2 does on a fresh scene
     (episode,) = json.loads(report.read_text())["episodes"]
     assert episode["verdict"] == "diverged"
-    assert f"replayed on a rebuilt scene without the 2 episode(s) that ran in its scene before it when it was " \
-           f"recorded ({lift.name}, from episode 0): this file does not hold them all, in order (copied by simreel " \
-           "filter or merge); PhysX results depend on the scene's history: a divergence may come from that alone" \
-           in episode["limits"]
+    assert _missing_history(lift.name) in episode["limits"]
+
+
+def _missing_history(recording: str) -> str:
+    """The limit of episode 2 of `recording` (the lift recording) replayed from a file without episodes 0 and 1."""
+    return (f"replayed on a rebuilt scene without the 2 episode(s) that ran in its scene before it when it was "
+            f"recorded ({recording}, from episode 0): this file, made from another by simreel filter, merge or "
+            "convert, does not hold them all; PhysX results depend on the scene's history: a divergence may come "
+            "from that alone")
+
+
+def test_a_re_rendered_episode_without_its_history_is_replayed_without_it_and_says_so(lift, tmp_path):
+    out = tmp_path / "two.h5"
+    assert main(["convert", str(lift), str(out), "--obs-mode", "state", "--episodes", "2", "-q"]) == 0
+    report = tmp_path / "r.json"
+    assert _replay(out, "--report", report) == 1  # as the filtered one: the same trajectory, without its history
+    (episode,) = json.loads(report.read_text())["episodes"]
+    assert episode["verdict"] == "diverged" and _missing_history(lift.name) in episode["limits"]
+
+
+def test_a_whole_re_rendered_recording_replays_its_own_history(lift, tmp_path, capsys):
+    out = tmp_path / "all.h5"
+    assert main(["convert", str(lift), str(out), "--obs-mode", "state", "-q"]) == 0
+    assert _replay(out, "--episodes", "2") == 0  # after its predecessors, as they are in the converted file
+    out = capsys.readouterr().out
+    assert "episode 2 replayed after its recorded predecessor(s) 0–1" in out  # (the re-rendered observations are
+    assert "1 of 1 episode(s) verified" in out and "all verified" in out  # within tolerance of the recomputed ones)
 
 
 def test_a_merged_file_replays_each_recordings_episodes_after_their_own_history(lift, tmp_path, capsys):
