@@ -444,8 +444,8 @@ class ReplayRun:
 
 def _few_chains_note(asked: int, chains: int, episodes: int) -> str:
     """Why fewer processes replay than `--workers` asked for: the `episodes` form `chains` scene chains."""
-    processes = "1 process" if chains == 1 else f"{chains} processes"
-    return (f"--workers {asked}: {processes} replayed these {episodes} episodes, which form {chains} scene chain(s) "
+    processes, form = ("1 process", "1 scene chain") if chains == 1 else (f"{chains} processes", f"{chains} scene chains")
+    return (f"--workers {asked}: {processes} replayed these {episodes} episodes, which form {form} "
             "(episodes that ran one after another in one scene since it was built); an actions replay replays each "
             "chain in turn in one process (PhysX results depend on the scene's history)")
 

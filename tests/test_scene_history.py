@@ -88,3 +88,25 @@ def test_a_run_of_episodes_in_one_env_is_one_chain_until_a_rebuild():
     episodes = [EpisodeMeta(5), EpisodeMeta(2), EpisodeMeta(7, reconfigured=True), EpisodeMeta(1)]
     assert {i: (s["start"], s["position"]) for i, s in run_scenes(episodes, "/out.h5").items()} == \
         {5: (5, 0), 2: (5, 1), 7: (7, 0), 1: (7, 1)}
+
+
+def _old_copy(index: int, recorded_index: int, **changes) -> EpisodeMeta:
+    """Episode `index` of a file filtered or merged by a simreel that did not note where copies ran: a copy of
+    episode `recorded_index` of /a.h5 (through a filtered file in between)."""
+    inner = {"file": "/a.h5", "index": recorded_index}
+    return EpisodeMeta(index, origin={"file": "/f.h5", "index": index, "origin": inner}, **changes)
+
+
+def test_older_copies_of_a_whole_chain_have_their_history():
+    episodes = [_old_copy(0, 0), _old_copy(1, 1), _old_copy(2, 2)]
+    assert [_indices(episodes, i) for i in range(3)] == [[], [0], [0, 1]]
+
+
+def test_older_copies_start_a_chain_where_the_scene_was_rebuilt_and_lose_it_at_a_gap():
+    episodes = [_old_copy(0, 3, reconfigured=True), _old_copy(1, 4), _old_copy(2, 6), _old_copy(3, 1)]
+    assert [_indices(episodes, i) for i in range(4)] == [[], [0], None, None]  # 5 left out; 0 left out
+
+
+def test_older_copies_of_parallel_envs_are_unknown():
+    episodes = [_old_copy(0, 0), _old_copy(1, 1, env_idx=1)]
+    assert [_indices(episodes, i) for i in range(2)] == [None, None]

@@ -180,6 +180,8 @@ def _grpc_problem(port: int) -> str | None:
         return f"it did not answer a gRPC client in {_ANSWER_S:.0f} s"
     except OSError as e:
         return f"it dropped the connection: {e.strerror or e}"
+    if not answer:
+        return "it closed the connection without answering"
     if len(answer) < 4 or answer[3] != 4:  # byte 3 of a frame header is its type; 4: SETTINGS
         return "it answered, but not as a gRPC server does"
     return None

@@ -6,11 +6,13 @@ after episodes 0 and 1 it is exact."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 
 import pytest
 from support.damage import corrupt_chunk
+from support.mcap_samples import write
 
 from simreel.cli.main import main
 from simreel.compare import Tolerances
@@ -71,7 +73,7 @@ def test_two_workers_on_one_chain_replay_it_in_one_process_and_say_so(lift, caps
     assert _replay(lift, "--workers", "2") == 0
     out = capsys.readouterr().out
     assert "3 exact" in out
-    assert "note: --workers 2: 1 process replayed these 3 episodes, which form 1 scene chain(s)" in out
+    assert "note: --workers 2: 1 process replayed these 3 episodes, which form 1 scene chain " in out
 
 
 def test_two_workers_replay_each_chain_in_one_process_and_no_history_twice(record, tmp_path, capsys):
@@ -151,3 +153,21 @@ def test_a_merged_file_replays_each_recordings_episodes_after_their_own_history(
     assert episode["verdict"] == "exact"  # after b's episodes 0 and 1 (merged 3 and 4), not a's
     assert "episode 5 replayed after its recorded predecessor(s) 3–4 (PhysX results depend on the scene's " \
            "history); 3–4 replayed for that, not verified" in episode["notes"]
+
+
+def test_a_whole_chain_filtered_by_an_older_simreel_replays_its_own_history(lift, tmp_path, capsys):
+    """Copies written before copies noted where they ran (no ``origin.scene``): their recorded episodes and resets
+    still tell their chain, so the whole recording filtered then replays as the recording does."""
+    filtered = tmp_path / "filtered.h5"
+    assert main(["filter", str(lift), "-o", str(filtered), "--episodes", "0-2", "-q"]) == 0
+    with open_reader(filtered) as reader:
+        episodes = [reader.read_episode(m.index) for m in reader.episodes]
+        meta = reader.meta
+    older = tmp_path / "older.h5"
+    write(older, meta, [dataclasses.replace(ep, meta=dataclasses.replace(
+        ep.meta, origin={k: v for k, v in ep.meta.origin.items() if k != "scene"})) for ep in episodes])
+    report = tmp_path / "r.json"
+    assert _replay(older, "--episodes", "2", "--report", report) == 0  # was: diverged, on a rebuilt scene
+    (episode,) = json.loads(report.read_text())["episodes"]
+    assert episode["verdict"] == "exact" and "episode 2 replayed after its recorded predecessor(s) 0–1 (PhysX " \
+        "results depend on the scene's history); 0–1 replayed for that, not verified" in episode["notes"]
