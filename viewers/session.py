@@ -187,6 +187,12 @@ def _grpc_problem(port: int) -> str | None:
     return None
 
 
+def _refuse_unless_grpc(port: int) -> None:
+    problem = _grpc_problem(port)
+    if problem is not None:
+        raise _refused(port, problem)
+
+
 def _viewer_gone(why: str) -> ViewError:
     return ViewError(f"the Rerun viewer did not take the session ({why}): it could not open its window, or it "
                      "closed; use --save OUT.rrd and open it elsewhere, or --serve")
@@ -362,6 +368,8 @@ class ViewSession:
         import rerun as rr
 
         rec = self.new_stream()
+        if _listening(port):  # Rerun would take whatever listens there for an open viewer: refused before it does
+            _refuse_unless_grpc(port)
         try:
             rr.spawn(port=port, connect=False, recording=rec, executable_path=viewer_executable())
         except RuntimeError as e:
@@ -369,9 +377,7 @@ class ViewSession:
                             "elsewhere") from e
         if not _listening(port):
             raise _viewer_gone(f"nothing listens on port {port}")
-        problem = _grpc_problem(port)
-        if problem is not None:
-            raise _refused(port, problem)
+        _refuse_unless_grpc(port)
         rec.connect_grpc(f"rerun+http://127.0.0.1:{port}/proxy", default_blueprint=self.blueprint())
         self.log_to(rec)
         _flush_to_viewer(rec, port)
