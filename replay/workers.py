@@ -259,7 +259,7 @@ class ReplayWorker:
             replayer = self._replayer_for(item, reader.meta)
             scene, self._scene = self._scene, None  # unknown until the replay ends well
             history = self._replay_history(reader, replayer, item, scene, shipped=shipped is not None)
-            report, replayed = self._replay(reader, replayer, item.index, history)
+            report, replayed = self._replay(reader, replayer, item.index, history, self._ran_in(item, reader, history))
         except SimreelError as e:
             return EpisodeResult(item, error=e, worker=where)
         if self.job.mode == "actions" and report.explanation is None and shipped is None and history.lost is None:
@@ -327,8 +327,18 @@ class ReplayWorker:
             self._key, self._scene = key, SceneRun()
         return self._replayer
 
-    def _replay(self, reader: EpisodeReader, replayer: EpisodeReplayer, index: int,
-                history: ReplayedHistory) -> tuple[EpisodeReport, Episode | Path | None]:
+    def _ran_in(self, item: WorkItem, reader: EpisodeReader, history: ReplayedHistory) -> dict[str, Any] | None:
+        """For `-o`, where the replay of `item` ran (``provenance["scene"]`` of the replayed episode,
+        `simreel.scene_history`): in an actions replay after its recorded history, the recorded episode's scene;
+        without it (a rebuilt scene), a chain of its own in the output. None: not written, or states restored."""
+        if self.job.output is None or self.job.mode != "actions":
+            return None
+        if history.lost is not None:
+            return {"file": str(Path(self.job.output).resolve()), "start": item.index, "position": 0}
+        return self._chains_of(item.path, reader).copied_scene(item.index, str(Path(item.path).resolve()))
+
+    def _replay(self, reader: EpisodeReader, replayer: EpisodeReplayer, index: int, history: ReplayedHistory,
+                ran_in: dict[str, Any] | None = None) -> tuple[EpisodeReport, Episode | Path | None]:
         """Replay episode `index` block by block, comparing each block as it is replayed (and, for `-o`, writing it
         where `_stream` says); only the per-key error curves outlive a block. `history`: how its scene's history was
         replayed just before (`_replay_history`), which its report notes. Returns the report and, for `-o`, the scratch
@@ -352,12 +362,11 @@ class ReplayWorker:
                 stream.discard()
             raise
         if stream is not None:
-            stream.commit(dataclasses.replace(source.meta, verification=report.verification()), source.length)
+            stream.commit(_replayed_meta(source.meta, report, ran_in), source.length)
         if kept is None:
             return report, stream.path if isinstance(stream, ScratchEpisode) else None
         episode = kept.episode(source.meta)
-        meta = dataclasses.replace(episode.meta, verification=report.verification())
-        return report, dataclasses.replace(episode, meta=meta)
+        return report, dataclasses.replace(episode, meta=_replayed_meta(episode.meta, report, ran_in))
 
     def _stream(self, meta: RecordingMeta, episode: EpisodeMeta) -> EpisodeStream | None:
         """Where the replay of `episode` (of the recording with `meta`) is written as it comes: into `-o` when this
@@ -405,6 +414,13 @@ class ReplayWorker:
     def close(self) -> None:
         self._close_replayer()
         self._readers.close()
+
+
+def _replayed_meta(meta: EpisodeMeta, report: EpisodeReport, ran_in: dict[str, Any] | None) -> EpisodeMeta:
+    """The metadata `-o` writes with a replayed episode: the recorded one's, with the replay's verdict and where the
+    replay ran (`ReplayWorker._ran_in`)."""
+    provenance = {**meta.provenance, "scene": ran_in} if ran_in is not None else meta.provenance
+    return dataclasses.replace(meta, verification=report.verification(), provenance=provenance)
 
 
 def _has_history(episode: EpisodeMeta) -> bool:

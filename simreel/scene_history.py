@@ -74,7 +74,7 @@ class SceneChains:
         self._at: dict[str, dict[int, list[EpisodeMeta]]] = {}
         """Chain → place → its episodes in this file at that place, in index order."""
         current: dict[int, tuple[int, int]] = {}  # sub-scene → (its chain's first episode, episodes in it so far)
-        inferred = _inferred_scenes([ep for ep in episodes if ep.origin and recorded_scene(ep) is None])
+        inferred = _inferred_scenes([ep for ep in episodes if ep.origin])
         for ep in sorted(episodes, key=lambda e: e.index):
             scene = recorded_scene(ep) or inferred.get(ep.index)
             if scene is not None:
@@ -122,11 +122,11 @@ def _nearest_before(copies: list[EpisodeMeta], index: int) -> EpisodeMeta:
 
 
 def _inferred_scenes(copies: Sequence[EpisodeMeta]) -> dict[int, dict[str, Any]]:
-    """Where copies made by a simreel that did not note it (no ``origin["scene"]``) ran, where their metadata tells:
-    the recording's episodes they were copied from (the innermost ``origin``), in their order there, from one whose
-    reset rebuilt the scene or that was the recording's first, each copied from the episode right after the one
-    before it. Only for recordings of one env (``env_idx`` 0): those of parallel envs interleave their sub-scenes'
-    episodes. The others are unknown (left out)."""
+    """Where copies made by a simreel that did not note it (no scene, `recorded_scene`) ran, where their metadata
+    tells: the recording's episodes they were copied from (the innermost ``origin``), in their order there, from one
+    whose reset rebuilt the scene, that was the recording's first, or whose copy says where it ran, each copied from
+    the episode right after the one before it. Only for recordings of one env (``env_idx`` 0): those of parallel
+    envs interleave their sub-scenes' episodes. The others are unknown (left out)."""
     by_recording: dict[str, list[tuple[int, EpisodeMeta]]] = {}
     for ep in copies:
         root = _innermost(ep.origin)
@@ -134,20 +134,29 @@ def _inferred_scenes(copies: Sequence[EpisodeMeta]) -> dict[int, dict[str, Any]]
             by_recording.setdefault(root["file"], []).append((root["index"], ep))
     scenes: dict[int, dict[str, Any]] = {}
     for recording, listed in by_recording.items():
-        if any(ep.env_idx != 0 for _, ep in listed):
-            continue
-        chain: tuple[int, int] | None = None  # (its first episode there, the place of the last one)
-        last = None
-        for at, ep in sorted(listed, key=lambda x: x[0]):
-            if ep.reconfigured or at == 0:
-                chain = (at, 0)
-            elif chain is not None and last is not None and at == last + 1:
-                chain = (chain[0], chain[1] + 1)
-            elif at != last:  # (the same episode copied twice keeps its place)
-                chain = None
-            last = at
-            if chain is not None:
-                scenes[ep.index] = {"file": recording, "start": chain[0], "position": chain[1]}
+        if all(ep.env_idx == 0 for _, ep in listed):
+            scenes.update(_walk(recording, sorted(listed, key=lambda x: x[0])))
+    return scenes
+
+
+def _walk(recording: str, listed: list[tuple[int, EpisodeMeta]]) -> dict[int, dict[str, Any]]:
+    """`_inferred_scenes` of the copies of one recording, (index there, copy) in that index order."""
+    scenes: dict[int, dict[str, Any]] = {}
+    chain: tuple[int, int] | None = None  # (its first episode there, the place of the last one)
+    last = None
+    for at, ep in listed:
+        noted = recorded_scene(ep)
+        if noted is not None:
+            chain = (noted["start"], noted["position"])
+        elif ep.reconfigured or at == 0:
+            chain = (at, 0)
+        elif chain is not None and last is not None and at == last + 1:
+            chain = (chain[0], chain[1] + 1)
+        elif at != last:  # (the same episode copied twice keeps its place)
+            chain = None
+        last = at
+        if chain is not None and noted is None:
+            scenes[ep.index] = {"file": recording, "start": chain[0], "position": chain[1]}
     return scenes
 
 

@@ -110,3 +110,9 @@ def test_older_copies_start_a_chain_where_the_scene_was_rebuilt_and_lose_it_at_a
 def test_older_copies_of_parallel_envs_are_unknown():
     episodes = [_old_copy(0, 0), _old_copy(1, 1, env_idx=1)]
     assert [_indices(episodes, i) for i in range(2)] == [None, None]
+
+
+def test_an_older_copy_continues_the_chain_of_a_copy_that_says_where_it_ran():
+    """Episodes 0-1 of /a.h5 copied with their scene noted (merged now), episode 2 by an older filter's --rest."""
+    episodes = [_copy(0, "/a.h5", 0), _copy(1, "/a.h5", 1), _old_copy(2, 2)]
+    assert _indices(episodes, 2) == [0, 1]

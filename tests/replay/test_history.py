@@ -171,3 +171,14 @@ def test_a_whole_chain_filtered_by_an_older_simreel_replays_its_own_history(lift
     (episode,) = json.loads(report.read_text())["episodes"]
     assert episode["verdict"] == "exact" and "episode 2 replayed after its recorded predecessor(s) 0–1 (PhysX " \
         "results depend on the scene's history); 0–1 replayed for that, not verified" in episode["notes"]
+
+
+def test_a_replay_written_alone_keeps_where_it_ran(lift, tmp_path):
+    """`replay --episodes 2 -o` writes episode 2 replayed after its recorded history: replaying that file, which
+    lacks the history, says so (it was taken as recorded there, on a fresh scene, and diverged silently)."""
+    out = tmp_path / "replayed.h5"
+    assert _replay(lift, "--episodes", "2", "-o", out) == 0
+    report = tmp_path / "r.json"
+    assert _replay(out, "--report", report) == 1
+    (episode,) = json.loads(report.read_text())["episodes"]
+    assert episode["verdict"] == "diverged" and _missing_history(lift.name) in episode["limits"]
