@@ -542,10 +542,13 @@ def _import_specs(imports: Any) -> tuple[str, ...]:
 
 def _check_writer_options(path: str | Path, options: Mapping[str, Any]) -> None:
     """Refuse writer options the format's writer does not take, naming those it takes, before anything is started."""
-    unknown = sorted(set(options) - set(_writer_option_names(path))) if options else []
+    if not options:
+        return
+    takes = _writer_option_names(path)
+    unknown = sorted(set(options) - set(takes))
     if unknown:
         raise UsageError(f"writer_options {', '.join(unknown)}: not an option of the {format_of(path).upper()} "
-                         f"writer, which takes {', '.join(_writer_option_names(path))}")
+                         f"writer, which takes {', '.join(takes)}")
 
 
 def _writer_option_names(path: str | Path) -> list[str]:

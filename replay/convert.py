@@ -31,6 +31,7 @@ name: one that fails the check is never published (`OutputCheckError`), and an o
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -612,8 +613,9 @@ class ConversionRun:
         return ConvertJob(path=self.path, obs_mode=opts.obs_mode, control_mode=opts.control_mode,
                           env_kwargs=opts.env_kwargs(), tolerances=self.tolerances, sim_backend=opts.sim_backend,
                           imports=tuple(opts.imports), converter=opts.converter, keep=tuple(opts.keep),
-                          output=output, scratch=scratch, block_rows=opts.block_rows, scenes=self._scenes())
+                          output=output, scratch=scratch, block_rows=opts.block_rows, scenes=self._scenes)
 
+    @functools.cached_property
     def _scenes(self) -> dict[int, dict[str, Any]]:
         """`ConvertJob.scenes` of this conversion."""
         listed = {m.index: m for m in self.reader.episodes}

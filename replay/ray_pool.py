@@ -30,7 +30,7 @@ from simreel.formats import EpisodeReader
 from simreel.formats.base import EpisodeRows
 from simreel.formats.inputs import file_identity
 from simreel.replay.workers import EpisodeResult, ReaderCache, ReplayJob, ReplayWorker
-from simreel.replay.worklist import RecordingInfo, WorkItem, chain_groups
+from simreel.replay.worklist import RecordingInfo, WorkItem, chain_groups, next_item
 
 __all__ = ["run_ray", "RayOptions", "ShippedEpisode", "MAX_ATTEMPTS"]
 
@@ -224,9 +224,7 @@ class _Fleet:
             busy = sum(1 for a, *_ in self.inflight.values() if a is actor)
             left = self.left.setdefault(actor, deque())
             while (left or queue) and busy < _AHEAD:
-                if not left:
-                    left.extend(queue.popleft())
-                item = left.popleft()
+                item = next_item(left, queue)
                 key = (item.path, item.index)
                 self.attempts[key] = self.attempts.get(key, 0) + 1
                 shipped = None if item.path in self.sees[actor] else self._ship(item)

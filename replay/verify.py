@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime
+import functools
 import math
 import os
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -401,7 +402,7 @@ class ReplayRun:
         why = error.problem if isinstance(error, FileProblemError) else str(error)  # the file is named beside it
         return EpisodeReport.errored(result.item.index, result.item.steps, why)
 
-    @property
+    @functools.cached_property
     def _local_workers(self) -> int:
         """Processes of the local pool (this one included); 1: no pool. No more than the run has groups of items
         (`chain_groups`): an actions replay replays the episodes of one scene chain in one process."""

@@ -51,7 +51,7 @@ from simreel.replay.output import (
     output_pose_bodies,
 )
 from simreel.replay.report import EpisodeReport
-from simreel.replay.worklist import WorkItem, chain_groups
+from simreel.replay.worklist import WorkItem, chain_groups, next_item
 from simreel.scene_history import SceneChains, recorded_scene
 from simreel.sim.user_code import resolve_task_imports
 
@@ -564,10 +564,8 @@ class _Feed:
         try:
             while True:
                 self._hand_out(groups)
-                if not self.here and groups:
-                    self.here.extend(groups.popleft())
-                if self.here:
-                    self.collect(self.worker.run(self.here.popleft()))
+                if self.here or groups:
+                    self.collect(self.worker.run(next_item(self.here, groups)))
                     done = {fut for fut in self.pending if fut.done()}
                 elif self.pending:
                     done, _ = wait(self.pending, return_when=FIRST_COMPLETED)
@@ -585,9 +583,7 @@ class _Feed:
         held = Counter(lane for _, lane in self.pending.values())
         for executor, left in self.lanes:
             while held[executor] < _AHEAD and (left or groups):
-                if not left:
-                    left.extend(groups.popleft())
-                item = left.popleft()
+                item = next_item(left, groups)
                 self.pending[executor.submit(_worker_run, item)] = (item, executor)
                 held[executor] += 1
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,7 @@ from simreel.formats import open_reader
 from simreel.formats.inputs import expand_inputs, file_identity
 from simreel.scene_history import SceneChains
 
-__all__ = ["RecordingInfo", "WorkItem", "WorkList", "env_key", "build_worklist", "chain_groups"]
+__all__ = ["RecordingInfo", "WorkItem", "WorkList", "env_key", "build_worklist", "chain_groups", "next_item"]
 
 @dataclass(frozen=True)
 class WorkItem:
@@ -57,7 +58,7 @@ class RecordingInfo:
     lacking: list[int] = field(default_factory=list)
     """Episodes `--episodes` asks for that the file does not have (a dataset run replays the others)."""
     chains: dict[int, str] = field(default_factory=dict)
-    """Index → its scene chain (`simreel.scene_history.SceneChains.key`)."""
+    """Index → its scene chain (`simreel.scene_history.SceneChains.key`), for a run that replays actions."""
 
     @property
     def identity(self) -> tuple[int | None, int | None]:
@@ -88,7 +89,8 @@ def env_key(meta: RecordingMeta) -> str:
     return json.dumps(parts, sort_keys=True, default=json_default)
 
 
-def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None, *, some: bool) -> RecordingInfo:
+def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None, *, some: bool,
+                 chains: bool) -> RecordingInfo:
     """The header of the recording at `path`, with the episodes of `wanted` (None: all) it has; `some`: a file that
     lacks some of them replays the others (a dataset's files differ in length), else it is refused."""
     size, mtime_ns = file_identity(path) if path.is_file() else (None, None)
@@ -105,7 +107,7 @@ def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None,
         if wanted is not None:
             steps = {i: steps[i] for i in dict.fromkeys(wanted) if i in steps}
         return RecordingInfo(str(path), reader.meta, steps, size=size, mtime_ns=mtime_ns, lacking=lacking,
-                             chains=SceneChains(reader.episodes).key)
+                             chains=SceneChains(reader.episodes).key if chains else {})
 
 
 def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | None = None,
@@ -125,7 +127,7 @@ def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | Non
     found = expand_inputs(specs)
     for path, explicit in found:
         try:
-            files.append(_read_header(path, episodes, restores, some=len(found) > 1 or not explicit))
+            files.append(_read_header(path, episodes, restores, some=len(found) > 1 or not explicit, chains=chains))
         except SimreelError as e:
             if explicit:
                 raise
@@ -155,3 +157,12 @@ def chain_groups(items: Iterable[WorkItem]) -> list[list[WorkItem]]:
     for item in items:
         groups.setdefault(item.chain if item.chain is not None else object(), []).append(item)
     return list(groups.values())
+
+
+def next_item(left: deque[WorkItem], groups: deque[list[WorkItem]]) -> WorkItem:
+    """The next item for a process that holds `left` of its group (`chain_groups`): the group's next, or once the
+    group is done, the first of the next group in `groups` (which the process then holds). A process finishes its
+    group before it takes another, so a chain stays in one process."""
+    if not left:
+        left.extend(groups.popleft())
+    return left.popleft()
