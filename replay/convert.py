@@ -48,6 +48,7 @@ from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct
 from simreel.replay.control import check_pair
 from simreel.replay.engine import GPU_SIM_BACKENDS, BlockSink, Collected, EpisodeReplayer, ReplayerOptions
+from simreel.replay.last_step import StepBefore, step_before
 from simreel.replay.output import (
     EpisodeStream,
     ReplayedWriter,
@@ -60,7 +61,7 @@ from simreel.replay.output import (
 )
 from simreel.replay.report import CHECK_ORDER, EpisodeReport, episode_lines, recording_limits
 from simreel.replay.tracking import Commands, EndEffector, TrackingBlocks, tracking_tolerances
-from simreel.replay.workers import EpisodeResult, VerifySink, run_pool
+from simreel.replay.workers import EpisodeResult, SceneRun, VerifySink, run_pool
 from simreel.replay.worklist import WorkItem
 from simreel.scene_history import SceneChains, run_scenes
 from simreel.sim.user_code import resolve_task_imports
@@ -201,6 +202,9 @@ class ConvertWorker:
         self.output: ReplayedWriter | None = None
         """The output when this process writes it: a re-rendered episode next in its order is written as it is
         re-rendered."""
+        self._chains: SceneChains | None = None
+        self._scene: SceneRun | None = SceneRun()
+        """What the re-rendering scene ran last (`ReplayWorker`'s rule; None: unknown)."""
         try:
             meta = self.reader.meta
             self.meta = dataclasses.replace(meta, imports=resolve_task_imports(meta.imports, explicit=job.imports,
@@ -280,17 +284,35 @@ class ConvertWorker:
         source = self.reader.open_episode(item.index)
         stream = self._stream(source.meta)
         written = _Written(stream or Collected())
-        scope = CompareScope(initial=source.meta.initial_state_known, obs=False)
+        scope = CompareScope(initial=source.meta.initial_state_known,
+                             obs=_compares_obs(self.meta, self.job.obs_mode, self.job.env_kwargs))
         verify = VerifySink(_states_tolerances(), self.meta.contact_channels, scope, _Rendered(written))
+        before = self._step_before(item.index)
         try:
+            if before.run is not None:
+                self.replayer.rerun_step_before(before.run)
             run = self.replayer.replay_rows(source, verify, mode="states", rows=self.job.block_rows)
             report = EpisodeReport.from_comparison(source, verify.comparison(), notes=run.notes, limits=run.limits,
                                                    seconds=run.seconds)
         except BaseException:
             written.discard()
             raise
+        report.notes += [before.lost] if before.lost else []
+        report.limits += [before.lost] if before.lost else []
+        self._scene = SceneRun.after(self.job.path, self._chains, item.index)
         meta = _provenance_meta(source.meta, report, self.job.scenes.get(item.index))
         return written.finish(item, report, meta, source.length, self.job.keep)
+
+    def _step_before(self, index: int) -> StepBefore:
+        """The step before episode `index`'s reset, which its observations there read (`simreel.replay.last_step`);
+        the re-rendering scene's last step is unknown until its replay ends well."""
+        if self._chains is None:
+            self._chains = SceneChains(self.reader.episodes)
+        scene, self._scene = self._scene, None
+        if not self.replayer.need_obs:
+            return StepBefore(None)
+        ran = scene.ran_of(self.job.path, self._chains, index) if scene is not None else None
+        return step_before(self.reader, self._chains, index, ran)
 
     def _stream(self, episode: EpisodeMeta) -> EpisodeStream | None:
         """Where the conversion of `episode` is written as it comes: into the output when this process writes it and
@@ -308,24 +330,36 @@ class ConvertWorker:
 
 
 _RENDER_CHECKS = {"env_states": "each restored state read back within the 'states' tolerances",
+                  "obs": "the rendered observations against the recorded ones",
                   "contacts": "recorded contact forces against one step simulated from the state",
                   "info": "recorded info", "rewards": "recomputed rewards"}
 """What a re-render compares of each group (`CHECK_ORDER`; the flags, `_FLAGS`, as one) when the file holds it."""
 _FLAGS = ("terminated", "truncated", "success", "fail")
 
 
-def _checked_text(unknown: list[str], *, tracked: bool) -> str:
+def _checked_text(unknown: list[str], *, tracked: bool, obs: bool) -> str:
     """What a conversion compares per step of a file that does not hold `unknown` (`RecordingMeta.unknown`, which
-    also gives the limits lines): a re-render what a replay in mode 'states' compares of what the file holds, a
-    control-mode conversion the tracking groups (success timing when the file holds success)."""
+    also gives the limits lines): a re-render what a replay in mode 'states' compares of what the file holds (its
+    observations where `obs`, `_compares_obs`), a control-mode conversion the tracking groups (success timing when
+    the file holds success)."""
     if tracked:
         groups = ["commanded and reached tool-centre pose", "object poses", "success timing"]
         groups = groups if "success" not in unknown else groups[:-1]
         return "per step, the converted run against the recorded one: " + ", ".join(groups)
-    held = [g for g in CHECK_ORDER if g != "obs" and g not in unknown]
+    held = [g for g in CHECK_ORDER if (g != "obs" or obs) and g not in unknown]
     flags = [g for g in held if g in _FLAGS]
     parts = [_RENDER_CHECKS[g] for g in held if g not in _FLAGS] + [f"recomputed flags ({', '.join(flags)})"]
     return "per step, " + ", ".join(parts) + "; the output's states and actions equal the input's"
+
+
+def _compares_obs(meta: RecordingMeta, obs_mode: str | None, env_kwargs: Mapping[str, Any]) -> bool:
+    """Whether a re-render into `obs_mode` (with camera options `env_kwargs`) compares the observations it renders
+    with those of the recording `meta` describes: the recording holds some in that mode, of no camera (images of
+    another render device differ, and are not the trajectory)."""
+    from simreel.sim.make import camera_use
+
+    return (bool(meta.obs_layout) and obs_mode == meta.obs_mode and not env_kwargs
+            and camera_use(obs_mode) is None)
 
 
 def _tracked(keys: list[str]) -> list[str]:
@@ -638,7 +672,9 @@ class ConversionRun:
             changed["obs_mode"] = [meta.obs_mode, opts.obs_mode]
         if opts.control_mode is not None:
             changed["control_mode"] = [meta.control_mode, opts.control_mode]
-        return {**changed, **opts.env_kwargs(), "checked": _checked_text(meta.unknown, tracked=bool(opts.control_mode))}
+        checked = _checked_text(meta.unknown, tracked=bool(opts.control_mode),
+                                obs=_compares_obs(meta, opts.obs_mode, opts.env_kwargs()))
+        return {**changed, **opts.env_kwargs(), "checked": checked}
 
     def _provenance(self) -> dict[str, Any]:
         opts = self.options

@@ -11,6 +11,10 @@ Modes (see `MODES`):
 - ``step``: for each t, restore state t, step action t, compare with recorded state t+1: the one-step
   error, the purest measure of what the state dict misses.
 
+The contacts PhysX reports are those of the last step the scene simulated, so observations taken at a reset read
+the contacts of the step before it (ManiSkill's ``is_grasping``, in many tasks' observations: 1 at the reset after
+a grasping episode). Before a restoring replay, `EpisodeReplayer.rerun_step_before` re-runs that step.
+
 Reproducing a reset (``EpisodeMeta``: scene, seed, options) is the core's `simreel.sim.rebuild.reset_to_episode`,
 and restoring a state is `simreel.sim.state.restore_state`; the viewer and ``simreel convert --poses`` use both.
 """
@@ -42,12 +46,15 @@ from simreel.sim.rebuild import (
 from simreel.sim.state import FastStateReader, check_rebuilt_layout, read_state, restore_state
 from simreel.state_tree import to_numpy
 
-__all__ = ["MODES", "EpisodeReplayer", "ReplayerOptions", "ReplayedEpisode", "ReplayError", "GYM_MAKE_SEED",
-           "BlockSink", "Collected"]
+__all__ = ["MODES", "RESTORING_MODES", "EpisodeReplayer", "ReplayerOptions", "ReplayedEpisode", "ReplayError",
+           "GYM_MAKE_SEED", "BlockSink", "Collected", "SceneBefore"]
 
 MODES = ("actions", "states", "step")
 """Replay modes; ``resync`` is an option of ``actions`` (with its own default tolerances, see
 `simreel.compare.TOLERANCE_MODES`)."""
+RESTORING_MODES = ("states", "step")
+"""The modes that restore recorded states, so replay no episode's history: they re-run its last step instead
+(`SceneBefore`)."""
 
 
 @dataclass(frozen=True)
@@ -76,6 +83,19 @@ class ReplayerOptions:
     sim_backend: str | None = None
     control_mode: str | None = None
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SceneBefore:
+    """The step the recorder's scene simulated last before an episode's reset, whose contacts the observations at
+    that reset read: episode `episode`'s step from its state row `step` (`state`, each leaf (1, ...)) with `action`;
+    ``SceneBefore()``: none, the scene was just built (no contacts). A restoring replay re-runs it before the reset
+    (`EpisodeReplayer.rerun_step_before`)."""
+
+    episode: EpisodeMeta | None = None
+    state: dict[str, np.ndarray] = field(default_factory=dict)
+    action: np.ndarray | None = None
+    step: int = 0
 
 
 @dataclass
@@ -164,6 +184,8 @@ class EpisodeReplayer:
         self._fast: FastStateReader | None = None
         self._fast_scene = -1
         self._scene_builds = 0
+        self._stepped = False
+        """Whether the scene simulated a step since it was built (it then reports that step's contacts)."""
         self._fast_allowed = True
         self._contacts = None
         self._fingerprint: tuple[int, dict[str, Any]] | None = None  # (scene build, fingerprint)
@@ -277,6 +299,7 @@ class EpisodeReplayer:
         done = reset_to_episode(self.env, ep, scene_seed=self._scene_seed)
         self._scene_seed = done.scene_seed
         self._scene_builds += done.scene_builds
+        self._stepped = self._stepped and not done.scene_builds
         if self._fast_allowed:
             if self._fast is None or self._fast_scene != self._scene_builds:  # a rebuilt scene has new bodies
                 self._fast = FastStateReader.for_env(u)
@@ -323,6 +346,21 @@ class EpisodeReplayer:
         """The state right after resetting the env the way episode `ep` was reset (row 0 of a replay)."""
         self.reset_for(ep)
         return {k: np.array(v) for k, v in self._state().items()}
+
+    def rerun_step_before(self, before: SceneBefore) -> None:
+        """Re-run the step the recorder's scene simulated last before an episode's reset (`SceneBefore`), just
+        before a restoring replay of that episode: its reset then keeps that step's contacts (a reset simulates
+        nothing). For a scene then just built, the scene is rebuilt at the next reset if it has stepped since."""
+        if before.episode is None:
+            if self._stepped:
+                self.forget_scene()
+            return
+        self.reset_for(before.episode)
+        restore_state(self.u, before.state, elapsed_steps=before.step)
+        with _task_code_errors(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an out-of-bounds action: the recording had it too
+            self.u._step_action(self._actions(before.action))
+        self._stepped = True
 
     # ------------------------------------------------------------------ replay
     def replay(self, episode: Episode, *, mode: str = "actions", resync: int | None = None,
@@ -392,6 +430,7 @@ class EpisodeReplayer:
         clipped: list[int] = []
         commands = np.full((source.length, 2, 7), np.nan)
         commanded = getattr(converter, "commanded", lambda: None)  # optional for converters of one's own
+        self._stepped = self._stepped or source.length > 0
         shape = self.u.single_action_space.shape
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -448,6 +487,7 @@ class EpisodeReplayer:
             out.limits.append("actions replayed from the recorded initial state")
             out.restored_at.append(0)
         run.sink.reset(recorded, self._reset_row(recorded))
+        self._stepped = self._stepped or source.length > 0
         step = {"actions": self._step_actions, "states": self._step_states, "step": self._step_restored}[run.mode]
         for first, block in source.blocks(run.rows):
             states.advance(first, block)

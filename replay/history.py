@@ -10,7 +10,8 @@ from pathlib import Path
 from simreel.episode import EpisodeMeta
 from simreel.scene_history import recorded_scene
 
-__all__ = ["describe_history", "describe_missing_history", "describe_unreadable_history", "SHIPPED_HISTORY"]
+__all__ = ["describe_history", "describe_missing_history", "describe_missing_step_before", "describe_unreadable_history",
+           "SHIPPED_HISTORY"]
 
 _MAY_DIVERGE = "PhysX results depend on the scene's history: a divergence may come from that alone"
 SHIPPED_HISTORY = ("replayed without the episodes that ran before it in the recorder's scene (sent without its file); "
@@ -41,6 +42,13 @@ def describe_unreadable_history(index: int, error: Exception) -> str:
     """The limit of an episode whose predecessor `index` could not be replayed (`error`)."""
     return (f"replayed without the episodes that ran before it in the recorder's scene: episode {index} cannot be "
             f"read ({error}); {_MAY_DIVERGE}")
+
+
+def describe_missing_step_before(why: str) -> str:
+    """The limit of an episode whose restoring replay could not re-run the step before its reset
+    (`simreel.replay.last_step`), for `why`."""
+    return (f"its observations at the reset read the contacts of whatever step its replaying scene ran last, not of "
+            f"the one its recorder's scene ran before it ({why}): contact-based values there (is_grasped) may differ")
 
 
 def _span(indices: Sequence[int]) -> str:

@@ -31,17 +31,27 @@ from typing import Any
 
 from simreel.compare import BlockComparison, CompareScope, EpisodeComparison, Tolerances
 from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta, StepBlock
-from simreel.errors import EpisodeLayoutError, MetadataError, RecordingFileError, ReplayError, SimreelError
+from simreel.errors import EPISODE_DATA_ERRORS, ReplayError, SimreelError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows
-from simreel.replay.engine import BlockSink, Collected, EpisodeReplayer, ReplayedEpisode, ReplayerOptions
+from simreel.replay.engine import (
+    RESTORING_MODES,
+    BlockSink,
+    Collected,
+    EpisodeReplayer,
+    ReplayedEpisode,
+    ReplayerOptions,
+    SceneBefore,
+)
 from simreel.replay.explain import ExplainContext, explain_divergence
 from simreel.replay.history import (
     SHIPPED_HISTORY,
     describe_history,
     describe_missing_history,
+    describe_missing_step_before,
     describe_unreadable_history,
 )
+from simreel.replay.last_step import step_before
 from simreel.replay.output import (
     EpisodeStream,
     RecordedContacts,
@@ -58,9 +68,6 @@ from simreel.sim.user_code import resolve_task_imports
 __all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "VerifySink", "run_pool", "start_pool", "Lanes",
            "pool_closing", "WorkerDiedError"]
 
-_EPISODE_DATA_ERRORS = (RecordingFileError, EpisodeLayoutError, MetadataError)
-"""Errors about one episode's data (damaged, missing, malformed); any other error is about the env its file
-needs (it does not build, another state layout) and stops every episode of that file alike."""
 _OPEN_READERS = 8
 """Recordings a worker keeps open (the work list visits files in turn, so few are ever needed again)."""
 
@@ -129,7 +136,7 @@ class EpisodeResult:
     @property
     def env_error(self) -> bool:
         """The error is about the file's env, not this episode's data: the file's other episodes fail alike."""
-        return self.error is not None and not isinstance(self.error, _EPISODE_DATA_ERRORS)
+        return self.error is not None and not isinstance(self.error, EPISODE_DATA_ERRORS)
 
 
 class VerifySink(BlockSink):
@@ -195,11 +202,17 @@ class ReaderCache:
 class SceneRun:
     """What a worker's scene ran since it was built: the first `ran` episodes (places 0 to `ran` - 1) of chain
     `chain` of the file at `path` (`simreel.scene_history.SceneChains`); ``SceneRun()``: nothing, a scene fresh
-    from ``gym.make`` or rebuilt."""
+    from ``gym.make`` or rebuilt. In a restoring mode, only its last step counts: that of the one at place `ran` - 1
+    (`simreel.replay.last_step`)."""
 
     path: str | None = None
     chain: str | None = None
     ran: int = 0
+
+    @classmethod
+    def after(cls, path: str, chains: SceneChains, index: int) -> SceneRun:
+        """The scene that ran episode `index` of the file at `path` last, after its history."""
+        return cls(path, chains.key[index], (chains.ran_before[index] or 0) + 1)
 
     def ran_of(self, path: str, chains: SceneChains, index: int) -> int | None:
         """How many episodes of episode `index`'s history (in the file at `path`) this scene has run already; None
@@ -219,7 +232,10 @@ class ReplayedHistory:
     ran: list[int] = field(default_factory=list)
     """Its whole history, which the scene has now run (listed where some of it was `replayed`, for the note)."""
     lost: str | None = None
-    """Why its history could not be replayed (it is then replayed without), for its report's limits."""
+    """Why its history could not be replayed (it is then replayed without), for its report's limits; in a restoring
+    mode, why the step before its reset could not be re-run."""
+    before: SceneBefore | None = None
+    """In a restoring mode, the step before its reset, which its replay re-runs first (`simreel.replay.last_step`)."""
 
     def tell(self, report: EpisodeReport, index: int) -> None:
         """Add to episode `index`'s `report` what was replayed before it, or what could not be."""
@@ -262,9 +278,10 @@ class ReplayWorker:
             report, replayed = self._replay(reader, replayer, item.index, history, self._ran_in(item, reader, history))
         except SimreelError as e:
             return EpisodeResult(item, error=e, worker=where)
-        if self.job.mode == "actions" and report.explanation is None and shipped is None and history.lost is None:
+        restoring = self.job.mode in RESTORING_MODES  # (what it ran last counts, not what ran before it)
+        if report.explanation is None and shipped is None and (restoring or history.lost is None):
             chains = self._chains_of(item.path, reader)  # (an explanation steps again; a lost history ran none)
-            self._scene = SceneRun(item.path, chains.key[item.index], (chains.ran_before[item.index] or 0) + 1)
+            self._scene = SceneRun.after(item.path, chains, item.index)
         episode, scratch = (None, replayed) if isinstance(replayed, Path) else (replayed, None)
         return EpisodeResult(item, report, episode, scratch=scratch, worker=where, history=history.replayed,
                              warnings=self._warnings(item.path, reader, replayer))
@@ -274,11 +291,11 @@ class ReplayWorker:
         """In mode ``actions``, give `replayer`'s scene (which ran `scene`) the history episode `item.index` had
         when recorded (`simreel.scene_history.SceneChains`): replay the predecessors it lacks (actions only,
         nothing compared or written), after rebuilding the scene when it ran anything else. The other modes
-        restore recorded states: no history is replayed. Where the history cannot be replayed (a `shipped` episode
-        comes without its file; a predecessor's data is damaged) the episode is replayed on a rebuilt scene without
-        it, and its report says so."""
-        if self.job.mode != "actions":
-            return ReplayedHistory()
+        restore recorded states: no history is replayed, only the step before the reset (`_step_before`). Where the
+        history cannot be replayed (a `shipped` episode comes without its file; a predecessor's data is damaged)
+        the episode is replayed on a rebuilt scene without it, and its report says so."""
+        if self.job.mode in RESTORING_MODES:
+            return self._step_before(reader, replayer, item, scene, shipped=shipped)
         episode = reader.episode_meta(item.index)
         if shipped:
             replayer.forget_scene()  # a rebuilt scene at least: the same replay on every actor
@@ -295,12 +312,25 @@ class ReplayWorker:
             try:
                 replayer.replay_rows(reader.open_episode(ep.index), BlockSink(), mode="actions",
                                      rows=self.job.block_rows)
-            except _EPISODE_DATA_ERRORS as e:
+            except EPISODE_DATA_ERRORS as e:
                 replayer.forget_scene()  # the episode itself then starts from a rebuilt scene, with no history
                 return ReplayedHistory(lost=describe_unreadable_history(ep.index, e))
         if not missing:
             return ReplayedHistory()
         return ReplayedHistory([ep.index for ep in missing], [ep.index for ep in chains.history(item.index)])
+
+    def _step_before(self, reader: EpisodeReader, replayer: EpisodeReplayer, item: WorkItem, scene: SceneRun | None,
+                     *, shipped: bool) -> ReplayedHistory:
+        """In a restoring mode, the step `item`'s recorder's scene ran before its reset, for the observations there
+        (`simreel.replay.last_step`): none to re-run when no observation is replayed or the scene ran it last."""
+        if not replayer.need_obs:
+            return ReplayedHistory()
+        if shipped:
+            return ReplayedHistory(lost=describe_missing_step_before("sent without its file"))
+        chains = self._chains_of(item.path, reader)
+        ran = scene.ran_of(item.path, chains, item.index) if scene is not None else None
+        found = step_before(reader, chains, item.index, ran)
+        return ReplayedHistory(lost=found.lost, before=found.run)
 
     def _chains_of(self, path: str, reader: EpisodeReader) -> SceneChains:
         """The chains of the file at `path` (`SceneChains`), found once per file the worker meets in a row."""
@@ -354,6 +384,8 @@ class ReplayWorker:
             written = RecordedContacts(written)
         verify = VerifySink(job.tolerances, reader.meta.contact_channels, scope, written)
         try:
+            if history.before is not None:
+                replayer.rerun_step_before(history.before)
             replayed = replayer.replay_rows(source, verify, mode=job.mode, resync=job.resync, rows=job.block_rows)
             report = self._report(reader, replayer, source, replayed, verify.comparison)
             history.tell(report, index)

@@ -7,6 +7,7 @@ into one line on stderr and exit status 2. Messages name what was found, what wa
 from __future__ import annotations
 
 __all__ = [
+    "EPISODE_DATA_ERRORS",
     "SimreelError",
     "UsageError",
     "ActionError",
@@ -112,6 +113,11 @@ class EpisodeLayoutError(SimreelError, ValueError):
 class MetadataError(SimreelError, ValueError):
     """Recording metadata (`RecordingMeta`, `EpisodeMeta`, a layout) read from JSON is malformed: a field is
     missing or of the wrong type. Readers report it with the file's name."""
+
+
+EPISODE_DATA_ERRORS = (RecordingFileError, EpisodeLayoutError, MetadataError)
+"""Errors about one episode's data (damaged, missing, malformed); any other error reading or replaying it is about
+the env its file needs (it does not build, another state layout) and stops every episode of that file alike."""
 
 
 class KeyPathError(SimreelError, ValueError):

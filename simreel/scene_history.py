@@ -22,7 +22,9 @@ episode's history is in the file when the file holds an episode at every place b
 else (episodes left out, or copied by a simreel that did not note the scene) it is not.
 
 `simreel.replay.workers.ReplayWorker` replays the history before an episode in mode ``actions`` (actions only,
-nothing compared). The other modes restore recorded states and have tolerances of their own; they replay none.
+nothing compared). The other modes restore recorded states and have tolerances of their own; they replay none, but
+re-run the last step of the episode before (`SceneChains.previous`): the observations at a reset read its contacts
+(`simreel.replay.last_step`).
 """
 
 from __future__ import annotations
@@ -105,6 +107,14 @@ class SceneChains:
         hold them (`complete`)."""
         at = self._at[self.key[index]]
         return [_nearest_before(at[p], index) for p in range(since, self.ran_before[index] or 0)]
+
+    def previous(self, index: int) -> EpisodeMeta | None:
+        """The episode that ran in episode `index`'s scene right before it (the copy `history` would pick); None
+        when this file does not hold it, or `index` is a chain's first episode (``ran_before`` 0) or of an unknown
+        place (None)."""
+        ran = self.ran_before[index]
+        copies = self._at[self.key[index]].get(ran - 1) if ran else None
+        return _nearest_before(copies, index) if copies else None
 
     def copied_scene(self, index: int, path: str) -> dict[str, Any] | None:
         """``EpisodeMeta.origin["scene"]`` of a copy of episode `index` of this file, at `path` (absolute): its
