@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from simreel.compare import CompareScope, Tolerances, format_number
-from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock
+from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock, new_recording_id
 from simreel.errors import OutputCheckError, SimreelError, UsageError
 from simreel.formats import EpisodeReader, check_writable, format_of, open_reader, recording_files
 from simreel.formats.dataset import FieldHashes, field_digests
@@ -654,16 +654,21 @@ class ConversionRun:
         """`ConvertJob.scenes` of this conversion."""
         listed = {m.index: m for m in self.reader.episodes}
         if self.options.control_mode:
-            return run_scenes([listed[i] for i in self.indices], str(Path(self.output).resolve()))
-        chains = SceneChains(self.reader.episodes)
-        scenes = {i: chains.copied_scene(i, str(Path(self.path).resolve())) for i in self.indices}
+            return run_scenes([listed[i] for i in self.indices], str(Path(self.output).resolve()), self._recording_id)
+        chains, path = SceneChains(self.reader.episodes), str(Path(self.path).resolve())
+        scenes = {i: chains.copied_scene(i, path, self.reader.meta.recording_id) for i in self.indices}
         return {i: scene for i, scene in scenes.items() if scene is not None}
+
+    @functools.cached_property
+    def _recording_id(self) -> str:
+        """The output's `RecordingMeta.recording_id`, which a control-mode conversion's scenes name (`_scenes`)."""
+        return new_recording_id()
 
     def _output_spec(self, worker: ConvertWorker, staged: Path) -> ReplayOutput:
         """The output as it is written: at `staged` in the run's scratch folder, moved to its name once checked."""
         poses = tuple(self.reader.meta.pose_bodies)  # a re-render's recorded ones, a control-mode conversion's own
-        return ReplayOutput(str(staged), pose_bodies=poses, command=self.options.command,
-                            changes={**worker.output_changes(), "provenance": self._provenance()})
+        changes = {**worker.output_changes(), "provenance": self._provenance(), "recording_id": self._recording_id}
+        return ReplayOutput(str(staged), pose_bodies=poses, command=self.options.command, changes=changes)
 
     def _conversion(self) -> dict[str, Any]:
         opts, meta = self.options, self.reader.meta

@@ -21,7 +21,14 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import OPTIONAL_STEP_FIELDS, Episode, EpisodeMeta, RecordingMeta, StepBlock
+from simreel.episode import (
+    OPTIONAL_STEP_FIELDS,
+    Episode,
+    EpisodeMeta,
+    RecordingMeta,
+    StepBlock,
+    new_recording_id,
+)
 from simreel.errors import SimreelError, StorageError, UsageError
 from simreel.formats import EpisodeSink, format_of
 from simreel.formats.durable import deferred_signals, raise_if_stopped
@@ -178,6 +185,7 @@ class ReplayedWriter:
             "versions": {k: v for k, v in env_versions().items() if v is not None},
             "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "command": self.spec.command,
+            "recording_id": new_recording_id(),
             "unknown": [u for u in self.meta.unknown if u not in _PRODUCED],
         }
         return dataclasses.replace(self.meta, **{**fields, **self.spec.changes})

@@ -365,7 +365,8 @@ class ReplayWorker:
             return None
         if history.lost is not None:
             return {"file": str(Path(self.job.output).resolve()), "start": item.index, "position": 0}
-        return self._chains_of(item.path, reader).copied_scene(item.index, str(Path(item.path).resolve()))
+        chains = self._chains_of(item.path, reader)
+        return chains.copied_scene(item.index, str(Path(item.path).resolve()), reader.meta.recording_id)
 
     def _replay(self, reader: EpisodeReader, replayer: EpisodeReplayer, index: int, history: ReplayedHistory,
                 ran_in: dict[str, Any] | None = None) -> tuple[EpisodeReport, Episode | Path | None]:

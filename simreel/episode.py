@@ -27,6 +27,7 @@ import dataclasses
 import json
 import types
 import typing
+import uuid
 import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -39,6 +40,7 @@ from simreel.errors import EpisodeLayoutError, MetadataError
 from simreel.state_tree import LeafSpec, unflatten
 
 __all__ = [
+    "new_recording_id",
     "ContactChannel",
     "RecordingMeta",
     "EpisodeMeta",
@@ -180,6 +182,13 @@ class RecordingMeta:
     view import them again, found as `simreel.sim.user_code.resolve_task_imports` says."""
     created_utc: str = ""
     command: str = ""
+    recording_id: str = ""
+    """A random id (`new_recording_id`) of the run that stepped the episodes this file records (those whose
+    `EpisodeMeta.origin` or `provenance` names no scene of another recording): what the scene history of copies of
+    them names their recording by (`simreel.scene_history`), so that a moved file is still the same recording and a
+    new recording at the same path is not. Copies of a whole file (`recover`, a format copy, a byte copy) keep it;
+    every other file simreel writes gets a new one. Empty in files written before simreel kept it, and ManiSkill's:
+    they are known by their path."""
     format_version: int = FORMAT_VERSION
     source: dict[str, Any] = field(default_factory=dict)
     """Where the recording came from when simreel did not record it: ``{"format": "maniskill", "source_type",
@@ -284,9 +293,9 @@ class EpisodeMeta:
     episode ended) and what the reader found about it in the file (quirks, mismatches), for reports."""
     origin: dict[str, Any] = field(default_factory=dict)
     """Where a merged or filtered episode was copied from: ``{"file": <absolute path>, "index": <its index
-    there>}``, where it ran when it was recorded, ``"scene": {"file": <the recording>, "start": <index there of the
-    first episode of its scene chain>, "position": <episodes of that chain before it>}`` (`simreel.scene_history`;
-    absent where unknown), and that episode's own ``"origin"`` when it had one (empty for a recorded episode)."""
+    there>}``, where it ran when it was recorded, ``"scene": {"file": <the recording>, "recording": <its
+    `RecordingMeta.recording_id`, where it has one>, "start": <index there of the first episode of its scene chain>,
+    "position": <episodes of that chain before it>}`` (`simreel.scene_history`; absent where unknown), and that episode's own ``"origin"`` when it had one (empty for a recorded episode)."""
     provenance: dict[str, Any] = field(default_factory=dict)
     """For an episode of a converted recording: ``{"source_episode": index in the source, "verdict", "checked",
     "first_exceeded", "max_error"}`` as the conversion judged it (see `RecordingMeta.provenance`), and ``"scene"``,
@@ -310,6 +319,11 @@ class EpisodeMeta:
         return cls(**kw)
 
 
+def new_recording_id() -> str:
+    """A new `RecordingMeta.recording_id`: 32 random hex digits."""
+    return uuid.uuid4().hex
+
+
 def _check_scene(holder: dict[str, Any], name: str) -> None:
     """`MetadataError` unless ``holder["scene"]`` (of `EpisodeMeta` field `name`), where given, is what
     `EpisodeMeta.origin` describes."""
@@ -317,10 +331,11 @@ def _check_scene(holder: dict[str, Any], name: str) -> None:
     if scene is None:
         return
     ok = isinstance(scene, dict) and isinstance(scene.get("file"), str) and all(
-        type(scene.get(k)) is int and scene[k] >= 0 for k in ("start", "position"))
+        type(scene.get(k)) is int and scene[k] >= 0 for k in ("start", "position")) and isinstance(
+        scene.get("recording", ""), str)
     if not ok:
         raise MetadataError(f"episode metadata: {name}.scene is {json.dumps(scene, default=str)[:200]}, expected "
-                            '{"file": <path>, "start": <index>, "position": <count>}')
+                            '{"file": <path>, "recording": <id>, "start": <index>, "position": <count>}')
 
 
 @dataclass(frozen=True)

@@ -14,12 +14,13 @@ scene (``reconfigured`` True; None, unknown as in ManiSkill's files, is taken as
 predecessor too many costs time, one too few gives a wrong verdict); episodes of one sub-scene ran in index order.
 
 An episode copied by ``simreel filter`` or ``merge`` keeps where it ran (``EpisodeMeta.origin["scene"]``,
-`SceneChains.copied_scene`): its recording, the index there of its chain's first episode and its place in that
-chain; so does a converted one (``provenance["scene"]``: the input's chain for a re-render, the conversion's own
-run for a control-mode conversion, `run_scenes`). A file's episodes made from one recorded chain form a chain of
-that file, whose history at each place is any of its episodes at that place (copies of one recorded episode); an
-episode's history is in the file when the file holds an episode at every place before it (`SceneChains.complete`),
-else (episodes left out, or copied by a simreel that did not note the scene) it is not.
+`SceneChains.copied_scene`): its recording (by its `RecordingMeta.recording_id`: a moved file is the same recording,
+a new one recorded at the same path is not; by its path where it has none), the index there of its chain's first
+episode and its place in that chain; so does a converted one (``provenance["scene"]``: the input's chain for a
+re-render, the conversion's own run for a control-mode conversion, `run_scenes`). A file's episodes made from one
+recorded chain form a chain of that file, whose history at each place is any of its episodes at that place (copies
+of one recorded episode); an episode's history is in the file when the file holds an episode at every place before
+it (`SceneChains.complete`), else (episodes left out, or copied by a simreel that did not note the scene) it is not.
 
 `simreel.replay.workers.ReplayWorker` replays the history before an episode in mode ``actions`` (actions only,
 nothing compared). The other modes restore recorded states and have tolerances of their own; they replay none, but
@@ -44,18 +45,29 @@ def recorded_scene(episode: EpisodeMeta) -> dict[str, Any] | None:
     return (episode.provenance or {}).get("scene") or (episode.origin or {}).get("scene")
 
 
-def run_scenes(episodes: Sequence[EpisodeMeta], path: str) -> dict[int, dict[str, Any]]:
-    """Where each of `episodes` ran when a run (a control-mode conversion writing the recording at `path`) stepped
-    them one after another, in this order, in one env: its scene, as `recorded_scene` reads it. A reset that
-    rebuilt the scene starts a chain."""
+def run_scenes(episodes: Sequence[EpisodeMeta], path: str, recording_id: str) -> dict[int, dict[str, Any]]:
+    """Where each of `episodes` ran when a run (a control-mode conversion writing the recording at `path`, whose
+    `RecordingMeta.recording_id` is `recording_id`) stepped them one after another, in this order, in one env: its
+    scene, as `recorded_scene` reads it. A reset that rebuilt the scene starts a chain."""
     scenes: dict[int, dict[str, Any]] = {}
     start, ran = None, 0
     for ep in episodes:
         if start is None or ep.reconfigured:
             start, ran = ep.index, 0
-        scenes[ep.index] = {"file": path, "start": start, "position": ran}
+        scenes[ep.index] = {**_recording(path, recording_id), "start": start, "position": ran}
         ran += 1
     return scenes
+
+
+def _recording(path: str, recording_id: str) -> dict[str, str]:
+    """How a scene names its recording: its path, and its `RecordingMeta.recording_id` where it has one."""
+    return {"file": path, "recording": recording_id} if recording_id else {"file": path}
+
+
+def _chain(scene: dict[str, Any]) -> str:
+    """The chain a scene (`recorded_scene`) names: its recording's id (its path where it has none), and the index
+    there of the chain's first episode."""
+    return f"{scene.get('recording') or scene['file']}#{scene['start']}"
 
 
 class SceneChains:
@@ -67,12 +79,13 @@ class SceneChains:
     def __init__(self, episodes: Sequence[EpisodeMeta]) -> None:
         self.key: dict[int, str] = {}
         """Episode index → its chain: ``#<start>`` for a chain recorded in this file (the index of its first
-        episode), ``<recording>#<start>`` for episodes made from a chain recorded there, ``?<index>`` for a copy
-        whose chain is unknown."""
+        episode), ``<recording>#<start>`` for episodes made from a chain recorded there (its `recording_id`, else
+        its path), ``?<index>`` for a copy whose chain is unknown."""
         self.ran_before: dict[int, int | None] = {}
         """Episode index → the episodes that ran in its scene before it when it was recorded (None: unknown)."""
-        self._recorded: dict[int, tuple[str | None, int]] = {}
-        """Episode index → (its recording, None for this file; the index there of its chain's first episode)."""
+        self._recorded: dict[int, tuple[dict[str, str] | None, int]] = {}
+        """Episode index → (its recording (`_recording`), None for this file; the index there of its chain's first
+        episode)."""
         self._at: dict[str, dict[int, list[EpisodeMeta]]] = {}
         """Chain → place → its episodes in this file at that place, in index order."""
         current: dict[int, tuple[int, int]] = {}  # sub-scene → (its chain's first episode, episodes in it so far)
@@ -80,7 +93,8 @@ class SceneChains:
         for ep in sorted(episodes, key=lambda e: e.index):
             scene = recorded_scene(ep) or inferred.get(ep.index)
             if scene is not None:
-                self._note(ep, f"{scene['file']}#{scene['start']}", scene["position"], (scene["file"], scene["start"]))
+                where = _recording(scene["file"], scene.get("recording", ""))
+                self._note(ep, _chain(scene), scene["position"], (where, scene["start"]))
             elif ep.origin:
                 self._note(ep, f"?{ep.index}", None, (None, ep.index))
             else:
@@ -90,7 +104,8 @@ class SceneChains:
         self._complete = {key: next(p for p in range(len(at) + 1) if p not in at) for key, at in self._at.items()}
         """Chain → its first place this file holds no episode at: the chain is whole here up to it."""
 
-    def _note(self, ep: EpisodeMeta, key: str, ran_before: int | None, recorded: tuple[str | None, int]) -> None:
+    def _note(self, ep: EpisodeMeta, key: str, ran_before: int | None,
+              recorded: tuple[dict[str, str] | None, int]) -> None:
         self.key[ep.index], self.ran_before[ep.index], self._recorded[ep.index] = key, ran_before, recorded
         if ran_before is not None:
             self._at.setdefault(key, {}).setdefault(ran_before, []).append(ep)
@@ -116,14 +131,15 @@ class SceneChains:
         copies = self._at[self.key[index]].get(ran - 1) if ran else None
         return _nearest_before(copies, index) if copies else None
 
-    def copied_scene(self, index: int, path: str) -> dict[str, Any] | None:
-        """``EpisodeMeta.origin["scene"]`` of a copy of episode `index` of this file, at `path` (absolute): its
-        recording, the index there of its chain's first episode, and the episodes of that chain that ran before it.
-        None where that is unknown (a copy by a simreel that did not note it)."""
+    def copied_scene(self, index: int, path: str, recording_id: str) -> dict[str, Any] | None:
+        """``EpisodeMeta.origin["scene"]`` of a copy of episode `index` of this file, at `path` (absolute), whose
+        `RecordingMeta.recording_id` is `recording_id`: its recording, the index there of its chain's first episode,
+        and the episodes of that chain that ran before it. None where that is unknown (a copy by a simreel that did
+        not note it)."""
         ran, (recording, start) = self.ran_before[index], self._recorded[index]
         if ran is None:
             return None
-        return {"file": recording or path, "start": start, "position": ran}
+        return {**(recording or _recording(path, recording_id)), "start": start, "position": ran}
 
 
 def _nearest_before(copies: list[EpisodeMeta], index: int) -> EpisodeMeta:

@@ -213,9 +213,13 @@ def test_malformed_recording_metadata_is_named(doc, message):
         ({"index": 0, "success": "yes"}, "episode metadata: success is 'yes', expected bool | None"),
         ({"index": 0, "origin": {"file": "/a.h5", "index": 2, "scene": {"file": "/a.h5", "start": -1, "position": 2}}},
          'episode metadata: origin.scene is {"file": "/a.h5", "start": -1, "position": 2}, expected {"file": <path>, '
-         '"start": <index>, "position": <count>}'),
+         '"recording": <id>, "start": <index>, "position": <count>}'),
         ({"index": 0, "origin": {"file": "/a.h5", "index": 2, "scene": "a.h5#0"}},
-         'episode metadata: origin.scene is "a.h5#0", expected {"file": <path>, "start": <index>, "position": <count>}'),
+         'episode metadata: origin.scene is "a.h5#0", expected {"file": <path>, "recording": <id>, "start": <index>, '
+         '"position": <count>}'),
+        ({"index": 0, "provenance": {"scene": {"file": "/a.h5", "recording": 7, "start": 0, "position": 2}}},
+         'episode metadata: provenance.scene is {"file": "/a.h5", "recording": 7, "start": 0, "position": 2}, expected '
+         '{"file": <path>, "recording": <id>, "start": <index>, "position": <count>}'),
     ],
 )
 def test_malformed_episode_metadata_is_named(doc, message):

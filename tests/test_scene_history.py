@@ -13,10 +13,11 @@ def _indices(episodes: list[EpisodeMeta], index: int) -> list[int] | None:
     return [ep.index for ep in chains.history(index)] if chains.complete(index) else None
 
 
-def _copy(index: int, recording: str, position: int, start: int = 0) -> EpisodeMeta:
+def _copy(index: int, recording: str, position: int, start: int = 0, recording_id: str = "") -> EpisodeMeta:
     """Episode `index` of a filtered or merged file: a copy of the episode that ran `position` episodes after episode
-    `start` of `recording`, in one scene."""
+    `start` of `recording` (whose `RecordingMeta.recording_id` is `recording_id`), in one scene."""
     scene = {"file": recording, "start": start, "position": position}
+    scene.update({"recording": recording_id} if recording_id else {})
     return EpisodeMeta(index, origin={"file": recording, "index": start + position, "scene": scene})
 
 
@@ -68,26 +69,38 @@ def test_the_same_chain_copied_twice_takes_the_copies_just_before():
 
 def test_a_copy_that_does_not_say_where_it_ran_has_no_known_history():
     episodes = [EpisodeMeta(0, origin={"file": "/a.h5", "index": 3})]
-    assert _indices(episodes, 0) is None and SceneChains(episodes).copied_scene(0, "/c.h5") is None
+    assert _indices(episodes, 0) is None and SceneChains(episodes).copied_scene(0, "/c.h5", "") is None
 
 
 def test_a_copy_of_a_copy_keeps_the_recording_it_ran_in():
     copied = SceneChains([_copy(0, "/a.h5", 4, start=2)])  # a filtered file's episode
     recorded = SceneChains([EpisodeMeta(0), EpisodeMeta(1)])
-    assert copied.copied_scene(0, "/f.h5") == {"file": "/a.h5", "start": 2, "position": 4}
-    assert recorded.copied_scene(1, "/r.h5") == {"file": "/r.h5", "start": 0, "position": 1}
+    assert copied.copied_scene(0, "/f.h5", "f1") == {"file": "/a.h5", "start": 2, "position": 4}
+    assert recorded.copied_scene(1, "/r.h5", "") == {"file": "/r.h5", "start": 0, "position": 1}
+    assert recorded.copied_scene(1, "/r.h5", "r1") == {"file": "/r.h5", "recording": "r1", "start": 0, "position": 1}
+    again = SceneChains([_copy(0, "/a.h5", 4, start=2, recording_id="a1")])
+    assert again.copied_scene(0, "/f.h5", "f1") == {"file": "/a.h5", "recording": "a1", "start": 2, "position": 4}
+
+
+def test_copies_are_of_one_recording_by_its_id_wherever_it_was():
+    """A recording moved between copies stays one chain; another recorded at its path (--overwrite) is another."""
+    moved = [_copy(0, "/a.h5", 0, recording_id="a1"), _copy(1, "/b.h5", 1, recording_id="a1")]
+    assert [_indices(moved, i) for i in range(2)] == [[], [0]]
+    replaced = [_copy(0, "/a.h5", 0, recording_id="a2"), _copy(1, "/a.h5", 1, recording_id="a1")]
+    assert [_indices(replaced, i) for i in range(2)] == [[], None]
 
 
 def test_a_converted_episode_says_where_it_ran_in_its_provenance():
     scene = {"file": "/a.h5", "start": 0, "position": 1}
     episodes = [EpisodeMeta(3, provenance={"source_episode": 3, "scene": scene})]  # convert --episodes 3 of a.h5
-    assert _indices(episodes, 3) is None and SceneChains(episodes).copied_scene(3, "/c.h5") == scene
+    assert _indices(episodes, 3) is None and SceneChains(episodes).copied_scene(3, "/c.h5", "c1") == scene
 
 
 def test_a_run_of_episodes_in_one_env_is_one_chain_until_a_rebuild():
     episodes = [EpisodeMeta(5), EpisodeMeta(2), EpisodeMeta(7, reconfigured=True), EpisodeMeta(1)]
-    assert {i: (s["start"], s["position"]) for i, s in run_scenes(episodes, "/out.h5").items()} == \
-        {5: (5, 0), 2: (5, 1), 7: (7, 0), 1: (7, 1)}
+    scenes = run_scenes(episodes, "/out.h5", "o1")
+    assert {i: (s["start"], s["position"]) for i, s in scenes.items()} == {5: (5, 0), 2: (5, 1), 7: (7, 0), 1: (7, 1)}
+    assert {(s["file"], s["recording"]) for s in scenes.values()} == {("/out.h5", "o1")}
 
 
 def _old_copy(index: int, recorded_index: int, **changes) -> EpisodeMeta:

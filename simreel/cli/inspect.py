@@ -104,6 +104,8 @@ def _print_header(reader: Any) -> None:
         print("  versions   " + ", ".join(f"{k} {v}" for k, v in m.versions.items()))
     if m.created_utc or m.command:
         print(f"  recorded   {m.created_utc}  {m.command}".rstrip())
+    if m.recording_id:
+        print(f"  id         {m.recording_id}")
     if m.unknown:
         print(f"  unknown    not in the file: {', '.join(m.unknown)}")
 

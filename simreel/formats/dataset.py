@@ -32,7 +32,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock
+from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock, new_recording_id
 from simreel.errors import OutputCheckError, RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
 from simreel.formats.base import EpisodeRows, PassedRows, not_a_file
@@ -409,7 +409,8 @@ def _origin(source: _Source, meta: EpisodeMeta) -> dict[str, Any]:
     """`EpisodeMeta.origin` of a copy of `meta`: where it was copied from, and where it ran when it was recorded
     (``scene``, for a replay to find its history: `simreel.scene_history`)."""
     origin: dict[str, Any] = {"file": str(source.path), "index": meta.index}
-    scene = source.chains.copied_scene(meta.index, str(source.path)) if source.chains is not None else None
+    chains = source.chains
+    scene = chains.copied_scene(meta.index, str(source.path), source.meta.recording_id) if chains is not None else None
     if scene is not None:
         origin["scene"] = scene
     if meta.origin:
@@ -491,7 +492,8 @@ def _some(labels: list[str]) -> str:
 
 def _output_meta(sources: Sequence[_Source], provenance: dict[str, Any], command: str) -> RecordingMeta:
     return dataclasses.replace(
-        sources[0].meta, created_utc=_now(), command=command, format_version=FORMAT_VERSION,
+        sources[0].meta, created_utc=_now(), command=command, recording_id=new_recording_id(),
+        format_version=FORMAT_VERSION,
         source=_common([s.meta.source for s in sources]), versions=_versions(sources), env_kwargs=_env_kwargs(sources),
         provenance={**provenance, "inputs": [s.identity for s in sources]},
     )

@@ -27,7 +27,7 @@ from simreel.errors import EnvMismatchError
 __all__ = ["PROVENANCE_FIELDS", "PHYSICS_NEUTRAL_VERSIONS", "PHYSICS_NEUTRAL_ENV_KWARGS", "env_definition",
            "first_difference", "check_same_env"]
 
-PROVENANCE_FIELDS = ("created_utc", "command", "source", "provenance", "format_version")
+PROVENANCE_FIELDS = ("created_utc", "command", "recording_id", "source", "provenance", "format_version")
 """`RecordingMeta` fields that say how and when a file was made, not what its env is: they may differ between
 recordings that are merged (each input's are kept in the output's provenance). `format_version` is the layout of
 the file read, which the output does not inherit (it is written in the current one)."""

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import RecordingMeta
+from simreel.episode import RecordingMeta, new_recording_id
 from simreel.errors import UsageError
 from simreel.sim.make import EnvConfig, env_versions
 from simreel.state_tree import flatten, layout_of
@@ -93,6 +93,7 @@ def recording_meta(env: Any, **recorder_fields: Any) -> RecordingMeta:
         versions=env_versions(),
         scene_fingerprint=scene_fingerprint(u),
         created_utc=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        recording_id=new_recording_id(),
         **recorder_fields,
     )
 

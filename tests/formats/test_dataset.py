@@ -79,7 +79,8 @@ def test_merge_copies_every_array_and_its_metadata_bit_exactly(synthetic, tmp_pa
     with open_reader(out) as r, open_reader(a) as first:
         meta = r.meta
         assert meta.command == "simreel merge a.h5 b.mcap" and meta.created_utc
-        same = dataclasses.replace(meta, created_utc="", command="", provenance={})
+        assert len(meta.recording_id) == 32 and meta.recording_id != first.meta.recording_id  # a file of its own
+        same = dataclasses.replace(meta, created_utc="", command="", provenance={}, recording_id=first.meta.recording_id)
         assert same.to_json() == first.meta.to_json()  # the env, its layouts and everything else as the inputs
     prov = meta.provenance
     assert prov["operation"] == "merge" and [i["path"] for i in prov["inputs"]] == [str(a), str(b)]
@@ -189,9 +190,11 @@ def test_a_real_recording_split_and_merged_back_keeps_contacts_poses_and_observa
     filter_recording(src, first, EpisodeCriteria(episodes=(0,)), rest=rest)
     merge([first, rest], tmp_path / "again.h5")
     got, want = _episodes(tmp_path / "again.h5"), _episodes(src)
+    with open_reader(src) as reader:
+        recording = {"file": str(src), "recording": reader.meta.recording_id}
     for k, ep in enumerate(got):
         assert ep.meta.origin["origin"] == {"file": str(src), "index": k,  # via first.mcap or rest.h5
-                                            "scene": {"file": str(src), "start": 0, "position": k}}
+                                            "scene": {**recording, "start": 0, "position": k}}
         assert_same_episode(dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, origin={})), want[k])
     assert got[2].contact_forces.shape[1] > 0 and got[2].body_poses.shape[1] > 0 and got[2].obs["state"].size
     assert [e.meta.seed for e in got] == [3, 4, 5]

@@ -20,10 +20,12 @@ def _versions(**changes: str) -> dict[str, str]:
 def test_provenance_fields_and_simreels_own_version_may_differ():
     a = dataclasses.replace(synthetic_meta(), versions=_versions(), created_utc="2026-01-01", command="record a")
     b = dataclasses.replace(a, created_utc="2026-02-02", command="record b", source={"format": "maniskill"},
-                            provenance={"operation": "merge"}, format_version=0, versions=_versions(simreel="0.2.0"))
+                            provenance={"operation": "merge"}, format_version=0, versions=_versions(simreel="0.2.0"),
+                            recording_id="b1")
     check_same_env([("a.h5", a), ("b.h5", b)])
     assert env_definition(a) == env_definition(b)
-    assert set(PROVENANCE_FIELDS) == {"created_utc", "command", "source", "provenance", "format_version"}
+    assert set(PROVENANCE_FIELDS) == {"created_utc", "command", "recording_id", "source", "provenance",
+                                      "format_version"}
 
 
 @pytest.mark.parametrize(

@@ -138,15 +138,16 @@ def test_a_whole_re_rendered_recording_replays_its_own_history(lift, tmp_path, c
     assert "1 of 1 episode(s) verified" in out and "all verified" in out  # within tolerance of the recomputed ones)
 
 
-def test_a_merged_file_replays_each_recordings_episodes_after_their_own_history(lift, tmp_path, capsys):
-    data = tmp_path / "data"
-    data.mkdir()
-    shutil.copy(lift, data / "a.h5")
-    shutil.copy(lift, data / "b.h5")
+def test_a_merged_file_replays_each_recordings_episodes_after_their_own_history(lift, record, tmp_path, capsys):
+    recordings = [lift, record("SimreelLiftCube-v1", 3, 60, "--seed", "4")]
     merged = tmp_path / "merged.h5"
-    assert main(["merge", str(data / "a.h5"), str(data / "b.h5"), "-o", str(merged), "-q"]) == 0
+    assert main(["merge", *map(str, recordings), "-o", str(merged), "-q"]) == 0
     chains = [item.chain for item in build_worklist([merged], chains=True).items]
-    assert chains[:3] == [f"{merged}{data / 'a.h5'}#0"] * 3 and chains[3:] == [f"{merged}{data / 'b.h5'}#0"] * 3
+    ids = []
+    for path in recordings:
+        with open_reader(path) as reader:
+            ids.append(reader.meta.recording_id)
+    assert chains[:3] == [f"{merged}{ids[0]}#0"] * 3 and chains[3:] == [f"{merged}{ids[1]}#0"] * 3
     report = tmp_path / "r.json"
     assert _replay(merged, "--episodes", "5", "--report", report) == 0
     (episode,) = json.loads(report.read_text())["episodes"]
@@ -182,3 +183,51 @@ def test_a_replay_written_alone_keeps_where_it_ran(lift, tmp_path):
     assert _replay(out, "--report", report) == 1
     (episode,) = json.loads(report.read_text())["episodes"]
     assert episode["verdict"] == "diverged" and _missing_history(lift.name) in episode["limits"]
+
+
+def test_a_moved_recording_is_still_the_history_of_its_copies(lift, tmp_path, capsys):
+    """Regression: copies named their recording by its path only: the recording moved, a merge of it with a copy of
+    its episode 2 took them for two recordings, and the copy was replayed without the history it held."""
+    recording, filtered, merged = tmp_path / "a.h5", tmp_path / "f.h5", tmp_path / "m.h5"
+    shutil.copy(lift, recording)
+    assert main(["filter", str(recording), "-o", str(filtered), "--episodes", "2", "-q"]) == 0
+    recording = recording.rename(tmp_path / "moved.h5")
+    assert main(["merge", str(recording), str(filtered), "-o", str(merged), "-q"]) == 0
+    report = tmp_path / "r.json"
+    assert _replay(merged, "--episodes", "3", "--report", report) == 0  # was: diverged, "without the 2 episode(s)"
+    (episode,) = json.loads(report.read_text())["episodes"]
+    assert episode["verdict"] == "exact" and episode["limits"] == []
+
+
+def test_a_new_recording_at_the_same_path_is_not_the_history_of_older_copies(lift, record, tmp_path):
+    """Regression: a copy of episode 2 merged with another recording made at its recording's path (--overwrite) was
+    replayed after that one's episodes 0 and 1, as if they were its own history, and its report said so."""
+    recording, filtered, merged = tmp_path / "a.h5", tmp_path / "f.h5", tmp_path / "m.h5"
+    shutil.copy(lift, recording)
+    assert main(["filter", str(recording), "-o", str(filtered), "--episodes", "2", "-q"]) == 0
+    shutil.copy(record("SimreelLiftCube-v1", 3, 60, "--seed", "4"), recording)  # recorded anew at that path
+    assert main(["merge", str(recording), str(filtered), "-o", str(merged), "-q"]) == 0
+    report = tmp_path / "r.json"
+    assert _replay(merged, "--episodes", "3", "--report", report) == 1  # without its history, as the filtered one
+    (episode,) = json.loads(report.read_text())["episodes"]
+    assert not any("predecessor" in note for note in episode["notes"])
+    assert any("replayed on a rebuilt scene without the 2 episode(s)" in limit for limit in episode["limits"])
+
+
+def test_copies_of_a_whole_file_keep_its_recording_id_and_files_made_from_it_get_their_own(lift, tmp_path):
+    def recording_id(path) -> str:
+        with open_reader(path) as reader:
+            return reader.meta.recording_id
+
+    made = {"copy.mcap": ["convert", str(lift), str(tmp_path / "copy.mcap"), "-q"],
+            "recovered.h5": ["recover", str(lift), "-o", str(tmp_path / "recovered.h5")],
+            "filtered.h5": ["filter", str(lift), "-o", str(tmp_path / "filtered.h5"), "--episodes", "0-2", "-q"],
+            "merged.h5": ["merge", str(lift), "-o", str(tmp_path / "merged.h5"), "-q"],
+            "rendered.h5": ["convert", str(lift), str(tmp_path / "rendered.h5"), "--obs-mode", "state", "-q"]}
+    for args in made.values():
+        assert main(args) == 0
+    ids = {name: recording_id(tmp_path / name) for name in made}
+    assert len(recording_id(lift)) == 32
+    assert ids["copy.mcap"] == ids["recovered.h5"] == recording_id(lift)  # the same recording
+    others = [ids[name] for name in ("filtered.h5", "merged.h5", "rendered.h5")]
+    assert len({recording_id(lift), *others}) == 4

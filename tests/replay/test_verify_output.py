@@ -1,6 +1,6 @@
 """`replay -o` with worker processes (`ReplayRun` with ``output`` and ``workers=2``): episodes replayed in the pool's
 process, or here out of their turn, go through scratch recordings and reach the output the same as with one worker
-(arrays, dtypes and metadata, apart from the time and command line), for HDF5 and MCAP outputs; the run's scratch
+(arrays, dtypes and metadata, apart from the time, command line and id), for HDF5 and MCAP outputs; the run's scratch
 folder is gone when it ends, also when an episode fails with an error or the env does not build; a folder left by
 a killed run is cleared by the next, one held by a live run is refused."""
 
@@ -20,7 +20,7 @@ from simreel.formats.lock import WriterLock
 from simreel.replay.output import scratch_folder
 from simreel.replay.verify import verify_recording
 
-_RUN_ONLY = {"created_utc", "command"}
+_RUN_ONLY = {"created_utc", "command", "recording_id"}
 """Metadata of an output that says when and how it was made, not what it holds."""
 
 
