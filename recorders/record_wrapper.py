@@ -160,6 +160,10 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._next_index = 0
         self._scene_seed: list[int | None] = [None] * self._n
         self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
+        self._chain_start = [0] * self._n
+        self._chain_ran = [0] * self._n
+        """Per sub-scene: the index of its chain's first episode, and the episodes committed in that chain (each
+        episode's `EpisodeMeta.chain`; the env is taken as fresh from ``gym.make``, as `simreel.scene_history` says)."""
         self._fingerprint_scenes(range(1, self._n))  # sub-scene 0's is the recording's own
         self._closed = False
 
@@ -213,10 +217,20 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 self._scene_seed[i] = seed_i
             meta = EpisodeMeta(index=self._next_index, seed=seed_i, reset_options=stored_options, env_idx=i,
                                reconfigured=reconfigured, scene_seed=self._scene_seed[i],
-                               scene_changes=self._scene_changes[i])
+                               scene_changes=self._scene_changes[i], chain=self._chain_of(i, reconfigured))
             self._start(i, meta, StepBlock({k: a[i : i + 1] for k, a in reset_rows.items()}, 1))
         self._settle()
         return obs, info
+
+    def _chain_of(self, i: int, reconfigured: bool) -> dict[str, int]:
+        """`EpisodeMeta.chain` of the episode sub-scene i begins (its reset `reconfigured` the scene or not): a chain
+        starts at the first committed episode since the scene was built (an episode of no step, discarded, ran
+        nothing)."""
+        if reconfigured:
+            self._chain_ran[i] = 0
+        if not self._chain_ran[i]:
+            self._chain_start[i] = self._next_index
+        return {"start": self._chain_start[i], "position": self._chain_ran[i]}
 
     def _check_seed_count(self, seed: Any, idxs: list[int]) -> None:
         """Refuse a seed list of another length than one seed, one per env, or one per env reset (`idxs`), before
@@ -480,6 +494,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 sink.discard()
                 return
             sink.commit(meta)
+            self._chain_ran[i] += 1
 
 
 def what_stopped(error: BaseException) -> str:

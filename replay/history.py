@@ -27,9 +27,14 @@ def describe_history(index: int, history: Sequence[int], replayed: Sequence[int]
 
 
 def describe_missing_history(episode: EpisodeMeta, ran_before: int | None) -> str:
-    """The limit of `episode`, a copy whose file does not hold the `ran_before` episodes (None: an unknown number)
-    that ran in its scene before it when it was recorded: it is replayed on a rebuilt scene without them."""
+    """The limit of `episode`, a copy or a recorded episode whose file does not hold the `ran_before` episodes (None:
+    an unknown number) that ran in its scene before it when it was recorded: it is replayed on a rebuilt scene
+    without them."""
     scene = recorded_scene(episode)
+    if scene is None and not episode.origin and episode.chain:
+        return (f"replayed on a rebuilt scene without the {ran_before} episode(s) that ran in its scene before it when "
+                f"it was recorded (from episode {episode.chain['start']}): this file does not hold them all (damaged, "
+                f"or lost by recover); {_MAY_DIVERGE}")
     if scene is None:
         return ("replayed on a rebuilt scene: copied by a simreel that did not note which episodes ran in its scene "
                 f"before it when it was recorded; {_MAY_DIVERGE}")

@@ -281,6 +281,11 @@ class EpisodeMeta:
     scene_changes: dict[str, Any] = field(default_factory=dict)
     """Where this episode's scene differs from `RecordingMeta.scene_fingerprint` (a rebuilt scene, another
     sub-scene): the changed fingerprint entries (`simreel.sim.fingerprint.fingerprint_changes`); empty: the same."""
+    chain: dict[str, int] = field(default_factory=dict)
+    """Where its recorder's scene ran it: ``{"start": <index of the first episode that scene ran since it was built>,
+    "position": <episodes it ran before this one>}`` (`simreel.scene_history`), so that an episode its file lacks
+    (damaged, lost by recover) is noticed; of the recording it was recorded in (a copy's `origin` says which).
+    Empty where unknown (ManiSkill's files, simreel's from before it noted it): the file's order then tells."""
     length: int = 0
     success: bool | None = None
     """Final `info["success"]` (None if the task reports none)."""
@@ -314,6 +319,7 @@ class EpisodeMeta:
         for name in ("index", "length", "env_idx"):
             if kw.get(name, 0) < 0:
                 raise MetadataError(f"episode metadata: {name} is {kw[name]}, expected >= 0")
+        _check_chain(kw.get("chain") or {})
         _check_scene(kw.get("origin") or {}, "origin")
         _check_scene(kw.get("provenance") or {}, "provenance")
         return cls(**kw)
@@ -322,6 +328,13 @@ class EpisodeMeta:
 def new_recording_id() -> str:
     """A new `RecordingMeta.recording_id`: 32 random hex digits."""
     return uuid.uuid4().hex
+
+
+def _check_chain(chain: dict[str, Any]) -> None:
+    """`MetadataError` unless `chain` (`EpisodeMeta.chain`, not empty) holds a start and a position."""
+    if chain and not (set(chain) == {"start", "position"} and all(type(v) is int and v >= 0 for v in chain.values())):
+        raise MetadataError(f"episode metadata: chain is {json.dumps(chain, default=str)[:200]}, expected "
+                            '{"start": <index>, "position": <count>}')
 
 
 def _check_scene(holder: dict[str, Any], name: str) -> None:

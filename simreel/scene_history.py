@@ -12,6 +12,8 @@ since it was built. A chain starts at a sub-scene's (``env_idx``) first episode 
 simreel's recorder and ManiSkill's RecordEpisode both wrap a new env) and at each episode whose reset rebuilt the
 scene (``reconfigured`` True; None, unknown as in ManiSkill's files, is taken as not rebuilt: replaying a
 predecessor too many costs time, one too few gives a wrong verdict); episodes of one sub-scene ran in index order.
+simreel's recorder notes each episode's chain and place (`EpisodeMeta.chain`), so that one its file lacks (damaged,
+or lost by ``recover``) leaves a gap that is noticed; in files without it, the order of the episodes held tells.
 
 An episode copied by ``simreel filter`` or ``merge`` keeps where it ran (``EpisodeMeta.origin["scene"]``,
 `SceneChains.copied_scene`): its recording (by its `RecordingMeta.recording_id`: a moved file is the same recording,
@@ -98,8 +100,7 @@ class SceneChains:
             elif ep.origin:
                 self._note(ep, f"?{ep.index}", None, (None, ep.index))
             else:
-                start, ran = (ep.index, 0) if ep.reconfigured or ep.env_idx not in current else current[ep.env_idx]
-                current[ep.env_idx] = (start, ran + 1)
+                start, ran = _own_place(ep, current)
                 self._note(ep, f"#{start}", ran, (None, start))
         self._complete = {key: next(p for p in range(len(at) + 1) if p not in at) for key, at in self._at.items()}
         """Chain → its first place this file holds no episode at: the chain is whole here up to it."""
@@ -140,6 +141,16 @@ class SceneChains:
         if ran is None:
             return None
         return {**(recording or _recording(path, recording_id)), "start": start, "position": ran}
+
+
+def _own_place(ep: EpisodeMeta, current: dict[int, tuple[int, int]]) -> tuple[int, int]:
+    """(its chain's first episode, its place there) of `ep`, recorded in the file being read: as its recorder noted
+    (`EpisodeMeta.chain`), else by the file's order, `current` holding each sub-scene's chain so far."""
+    if ep.chain:
+        return ep.chain["start"], ep.chain["position"]
+    start, ran = (ep.index, 0) if ep.reconfigured or ep.env_idx not in current else current[ep.env_idx]
+    current[ep.env_idx] = (start, ran + 1)
+    return start, ran
 
 
 def _nearest_before(copies: list[EpisodeMeta], index: int) -> EpisodeMeta:

@@ -217,6 +217,8 @@ def test_malformed_recording_metadata_is_named(doc, message):
         ({"index": 0, "origin": {"file": "/a.h5", "index": 2, "scene": "a.h5#0"}},
          'episode metadata: origin.scene is "a.h5#0", expected {"file": <path>, "recording": <id>, "start": <index>, '
          '"position": <count>}'),
+        ({"index": 0, "chain": {"start": 0}},
+         'episode metadata: chain is {"start": 0}, expected {"start": <index>, "position": <count>}'),
         ({"index": 0, "provenance": {"scene": {"file": "/a.h5", "recording": 7, "start": 0, "position": 2}}},
          'episode metadata: provenance.scene is {"file": "/a.h5", "recording": 7, "start": 0, "position": 2}, expected '
          '{"file": <path>, "recording": <id>, "start": <index>, "position": <count>}'),

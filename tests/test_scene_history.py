@@ -129,3 +129,21 @@ def test_an_older_copy_continues_the_chain_of_a_copy_that_says_where_it_ran():
     """Episodes 0-1 of /a.h5 copied with their scene noted (merged now), episode 2 by an older filter's --rest."""
     episodes = [_copy(0, "/a.h5", 0), _copy(1, "/a.h5", 1), _old_copy(2, 2)]
     assert _indices(episodes, 2) == [0, 1]
+
+
+def _recorded(index: int, start: int, position: int) -> EpisodeMeta:
+    """Episode `index` as simreel's recorder notes it: `position` episodes after episode `start` in one scene."""
+    return EpisodeMeta(index, chain={"start": start, "position": position})
+
+
+def test_an_episode_its_file_lacks_leaves_a_gap_in_its_chain():
+    """Episode 1 damaged and left out (recover): 2 is not taken for the second episode of its chain."""
+    episodes = [_recorded(0, 0, 0), _recorded(2, 0, 2), _recorded(3, 0, 3)]
+    assert [_indices(episodes, i) for i in (0, 2, 3)] == [[], None, None]
+    assert SceneChains(episodes).copied_scene(2, "/r.h5", "r1") == {"file": "/r.h5", "recording": "r1", "start": 0,
+                                                                    "position": 2}
+
+
+def test_an_episode_of_no_step_the_recorder_discarded_leaves_no_gap():
+    episodes = [_recorded(1, 1, 0), _recorded(2, 1, 1), _recorded(4, 4, 0)]  # 0 and 3 had no step (a reset after
+    assert [_indices(episodes, i) for i in (1, 2, 4)] == [[], [1], []]  # a reset; 3's rebuilt the scene)

@@ -142,6 +142,21 @@ def test_reset_without_steps_leaves_no_episode_and_step_before_reset_or_after_cl
             late()
 
 
+def test_each_episode_notes_its_place_in_the_scene_that_ran_it(tmp_path):
+    """`EpisodeMeta.chain`: an episode of no step (discarded) ran nothing; a reconfiguring reset starts a chain."""
+    env = RecordWrapper(make_env("PushCube-v1"), tmp_path / "e.h5")
+    zero = np.zeros(env.action_space.shape, np.float32)
+    for seed, options, steps in ((0, None, 0), (1, None, 1), (2, None, 1), (3, {"reconfigure": True}, 0), (4, None, 1),
+                                 (5, {"reconfigure": True}, 1), (6, None, 1)):
+        env.reset(seed=seed, options=options)
+        for _ in range(steps):
+            env.step(zero)
+    env.close()
+    with open_reader(tmp_path / "e.h5") as r:
+        assert [(m.index, m.chain["start"], m.chain["position"]) for m in r.episodes] == \
+            [(1, 1, 0), (2, 1, 1), (4, 4, 0), (5, 5, 0), (6, 5, 1)]
+
+
 def test_observations_and_poses_when_asked(tmp_path):
     env = RecordWrapper(make_env("PickCube-v1"), tmp_path / "o.h5", record_obs=True, poses=True)
     obs, _ = env.reset(seed=2)

@@ -231,3 +231,18 @@ def test_copies_of_a_whole_file_keep_its_recording_id_and_files_made_from_it_get
     assert ids["copy.mcap"] == ids["recovered.h5"] == recording_id(lift)  # the same recording
     others = [ids[name] for name in ("filtered.h5", "merged.h5", "rendered.h5")]
     assert len({recording_id(lift), *others}) == 4
+
+
+def test_an_episode_whose_predecessor_recover_lost_is_replayed_without_its_history_and_says_so(lift, tmp_path):
+    """Regression: the recovered file's episode 2 was taken for the second of its chain (its file lists 0 and 2)
+    and replayed after episode 0 alone, its report saying that was its history."""
+    damaged, recovered = tmp_path / "damaged.h5", tmp_path / "recovered.h5"
+    shutil.copy(lift, damaged)
+    corrupt_chunk(damaged, "traj_1/actions", 1)
+    assert main(["recover", str(damaged), "-o", str(recovered)]) == 0
+    report = tmp_path / "r.json"
+    assert _replay(recovered, "--episodes", "2", "--report", report) == 1  # diverged at step 9, on a fresh scene
+    (episode,) = json.loads(report.read_text())["episodes"]
+    assert not any("predecessor" in note for note in episode["notes"])
+    assert ("replayed on a rebuilt scene without the 2 episode(s) that ran in its scene before it when it was recorded "
+            "(from episode 0): this file does not hold them all (damaged, or lost by recover)") in episode["limits"][0]
