@@ -208,14 +208,21 @@ class _Fleet:
             self._hand_out(queue)
             done, _ = self.ray.wait(list(self.inflight), num_returns=1)
             for ref in done:
-                actor, item, shipped = self.inflight.pop(ref)
-                try:
-                    result = self.ray.get(ref)
-                except self.ray.exceptions.RayActorError:
-                    self._lost(actor, item, queue, collect)
-                    continue
-                result.worker = self.where[actor] + (" (episode sent by the driver)" if shipped else "")
-                collect(result)
+                actor = self.inflight[ref][0]
+                if not self._collected(ref, collect):
+                    self._lost(actor, queue, collect)
+
+    def _collected(self, ref: Any, collect: Callable[[EpisodeResult], Any]) -> bool:
+        """Collect the result of `ref` (done); False, leaving it in flight, when its actor died first."""
+        actor, _, shipped = self.inflight[ref]
+        try:
+            result = self.ray.get(ref)
+        except self.ray.exceptions.RayActorError:
+            return False
+        del self.inflight[ref]
+        result.worker = self.where[actor] + (" (episode sent by the driver)" if shipped else "")
+        collect(result)
+        return True
 
     def _hand_out(self, queue: deque[list[WorkItem]]) -> None:
         """Top up each actor to `_AHEAD` episodes in flight from its group of items (`chain_groups`: the episodes of
@@ -235,23 +242,30 @@ class _Fleet:
         reader = self._readers.get(item.path)
         return ShippedEpisode(item.path, reader.meta, reader.read_episode(item.index))
 
-    def _lost(self, actor: Any, item: WorkItem, queue: deque[list[WorkItem]],
-              collect: Callable[[EpisodeResult], Any]) -> None:
-        """`item`'s actor died: replace the actor once, and hand the item out again or report it; the rest of the
-        actor's group goes back to the queue."""
-        if actor in self.actors:
-            self.actors.remove(actor)
-            if self.left.get(actor):
-                queue.appendleft(list(self.left.pop(actor)))
-            self.deaths += 1
-            self._start_actors(1)
-        if self.attempts[(item.path, item.index)] >= MAX_ATTEMPTS:
-            error = RecordingFileError(item.path, f"episode {item.index}: the Ray worker replaying it died "
-                                                  f"{MAX_ATTEMPTS} times (see the Ray logs of its node)")
-            collect(EpisodeResult(item, error=error))
-        else:
-            self.replayed_again += 1
-            queue.appendleft([item])
+    def _lost(self, actor: Any, queue: deque[list[WorkItem]], collect: Callable[[EpisodeResult], Any]) -> None:
+        """`actor` died: replace it, and hand out again, as one group in the order they were handed to it, the
+        episodes it was replaying (those it died on too often reported instead) and the rest of its group, so that
+        one actor replays that chain on (its history replayed once, not once per episode in flight)."""
+        self.actors.remove(actor)
+        self.deaths += 1
+        refs = [ref for ref, (a, *_) in self.inflight.items() if a is actor]  # (in the order handed out)
+        done = set(self.ray.wait(refs, num_returns=len(refs), timeout=0)[0])
+        again = []
+        for ref in refs:
+            if ref in done and self._collected(ref, collect):  # it finished before the actor died
+                continue
+            lost = self.inflight.pop(ref)[1]
+            if self.attempts[(lost.path, lost.index)] >= MAX_ATTEMPTS:
+                error = RecordingFileError(lost.path, f"episode {lost.index}: the Ray worker replaying it died "
+                                                      f"{MAX_ATTEMPTS} times (see the Ray logs of its node)")
+                collect(EpisodeResult(lost, error=error))
+            else:
+                again.append(lost)
+        self.replayed_again += len(again)
+        group = again + list(self.left.pop(actor, ()))
+        if group:
+            queue.appendleft(group)
+        self._start_actors(1)
 
     def close(self) -> None:
         for actor in self.actors:

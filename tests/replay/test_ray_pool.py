@@ -99,9 +99,9 @@ def _episode_lines(log: Path) -> list[dict]:
             if line.endswith("\n") and '"type":"episode"' in line]
 
 
-def _replay_until_two_verdicts(cluster: Cluster, path: Path, report: Path) -> subprocess.Popen:
-    """A run of `path` on two actors, once two verdicts are in its report: the rest are still replaying."""
-    proc = _replay(cluster, str(path), "--workers", "2", "--report", str(report))
+def _replay_until_two_verdicts(cluster: Cluster, report: Path, *paths: Path) -> subprocess.Popen:
+    """A run of `paths` on two actors, once two verdicts are in its report: the rest are still replaying."""
+    proc = _replay(cluster, *map(str, paths), "--workers", "2", "--report", str(report))
     deadline = time.monotonic() + 300
     while len(_episode_lines(report.with_suffix(".jsonl"))) < 2:
         assert proc.poll() is None, proc.communicate()
@@ -154,7 +154,7 @@ _OWN_SCENES = ("--env-kwargs", '{"reconfiguration_freq": 1}')
 def test_a_worker_killed_mid_run_has_its_episodes_replayed_elsewhere_once(cluster, record, tmp_path):
     path = record("PickCube-v1", 16, 30, *_OWN_SCENES)
     report = tmp_path / "r.json"
-    proc = _replay_until_two_verdicts(cluster, path, report)
+    proc = _replay_until_two_verdicts(cluster, report, path)
     actors = _actor_pids()
     assert len(actors) == 2, actors
     os.kill(actors[0], signal.SIGKILL)
@@ -166,10 +166,29 @@ def test_a_worker_killed_mid_run_has_its_episodes_replayed_elsewhere_once(cluste
     assert doc["notes"] and "replayed again by others" in doc["notes"][0]
 
 
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds the actor processes through /proc")
+def test_the_chain_of_a_killed_worker_goes_on_in_one_worker_its_history_replayed_once(cluster, record, tmp_path):
+    """Regression: the two episodes a dead actor had in flight went back as two groups, in reverse order, each
+    then replaying the chain's history again (as did the rest of its chain after them)."""
+    paths = [record("PickCube-v1", 8, 30), record("PickCube-v1", 8, 30, "--seed", "40")]  # a chain each
+    report = tmp_path / "r.json"
+    proc = _replay_until_two_verdicts(cluster, report, *paths)
+    os.kill(_actor_pids()[0], signal.SIGKILL)
+    out, err = proc.communicate(timeout=600)
+    assert proc.returncode == 0, err
+    assert "note: 1 Ray worker(s) died during the run" in out, out
+    doc = json.loads(report.read_text())
+    _each_once(doc, 16)
+    for path in paths:
+        histories = [e["index"] for e in doc["episodes"] if e["file"] == str(path)
+                     and any("replayed for that" in note for note in e["notes"])]
+        assert len(histories) <= 1, (path, histories)
+
+
 def test_a_killed_driver_is_resumed_on_the_cluster_without_replaying_what_it_finished(cluster, record, tmp_path):
     path = record("PickCube-v1", 16, 30, *_OWN_SCENES)
     report = tmp_path / "r.json"
-    proc = _replay_until_two_verdicts(cluster, path, report)
+    proc = _replay_until_two_verdicts(cluster, report, path)
     proc.kill()
     proc.wait()
     before = len(_episode_lines(tmp_path / "r.jsonl"))
