@@ -38,9 +38,9 @@ from simreel.formats import check_writable, format_of, open_reader, recording_fi
 from simreel.formats.base import EpisodeRows, PassedRows, not_a_file
 from simreel.formats.copy import Target, write_episodes
 from simreel.formats.durable import deferred_signals, raise_if_stopped
-from simreel.formats.inputs import file_identity
+from simreel.formats.inputs import file_identity, shown_path
 from simreel.formats.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
-from simreel.formats.staging import staging_path
+from simreel.formats.staging import staging_path, stale_staging
 from simreel.formats.targets import OVERWRITE_HINT, check_distinct, move_into_place
 from simreel.scene_history import SceneChains
 
@@ -184,6 +184,8 @@ class OutputSummary:
     path: Path
     episodes: int
     steps: int
+    cleared: list[Path] = field(default_factory=list)
+    """What killed commands had left beside it under a staging name, removed once it was published."""
 
     def line(self) -> str:
         size = self.path.stat().st_size if self.path.exists() else 0
@@ -228,6 +230,8 @@ class DatasetReport:
             lines += [f"rest: {o.line()}" for o in self.outputs[1:]]
         lines += [f"note: {u} was never committed (a killed recording) and is not copied" for u in self.unfinished]
         lines += [f"note: {n}" for n in self.notes]
+        lines += [f"note: removed {shown_path(p)}: the unchecked output of a merge or filter of {o.path.name} killed "
+                  "before it finished" for o in self.outputs for p in o.cleared]
         lines += [f"note: {_no_success_note(self.no_success)}"] if self.no_success else []
         lines += [f"note: {_uncovered_note(self.uncovered)}"] if self.uncovered else []
         lines.append(f"checked: {self.checked} episodes, every array equal to its source")
@@ -590,7 +594,16 @@ def _run(sources: Sequence[_Source], targets: Sequence[Target], selection: _Sele
             out = next((o.final.path for o in outputs if Path(e.path) == o.staged.path), e.path)
             raise e.dropped("; nothing was written and the inputs are unchanged", out) from None
         raise
-    return [OutputSummary(o.final.path, len(o.items), n) for o, n in zip(outputs, steps, strict=True)], items
+    return [OutputSummary(o.final.path, len(o.items), n, _clear_stale(o.final.path))
+            for o, n in zip(outputs, steps, strict=True)], items
+
+
+def _clear_stale(final: Path) -> list[Path]:
+    """Remove what killed commands left beside the published `final` (`stale_staging`), with its files beside it."""
+    stale = stale_staging(final)
+    for path in stale:
+        remove_recording(path)
+    return stale
 
 
 # ---------------------------------------------------------------------------------------------------- the check

@@ -64,8 +64,8 @@ def _say_skipped(staged: Sequence[Path]) -> None:
         return
     names = ", ".join(shown_path(f) for f in staged)
     sys.stderr.write(f"simreel: warning: skipped {names}: unchecked output(s) of a merge or filter that was "
-                     "interrupted (or still runs); once none runs, delete them and the files beside them of the same name "
-                     "(name one to inspect it)\n")
+                     "interrupted (or still runs); the next merge or filter of the same output removes them, or once "
+                     "none runs delete them and the files beside them of the same name (name one to inspect it)\n")
 
 
 def expand_inputs(specs: Sequence[str | Path]) -> list[tuple[Path, bool]]:

@@ -24,7 +24,7 @@ from simreel.formats.lock import WriterLock, being_written
 from simreel.formats.targets import check_output
 
 __all__ = ["RecordingTarget", "side_folder", "replacement_note", "refuse_kept_recording", "staging_path",
-           "is_staging_path"]
+           "is_staging_path", "stale_staging"]
 
 
 def side_folder(path: Path) -> Path:
@@ -168,6 +168,17 @@ def staging_path(final: Path) -> Path:
     ``merged.h5``) until it is checked and moved there: hidden, and this process's own, so that two commands writing
     one OUT never share it."""
     return final.with_name(f".{final.stem}.simreel-{os.getpid()}{final.suffix}")
+
+
+def stale_staging(final: Path) -> list[Path]:
+    """What commands killed before they moved their output to `final` left beside it under a staging name
+    (`staging_path`; no writer holds it): unchecked copies of their inputs, never a recording of its own."""
+    found = []
+    for path in sorted(final.parent.glob(f".*.simreel-*{final.suffix}")):
+        match = _STAGING_STEM.fullmatch(path.stem)
+        if match and match["stem"] == final.stem and path.is_file() and not being_written(path):
+            found.append(path)
+    return found
 
 
 def is_staging_path(path: str | os.PathLike[str]) -> bool:

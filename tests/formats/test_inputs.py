@@ -75,14 +75,9 @@ def test_a_recordings_identity_covers_the_sidecar_a_reader_reads(tmp_path):
     assert file_identity(link) != linked and file_identity(link)[0] == 108 + 17
 
 
-def test_a_killed_filters_staged_output_is_skipped_by_scans_and_named_once(tmp_path, capsys):
-    """Regression: a `kill -9`'d merge or filter leaves its staged output (``.OUT.simreel-PID.h5``) beside OUT, and
-    `simreel inspect DIR` / `replay DIR` took it for a recording. A scan skips it and says so once on stderr; named
-    explicitly it is still read (to inspect what is left)."""
-    data = tmp_path / "data"
-    data.mkdir()
-    meta = synthetic_meta()
-    src = write(data / "src.h5", meta, [synthetic_episode(meta, i, 3) for i in range(4)])
+def _killed_filter(data: Path, src: Path) -> Path:
+    """The staged output (``.kept.simreel-PID.h5``) a filter of `src` into ``data/kept.h5`` leaves when it is killed
+    with two episodes written."""
     support = Path(__file__).resolve().parents[1] / "support"
     child = subprocess.Popen([sys.executable, str(support / "paused_copy.py"), "filter", str(src), "-o",
                               str(data / "kept.h5"), "--episodes", "0-3"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
@@ -93,6 +88,18 @@ def test_a_killed_filters_staged_output_is_skipped_by_scans_and_named_once(tmp_p
         child.wait(timeout=60)
     leftover = data / f".kept.simreel-{child.pid}.h5"
     assert leftover.is_file() and not (data / "kept.h5").exists()
+    return leftover
+
+
+def test_a_killed_filters_staged_output_is_skipped_by_scans_and_named_once(tmp_path, capsys):
+    """Regression: a `kill -9`'d merge or filter leaves its staged output (``.OUT.simreel-PID.h5``) beside OUT, and
+    `simreel inspect DIR` / `replay DIR` took it for a recording. A scan skips it and says so once on stderr; named
+    explicitly it is still read (to inspect what is left)."""
+    data = tmp_path / "data"
+    data.mkdir()
+    meta = synthetic_meta()
+    src = write(data / "src.h5", meta, [synthetic_episode(meta, i, 3) for i in range(4)])
+    leftover = _killed_filter(data, src)
 
     for spec in (data, data / "*.h5", f"{data}/.*.h5"):
         capsys.readouterr()
@@ -108,3 +115,22 @@ def test_a_killed_filters_staged_output_is_skipped_by_scans_and_named_once(tmp_p
     assert main(["inspect", str(data)]) == 0
     out = capsys.readouterr().out
     assert "src.h5" in out and "simreel-" not in out and "1 recording" in out
+
+
+def test_the_next_filter_of_the_same_output_removes_what_a_killed_one_left(tmp_path, capsys):
+    """Regression: the staged outputs of killed runs stayed beside OUT for good (scans skip them, saying so)."""
+    data = tmp_path / "data"
+    data.mkdir()
+    meta = synthetic_meta()
+    src = write(data / "src.h5", meta, [synthetic_episode(meta, i, 3) for i in range(4)])
+    leftover = _killed_filter(data, src)
+    assert leftover.with_suffix(".json").is_file()
+    other = data / ".other.simreel-1.h5"  # another output's: kept
+    other.write_bytes(leftover.read_bytes())
+    capsys.readouterr()
+    assert main(["filter", str(src), "-o", str(data / "kept.h5"), "--episodes", "0-3", "-q"]) == 0
+    out = capsys.readouterr().out
+    assert not leftover.exists() and not leftover.with_suffix(".json").exists()  # with its sidecar
+    assert other.exists() and (data / "kept.h5").is_file()
+    assert f"note: removed {shown_path(leftover)}: the unchecked output of a merge or filter of kept.h5 killed " \
+           "before it finished" in out
