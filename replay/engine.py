@@ -53,8 +53,8 @@ MODES = ("actions", "states", "step")
 """Replay modes; ``resync`` is an option of ``actions`` (with its own default tolerances, see
 `simreel.compare.TOLERANCE_MODES`)."""
 RESTORING_MODES = ("states", "step")
-"""The modes that restore recorded states, so replay no episode's history: they re-run its last step instead
-(`SceneBefore`)."""
+"""The modes that restore recorded states, so replay no episode's history: they re-run only the last step of the
+episode before (`SceneBefore`)."""
 
 
 @dataclass(frozen=True)
@@ -186,6 +186,8 @@ class EpisodeReplayer:
         self._scene_builds = 0
         self._stepped = False
         """Whether the scene simulated a step since it was built (it then reports that step's contacts)."""
+        self._carried: list[str] = []
+        """Limits met at the reset of `rerun_step_before`, for the episode it runs before (`reset_for`)."""
         self._fast_allowed = True
         self._contacts = None
         self._fingerprint: tuple[int, dict[str, Any]] | None = None  # (scene build, fingerprint)
@@ -294,8 +296,16 @@ class EpisodeReplayer:
     # ------------------------------------------------------------------ reset
     def reset_for(self, ep: EpisodeMeta) -> EpisodeReset:
         """Reset the env the way episode `ep` was reset (scene, seed, options: `simreel.sim.rebuild.reset_to_episode`);
-        returns what was done, with this replayer's own limits added (body poses, contacts)."""
+        returns what was done, with this replayer's own limits added (body poses, contacts; also those its scene
+        met at the reset of `rerun_step_before`, which rebuilt it)."""
+        done, _ = self._reset_scene(ep)
+        done.limits[:0], self._carried = self._carried, []
+        return done
+
+    def _reset_scene(self, ep: EpisodeMeta) -> tuple[EpisodeReset, list[str]]:
+        """`reset_for`'s reset, and the limits this replayer met binding to a rebuilt scene (in its limits too)."""
         u = self.u
+        bound: list[str] = []
         done = reset_to_episode(self.env, ep, scene_seed=self._scene_seed)
         self._scene_seed = done.scene_seed
         self._scene_builds += done.scene_builds
@@ -313,15 +323,16 @@ class EpisodeReplayer:
 
             missing = sorted(set(self.pose_bodies) - set(named_bodies(u)))
             if missing:
-                done.limits.append(f"body poses not written: the rebuilt scene has no {', '.join(missing[:3])}")
+                bound.append(f"body poses not written: the rebuilt scene has no {', '.join(missing[:3])}")
                 self.pose_bodies = []
         if self._contacts is not None:
             try:
                 self._contacts.bind(u)
             except KeyError as e:
-                done.limits.append(f"contacts not compared: the rebuilt scene has no body {e}")
+                bound.append(f"contacts not compared: the rebuilt scene has no body {e}")
                 self._contacts = None
-        return done
+        done.limits += bound
+        return done, bound
 
     def forget_scene(self) -> None:
         """Take the env's scene for unknown: the next reset rebuilds it (`reset_to_episode` with ``scene_seed=None``),
@@ -355,11 +366,13 @@ class EpisodeReplayer:
             if self._stepped:
                 self.forget_scene()
             return
-        self.reset_for(before.episode)
-        restore_state(self.u, before.state, elapsed_steps=before.step)
-        with _task_code_errors(), warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # an out-of-bounds action: the recording had it too
-            self.u._step_action(self._actions(before.action))
+        with _task_code_errors():
+            self._carried += self._reset_scene(before.episode)[1]
+            self._check_layout()
+            restore_state(self.u, before.state, elapsed_steps=before.step)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # an out-of-bounds action: the recording had it too
+                self.u._step_action(self._actions(before.action))
         self._stepped = True
 
     # ------------------------------------------------------------------ replay

@@ -33,8 +33,8 @@ def describe_missing_history(episode: EpisodeMeta, ran_before: int | None) -> st
     scene = recorded_scene(episode)
     if scene is None and not episode.origin and episode.chain:
         return (f"replayed on a rebuilt scene without the {ran_before} episode(s) that ran in its scene before it when "
-                f"it was recorded (from episode {episode.chain['start']}): this file does not hold them all (damaged, "
-                f"or lost by recover); {_MAY_DIVERGE}")
+                f"it was recorded (from episode {episode.chain['start']}): this file does not hold them all (left out "
+                f"of a copy, or damaged and lost by recover); {_MAY_DIVERGE}")
     if scene is None:
         return ("replayed on a rebuilt scene: copied by a simreel that did not note which episodes ran in its scene "
                 f"before it when it was recorded; {_MAY_DIVERGE}")

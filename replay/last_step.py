@@ -38,8 +38,9 @@ def step_before(reader: EpisodeReader, chains: SceneChains, index: int, ran: int
     `ran`: how many episodes of its chain the replaying scene ran, the last of them last (`SceneRun.ran_of`; None:
     unknown): when that is the one before it, nothing is re-run."""
     place = chains.ran_before[index]
-    if place is None:
-        return StepBefore(None, describe_missing_step_before("where it ran when recorded is unknown"))
+    unknown = _unknown_place(reader, place)
+    if unknown:
+        return StepBefore(None, describe_missing_step_before(unknown))
     if place == ran:
         return StepBefore(None)
     previous = chains.previous(index)
@@ -56,12 +57,26 @@ def step_before(reader: EpisodeReader, chains: SceneChains, index: int, ran: int
         return StepBefore(None, describe_missing_step_before(f"episode {previous.index} ran before it: {e}"))
 
 
+def _unknown_place(reader: EpisodeReader, place: int | None) -> str | None:
+    """Why the place of an episode of `reader`'s file in its chain (`place`) is unknown, if it is: a copy that does
+    not say, or a file of parallel envs that does not say which one ran each episode (ManiSkill's)."""
+    if place is None:
+        return "where it ran when recorded is unknown"
+    if reader.meta.num_envs > 1 and "env_idx" in reader.meta.unknown:
+        return "the file does not say which of its parallel envs ran each episode"
+    return None
+
+
 def _last_step(reader: EpisodeReader, episode: EpisodeMeta) -> SceneBefore:
-    """`episode`'s last step: the state row before it, and its action (`RecordingFileError` if it holds NaN)."""
+    """`episode`'s last step: the state row before it, and its action (`RecordingFileError` if it holds NaN, or the
+    state before is not in the file: the row 0 of an episode whose `initial_state_known` is False)."""
     rows, length = reader.open_episode(episode.index), episode.length
     action = rows.steps(length - 1, length)["actions"][0]
     if np.isnan(action).any():
         raise RecordingFileError(reader.path, f"the last action of episode {episode.index} holds NaN")
+    if length == 1 and not episode.initial_state_known:
+        raise RecordingFileError(reader.path, f"the state before the one step of episode {episode.index} is not in "
+                                              "the file (its row 0 is the state after it)")
     before = rows.reset() if length == 1 else rows.steps(length - 2, length - 1)
     state = {name[len("env_states/"):]: a[-1:] for name, a in before.arrays.items() if name.startswith("env_states/")}
     return SceneBefore(rows.meta, state, action, length - 1)

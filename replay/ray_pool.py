@@ -248,6 +248,8 @@ class _Fleet:
         one actor replays that chain on (its history replayed once, not once per episode in flight)."""
         self.actors.remove(actor)
         self.deaths += 1
+        with contextlib.suppress(Exception):  # (an actor Ray calls unavailable may still live, holding its CPU)
+            self.ray.kill(actor)
         refs = [ref for ref, (a, *_) in self.inflight.items() if a is actor]  # (in the order handed out)
         done = set(self.ray.wait(refs, num_returns=len(refs), timeout=0)[0])
         again = []

@@ -331,8 +331,9 @@ def new_recording_id() -> str:
 
 
 def _check_chain(chain: dict[str, Any]) -> None:
-    """`MetadataError` unless `chain` (`EpisodeMeta.chain`, not empty) holds a start and a position."""
-    if chain and not (set(chain) == {"start", "position"} and all(type(v) is int and v >= 0 for v in chain.values())):
+    """`MetadataError` unless `chain` (`EpisodeMeta.chain`, not empty) holds a start and a position (other keys, of a
+    later simreel, are kept)."""
+    if chain and not all(type(chain.get(k)) is int and chain[k] >= 0 for k in ("start", "position")):
         raise MetadataError(f"episode metadata: chain is {json.dumps(chain, default=str)[:200]}, expected "
                             '{"start": <index>, "position": <count>}')
 

@@ -538,8 +538,11 @@ class StagedOutput:
         return pairs[1:] + pairs[:1]
 
     def check_free(self) -> None:
-        """Without `overwrite`: `UsageError` when a final name is taken by now (another command writing the same
-        OUT), before any output is published."""
+        """`UsageError` when the staged recording is gone (another command removed it) or, without `overwrite`, a
+        final name is taken by now (another command writing the same OUT), before any output is published."""
+        if not self.staged.path.is_file():
+            raise UsageError(f"{self.final.path}: its output, written as {self.staged.path.name}, was removed by "
+                             "another command while this one ran; nothing was written")
         for src, dst in self._pairs():
             if not self.final.overwrite and src.exists() and (dst.exists() or dst.is_symlink()):
                 raise self._taken(dst)

@@ -172,13 +172,26 @@ def staging_path(final: Path) -> Path:
 
 def stale_staging(final: Path) -> list[Path]:
     """What commands killed before they moved their output to `final` left beside it under a staging name
-    (`staging_path`; no writer holds it): unchecked copies of their inputs, never a recording of its own."""
+    (`staging_path`): unchecked copies of their inputs, never a recording of its own. Not those a writer holds or
+    whose process lives (a command checking its output holds no writer lock), nor any of this process."""
     found = []
     for path in sorted(final.parent.glob(f".*.simreel-*{final.suffix}")):
         match = _STAGING_STEM.fullmatch(path.stem)
-        if match and match["stem"] == final.stem and path.is_file() and not being_written(path):
+        if (match and match["stem"] == final.stem and path.is_file() and not _alive(int(match["pid"]))
+                and not being_written(path)):
             found.append(path)
     return found
+
+
+def _alive(pid: int) -> bool:
+    """Whether process `pid` runs on this machine (this one included; one that cannot be asked counts as alive)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
 
 
 def is_staging_path(path: str | os.PathLike[str]) -> bool:

@@ -494,3 +494,19 @@ def test_a_merge_the_disk_cannot_hold_names_its_output_and_leaves_nothing(tmp_pa
         assert str(raised.value) == (f"{out}: the disk is full; nothing was written and the inputs are unchanged; free "
                                      "some space or write to another disk")
         assert [p for p in disk.iterdir() if p.name != "lost+found"] == []
+
+
+def test_an_output_whose_staged_recording_another_command_removed_is_not_published(tmp_path):
+    """Regression (a race a review reproduced): a merge removing another's staged output while that one checked it
+    (holding no writer lock then) made the other publish nothing, or with --overwrite delete the old OUT, and exit 0."""
+    from simreel.formats.copy import Target
+    from simreel.formats.dataset import StagedOutput
+
+    meta = synthetic_meta()
+    old = write(tmp_path / "out.h5", meta, [synthetic_episode(meta, 0, 3)])
+    staged = StagedOutput.of(Target(old, meta, overwrite=True))
+    write(staged.staged.path, meta, [synthetic_episode(meta, 0, 4)])
+    staged.staged.path.unlink()  # what the other command removed
+    with pytest.raises(UsageError, match="was removed by another command while this one ran; nothing was written"):
+        staged.check_free()
+    assert old.is_file()

@@ -127,10 +127,17 @@ def test_the_next_filter_of_the_same_output_removes_what_a_killed_one_left(tmp_p
     assert leftover.with_suffix(".json").is_file()
     other = data / ".other.simreel-1.h5"  # another output's: kept
     other.write_bytes(leftover.read_bytes())
+    running = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    live = data / f".kept.simreel-{running.pid}.h5"  # a run's still checking (its writer closed): kept
+    live.write_bytes(leftover.read_bytes())
     capsys.readouterr()
-    assert main(["filter", str(src), "-o", str(data / "kept.h5"), "--episodes", "0-3", "-q"]) == 0
+    try:
+        assert main(["filter", str(src), "-o", str(data / "kept.h5"), "--episodes", "0-3", "-q"]) == 0
+    finally:
+        running.kill()
+        running.wait()
     out = capsys.readouterr().out
     assert not leftover.exists() and not leftover.with_suffix(".json").exists()  # with its sidecar
-    assert other.exists() and (data / "kept.h5").is_file()
+    assert other.exists() and live.exists() and (data / "kept.h5").is_file()
     assert f"note: removed {shown_path(leftover)}: the unchecked output of a merge or filter of kept.h5 killed " \
            "before it finished" in out

@@ -245,4 +245,5 @@ def test_an_episode_whose_predecessor_recover_lost_is_replayed_without_its_histo
     (episode,) = json.loads(report.read_text())["episodes"]
     assert not any("predecessor" in note for note in episode["notes"])
     assert ("replayed on a rebuilt scene without the 2 episode(s) that ran in its scene before it when it was recorded "
-            "(from episode 0): this file does not hold them all (damaged, or lost by recover)") in episode["limits"][0]
+            "(from episode 0): this file does not hold them all (left out of a copy, or damaged and lost by recover)") \
+        in episode["limits"][0]

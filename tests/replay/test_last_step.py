@@ -124,3 +124,19 @@ def test_a_re_render_whose_observations_are_not_the_recorded_ones_is_not_verifie
     episodes = json.loads(report.read_text())["episodes"]
     assert [e["verdict"] for e in episodes] == ["within_tolerance", "diverged", "within_tolerance"]
     assert episodes[1]["first_divergence"]["step"] == 4 and episodes[1]["first_divergence"]["key"] == "obs/state"
+
+
+def test_a_file_of_another_state_layout_is_one_clear_error_also_when_the_step_before_runs_first(lift, tmp_path,
+                                                                                                 capsys):
+    """Regression: the step before an episode was restored before the rebuilt env's layout was checked: a KeyError,
+    "internal error" (exit 3), where the episode alone gets the one line."""
+    renamed = tmp_path / "renamed.h5"
+    shutil.copy(lift, renamed)
+    with h5py.File(renamed, "r+") as f:
+        meta = json.loads(f.attrs["simreel_meta"])
+        meta["state_layout"] = {k.replace("actors/cube", "actors/cube2"): v for k, v in meta["state_layout"].items()}
+        f.attrs["simreel_meta"] = json.dumps(meta)
+        for name in (k for k in f if k.startswith("traj_")):
+            f[name]["env_states/actors"].move("cube", "cube2")
+    assert main(["replay", str(renamed), "--mode", "states", "--episodes", "2", "-q"]) == 2
+    assert "has another state layout than the recording" in capsys.readouterr().err
