@@ -26,11 +26,15 @@ def describe_history(index: int, history: Sequence[int], replayed: Sequence[int]
             f"the scene's history); {_span(replayed)} replayed for that, not verified")
 
 
-def describe_missing_history(episode: EpisodeMeta, ran_before: int | None) -> str:
-    """The limit of `episode`, a copy or a recorded episode whose file does not hold the `ran_before` episodes (None:
-    an unknown number) that ran in its scene before it when it was recorded: it is replayed on a rebuilt scene
-    without them."""
+def describe_missing_history(episode: EpisodeMeta, ran_before: int | None, recording_id: str) -> str:
+    """The limit of `episode`, a copy or a recorded episode whose file (whose `RecordingMeta.recording_id` is
+    `recording_id`) does not hold the `ran_before` episodes (None: an unknown number) that ran in its scene before it
+    when it was recorded: it is replayed on a rebuilt scene without them."""
     scene = recorded_scene(episode)
+    if scene is not None and recording_id and scene.get("recording") == recording_id:
+        return (f"replayed on a rebuilt scene without the {ran_before} episode(s) that ran in its scene before it when "
+                f"this file's conversion stepped them (from episode {scene['start']}): the conversion left some of "
+                f"them out of this file (--keep, or a failed episode); {_MAY_DIVERGE}")
     if scene is None and not episode.origin and episode.chain:
         return (f"replayed on a rebuilt scene without the {ran_before} episode(s) that ran in its scene before it when "
                 f"it was recorded (from episode {episode.chain['start']}): this file does not hold them all (left out "

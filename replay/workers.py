@@ -303,7 +303,8 @@ class ReplayWorker:
         chains = self._chains_of(item.path, reader)
         if not chains.complete(item.index):
             replayer.forget_scene()
-            return ReplayedHistory(lost=describe_missing_history(episode, chains.ran_before[item.index]))
+            lost = describe_missing_history(episode, chains.ran_before[item.index], reader.meta.recording_id)
+            return ReplayedHistory(lost=lost)
         done = scene.ran_of(item.path, chains, item.index) if scene is not None else None
         missing = chains.history(item.index, since=done or 0)
         if done is None and not (missing or [episode])[0].reconfigured:

@@ -3,6 +3,8 @@ recorded order, only when the conversion stepped its episodes one after another 
 
 from __future__ import annotations
 
+import json
+
 from support.maniskill_files import record_maniskill
 
 from simreel.cli.main import main
@@ -17,3 +19,15 @@ def test_a_control_mode_conversion_asked_for_workers_runs_in_one_process(tmp_pat
     assert "converted in one process, not 2" in capsys.readouterr().err
     assert main(["replay", str(out), "-q"]) == 0
     assert "4 exact" in capsys.readouterr().out
+
+
+def test_an_episode_whose_predecessors_the_conversion_left_out_says_so(tmp_path):
+    """The limit names the conversion that left them out, not the output file as if another recording."""
+    src = record_maniskill(tmp_path, "PickCube-v1", name="pick", episodes=4, steps=60, path="pick")
+    out, report = tmp_path / "kept.h5", tmp_path / "r.json"
+    assert main(["convert", str(src), str(out), "--control-mode", "pd_ee_delta_pose", "--keep", "success", "-q"]) == 0
+    main(["replay", str(out), "--report", str(report), "-q"])  # episode 2 of 0-3, the one successful
+    (episode,) = json.loads(report.read_text())["episodes"]
+    assert ("replayed on a rebuilt scene without the 2 episode(s) that ran in its scene before it when this file's "
+            "conversion stepped them (from episode 0): the conversion left some of them out of this file (--keep, or "
+            "a failed episode)") in episode["limits"][0]
