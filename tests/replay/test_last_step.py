@@ -140,3 +140,18 @@ def test_a_file_of_another_state_layout_is_one_clear_error_also_when_the_step_be
             f[name]["env_states/actors"].move("cube", "cube2")
     assert main(["replay", str(renamed), "--mode", "states", "--episodes", "2", "-q"]) == 2
     assert "has another state layout than the recording" in capsys.readouterr().err
+
+
+def test_what_the_step_befores_reset_finds_of_the_scene_reaches_the_episodes_report(lift, tmp_path):
+    """Regression (review): the reset of the step before builds the scene, so the replayer found there that a contact
+    channel's body is missing, and the episode's own reset no longer said so: its limits lacked it."""
+    ghost = tmp_path / "ghost.h5"
+    shutil.copy(lift, ghost)
+    with h5py.File(ghost, "r+") as f:
+        meta = json.loads(f.attrs["simreel_meta"])
+        meta["contact_channels"][0]["bodies"] = ["ghost"]
+        f.attrs["simreel_meta"] = json.dumps(meta)
+    report = tmp_path / "r.json"
+    main(["replay", str(ghost), "--mode", "states", "--episodes", "2", "--report", str(report), "-q"])
+    (episode,) = json.loads(report.read_text())["episodes"]
+    assert "contacts not compared: the rebuilt scene has no body 'ghost'" in episode["limits"]
