@@ -48,7 +48,6 @@ from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct
 from simreel.replay.control import check_pair
 from simreel.replay.engine import GPU_SIM_BACKENDS, BlockSink, Collected, EpisodeReplayer, ReplayerOptions
-from simreel.replay.last_step import StepBefore, step_before
 from simreel.replay.output import (
     EpisodeStream,
     ReplayedWriter,
@@ -61,7 +60,14 @@ from simreel.replay.output import (
 )
 from simreel.replay.report import CHECK_ORDER, EpisodeReport, episode_lines, recording_limits
 from simreel.replay.tracking import Commands, EndEffector, TrackingBlocks, tracking_tolerances
-from simreel.replay.workers import EpisodeResult, SceneRun, VerifySink, run_pool
+from simreel.replay.workers import (
+    EpisodeResult,
+    ReplayedHistory,
+    SceneRun,
+    VerifySink,
+    restoring_history,
+    run_pool,
+)
 from simreel.replay.worklist import WorkItem
 from simreel.scene_history import SceneChains, run_scenes
 from simreel.sim.user_code import resolve_task_imports
@@ -287,32 +293,29 @@ class ConvertWorker:
         scope = CompareScope(initial=source.meta.initial_state_known,
                              obs=_compares_obs(self.meta, self.job.obs_mode, self.job.env_kwargs))
         verify = VerifySink(_states_tolerances(), self.meta.contact_channels, scope, _Rendered(written))
-        before = self._step_before(item.index)
+        history = self._step_before(item)
         try:
-            if before.run is not None:
-                self.replayer.rerun_step_before(before.run)
+            self.replayer.rerun_step_before(history.before)
             run = self.replayer.replay_rows(source, verify, mode="states", rows=self.job.block_rows)
             report = EpisodeReport.from_comparison(source, verify.comparison(), notes=run.notes, limits=run.limits,
                                                    seconds=run.seconds)
         except BaseException:
             written.discard()
             raise
-        report.notes += [before.lost] if before.lost else []
-        report.limits += [before.lost] if before.lost else []
+        history.tell(report, item.index)
         self._scene = SceneRun.after(self.job.path, self._chains, item.index)
         meta = _provenance_meta(source.meta, report, self.job.scenes.get(item.index))
         return written.finish(item, report, meta, source.length, self.job.keep)
 
-    def _step_before(self, index: int) -> StepBefore:
-        """The step before episode `index`'s reset, which its observations there read (`simreel.replay.last_step`);
-        the re-rendering scene's last step is unknown until its replay ends well."""
+    def _step_before(self, item: WorkItem) -> ReplayedHistory:
+        """The step before `item`'s reset, which its observations there read (`restoring_history`); the
+        re-rendering scene's last step is unknown until its replay ends well."""
         if self._chains is None:
             self._chains = SceneChains(self.reader.episodes)
         scene, self._scene = self._scene, None
         if not self.replayer.need_obs:
-            return StepBefore(None)
-        ran = scene.ran_of(self.job.path, self._chains, index) if scene is not None else None
-        return step_before(self.reader, self._chains, index, ran)
+            return ReplayedHistory()
+        return restoring_history(self.reader, self._chains, item, scene)
 
     def _stream(self, episode: EpisodeMeta) -> EpisodeStream | None:
         """Where the conversion of `episode` is written as it comes: into the output when this process writes it and

@@ -358,10 +358,13 @@ class EpisodeReplayer:
         self.reset_for(ep)
         return {k: np.array(v) for k, v in self._state().items()}
 
-    def rerun_step_before(self, before: SceneBefore) -> None:
-        """Re-run the step the recorder's scene simulated last before an episode's reset (`SceneBefore`), just
-        before a restoring replay of that episode: its reset then keeps that step's contacts (a reset simulates
-        nothing). For a scene then just built, the scene is rebuilt at the next reset if it has stepped since."""
+    def rerun_step_before(self, before: SceneBefore | None) -> None:
+        """Re-run the step the recorder's scene simulated last before an episode's reset (`SceneBefore`; None:
+        nothing to re-run), just before a restoring replay of that episode: its reset then keeps that step's
+        contacts (a reset simulates nothing). For a scene then just built, the scene is rebuilt at the next reset if
+        it has stepped since."""
+        if before is None:
+            return
         if before.episode is None:
             if self._stepped:
                 self.forget_scene()

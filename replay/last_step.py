@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from simreel.episode import EpisodeMeta
+from simreel.episode import EpisodeMeta, field_group
 from simreel.errors import EPISODE_DATA_ERRORS, RecordingFileError
 from simreel.formats import EpisodeReader
 from simreel.replay.engine import SceneBefore
@@ -78,5 +78,5 @@ def _last_step(reader: EpisodeReader, episode: EpisodeMeta) -> SceneBefore:
         raise RecordingFileError(reader.path, f"the state before the one step of episode {episode.index} is not in "
                                               "the file (its row 0 is the state after it)")
     before = rows.reset() if length == 1 else rows.steps(length - 2, length - 1)
-    state = {name[len("env_states/"):]: a[-1:] for name, a in before.arrays.items() if name.startswith("env_states/")}
+    state = {path: a[-1:] for path, a in field_group(before.arrays, "env_states").items()}
     return SceneBefore(rows.meta, state, action, length - 1)

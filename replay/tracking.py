@@ -61,7 +61,7 @@ from simreel.compare import (
     component_error,
     components_of,
 )
-from simreel.episode import StepBlock
+from simreel.episode import StepBlock, field_group
 from simreel.errors import UsageError
 
 __all__ = ["TRACKING_GROUPS", "DEFAULT_TRACKING_TOLERANCES", "Commands", "EndEffector", "tracking_tolerances",
@@ -177,7 +177,7 @@ class TrackingBlocks:
             self._success = None
 
     def _states(self, original: StepBlock, converted: StepBlock) -> None:
-        rec, conv = _env_states(original), _env_states(converted)
+        rec, conv = field_group(original.arrays, "env_states"), field_group(converted.arrays, "env_states")
         ee, errors = self.ee, []
         if ee.robot_key in rec and ee.robot_key in conv:
             errors += _pose_errors(ee.key, (ee.poses(rec[ee.robot_key]), ee.poses(conv[ee.robot_key])),
@@ -215,7 +215,3 @@ def _commands_judged(commands: Commands | None) -> bool:
     return (commands is not None and not np.isnan(commands.poses).any()
             and len(set(commands.clipped)) < len(commands.poses))
 
-
-def _env_states(block: StepBlock) -> dict[str, np.ndarray]:
-    """A block's state rows by their key path below ``env_states/``."""
-    return {k[len("env_states/"):]: a for k, a in block.arrays.items() if k.startswith("env_states/")}

@@ -66,7 +66,7 @@ from simreel.scene_history import SceneChains, recorded_scene
 from simreel.sim.user_code import resolve_task_imports
 
 __all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "VerifySink", "run_pool", "start_pool", "Lanes",
-           "pool_closing", "WorkerDiedError"]
+           "pool_closing", "WorkerDiedError", "SceneRun", "ReplayedHistory", "restoring_history"]
 
 _OPEN_READERS = 8
 """Recordings a worker keeps open (the work list visits files in turn, so few are ever needed again)."""
@@ -328,10 +328,7 @@ class ReplayWorker:
             return ReplayedHistory()
         if shipped:
             return ReplayedHistory(lost=describe_missing_step_before("sent without its file"))
-        chains = self._chains_of(item.path, reader)
-        ran = scene.ran_of(item.path, chains, item.index) if scene is not None else None
-        found = step_before(reader, chains, item.index, ran)
-        return ReplayedHistory(lost=found.lost, before=found.run)
+        return restoring_history(reader, self._chains_of(item.path, reader), item, scene)
 
     def _chains_of(self, path: str, reader: EpisodeReader) -> SceneChains:
         """The chains of the file at `path` (`SceneChains`), found once per file the worker meets in a row."""
@@ -386,8 +383,7 @@ class ReplayWorker:
             written = RecordedContacts(written)
         verify = VerifySink(job.tolerances, reader.meta.contact_channels, scope, written)
         try:
-            if history.before is not None:
-                replayer.rerun_step_before(history.before)
+            replayer.rerun_step_before(history.before)
             replayed = replayer.replay_rows(source, verify, mode=job.mode, resync=job.resync, rows=job.block_rows)
             report = self._report(reader, replayer, source, replayed, verify.comparison)
             history.tell(report, index)
@@ -448,6 +444,15 @@ class ReplayWorker:
     def close(self) -> None:
         self._close_replayer()
         self._readers.close()
+
+
+def restoring_history(reader: EpisodeReader, chains: SceneChains, item: WorkItem,
+                      scene: SceneRun | None) -> ReplayedHistory:
+    """What a restoring replay of `item` (of `reader`'s file, whose chains are `chains`) runs before it, on a scene
+    that ran `scene` (None: unknown): the step before its reset (`simreel.replay.last_step`), or why it cannot."""
+    ran = scene.ran_of(item.path, chains, item.index) if scene is not None else None
+    found = step_before(reader, chains, item.index, ran)
+    return ReplayedHistory(lost=found.lost, before=found.run)
 
 
 def _replayed_meta(meta: EpisodeMeta, report: EpisodeReport, ran_in: dict[str, Any] | None) -> EpisodeMeta:

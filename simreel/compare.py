@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import FLAG_FIELDS, ContactChannel, Episode, StepBlock
+from simreel.episode import FLAG_FIELDS, ContactChannel, Episode, StepBlock, field_group
 
 __all__ = [
     "GROUPS",
@@ -437,15 +437,15 @@ class ErrorTable:
              channels: list[ContactChannel]) -> None:
         """Compare the same rows of two episodes, given as flat fields (`simreel.episode.StepBlock` arrays): a
         reset row (per-state fields only) or a block of steps. Keys only one side has are skipped."""
-        self.states(_group(recorded, "env_states"), _group(replayed, "env_states"))
+        self.states(field_group(recorded, "env_states"), field_group(replayed, "env_states"))
         if self.scope.obs:
-            self.observations(_group(recorded, "obs"), _group(replayed, "obs"))
+            self.observations(field_group(recorded, "obs"), field_group(replayed, "obs"))
         rec_f, rep_f = recorded.get("contact_forces"), replayed.get("contact_forces")
         if self.scope.contacts and rec_f is not None and rep_f is not None and rec_f.shape == rep_f.shape:
             self.contacts(rec_f, rep_f, channels)
         actions = recorded.get("actions")
         if actions is not None:
-            self.info(_group(recorded, "info"), _group(replayed, "info"), len(actions))
+            self.info(field_group(recorded, "info"), field_group(replayed, "info"), len(actions))
         self.step_fields(recorded, replayed)
 
     def first_bad_row(self, key: str) -> int | None:
@@ -578,12 +578,6 @@ def compare_episode(
 def _row_shape(a: np.ndarray) -> str:
     """The shape of one row of `a`, as a limit line names it: ``(8,)``, ``()`` for a scalar."""
     return str(tuple(a.shape[1:]))
-
-
-def _group(arrays: Mapping[str, np.ndarray], group: str) -> dict[str, np.ndarray]:
-    """The fields of `group` (``env_states``, ``obs``, ``info``) by their key path inside it."""
-    prefix = group + "/"
-    return {k[len(prefix):]: a for k, a in arrays.items() if k.startswith(prefix)}
 
 
 def json_number(x: float) -> float | str:

@@ -41,6 +41,7 @@ from simreel.state_tree import LeafSpec, unflatten
 
 __all__ = [
     "new_recording_id",
+    "field_group",
     "ContactChannel",
     "RecordingMeta",
     "EpisodeMeta",
@@ -395,6 +396,12 @@ def episode_fields(meta: RecordingMeta) -> list[FieldSpec]:
     return fields
 
 
+def field_group(arrays: Mapping[str, Any], group: str) -> dict[str, Any]:
+    """The fields of `group` (``env_states``, ``obs``, ``info``) among flat `arrays`, by their key path inside it."""
+    prefix = group + "/"
+    return {k[len(prefix):]: a for k, a in arrays.items() if k.startswith(prefix)}
+
+
 @dataclass(frozen=True)
 class StepBlock:
     """Consecutive rows of one episode: flat field name → array of `rows` rows (see `episode_fields`).
@@ -502,17 +509,13 @@ class Episode:
     def from_fields(cls, meta: EpisodeMeta, arrays: Mapping[str, np.ndarray]) -> Episode:
         """The episode whose flat fields are `arrays` (the inverse of `fields`)."""
 
-        def group(name: str) -> dict[str, np.ndarray]:
-            prefix = name + "/"
-            return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
-
         missing = [name for name in STEP_FIELDS if name not in arrays and name not in OPTIONAL_STEP_FIELDS]
         if missing:
             raise EpisodeLayoutError(f"episode {meta.index}: no {', '.join(missing)}")
         return cls(
             meta=meta,
             **{name: arrays.get(name) for name in STEP_FIELDS},
-            **{g: group(g) for g in _GROUPS},
+            **{g: field_group(arrays, g) for g in _GROUPS},
             **{name: arrays.get(name) for name in _OPTIONAL},
         )
 

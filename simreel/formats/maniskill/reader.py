@@ -46,6 +46,7 @@ from simreel.episode import (
     RecordingMeta,
     StepBlock,
     episode_fields,
+    field_group,
 )
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader, not_a_file
@@ -238,7 +239,7 @@ def _recording_meta(sidecar: Sidecar, held: dict[str, Any] | None, episodes: lis
     kw = sidecar.env_kwargs
     obs_mode = kw.get("obs_mode") or "state"
     found = held or {}
-    states = {k[len("env_states/"):]: ds for k, ds in found.items() if k.startswith("env_states/")}
+    states = field_group(found, "env_states")
     obs = {field_name(k, obs_mode)[len(OBS) + 1:]: ds for k, ds in found.items() if k == OBS or k.startswith(OBS + "/")}
     actions = found.get("actions")
     lacking = [name for name in OPTIONAL_STEP_FIELDS if held is not None and name not in held]
