@@ -92,3 +92,26 @@ def test_a_signal_swallowed_in_a_finalizer_prints_no_traceback_but_other_unraisa
     assert done.stdout == "stopped\n"
     assert "KeyboardInterrupt" not in done.stderr
     assert "ValueError: a finalizer's own bug" in done.stderr
+
+
+def test_a_block_inside_another_holds_through_the_outer_one():
+    """Nested blocks (a recorder's reset runs a dozen) swap the handlers once: the inner one yields the outer's list
+    of held signals, a signal it holds is handled when the outer block ends, and the handlers are back after."""
+    before = signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt), deferred_signals() as outer:
+        holding = signal.getsignal(signal.SIGINT)
+        with deferred_signals() as inner:
+            assert inner is outer
+            assert signal.getsignal(signal.SIGINT) is holding
+            signal.raise_signal(signal.SIGINT)
+        assert outer == [signal.SIGINT]  # not raised yet: the outer block still holds it
+    assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_an_error_inside_a_nested_block_wins_and_the_signal_it_held_still_stops_the_next_unit():
+    with stopping_signals():
+        with pytest.raises(OSError, match="No space left"), deferred_signals(), deferred_signals():
+            signal.raise_signal(signal.SIGTERM)
+            raise OSError(28, "No space left on device")
+        with pytest.raises(Terminated):
+            raise_if_stopped()
