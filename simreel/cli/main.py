@@ -4,7 +4,9 @@ Exit status: 0 success, 1 a verdict that failed (replay diverged, audit findings
 stderr), 3 an internal error (one line), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 141 stdout closed (a
 pipe into `head`). `--debug` prints the traceback before that line and changes nothing else: the exit status is the
 same with it as without. SIGTERM is handled like Ctrl-C: the command stops where it is and cleans up (a recording
-closes its file with every committed episode); a commit in progress finishes first (`simreel.formats.durable`).
+closes its file with every committed episode); a commit in progress finishes first (`simreel.formats.durable`),
+and so does an import of mani_skill (`simreel.sim.user_code.native_import`). Once the command has finished, the first
+signal changes nothing while the process exits (`main`).
 """
 
 from __future__ import annotations
@@ -13,13 +15,15 @@ import argparse
 import importlib
 import os
 import shlex
+import signal
 import sys
 import traceback
 from collections.abc import Sequence
+from typing import Any
 
 from simreel import __version__
 from simreel.errors import SimreelError, Terminated
-from simreel.formats.durable import stopping_signals
+from simreel.formats.durable import stop_received, stopping_signals
 
 __all__ = ["main", "COMMANDS"]
 
@@ -55,15 +59,28 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    argv = list(sys.argv[1:] if argv is None else argv)
-    args = parser.parse_args(argv)
+    """Run `argv` (the process's arguments when None: then a signal that comes once the command has finished, while
+    the process exits, changes nothing; a second one ends the process)."""
+    try:
+        with stopping_signals():
+            return _parse_and_run(argv)
+    finally:
+        if argv is None:
+            _finished()
+
+
+def _parse_and_run(argv: Sequence[str] | None) -> int:
+    try:
+        parser = build_parser()
+        argv = list(sys.argv[1:] if argv is None else argv)
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt as e:  # Terminated (SIGTERM) is one too
+        return _stopped("simreel", e)
     args.command_line = shlex.join(["simreel", *argv])  # stored in recordings for provenance
     if not args.command:
         parser.print_help()
         return 2
-    with stopping_signals():
-        return _run(args)
+    return _run(args)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -73,17 +90,35 @@ def _run(args: argparse.Namespace) -> int:
     except SimreelError as e:
         _fail(args, f"error: {e}")
         return 2
-    except Terminated:
-        sys.stderr.write(f"simreel {args.command}: terminated (SIGTERM)\n")
-        return 143
-    except KeyboardInterrupt:
-        sys.stderr.write(f"simreel {args.command}: interrupted\n")
-        return 130
+    except KeyboardInterrupt as e:  # Terminated (SIGTERM) is one too
+        return _stopped(f"simreel {args.command}", e)
     except BrokenPipeError:  # `simreel inspect x | head`: the reader left; say nothing more, as shell tools do
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except Exception as e:  # a bug, not bad input: still one line, and not 1 (which replay uses for "diverged")
+        stop = stop_received()
+        if stop is not None:  # what a signal a library swallowed left behind (a module half imported): its doing
+            return _stopped(f"simreel {args.command}", stop)
         return _unexpected(args, e)
+
+
+def _stopped(prog: str, stop: KeyboardInterrupt) -> int:
+    """The exit status and one line of a command stopped by SIGTERM (`Terminated`) or Ctrl-C."""
+    if isinstance(stop, Terminated):
+        sys.stderr.write(f"{prog}: terminated (SIGTERM)\n")
+        return 143
+    sys.stderr.write(f"{prog}: interrupted\n")
+    return 130
+
+
+def _finished() -> None:
+    """From now on the process only exits (the command's work is done and its status set, ~1 s of the interpreter's
+    shutdown left): the first SIGINT or SIGTERM is let pass, a second one ends the process at once."""
+    def once(signum: int, frame: Any) -> None:
+        signal.signal(signum, signal.SIG_DFL)
+
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, once)
 
 
 def _unexpected(args: argparse.Namespace, e: Exception) -> int:

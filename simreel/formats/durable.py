@@ -28,7 +28,7 @@ from typing import Any
 
 from simreel.errors import StorageError, Terminated
 
-__all__ = ["deferred_signals", "stopping_signals", "raise_if_stopped", "reserve_space", "release_space",
+__all__ = ["deferred_signals", "stopping_signals", "raise_if_stopped", "stop_received", "reserve_space", "release_space",
            "release_unused", "storage_error", "errno_of", "is_storage_error", "STORAGE_ERRNOS"]
 
 _DEFERRED = (signal.SIGINT, signal.SIGTERM)
@@ -135,8 +135,15 @@ def stopping_signals() -> Iterator[None]:
 
 def raise_if_stopped() -> None:
     """Raise the exception of a signal received inside `stopping_signals` (again, if it was swallowed)."""
-    if _received:
-        raise _exception(_received[0])
+    stop = stop_received()
+    if stop is not None:
+        raise stop
+
+
+def stop_received() -> KeyboardInterrupt | None:
+    """The exception (KeyboardInterrupt, or `Terminated` for SIGTERM) of the first signal received inside
+    `stopping_signals`, or None if none came."""
+    return _exception(_received[0]) if _received else None
 
 
 def reserve_space(fd: int, nbytes: int) -> None:

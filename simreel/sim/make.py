@@ -24,7 +24,7 @@ from simreel.sim.render_device import (
     probe_render_device,
     start_render_probe,
 )
-from simreel.sim.user_code import quiet_sapien_import, task_code_error
+from simreel.sim.user_code import native_import, task_code_error
 
 if TYPE_CHECKING:
     import gymnasium as gym
@@ -204,7 +204,7 @@ def prepare_plain_gym_make() -> None:
         return
     from simreel.sim import norender
 
-    with quiet_sapien_import():
+    with native_import():
         norender.install()
 
 
@@ -213,7 +213,7 @@ def _registered(env_id: str) -> Any:
     and its assets are there; return gymnasium."""
     import gymnasium
 
-    with quiet_sapien_import():
+    with native_import():
         import mani_skill.envs  # noqa: F401  (registers the built-in tasks)
     from mani_skill.utils.registration import REGISTERED_ENVS
 

@@ -1,4 +1,4 @@
-"""Import the user's own code (custom tasks, policies) for the CLI's ``--import``, and sapien quietly; find a
+"""Import the user's own code (custom tasks, policies) for the CLI's ``--import``, and mani_skill whole and quietly; find a
 recording's imports again wherever it is replayed.
 
 A recording stores its ``--import`` specs (`recorded_spec`: a file by its absolute path, a module by its name).
@@ -23,9 +23,10 @@ from pathlib import Path
 from types import ModuleType
 
 from simreel.errors import EnvBuildError, TaskCodeError, UsageError
+from simreel.formats.durable import deferred_signals
 from simreel.sim.render_device import configure_vulkan
 
-__all__ = ["found_spec", "import_user_code", "imported_user_code", "quiet_sapien_import", "recorded_spec",
+__all__ = ["found_spec", "import_user_code", "imported_user_code", "native_import", "recorded_spec",
            "resolve_task_imports", "task_code_error"]
 
 _IMPORTED: dict[str, str] = {}
@@ -33,10 +34,18 @@ _IMPORTED: dict[str, str] = {}
 
 
 @contextlib.contextmanager
-def quiet_sapien_import() -> Iterator[None]:
-    """Importing sapien warns that it falls back to its bundled libvulkan when the system has none;
-    that is expected and fine, so simreel's imports of sapien (direct or through user code) hide it."""
-    with warnings.catch_warnings():
+def native_import() -> Iterator[None]:
+    """Where simreel imports mani_skill, sapien and torch (directly or through user code): whole, and quietly.
+
+    Whole: SIGINT and SIGTERM are held until the import is done (`deferred_signals`), then handled. A
+    KeyboardInterrupt raised inside it aborts the process when it lands in a native module's initialisation
+    (torch's), turns into an ImportError in another's (sapien's), and is swallowed by trimesh, which catches every
+    exception around its optional imports and leaves stand-ins behind: the command then went on, or failed later
+    on a half-made module.
+
+    Quietly: sapien warns that it falls back to its bundled libvulkan when the system has none; that is expected
+    and fine, so the warning is hidden."""
+    with deferred_signals(), warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*libvulkan.*", category=UserWarning)
         yield
 
@@ -50,7 +59,7 @@ def import_user_code(spec: str) -> ModuleType:
     because user code usually imports mani_skill. Any failure becomes one-line `EnvBuildError`.
     """
     configure_vulkan()
-    with quiet_sapien_import():
+    with native_import():
         module = _import_user_code(spec)
     _IMPORTED.setdefault(spec, module.__name__)
     return module

@@ -1,0 +1,105 @@
+"""Ctrl-C and SIGTERM at the moments a signal sweep found wrong: while mani_skill imports (its libraries swallowed the
+signal or crashed on it), while the CLI starts, and once the command has finished. Each run is a real `simreel`
+process; the signal is sent the moment a given module starts importing, so the moment is exact."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from simreel.cli.main import main
+
+_SIGNAL_AT_IMPORT = textwrap.dedent("""
+    import os, signal, sys
+
+    target, signum = sys.argv[1], getattr(signal, sys.argv[2])
+
+    class SignalAtImport:  # sends the signal as `target` starts importing (it then imports as usual)
+        fired = False
+
+        def find_spec(self, name, path=None, target_module=None):
+            if name == target and not SignalAtImport.fired:
+                SignalAtImport.fired = True
+                os.kill(os.getpid(), signum)
+            return None
+
+    sys.meta_path.insert(0, SignalAtImport())
+    sys.argv = ["simreel", *sys.argv[3:]]
+    from simreel.cli.main import main
+    sys.exit(main())
+""")
+
+
+def _simreel_signalled_at_import(module: str, signum: str, *argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", _SIGNAL_AT_IMPORT, module, signum, *argv], capture_output=True,
+                          text=True, timeout=300)
+
+
+@pytest.mark.parametrize(("module", "signum", "status", "line"), [
+    ("scipy.spatial", "SIGTERM", 143, "simreel audit: terminated (SIGTERM)"),  # trimesh swallowed it: exit 0
+    ("trimesh.path.path", "SIGINT", 130, "simreel audit: interrupted"),  # a half-made trimesh class: exit 3
+], ids=["swallowed", "half-imported"])
+def test_a_signal_while_mani_skill_imports_stops_the_command(tmp_path, module, signum, status, line):
+    """trimesh (which mani_skill imports) catches every exception around its optional imports: a Ctrl-C landing there
+    was swallowed (the audit ran on and exited 0) or left a stand-in class behind that failed later (exit 3, an
+    "internal error"); inside torch's or sapien's native initialisation it aborted the process or became an
+    ImportError. The import now runs whole, and the signal stops the command right after it."""
+    report = tmp_path / "audit.json"
+    done = _simreel_signalled_at_import(module, signum, "audit", "PickCube-v1", "--steps", "2", "-q",
+                                        "--json", str(report))
+    assert (done.returncode, done.stderr.splitlines()) == (status, [line])
+    assert not report.exists()
+
+
+def test_a_signal_while_the_cli_starts_is_its_one_line():
+    """A Ctrl-C as the CLI builds its parser (importing each command's module) printed Python's traceback."""
+    done = _simreel_signalled_at_import("simreel.cli.replay", "SIGINT", "inspect", "no-such-file.h5")
+    assert (done.returncode, done.stderr.splitlines()) == (130, ["simreel: interrupted"])
+
+
+def test_an_error_after_a_swallowed_signal_is_that_signal_not_an_internal_error(monkeypatch, capsys):
+    """A library that swallows a KeyboardInterrupt can leave something half made, which fails later: the command was
+    interrupted, not broken (exit 130, not 3)."""
+    import simreel.cli.inspect as inspect_cmd
+
+    def swallowing(args):
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except BaseException:  # noqa: BLE001 - what trimesh does around its optional imports
+            pass
+        raise TypeError("unsupported operand type(s) for |: 'ExceptionWrapper' and 'NoneType'")
+
+    monkeypatch.setattr(inspect_cmd, "run", swallowing)
+    assert main(["inspect", "whatever.h5"]) == 130
+    assert capsys.readouterr().err.splitlines() == ["simreel inspect: interrupted"]
+
+
+_SIGNALS_AFTER_THE_COMMAND = textwrap.dedent("""
+    import os, signal, sys, time
+    from simreel.cli.main import main
+
+    signals, sys.argv = sys.argv[1:], ["simreel", "inspect", "no-such-file.h5"]
+    status = main()
+    for signum in signals:
+        os.kill(os.getpid(), getattr(signal, signum))
+        time.sleep(0.2)
+    print("exiting")
+    sys.exit(status)
+""")
+
+
+@pytest.mark.parametrize(("signals", "status"), [("SIGINT SIGTERM", 2), ("SIGINT SIGINT", -signal.SIGINT)],
+                         ids=["once-each", "twice"])
+def test_a_signal_once_the_command_has_finished_leaves_its_exit_status(signals, status):
+    """After the command's last line the process still takes ~1 s to exit: a Ctrl-C then ended it with 130 and no word
+    (an `--overwrite` that had replaced its file looked interrupted). Now the first of each signal changes nothing, a
+    second Ctrl-C ends the process at once."""
+    done = subprocess.run([sys.executable, "-c", _SIGNALS_AFTER_THE_COMMAND, *signals.split()], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == status
+    assert done.stderr.splitlines() == ["simreel inspect: error: no-such-file.h5: no such file"]
+    assert ("exiting" in done.stdout) == (status == 2)
