@@ -18,6 +18,7 @@ from support.processes import (
     DISPLAY_VARS,
     answering_display,
     free_port,
+    free_ports,
     read_line,
     simreel_command,
     without_display,
@@ -364,7 +365,7 @@ def test_serve_serves_the_episode_until_stopped(pickcube_h5, tmp_path, rrd_reade
     """A real `simreel view --serve` on free ports: the page loads, the gRPC server named in the printed URL
     serves the whole episode (read back with `rerun download`, the same data `--save` writes) until Ctrl-C or
     SIGTERM, which end it with exit 0 and free both ports."""
-    web, grpc = free_port(), free_port()
+    web, grpc = free_ports(2)
     child = subprocess.Popen(simreel_command("view", str(pickcube_h5), "--serve", "--geometry", "collision",
                                              "--web-port", str(web), "--grpc-port", str(grpc)),
                              cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -8,7 +8,6 @@ import json
 import os
 import secrets
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -18,16 +17,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from support.processes import free_port
 
 ray = pytest.importorskip("ray", reason="Ray is the optional extra simreel[ray] (make setup installs it)")
 
 RAY = Path(sys.executable).with_name("ray")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _start(*args: str, env: dict[str, str]) -> subprocess.Popen:
@@ -65,7 +59,7 @@ def cluster():
     token = Path(temp_dir) / "token"
     token.write_text(secrets.token_hex(32))
     env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN_PATH": str(token)}
-    port = _free_port()
+    port = free_port()
     address = f"127.0.0.1:{port}"
     head = _start("--head", "--port", str(port), "--node-ip-address", "127.0.0.1", "--include-dashboard", "false",
                   "--temp-dir", temp_dir, env=env)

@@ -9,7 +9,6 @@ import json
 import os
 import re
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -17,6 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
+from support.processes import free_port
 
 pytest.importorskip("ray", reason="Ray is the optional extra simreel[ray] (make setup installs it)")
 
@@ -26,12 +26,6 @@ RAY = Path(sys.executable).with_name("ray")
 def _replay(*args: str, env: dict[str, str] | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "simreel", "replay", *args, "-q"], capture_output=True, text=True,
                           timeout=timeout, env=env)
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_more_workers_than_the_cluster_has_cpus_are_capped_with_a_note(record):
@@ -45,7 +39,7 @@ def test_more_workers_than_the_cluster_has_cpus_are_capped_with_a_note(record):
 
 
 def test_an_address_where_nothing_listens_is_one_line_within_seconds(record):
-    address = f"127.0.0.1:{_free_port()}"
+    address = f"127.0.0.1:{free_port()}"
     start = time.monotonic()
     done = _replay(str(record("PickCube-v1", 2, 8)), "--ray", address, timeout=120)
     assert done.returncode == 2
@@ -60,7 +54,7 @@ def running_cluster():
     temp_dir = tempfile.mkdtemp(prefix="sr_rc_", dir="/tmp")  # short: Ray's socket paths have a length limit
     env = {**os.environ, "RAY_TMPDIR": temp_dir}
     head = subprocess.Popen([str(RAY), "start", "--head", "--block", "--num-cpus", "1", "--disable-usage-stats",
-                             "--port", str(_free_port()), "--include-dashboard", "false",
+                             "--port", str(free_port()), "--include-dashboard", "false",
                              "--object-store-memory", str(128 * 1024**2)], stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True, env=env)
     try:

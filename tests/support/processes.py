@@ -10,7 +10,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 
 __all__ = ["DISPLAY_VARS", "answering_display", "free_port", "read_line", "simreel_command", "without_display"]
 
@@ -57,9 +57,17 @@ def answering_display() -> Iterator[dict[str, str]]:
 
 def free_port() -> int:
     """A TCP port nothing listens on now (the OS picks it), for a server a test starts; never a fixed one."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_ports(1)[0]
+
+
+def free_ports(count: int) -> list[int]:
+    """`count` different TCP ports nothing listens on now: each held bound until all are picked (one picked after
+    another was let go may be the same port)."""
+    with ExitStack() as held:
+        sockets = [held.enter_context(socket.socket(socket.AF_INET, socket.SOCK_STREAM)) for _ in range(count)]
+        for s in sockets:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in sockets]
 
 
 def read_line(process: subprocess.Popen[str], timeout: float) -> str:
