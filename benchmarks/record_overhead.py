@@ -154,7 +154,7 @@ _PARTS = {"env.step": ("env", "step"), "env.reset": ("env", "reset"), "episode e
           "action check": (None, "_actions"), "state row fields": (None, "_per_state_rows")}
 """What `--breakdown` times: label -> (attribute of the RecordWrapper holding the method, or None: its own; method).
 A label that starts with spaces is timed inside the one before it (a block's captures are converted when its rows are
-taken: at the episode's end, for an episode shorter than a block)."""
+taken, at the episode's end for an episode shorter than a block: by the writer process, so 0 here, where it has one)."""
 
 
 def breakdown(args: argparse.Namespace, folder: Path) -> None:

@@ -38,6 +38,7 @@ from simreel.sim.describe import flatten_obs, recording_meta
 from simreel.sim.fingerprint import fingerprint_changes, scene_fingerprint
 from simreel.sim.poses import pose_body_names, sample_body_poses
 from simreel.sim.state import FastStateReader, check_same_layout, read_state
+from simreel.sim.step_rows import ActionRows, PackedRows
 from simreel.sim.user_code import found_spec
 from simreel.state_tree import layout_of, to_numpy
 
@@ -130,6 +131,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._sampler = ContactSampler(contact_channels(u, opts.contacts))
         self._bind_sampler()
         self._fast: FastStateReader | None = None
+        self._state_rows: PackedRows | None = None
+        """The row source of the fast reader's captures, its leaves named as the recording's fields."""
         self._fast_unchecked = False
         self._fast_refuted = False
         self._fast_scene: Any = None
@@ -156,7 +159,11 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._ever_success = np.zeros(self._n, bool)
         self._has_success = "success" in self.meta.info_layout
         self._scalars = StepScalars(self._n, [(f"info/{k}", np.dtype(s.dtype)) for k, s in self.meta.info_layout.items()])
-        self._scalar_rows = self._scalars.rows  # one `StepBuffer` row source, bound once
+        self._scalar_rows = self._scalars.rows
+        self._action_rows = ActionRows(self._n)
+        self._defer = isinstance(self._writer, ProcessWriter)
+        """Whether blocks go to the writer process with their captures unconverted (`StepBuffer.take`): it converts
+        them while the env steps on."""
         self._next_index = 0
         self._scene_seed: list[int | None] = [None] * self._n
         self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
@@ -298,7 +305,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             captures.append((self._state_rows, packed))
         fields = self._per_state_rows(state, obs) if state or self._rows_beside_state else {}
         if self._contacts_captured:
-            captures.append((self._contact_rows, self._sampler.capture()))
+            captures.append((self._sampler.row_source, self._sampler.capture()))
         elif self._sampler.channels:
             fields["contact_forces"] = self._sampler.sample()
         return fields, captures
@@ -433,6 +440,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return
         self._fast = FastStateReader.for_env(self._u)
         self._fast_unchecked = self._fast is not None
+        if self._fast is not None:
+            self._state_rows = dataclasses.replace(self._fast.packed_rows, prefix="env_states/")
 
     def _state(self) -> tuple[dict[str, np.ndarray], bytes | None]:
         """The state after a step: (state leaves read now, the packed rest for `_state_rows` or None). Through the
@@ -452,29 +461,25 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return read_state(self._u), None
         return self._fast.extras(), packed
 
-    # `StepBuffer` row sources of what a step captured: a block's captures are converted when its rows are first
-    # taken, which is always before a reset rebinds the fast reader or the sampler (`_finish` runs first)
-    def _action_rows(self, captures: list[list[Any]]) -> dict[str, np.ndarray]:
-        return {"actions": np.array(captures, np.float32).reshape(len(captures), self._n, -1)}
-
-    def _contact_rows(self, captures: list[Any]) -> dict[str, np.ndarray]:
-        return {"contact_forces": self._sampler.rows(captures)}
-
-    def _state_rows(self, captures: list[bytes]) -> dict[str, np.ndarray]:
-        return {f"env_states/{key}": rows for key, rows in self._fast.unpack(captures).items()}
-
     def _flush(self, i: int) -> None:
         """Hand env i's buffered steps to its episode's sink, noting whether the episode has succeeded. Callers hold
         signals (`deferred_signals`): a Ctrl-C between taking the rows and handing them over would lose them."""
         sink = self._sinks[i]
         if sink is None or not self._buffer.pending(i):
             return
-        block = self._buffer.take(i)
-        success = block["success"]
+        block = self._buffer.take(i, defer=self._defer)
+        success = self._success_rows(block)
         self._success[i] = success[-1]
         self._ever_success[i] |= success.any()
         sink.append(block)
         self._sent[i] += block.rows
+
+    def _success_rows(self, block: StepBlock) -> np.ndarray:
+        """The success flags of `block`'s steps, also where they are still captured (`StepBuffer.take`)."""
+        for source, captures, env in block.captured:
+            if source is self._scalar_rows:
+                return source.field(captures, "success")[:, env]
+        return block["success"]
 
     def _finish(self, i: int) -> None:
         """End env i's episode: commit it with the steps it has (discard it with none). Signals are held throughout,

@@ -4,7 +4,8 @@ Each step is pushed once for all parallel envs: its arrays are copied into the b
 whatever `num_envs` is), and what is cheaper to capture now and convert later (by a `RowSource`: Python lists of
 scalars, the physics engine's packed state bytes) is kept as captured and turned into rows for all the block's
 steps at once, when the rows are first taken. Right after a physics step the CPU's caches are cold and every
-numpy call costs several times its usual price; once per block the same conversions run on warm caches.
+numpy call costs several times its usual price; once per block the same conversions run on warm caches, or in the
+writer process, which gets the captures with the block (`take(defer=True)`).
 Env i's rows since its episode started (or since the last flush) are `take(i)`: a `StepBlock` of slices,
 no copy.
 """
@@ -22,7 +23,8 @@ __all__ = ["StepBuffer", "RowSource"]
 
 
 RowSource = Callable[[list[Any]], dict[str, np.ndarray]]
-"""Turns the captures of k steps (in step order) into those steps' fields, each (k, num_envs, ...)."""
+"""Turns the captures of k steps (in step order) into those steps' fields, each (k, num_envs, ...): a
+`simreel.sim.step_rows` class, which names its fields (`names`) and pickles."""
 
 
 class StepBuffer:
@@ -70,13 +72,21 @@ class StepBuffer:
                 self._row_buffer(name, value[0])[at] = value
         self._captured.clear()
 
-    def take(self, env: int) -> StepBlock:
-        """Env `env`'s rows not yet taken, as views valid until the next `push` into those rows."""
-        if self._captured:
-            self._convert()
+    def take(self, env: int, *, defer: bool = False) -> StepBlock:
+        """Env `env`'s rows not yet taken, as views valid until the next `push` into those rows. `defer`: leave the
+        captures in the block, unconverted (`StepBlock.captured`, for a writer process to convert), where there is
+        one env and each source captured every row taken (else they are converted here)."""
         s, e = int(self.start[env]), self.rows
         self.start[env] = e
-        return StepBlock({name: buf[s:e, env] for name, buf in self._arrays.items()}, e - s)
+        captured: tuple[tuple[RowSource, list[Any], int], ...] = ()
+        if self._captured:
+            if defer and self.num_envs == 1 and all(len(rows) == e - s for rows, _ in self._captured.values()):
+                captured = tuple((source, held, env) for source, (_, held) in self._captured.items())
+                self._captured.clear()
+            else:
+                self._convert()
+        made = {name for source, _, _ in captured for name in source.names}
+        return StepBlock({name: buf[s:e, env] for name, buf in self._arrays.items() if name not in made}, e - s, captured)
 
     def pending(self, env: int) -> int:
         return self.rows - int(self.start[env])

@@ -409,10 +409,15 @@ class StepBlock:
     The recorder fills blocks of steps (each per-state field holding the states *after* those steps) and
     the reset row (per-state fields only, one row); writers consume them. `conform` checks a block
     against the field table.
+
+    A recorder may leave some fields as it captured them, for its writer process to convert (`captured`: each
+    (row source, its captures of these rows, env), the source a `simreel.sim.step_rows` class that makes
+    (rows, num_envs, ...) arrays of the fields it `names`); `converted` makes them arrays.
     """
 
     arrays: Mapping[str, np.ndarray]
     rows: int
+    captured: tuple[tuple[Any, list[Any], int], ...] = ()
 
     @classmethod
     def of(cls, arrays: Mapping[str, Any]) -> StepBlock:
@@ -432,23 +437,38 @@ class StepBlock:
     def get(self, name: str) -> np.ndarray | None:
         return self.arrays.get(name)
 
+    def converted(self) -> StepBlock:
+        """This block with every field an array: its captured fields converted."""
+        if not self.captured:
+            return self
+        arrays = dict(self.arrays)
+        for source, captures, env in self.captured:
+            arrays.update({name: rows[:, env] for name, rows in source(captures).items()})
+        return StepBlock(arrays, self.rows)
+
     def conform(self, fields: Iterable[FieldSpec], *, episode: int) -> dict[str, np.ndarray]:
-        """The block's arrays for exactly `fields`, each cast to its dtype (no copy when it has it already).
+        """The block's arrays for exactly `fields`, each cast to its dtype (no copy when it has it already); a field
+        still `captured` counts as there, unchecked until it is converted.
 
         Raises `EpisodeLayoutError` naming the episode and the field when one is missing, has another row
         shape, or when the block holds a field the table does not list (it would be dropped silently).
         """
+        captured = {name for source, _, _ in self.captured for name in source.names}
         out: dict[str, np.ndarray] = {}
+        listed = set()
         for f in fields:
+            listed.add(f.name)
             a = self.arrays.get(f.name)
             if a is None:
+                if f.name in captured:
+                    continue
                 raise EpisodeLayoutError(f"episode {episode}: no {f.name} to write (the recording's layout lists it)")
             if a.shape != (self.rows, *f.shape):
                 raise EpisodeLayoutError(
                     f"episode {episode}: {f.name} has shape {a.shape}, expected {(self.rows, *f.shape)} from the layout"
                 )
             out[f.name] = a.astype(f.dtype, copy=False)
-        extra = sorted(set(self.arrays) - set(out))
+        extra = sorted((set(self.arrays) | captured) - listed)
         if extra:
             raise EpisodeLayoutError(
                 f"episode {episode}: {', '.join(extra[:3])} not in the recording's layout; describe every field in "

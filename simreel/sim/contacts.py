@@ -8,7 +8,6 @@ contact queries, which ManiSkill creates once and caches. Signs follow ManiSkill
 
 from __future__ import annotations
 
-from array import array
 from typing import Any
 
 import numpy as np
@@ -16,6 +15,7 @@ import numpy as np
 from simreel.episode import ContactChannel
 from simreel.errors import ContactSpecError, UsageError
 from simreel.sim.describe import dynamic_actor_names, named_bodies
+from simreel.sim.step_rows import ContactRows
 
 __all__ = ["contact_channels", "contacts_spec", "ContactSampler", "parse_pairs"]
 
@@ -115,6 +115,8 @@ class ContactSampler:
 
     def __init__(self, channels: list[ContactChannel]) -> None:
         self.channels = channels
+        self.row_source = ContactRows(len(channels))
+        """What turns a block of `capture`s into forces (`simreel.sim.step_rows`)."""
         self._u: Any = None
         self.px: Any = None
         """The PhysX system bound (`bind`)."""
@@ -167,20 +169,9 @@ class ContactSampler:
         return (touched, self.px.timestep) if touched else None
 
     def rows(self, captures: list[Capture | None]) -> np.ndarray:
-        """The (steps, 1, C, 3) float32 forces of `captures`.
-
-        The numbers are numpy's, bit for bit, as the forces were first computed: a contact's points are summed in
-        float32 row by row (`_point_sum`), the channels add them up in float64 with ManiSkill's signs, and each is
-        divided by the timestep in float64 and rounded to float32. The sums run in Python floats: a step touches a
-        few contacts, and numpy calls on arrays of 3 cost more than the arithmetic."""
-        size = 3 * len(self.channels)
-        sums = array("d", bytes(8 * size * len(captures)))
-        for k, capture in enumerate(captures):
-            if capture is not None:
-                _add_channel_sums(sums, k * size, capture[0])
-        impulses = np.frombuffer(sums, np.float64).reshape(len(captures), size)
-        timesteps = np.array([1.0 if c is None else c[1] for c in captures], np.float64)
-        return (impulses / timesteps[:, None]).astype(np.float32).reshape(len(captures), 1, len(self.channels), 3)
+        """The (steps, 1, C, 3) float32 forces of `captures` (`row_source`, which a recorder's writer process may run
+        instead)."""
+        return self.row_source(captures)["contact_forces"]
 
     def _sample_gpu(self, n: int) -> np.ndarray:
         scene = self._u.scene
@@ -204,24 +195,3 @@ class ContactSampler:
             if c is not None:
                 hits.append((c, sign))
         return [(3 * c, sign) for c, sign in hits]
-
-
-def _add_channel_sums(out: array, base: int, touched: list[tuple[list[tuple[int, float]], list[list[float]]]]) -> None:
-    """Add each channel's impulse (x, y, z of channel c at base + 3c, float64) of one step: every touching contact's
-    point sum, with its sign."""
-    for hits, impulses in touched:
-        x, y, z = _point_sum(impulses)
-        for at, sign in hits:  # sign * x is exact, and a + (-b) is a - b
-            out[base + at] += sign * x
-            out[base + at + 1] += sign * y
-            out[base + at + 2] += sign * z
-
-
-def _point_sum(impulses: list[list[float]]) -> tuple[float, float, float]:
-    """The impulses of a contact's points summed in float32 row by row, as numpy adds (3,) float32 arrays (and
-    `np.sum(axis=0)` sums rows), held in Python floats: the double sum of two float32 values, rounded to float32
-    (through `array("f")`, C's conversion), is their float32 sum, since a double has more than 2 × 24 + 2 bits."""
-    x, y, z = impulses[0]
-    for a, b, c in impulses[1:]:
-        x, y, z = array("f", (x + a, y + b, z + c))
-    return x, y, z

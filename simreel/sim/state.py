@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from simreel.errors import StateLayoutError, TaskCodeError
+from simreel.sim.step_rows import PackedRows
 from simreel.state_tree import LeafSpec, flatten, layout_differences, layout_of, to_numpy, unflatten
 
 __all__ = [
@@ -65,7 +66,7 @@ class FastStateReader:
         bodies, articulations, self._nbytes = _packed_starts(self._px)
         zero = self._nbytes // 4  # `read` appends one 0.0 there: the velocities of kinematic actors
         index: list[int] = []
-        self._slices: list[tuple[str, int, int]] = []
+        slices: list[tuple[str, int, int]] = []
         reg = u.scene.state_dict_registry
         for name, actor in reg.actors.items():
             if type(actor) is not Actor or len(actor._objs) != 1:
@@ -75,23 +76,20 @@ class FastStateReader:
                 continue
             s = bodies[actor._bodies[0]]
             velocities = list(range(s + 7, s + 13)) if kind == "dynamic" else [zero] * 6
-            self._add(f"actors/{name}", index, [*range(s + 4, s + 7), *range(s, s + 4), *velocities])
+            _add(slices, f"actors/{name}", index, [*range(s + 4, s + 7), *range(s, s + 4), *velocities])
         for name, art in reg.articulations.items():
             if type(art) is not Articulation or len(art._objs) != 1 or art.max_dof != art._objs[0].dof:
                 raise TypeError(name)
             s, dof = articulations[art._objs[0]], art._objs[0].dof
             # root p, q, linear and angular velocity, then qpos and qvel
-            self._add(f"articulations/{name}", index, [*range(s + 4, s + 7), *range(s, s + 4),
-                                                      *range(s + 7, s + 13 + 2 * dof)])
-        self._index = np.asarray(index, np.intp)
+            _add(slices, f"articulations/{name}", index, [*range(s + 4, s + 7), *range(s, s + 4),
+                                                         *range(s + 7, s + 13 + 2 * dof)])
+        self.packed_rows = PackedRows(np.asarray(index, np.intp), tuple(slices))
+        """What turns a block of `capture`s into the actor and articulation leaves (`unpack`)."""
         self._custom = type(u).get_state_dict is _base_get_state_dict()[1]
         self._agent = getattr(u, "agent", None)
         if self._agent is not None and not self._controller_state():
             self._agent = None  # a controller without targets (pd_joint_pos, ...) never has state: skip asking
-
-    def _add(self, key: str, index: list[int], leaf: list[int]) -> None:
-        self._slices.append((key, len(index), len(index) + len(leaf)))
-        index.extend(leaf)
 
     @classmethod
     def for_env(cls, unwrapped: Any) -> FastStateReader | None:
@@ -132,9 +130,7 @@ class FastStateReader:
     def unpack(self, captures: list[bytes]) -> dict[str, np.ndarray]:
         """The actor and articulation leaves of `len(captures)` packed states: key path → (k, 1, ...) float32, one
         gather for all of them."""
-        joined = b"".join(part for packed in captures for part in (packed, _ZERO_F32))
-        flat = np.frombuffer(joined, np.float32).reshape(len(captures), -1)[:, self._index]
-        return {key: flat[:, None, a:b] for key, a, b in self._slices}
+        return self.packed_rows(captures)
 
     def extras(self) -> dict[str, np.ndarray]:
         """The leaves `pack()` does not hold, read now: the controller's targets and the task's custom state."""
@@ -173,9 +169,14 @@ class FastStateReader:
         )
 
 
-_ZERO_F32 = np.zeros(1, np.float32).tobytes()
 _BODY_FLOATS = 13
 """A body in `pack()`: pose (q wxyz, p xyz), linear velocity, angular velocity."""
+
+
+def _add(slices: list[tuple[str, int, int]], key: str, index: list[int], leaf: list[int]) -> None:
+    """Note state leaf `key` as the float32s `leaf` of a packed state, gathered after those in `index` so far."""
+    slices.append((key, len(index), len(index) + len(leaf)))
+    index.extend(leaf)
 
 
 def _packed_starts(px: Any) -> tuple[dict[Any, int], dict[Any, int], int]:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from simreel.errors import EpisodeLayoutError
 from simreel.recorders.step_buffer import StepBuffer
 
 
@@ -51,3 +53,53 @@ def test_captures_become_rows_once_per_block_in_their_own_rows():
     buf.rewind()
     buf.push({"y": np.array([8, 9])}, ((source.rows, [50, 51]),))
     np.testing.assert_array_equal(buf.take(0)["x"], [100])  # a rewind drops what was captured before it
+
+
+def _steps(buf, actions, sources):
+    """Push one step per action row: its actions and scalars captured (`ActionRows`, `ScalarRows` captures)."""
+    for t, a in enumerate(actions):
+        buf.push({"y": np.array([t])}, ((sources[0], list(a)), (sources[1], [[0.5 * t], [False], [t == 2], [t > 0]])))
+
+
+def test_one_env_block_can_leave_its_captures_to_the_writer_process_which_converts_them_the_same():
+    """`take(defer=True)`: the captures travel with the block (pickled to the writer process), which converts them to
+    the rows the recorder would have made."""
+    import pickle
+
+    from simreel.episode import FieldSpec
+    from simreel.sim.step_rows import ActionRows, ScalarRows
+
+    sources = (ActionRows(1), ScalarRows(1, ["success"], [("success", "success", np.dtype(bool))]))
+    actions = np.random.default_rng(0).uniform(-1, 1, (3, 4)).astype(np.float32)
+    deferred, converted = StepBuffer(capacity=8, num_envs=1), StepBuffer(capacity=8, num_envs=1)
+    _steps(deferred, actions, sources)
+    _steps(converted, actions, sources)
+    block, expected = deferred.take(0, defer=True), converted.take(0)
+    assert set(block.arrays) == {"y"} and len(block.captured) == 2  # nothing converted here
+    sent = pickle.loads(pickle.dumps(block)).converted()
+    assert set(sent.arrays) == set(expected.arrays) == {"y", "actions", "rewards", "terminated", "truncated", "success"}
+    for name, rows in expected.arrays.items():
+        assert sent[name].dtype == rows.dtype and np.array_equal(sent[name], rows), name
+    np.testing.assert_array_equal(sent["actions"], actions)
+    np.testing.assert_array_equal(sent["success"], [False, True, True])
+    fields = [FieldSpec("y", "int64", (), False), FieldSpec("actions", "float32", (4,), False)]
+    table = fields + [FieldSpec(n, "float32" if n == "rewards" else "bool", (), False) for n in sources[1].names]
+    assert set(block.conform(table, episode=0)) == {"y"}  # the captured fields count as there, checked once converted
+    with pytest.raises(EpisodeLayoutError, match="rewards not in the recording's layout"):
+        block.conform([f for f in table if f.name != "rewards"], episode=0)
+    assert deferred.pending(0) == 0 and not deferred._captured  # the next block starts with nothing captured
+
+
+def test_captures_are_converted_here_where_a_source_missed_a_step_or_there_are_many_envs():
+    from simreel.sim.step_rows import ActionRows
+
+    source = ActionRows(1)
+    buf = StepBuffer(capacity=4, num_envs=1)
+    buf.push({"y": np.array([0])}, ((source, [1.0, 2.0]),))
+    buf.push({"y": np.array([1]), "actions": np.array([[3.0, 4.0]], np.float32)})  # a step whose actions came as rows
+    block = buf.take(0, defer=True)
+    assert block.captured == () and block["actions"].tolist() == [[1.0, 2.0], [3.0, 4.0]]
+    two = StepBuffer(capacity=4, num_envs=2)
+    two.push({"y": np.array([0, 1])}, ((ActionRows(2), [1.0, 2.0, 3.0, 4.0]),))
+    block = two.take(1, defer=True)  # each env's block would convert every env's captures
+    assert block.captured == () and block["actions"].tolist() == [[3.0, 4.0]]
