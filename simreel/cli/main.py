@@ -5,8 +5,7 @@ stderr), 3 an internal error (one line), 130 interrupted (Ctrl-C), 143 terminate
 pipe into `head`). `--debug` prints the traceback before that line and changes nothing else: the exit status is the
 same with it as without. SIGTERM is handled like Ctrl-C: the command stops where it is and cleans up (a recording
 closes its file with every committed episode); a commit in progress finishes first (`simreel.formats.durable`),
-and so does an import of mani_skill (`simreel.sim.user_code.native_import`). Once the command has finished, the first
-signal changes nothing while the process exits (`main`).
+and so does an import of mani_skill (`simreel.sim.user_code.native_import`).
 """
 
 from __future__ import annotations
@@ -15,15 +14,13 @@ import argparse
 import importlib
 import os
 import shlex
-import signal
 import sys
 import traceback
 from collections.abc import Sequence
-from typing import Any
 
 from simreel import __version__
 from simreel.errors import SimreelError, Terminated
-from simreel.formats.durable import stop_received, stopping_signals
+from simreel.formats.durable import stop_raised, stopping_signals
 
 __all__ = ["main", "COMMANDS"]
 
@@ -59,14 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run `argv` (the process's arguments when None: then a signal that comes once the command has finished, while
-    the process exits, changes nothing; a second one ends the process)."""
-    try:
-        with stopping_signals():
-            return _parse_and_run(argv)
-    finally:
-        if argv is None:
-            _finished()
+    """Run the command of `argv` (None: the process's arguments); its exit status."""
+    with stopping_signals():
+        return _parse_and_run(argv)
 
 
 def _parse_and_run(argv: Sequence[str] | None) -> int:
@@ -96,8 +88,10 @@ def _run(args: argparse.Namespace) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except Exception as e:  # a bug, not bad input: still one line, and not 1 (which replay uses for "diverged")
-        stop = stop_received()
-        if stop is not None:  # what a signal a library swallowed left behind (a module half imported): its doing
+        stop = stop_raised()
+        if stop is not None:  # a Ctrl-C some library swallowed, and what it left half made failed: the signal's doing
+            if args.debug:
+                traceback.print_exc()
             return _stopped(f"simreel {args.command}", stop)
         return _unexpected(args, e)
 
@@ -109,16 +103,6 @@ def _stopped(prog: str, stop: KeyboardInterrupt) -> int:
         return 143
     sys.stderr.write(f"{prog}: interrupted\n")
     return 130
-
-
-def _finished() -> None:
-    """From now on the process only exits (the command's work is done and its status set, ~1 s of the interpreter's
-    shutdown left): the first SIGINT or SIGTERM is let pass, a second one ends the process at once."""
-    def once(signum: int, frame: Any) -> None:
-        signal.signal(signum, signal.SIG_DFL)
-
-    for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, once)
 
 
 def _unexpected(args: argparse.Namespace, e: Exception) -> int:

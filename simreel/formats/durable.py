@@ -28,7 +28,7 @@ from typing import Any
 
 from simreel.errors import StorageError, Terminated
 
-__all__ = ["deferred_signals", "stopping_signals", "raise_if_stopped", "stop_received", "reserve_space", "release_space",
+__all__ = ["deferred_signals", "stopping_signals", "raise_if_stopped", "stop_raised", "reserve_space", "release_space",
            "release_unused", "storage_error", "errno_of", "is_storage_error", "STORAGE_ERRNOS"]
 
 _DEFERRED = (signal.SIGINT, signal.SIGTERM)
@@ -59,7 +59,7 @@ def deferred_signals() -> Iterator[list[int]]:
         yield []
         return
     if _holding is not None:
-        yield _holding
+        yield from _nested(_holding)
         return
     caught: list[int] = []
     previous = {s: _signal.getsignal(s) for s in _DEFERRED}
@@ -87,6 +87,18 @@ _holding: list[int] | None = None
 """The list of signals caught by the main thread's `deferred_signals` block running now, if one is."""
 
 
+def _nested(holding: list[int]) -> Iterator[list[int]]:
+    """A block inside another (`deferred_signals`): when it raises, the signals that came during it are noted for
+    `raise_if_stopped` rather than raised when the outer block ends, as its own block would have done."""
+    before = len(holding)
+    try:
+        yield holding
+    except BaseException:
+        _received.extend(holding[before:])
+        del holding[before:]
+        raise
+
+
 # ------------------------------------------------------------------ signals that must stop a command
 # Python raises a signal's exception wherever the main thread happens to be. When that is a finalizer or a weakref
 # callback run by the garbage collector, Python prints "Exception ignored in ..." and goes on: a replay asked to
@@ -100,8 +112,14 @@ def _exception(signum: int) -> KeyboardInterrupt:
     return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
 
 
+_raised: list[int] = []
+"""The signals `stopping_signals` raised as exceptions (each also in `_received`): one that never reached the command's
+handler was swallowed on the way (`stop_raised`)."""
+
+
 def _on_signal(signum: int, frame: Any) -> None:
     _received.append(signum)
+    _raised.append(signum)
     raise _exception(signum)
 
 
@@ -131,19 +149,19 @@ def stopping_signals() -> Iterator[None]:
         for s, handler in previous.items():
             signal.signal(s, handler)
         _received.clear()
+        _raised.clear()
 
 
 def raise_if_stopped() -> None:
     """Raise the exception of a signal received inside `stopping_signals` (again, if it was swallowed)."""
-    stop = stop_received()
-    if stop is not None:
-        raise stop
+    if _received:
+        raise _exception(_received[0])
 
 
-def stop_received() -> KeyboardInterrupt | None:
-    """The exception (KeyboardInterrupt, or `Terminated` for SIGTERM) of the first signal received inside
-    `stopping_signals`, or None if none came."""
-    return _exception(_received[0]) if _received else None
+def stop_raised() -> KeyboardInterrupt | None:
+    """The exception (KeyboardInterrupt, or `Terminated` for SIGTERM) of the first signal `stopping_signals` raised, or
+    None. Not one a `deferred_signals` block held while its own error went on: that error wins."""
+    return _exception(_raised[0]) if _raised else None
 
 
 def reserve_space(fd: int, nbytes: int) -> None:

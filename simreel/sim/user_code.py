@@ -35,7 +35,7 @@ _IMPORTED: dict[str, str] = {}
 
 @contextlib.contextmanager
 def native_import() -> Iterator[None]:
-    """Where simreel imports mani_skill, sapien and torch (directly or through user code): whole, and quietly.
+    """Where simreel imports mani_skill, sapien and torch: whole, and quietly.
 
     Whole: SIGINT and SIGTERM are held until the import is done (`deferred_signals`), then handled. A
     KeyboardInterrupt raised inside it aborts the process when it lands in a native module's initialisation
@@ -55,12 +55,15 @@ def import_user_code(spec: str) -> ModuleType:
 
     A ``.py`` path is loaded as a module named after the file (its folder goes first on ``sys.path``, as when
     Python runs a script, so it can import its neighbours). A dotted name is imported normally, with the current
-    folder appended to ``sys.path`` so ``--import mytasks`` finds ``./mytasks.py``. Vulkan is configured first,
-    because user code usually imports mani_skill. Any failure becomes one-line `EnvBuildError`.
+    folder appended to ``sys.path`` so ``--import mytasks`` finds ``./mytasks.py``. Vulkan is configured and mani_skill
+    imported first (`native_import`), because user code usually imports mani_skill; the user's own code then imports
+    as it would anywhere, signals as usual (it may run anything, for any time). Any failure becomes one-line
+    `EnvBuildError`.
     """
     configure_vulkan()
     with native_import():
-        module = _import_user_code(spec)
+        import mani_skill.envs  # noqa: F401
+    module = _import_user_code(spec)
     _IMPORTED.setdefault(spec, module.__name__)
     return module
 

@@ -115,3 +115,17 @@ def test_an_error_inside_a_nested_block_wins_and_the_signal_it_held_still_stops_
             raise OSError(28, "No space left on device")
         with pytest.raises(Terminated):
             raise_if_stopped()
+
+
+def test_a_nested_block_that_fails_notes_the_signals_that_came_during_it_and_the_outer_block_goes_on():
+    """As a block of its own did: its error wins, and what came during it is left for `raise_if_stopped` (a cleanup
+    that swallows the error must not then be interrupted by it); a signal held before it stays the outer's."""
+    with stopping_signals():
+        with pytest.raises(KeyboardInterrupt), deferred_signals() as outer:
+            signal.raise_signal(signal.SIGINT)
+            with pytest.raises(OSError), deferred_signals():
+                signal.raise_signal(signal.SIGTERM)
+                raise OSError(28, "No space left on device")
+            assert outer == [signal.SIGINT]  # the SIGTERM is noted, not the outer block's to raise
+        with pytest.raises(Terminated):
+            raise_if_stopped()
