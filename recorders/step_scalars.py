@@ -10,6 +10,7 @@ copying it into the block (`StepBuffer`).
 
 from __future__ import annotations
 
+import numbers
 from typing import Any
 
 import numpy as np
@@ -33,12 +34,20 @@ def scalar_info(info: dict[str, Any], n: int) -> dict[str, np.ndarray]:
 
 def _plain(value: Any) -> Any:
     """`value`'s numbers as Python objects: a copy, also of a list or tuple (a task may change its list in place after
-    the step, as ManiSkill does its tensors), or `value` itself where it has nothing to copy out (a number)."""
+    the step, as ManiSkill does its tensors), `value` itself where it has nothing to copy out (a number, a string), or
+    None where it holds no numbers (a dict, any other object: recorded as zeros either way). A capture holds nothing
+    else: the recorder's writer process converts it, so it must pickle, and import nothing there (torch, CUDA)."""
     if hasattr(value, "tolist"):
         return value.tolist()
     if isinstance(value, (list, tuple)):
         return [_plain(v) for v in value]
-    return value
+    if value is None or isinstance(value, (numbers.Number, str)):
+        return value
+    try:
+        a = np.asarray(value)
+    except Exception:  # noqa: BLE001 - whatever an object raises, it holds no numbers we can record
+        return None
+    return a.tolist() if a.dtype.kind in "biuf" else None
 
 
 class StepScalars:

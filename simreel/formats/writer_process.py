@@ -3,9 +3,10 @@ checksums, HDF5's object headers: ~4 ms an HDF5 episode) runs beside the env's o
 
 The recorder keeps the writer's interface: `begin_episode` gives a sink, whose `append`, `commit` and `discard`
 are sent to the child in order and return at once; each block is checked against the field table here first, so
-a bad block still fails where it is appended. A block may come with fields the recorder captured and did not convert
-(`StepBlock.captured`): the child converts them (~0.4 ms a 50-step PickCube-v1 block, off the recorder's time) and
-checks them before it writes them. `settle` waits until the child has done everything sent (up to the last
+a bad block still fails where it is appended, but for the fields a block may bring as the recorder captured them
+(`StepBlock.captured`, one env's): the child converts those (~0.4 ms a 50-step PickCube-v1 block, off the recorder's
+time; the format's sink does it) and checks them before it writes them. A block whose captures do not pickle is
+converted here. `settle` waits until the child has done everything sent (up to the last
 `checkpoint`) and raises the error the child met first, if any (the same error, e.g. the one-line `StorageError` of a
 full disk); `committed` lists the episodes the child has reported committed. A recorder sends the episodes a reset
 ends, asks for a `checkpoint`, resets the env and settles at the end of the reset (the child's answer is waiting by
@@ -298,7 +299,12 @@ class _ProcessSink:
 
     def append(self, block: StepBlock) -> None:
         arrays = block.conform(self._writer.fields, episode=self._index)
-        self._writer._send(("append", self._index, StepBlock(arrays, block.rows, block.captured)))
+        try:
+            self._writer._send(("append", self._index, StepBlock(arrays, block.rows, block.captured)))
+        except (pickle.PicklingError, TypeError, AttributeError):  # a capture that does not pickle; nothing sent
+            if not block.captured:
+                raise
+            self.append(block.converted())
 
     def commit(self, meta: EpisodeMeta) -> None:
         self._writer._committing[meta.index] = meta  # first: a Ctrl-C held during the send is raised right after it
@@ -473,7 +479,7 @@ class _Child:
     def _append(self, index: int, block: StepBlock) -> None:
         sink = self._sinks.get(index)
         if sink is not None:
-            self._guarded(lambda: sink.append(block.converted()))  # the recorder's captures, converted here
+            self._guarded(sink.append, block)  # the format's sink converts what the recorder captured
 
     def _commit(self, index: int, meta: EpisodeMeta) -> None:
         sink = self._sinks.pop(index, None)

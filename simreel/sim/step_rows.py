@@ -154,15 +154,19 @@ class ScalarRows:
     def _all_numeric(self, captures: list[list[Any]]) -> np.ndarray | None:
         """Every capture as one (steps, values, num_envs) float64 array, when each value is one number per env and
         float64 holds them all exactly (no 64-bit integer field; bools, float32 and smaller integers it does).
-        One flat list to numpy: numpy takes several times longer to read the same numbers nested."""
+        One flat list to numpy: numpy takes several times longer to read the same numbers nested. Not where a value
+        is anything but a number (None, a string): numpy would read None as NaN and parse "1"; `_numeric`, which
+        `field` and the rest take, does neither."""
         values = list(chain.from_iterable(captures))
         if self._wide_ints or set(map(type, values)) != {list} or set(map(len, values)) != {self._n}:
             return None
         try:
-            flat = np.array(list(chain.from_iterable(values)), np.float64)
+            flat = np.array(list(chain.from_iterable(values)))
         except (ValueError, TypeError):  # something that is not a number
             return None
-        return flat.reshape(len(captures), -1, self._n) if flat.ndim == 1 else None
+        if flat.ndim != 1 or flat.dtype.kind not in "biuf":
+            return None
+        return flat.astype(np.float64, copy=False).reshape(len(captures), -1, self._n)
 
     def _required(self, name: str, column: list[Any]) -> np.ndarray:
         dtype = self._dtypes[name]

@@ -398,3 +398,34 @@ def test_a_ctrl_c_as_an_episode_begins_leaves_no_episode_unfinished(tmp_path):
     rec.close()
     with open_reader(path) as r:
         assert [m.index for m in r.episodes] == [0] and r.unfinished == []
+
+
+def test_a_block_whose_captures_do_not_pickle_is_converted_here_and_written_the_same(tmp_path):
+    """A recorder hands a one-env block's captures to the writer process unconverted (`StepBlock.captured`); a capture
+    that does not pickle (here a lock in an info value, which records as zeros either way) must not stop the recording:
+    that block is converted in the recorder's process and written as the child would have written it."""
+    from simreel.episode import StepBlock
+    from simreel.sim.step_rows import ScalarRows
+
+    meta = synthetic_meta(poses=False)
+    episode = synthetic_episode(meta, 0, 4)
+    source = ScalarRows(1, ["success", "fail", "is_grasped", "elapsed_steps"],
+                        [(n, n.removeprefix("info/"), d) for n, d in (("success", bool), ("fail", bool),
+                                                                     ("info/is_grasped", bool), ("info/elapsed_steps", np.int32))])
+    captures = [[[0.5 * t], [False], [t == 3], [t > 1], [False], [threading.Lock()] if t == 0 else [True], [t + 1]]
+                for t in range(4)]
+    steps = episode.steps_block()
+    plain = {name: a for name, a in steps.arrays.items() if name not in source.names}
+    expected = {name: rows[:, 0] for name, rows in source(captures).items()}
+    w = ProcessWriter(tmp_path / "r.h5").open(meta)
+    sink = w.begin_episode(episode.meta, episode.reset_block())
+    sink.append(StepBlock(plain, 4, ((source, captures, 0),)))
+    sink.commit(episode.meta)
+    w.close()
+    with open_reader(tmp_path / "r.h5") as r:
+        written = r.read_episode(0)
+    assert written.info["is_grasped"].tolist() == [False, True, True, True]  # the lock's step: zeros
+    for name, rows in expected.items():
+        got = written.info[name.removeprefix("info/")] if name.startswith("info/") else getattr(written, name)
+        assert got.dtype == rows.dtype and np.array_equal(got, rows), name
+    np.testing.assert_array_equal(written.actions, episode.actions)

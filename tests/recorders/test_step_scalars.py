@@ -10,6 +10,7 @@ import torch
 
 from simreel.formats import open_reader
 from simreel.recorders import RecordWrapper
+from simreel.recorders.step_scalars import StepScalars
 from simreel.sim.make import make_env
 from simreel.state_tree import to_numpy
 
@@ -85,3 +86,22 @@ def test_a_block_converts_to_what_each_step_reported(odd_info_task):
         assert got.dtype == (np.float32 if name == "rewards" else want.dtype), name
         np.testing.assert_array_equal(got, want, err_msg=name)
     assert rows["info/elapsed_steps"][-1, 0] == 20 and rows["info/elapsed_steps"][0, 0] == 1
+
+
+def test_a_capture_holds_only_plain_numbers_and_converts_as_the_recorder_reads_success():
+    """What a step captures goes to the writer process: a value that holds no numbers (a dict with a lock, None inside
+    a list) is captured as None and recorded as zeros, and the success flags the recorder reads from the captures
+    (`ScalarRows.field`) are the ones written (None was read as NaN, hence True, by the one path and False by the
+    other)."""
+    import pickle
+    import threading
+
+    scalars = StepScalars(1, [("info/is_grasped", np.dtype(bool))])
+    odd = scalars.capture([0.5], [False], [False], {"success": [None], "fail": {"why": threading.Lock()},
+                                                    "is_grasped": 1})
+    captures = pickle.loads(pickle.dumps([odd, scalars.capture(np.array([1.0]), np.array([True]), np.array([False]),
+                                                               {"success": np.array([True])})]))
+    rows = scalars.rows(captures)
+    assert rows["success"].tolist() == scalars.rows.field(captures, "success").tolist() == [[False], [True]]
+    assert rows["fail"].tolist() == [[False], [False]] and rows["info/is_grasped"].tolist() == [[True], [False]]
+    assert rows["rewards"].tolist() == [[0.5], [1.0]]

@@ -117,7 +117,7 @@ class _Hdf5Sink(EpisodeSink):
         self._pending_bytes = 0
 
     def append(self, block: StepBlock) -> None:
-        self._hold(block.conform(self._writer.fields, episode=self._index))
+        self._hold(block.converted().conform(self._writer.fields, episode=self._index))
 
     def commit(self, meta: EpisodeMeta) -> None:
         if self._file is None:

@@ -55,7 +55,7 @@ class _McapSink(EpisodeSink):
     def append(self, block: StepBlock) -> None:
         self._check_open()
         if len(block):
-            arrays = block.conform(self._writer.fields, episode=self._lane.index)
+            arrays = block.converted().conform(self._writer.fields, episode=self._lane.index)
             self._writer.guard(lambda: self._channels.steps(self._lane, arrays, len(block)),
                                f"episode {self._lane.index} was not committed")
 
