@@ -62,10 +62,11 @@ def test_a_kill_9_names_the_running_episode_and_the_sidecar_lists_every_committe
     import time
 
     path = tmp_path / "killed.h5"
-    with RecordingChild(str(path), "--steps", "50") as child:
-        committed = child.wait_committed(3)
-        time.sleep(0.1)  # in the middle of episode `committed` (50 steps take far longer)
+    with RecordingChild(str(path), "--steps", "300") as child:
+        child.wait_committed(3)
+        time.sleep(0.1)  # in the middle of the next episode (300 steps take ~0.5 s or more)
         child.signal()
+    committed = child.committed  # as the child said before it was killed (an episode more, on a fast machine)
     inspect = simreel("inspect", str(path))
     assert inspect.returncode == 0, inspect.stderr
     assert f"episodes: {committed}," in inspect.stdout
@@ -75,7 +76,7 @@ def test_a_kill_9_names_the_running_episode_and_the_sidecar_lists_every_committe
     assert [e["episode_id"] for e in sidecar["episodes"]] == list(range(committed))
     with h5py.File(path, "r") as f:  # plain h5py, file locking on, as ManiSkill's tools open it
         assert sorted(f) == [f"traj_{i}" for i in range(committed)]
-        assert f["traj_0/actions"].shape == (50, 8)
+        assert f["traj_0/actions"].shape == (300, 8)
 
 
 # ----------------------------------------------------------------------------------- damaged bytes

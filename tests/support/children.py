@@ -78,11 +78,15 @@ class RecordingChild:
                 self.proc.wait()
                 raise AssertionError(f"the recording child ended: {self.proc.stderr.read().decode()[-2000:]}")
             *lines, self._pending = (self._pending + data).split(b"\n")
-            for line in (x.decode().strip() for x in lines):
-                self.lines.append(line)
-                if line.startswith("committed "):
-                    self.committed = int(line.split()[1])
+            self._note([x.decode().strip() for x in lines])
         return self.committed
+
+    def _note(self, lines: list[str]) -> None:
+        """Keep the child's `lines`, and the count of episodes its last "committed N" line says."""
+        for line in lines:
+            self.lines.append(line)
+            if line.startswith("committed "):
+                self.committed = int(line.split()[1])
 
     def signal(self, sig: int = signal.SIGKILL, timeout: float = 120) -> int:
         """Send `sig` to the recording process (not to its writer process), wait for the end of both; returns the
@@ -99,7 +103,7 @@ class RecordingChild:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             raise
-        self.lines += (self._pending + out).decode().splitlines()
+        self._note([line.strip() for line in (self._pending + out).decode().splitlines()])
         self.stderr = err.decode()
         return self.proc.returncode
 

@@ -12,7 +12,7 @@ import time
 from collections.abc import Iterator, Mapping
 from contextlib import ExitStack, contextmanager
 
-__all__ = ["DISPLAY_VARS", "answering_display", "free_port", "read_line", "simreel_command", "without_display"]
+__all__ = ["DISPLAY_VARS", "answering_display", "free_port", "free_ports", "read_line", "simreel_command", "without_display"]
 
 DISPLAY_VARS = ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")
 """The variables through which a process finds an X11 or Wayland display."""
