@@ -29,7 +29,7 @@ from simreel.episode import Episode, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.base import recover_hint
-from simreel.formats.durable import STORAGE_ERRNOS, storage_error
+from simreel.formats.durable import STORAGE_ERRNOS, raise_if_stopped, storage_error
 from simreel.formats.targets import check_output, staged_output
 from simreel.viewers.compare import DEFAULT_MODE, compare_for_view
 from simreel.viewers.session import states_by_stepping
@@ -140,6 +140,7 @@ class VideoRun:
         written = self.written
         try:
             for i in self.indices:
+                raise_if_stopped()  # a Ctrl-C swallowed during the last video (in a finalizer) stops the next one
                 try:
                     written.append(self._episode(frames, i, progress))
                 except StorageError:

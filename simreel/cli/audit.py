@@ -8,6 +8,7 @@ from typing import Any
 
 from simreel.cli.common import add_import_option, parse_index_ranges, parse_json_kwargs
 from simreel.errors import UsageError
+from simreel.formats.durable import raise_if_stopped
 
 __all__ = ["add_parser", "run"]
 
@@ -90,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
                            obs_mode=args.obs_mode, reward_mode=args.reward_mode, env_kwargs=args.env_kwargs,
                            **_along(args))
     report = audit_task(args.env_id, options)
+    raise_if_stopped()  # a Ctrl-C a library swallowed on the way: no report of a run asked to stop
     text = report.summary()
     if args.quiet:
         text = "\n".join(line for line in text.splitlines() if not line.lstrip().startswith(("checked:", "note:")))

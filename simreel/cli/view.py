@@ -11,6 +11,7 @@ from typing import Any
 
 from simreel.cli.common import add_import_option, add_tolerance_options
 from simreel.errors import UsageError
+from simreel.formats.durable import raise_if_stopped
 
 __all__ = ["add_parser", "run", "default_output", "has_display", "open_command", "viewer_available"]
 
@@ -218,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
 
             print("warning: no render device, so no visual meshes: showing collision shapes (for the meshes, "
                   f"{no_render_device_fix()})", file=sys.stderr)
+        raise_if_stopped()  # a Ctrl-C a library swallowed while the session was built
         if mode == "save":
             out = session.save(save, overwrite=args.overwrite)
             size = out.stat().st_size / 1024
