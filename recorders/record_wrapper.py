@@ -159,7 +159,6 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._ever_success = np.zeros(self._n, bool)
         self._has_success = "success" in self.meta.info_layout
         self._scalars = StepScalars(self._n, [(f"info/{k}", np.dtype(s.dtype)) for k, s in self.meta.info_layout.items()])
-        self._scalar_rows = self._scalars.rows
         self._action_rows = ActionRows(self._n)
         self._defer = isinstance(self._writer, ProcessWriter)
         """Whether blocks go to the writer process with their captures unconverted (`StepBuffer.take`): it converts
@@ -286,7 +285,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             fields["actions"] = actions
         self._last_scalars = self._scalars.capture(*result[1:])
-        captures.append((self._scalar_rows, self._last_scalars))
+        captures.append((self._scalars.rows, self._last_scalars))
         buffer = self._buffer
         buffer.push(fields, captures)
         if buffer.full:
@@ -477,7 +476,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _success_rows(self, block: StepBlock) -> np.ndarray:
         """The success flags of `block`'s steps, also where they are still captured (`StepBuffer.take`)."""
         for source, captures, env in block.captured:
-            if source is self._scalar_rows:
+            if source is self._scalars.rows:
                 return source.field(captures, "success")[:, env]
         return block["success"]
 

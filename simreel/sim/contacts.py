@@ -109,7 +109,7 @@ class ContactSampler:
     """Samples every channel after a step: `sample()` → (num_envs, C, 3) float32 newtons.
 
     Call `bind()` after each reset: a reconfiguring reset replaces the scene's bodies. A recorder may instead
-    `capture()` a step's contacts as Python numbers and turn a block of captures into rows later (`rows`, a
+    `capture()` a step's contacts as Python numbers and turn a block of captures into rows later (`row_source`, a
     `StepBuffer` row source): the same numbers, without numpy calls right after the physics step.
     """
 
@@ -148,7 +148,7 @@ class ContactSampler:
             return np.zeros((self._n, 0, 3), np.float32)
         if self._gpu:
             return self._sample_gpu(self._n)
-        return self.rows([self.capture()])[0]
+        return self.row_source([self.capture()])["contact_forces"][0]
 
     def capture(self) -> Capture | None:
         """This step's touching contacts, as (where each adds its impulse, its points' impulses) copied out in Python
@@ -167,11 +167,6 @@ class ContactSampler:
                 if points:
                     touched.append((hits, [point.impulse.tolist() for point in points]))
         return (touched, self.px.timestep) if touched else None
-
-    def rows(self, captures: list[Capture | None]) -> np.ndarray:
-        """The (steps, 1, C, 3) float32 forces of `captures` (`row_source`, which a recorder's writer process may run
-        instead)."""
-        return self.row_source(captures)["contact_forces"]
 
     def _sample_gpu(self, n: int) -> np.ndarray:
         scene = self._u.scene

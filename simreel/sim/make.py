@@ -24,7 +24,7 @@ from simreel.sim.render_device import (
     probe_render_device,
     start_render_probe,
 )
-from simreel.sim.user_code import native_import, task_code_error
+from simreel.sim.user_code import import_mani_skill, native_import, task_code_error
 
 if TYPE_CHECKING:
     import gymnasium as gym
@@ -213,8 +213,7 @@ def _registered(env_id: str) -> Any:
     and its assets are there; return gymnasium."""
     import gymnasium
 
-    with native_import():
-        import mani_skill.envs  # noqa: F401  (registers the built-in tasks)
+    import_mani_skill()
     from mani_skill.utils.registration import REGISTERED_ENVS
 
     spec = REGISTERED_ENVS.get(env_id)

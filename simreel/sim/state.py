@@ -85,7 +85,7 @@ class FastStateReader:
             _add(slices, f"articulations/{name}", index, [*range(s + 4, s + 7), *range(s, s + 4),
                                                          *range(s + 7, s + 13 + 2 * dof)])
         self.packed_rows = PackedRows(np.asarray(index, np.intp), tuple(slices))
-        """What turns a block of `capture`s into the actor and articulation leaves (`unpack`)."""
+        """What turns a block of `capture`s into the actor and articulation leaves, key path → (k, 1, ...) float32."""
         self._custom = type(u).get_state_dict is _base_get_state_dict()[1]
         self._agent = getattr(u, "agent", None)
         if self._agent is not None and not self._controller_state():
@@ -117,20 +117,15 @@ class FastStateReader:
         packed = self.capture()
         if packed is None:  # bodies were added or removed since the reader was built
             return read_state(self.u)
-        out = {key: rows[0] for key, rows in self.unpack([packed]).items()}
+        out = {key: rows[0] for key, rows in self.packed_rows([packed]).items()}
         out.update(self.extras())
         return out
 
     def capture(self) -> bytes | None:
-        """The actors' and articulations' state now, packed (`unpack` makes leaves of it, later), or None where the
-        scene's bodies changed since the reader was built."""
+        """The actors' and articulations' state now, packed (`packed_rows` makes leaves of it, later), or None where
+        the scene's bodies changed since the reader was built."""
         packed = self._px.pack()
         return packed if len(packed) == self._nbytes else None
-
-    def unpack(self, captures: list[bytes]) -> dict[str, np.ndarray]:
-        """The actor and articulation leaves of `len(captures)` packed states: key path → (k, 1, ...) float32, one
-        gather for all of them."""
-        return self.packed_rows(captures)
 
     def extras(self) -> dict[str, np.ndarray]:
         """The leaves `pack()` does not hold, read now: the controller's targets and the task's custom state."""

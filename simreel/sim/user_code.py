@@ -1,5 +1,5 @@
-"""Import the user's own code (custom tasks, policies) for the CLI's ``--import``, and mani_skill whole and quietly; find a
-recording's imports again wherever it is replayed.
+"""Import the user's own code (custom tasks, policies) for the CLI's ``--import``, and mani_skill whole and
+quietly; find a recording's imports again wherever it is replayed.
 
 A recording stores its ``--import`` specs (`recorded_spec`: a file by its absolute path, a module by its name).
 Rebuilding its env imports them again (`resolve_task_imports`): an ``--import`` given now wins; otherwise each
@@ -26,11 +26,17 @@ from simreel.errors import EnvBuildError, TaskCodeError, UsageError
 from simreel.formats.durable import deferred_signals
 from simreel.sim.render_device import configure_vulkan
 
-__all__ = ["found_spec", "import_user_code", "imported_user_code", "native_import", "recorded_spec",
-           "resolve_task_imports", "task_code_error"]
+__all__ = ["found_spec", "import_user_code", "imported_user_code", "import_mani_skill", "native_import",
+           "recorded_spec", "resolve_task_imports", "task_code_error"]
 
 _IMPORTED: dict[str, str] = {}
 """Every spec `import_user_code` imported in this process, in order, and the name of the module it gave."""
+
+
+def import_mani_skill() -> None:
+    """Import mani_skill, registering its tasks, whole and quietly (`native_import`)."""
+    with native_import():
+        import mani_skill.envs  # noqa: F401
 
 
 @contextlib.contextmanager
@@ -61,8 +67,7 @@ def import_user_code(spec: str) -> ModuleType:
     `EnvBuildError`.
     """
     configure_vulkan()
-    with native_import():
-        import mani_skill.envs  # noqa: F401
+    import_mani_skill()
     module = _import_user_code(spec)
     _IMPORTED.setdefault(spec, module.__name__)
     return module
