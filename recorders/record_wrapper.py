@@ -461,17 +461,24 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return self._fast.extras(), packed
 
     def _flush(self, i: int) -> None:
-        """Hand env i's buffered steps to its episode's sink, noting whether the episode has succeeded. Callers hold
-        signals (`deferred_signals`): a Ctrl-C between taking the rows and handing them over would lose them."""
+        """Hand env i's buffered steps to its episode's sink. Callers hold signals (`deferred_signals`): a Ctrl-C
+        between taking the rows and handing them over would lose them."""
         sink = self._sinks[i]
-        if sink is None or not self._buffer.pending(i):
-            return
+        block = None if sink is None else self._take(i)
+        if block is not None:
+            sink.append(block)
+
+    def _take(self, i: int) -> StepBlock | None:
+        """Env i's buffered steps (None: none), counted as sent to its episode's sink, noting whether the episode has
+        succeeded; the caller hands them over."""
+        if not self._buffer.pending(i):
+            return None
         block = self._buffer.take(i, defer=self._defer)
         success = self._success_rows(block)
         self._success[i] = success[-1]
         self._ever_success[i] |= success.any()
-        sink.append(block)
         self._sent[i] += block.rows
+        return block
 
     def _success_rows(self, block: StepBlock) -> np.ndarray:
         """The success flags of `block`'s steps, also where they are still captured (`StepBuffer.take`)."""
@@ -487,7 +494,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             sink, meta = self._sinks[i], self._episodes[i]
             if sink is None:
                 return
-            self._flush(i)
+            last = self._take(i)
             self._sinks[i] = None
             self._episodes[i] = None
             self._open -= 1
@@ -497,7 +504,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             if meta.length == 0:
                 sink.discard()
                 return
-            sink.commit(meta)
+            sink.finish(meta, last)
             self._chain_ran[i] += 1
 
 

@@ -79,6 +79,13 @@ class EpisodeSink(ABC):
     def discard(self) -> None:
         """Drop the episode (e.g. a reset before any step); nothing of it stays on disk."""
 
+    def finish(self, meta: EpisodeMeta, last: StepBlock | None = None) -> None:
+        """Append `last`, the episode's steps not yet appended (if any), and commit: what a recorder does when an
+        episode ends, in one call (a writer process gets it as one message)."""
+        if last is not None:
+            self.append(last)
+        self.commit(meta)
+
 
 class EpisodeWriter(ABC):
     """Writes one recording file. A context manager; `close` commits nothing that was not committed."""

@@ -1,12 +1,13 @@
 """`ProcessWriter`: a recording's writer run in a child process, so that committing an episode (compression,
 checksums, HDF5's object headers: ~4 ms an HDF5 episode) runs beside the env's own reset instead of before it.
 
-The recorder keeps the writer's interface: `begin_episode` gives a sink, whose `append`, `commit` and `discard`
-are sent to the child in order and return at once; each block is checked against the field table here first, so
+The recorder keeps the writer's interface: `begin_episode` gives a sink, whose `append`, `commit`, `finish` and
+`discard` are sent to the child in order and return at once (`finish`, an episode's last block and its commit, as one
+message); each block is checked against the field table here first, so
 a bad block still fails where it is appended, but for the fields a block may bring as the recorder captured them
 (`StepBlock.captured`, one env's): the child converts those (~0.4 ms a 50-step PickCube-v1 block, off the recorder's
-time; the format's sink does it) and checks them before it writes them. A block whose captures do not pickle is
-converted here. `settle` waits until the child has done everything sent (up to the last
+time; the format's sink does it) and checks them before it writes them. Their row sources travel once each, then by
+number (`ProcessWriter._source_number`). A block whose captures do not pickle is converted here. `settle` waits until the child has done everything sent (up to the last
 `checkpoint`) and raises the error the child met first, if any (the same error, e.g. the one-line `StorageError` of a
 full disk); `committed` lists the episodes the child has reported committed. A recorder sends the episodes a reset
 ends, asks for a `checkpoint`, resets the env and settles at the end of the reset (the child's answer is waiting by
@@ -47,6 +48,8 @@ _START_SECONDS = 120
 `sys.executable` may not be a Python that runs simreel (an application that embeds Python)."""
 _STOP_SECONDS = 30
 """How long a child that does not answer is waited for once the recorder has been asked to stop (Ctrl-C, SIGTERM)."""
+_MAX_SOURCES = 64
+"""Row sources the child holds at most (`ProcessWriter._source_number`); at least as many as a block has (4)."""
 _PARENT_CHECK_SECONDS = 1.0
 """How often an idle child checks that its recorder still runs (a forked process may hold the pipe open)."""
 
@@ -100,6 +103,9 @@ class ProcessWriter:
         cleanup (discard, close) raises it only if it was never raised (a Ctrl-C may have cut in first)."""
         self._failure_raised = False
         self._closed = False
+        self._sources: dict[Any, int] = {}
+        """The row sources the child knows, and their numbers (`_source_number`), the least recently used first."""
+        self._source_count = 0
 
     def open(self, meta: RecordingMeta, **options: Any) -> ProcessWriter:
         self.fields = episode_fields(meta)
@@ -120,6 +126,28 @@ class ProcessWriter:
         """End a child whose writer was never opened (or failed to open)."""
         self._closed = True
         self._end_child()
+
+    def block_parts(self, block: StepBlock, episode: int) -> tuple[dict[str, Any], int, tuple[Any, ...]]:
+        """`block` checked against the field table, as the child rebuilds it (`_Child._block`): its arrays, rows, and
+        captures with their row sources by number (`_source_number`)."""
+        arrays = block.conform(self.fields, episode=episode)
+        return arrays, block.rows, tuple((self._source_number(s), held, env) for s, held, env in block.captured)
+
+    def _source_number(self, source: Any) -> int:
+        """The number the child knows row source `source` by, sent to it first if it does not know it yet. A source
+        travels once rather than with every block: pickling one (its index array, its dtypes) costs ~80 µs an
+        episode right after a step. The child holds the `_MAX_SOURCES` used last (each scene the env rebuilds has its
+        own state source); a block's sources are used last of all when its own are numbered, so none is forgotten
+        before the block arrives."""
+        number = self._sources.pop(source, None)
+        if number is None:
+            number, forget = self._source_count, None
+            if len(self._sources) >= _MAX_SOURCES:
+                forget = self._sources.pop(next(iter(self._sources)))
+            self._send(("learn", number, source, forget))
+            self._source_count += 1
+        self._sources[source] = number
+        return number
 
     def begin_episode(self, meta: EpisodeMeta, reset: StepBlock) -> _ProcessSink:
         arrays = reset.conform(self.reset_fields, episode=meta.index)
@@ -298,17 +326,25 @@ class _ProcessSink:
         self._index = index
 
     def append(self, block: StepBlock) -> None:
-        arrays = block.conform(self._writer.fields, episode=self._index)
-        try:
-            self._writer._send(("append", self._index, StepBlock(arrays, block.rows, block.captured)))
-        except (pickle.PicklingError, TypeError, AttributeError):  # a capture that does not pickle; nothing sent
-            if not block.captured:
-                raise
-            self.append(block.converted())
+        self._send("append", block)
 
     def commit(self, meta: EpisodeMeta) -> None:
+        self.finish(meta)
+
+    def finish(self, meta: EpisodeMeta, last: StepBlock | None = None) -> None:
+        """`EpisodeSink.finish`, as one message: the episode's last block and its commit."""
         self._writer._committing[meta.index] = meta  # first: a Ctrl-C held during the send is raised right after it
-        self._writer._send(("commit", self._index, meta))
+        self._send("finish", last, meta)
+
+    def _send(self, op: str, block: StepBlock | None, *args: Any) -> None:
+        """Send `op` for this episode with `block` (checked against the field table here) and `args`."""
+        parts = None if block is None else self._writer.block_parts(block, self._index)
+        try:
+            self._writer._send((op, self._index, parts, *args))
+        except (pickle.PicklingError, TypeError, AttributeError):  # a capture that does not pickle; nothing sent
+            if block is None or not block.captured:
+                raise
+            self._send(op, block.converted(), *args)
 
     def discard(self) -> None:
         if not isinstance(self._writer._failed, _Gone):  # a child that is gone keeps nothing of it anyway
@@ -400,6 +436,8 @@ class _Child:
         self._stopped = False
         self._committed: list[int] = []
         """Episodes committed since the last answer."""
+        self._sources: dict[int, Any] = {}
+        """The row sources the recorder sent, by number (`ProcessWriter._source_number`)."""
 
     def run(self) -> None:
         self._answer_raw(("ready", None, []))
@@ -476,12 +514,24 @@ class _Child:
 
         self._guarded(begun)
 
-    def _append(self, index: int, block: StepBlock) -> None:
+    def _learn(self, number: int, source: Any, forget: int | None) -> None:
+        if forget is not None:
+            del self._sources[forget]
+        self._sources[number] = source
+
+    def _block(self, parts: tuple[dict[str, Any], int, tuple[Any, ...]]) -> StepBlock:
+        """The block `ProcessWriter.block_parts` sent."""
+        arrays, rows, captured = parts
+        return StepBlock(arrays, rows, tuple((self._sources[number], held, env) for number, held, env in captured))
+
+    def _append(self, index: int, parts: tuple[Any, ...]) -> None:
         sink = self._sinks.get(index)
         if sink is not None:
-            self._guarded(sink.append, block)  # the format's sink converts what the recorder captured
+            self._guarded(sink.append, self._block(parts))  # the format's sink converts what the recorder captured
 
-    def _commit(self, index: int, meta: EpisodeMeta) -> None:
+    def _finish(self, index: int, parts: tuple[Any, ...] | None, meta: EpisodeMeta) -> None:
+        if parts is not None:
+            self._append(index, parts)
         sink = self._sinks.pop(index, None)
         if sink is not None and self._guarded(sink.commit, meta):
             self._committed.append(index)

@@ -49,8 +49,14 @@ def test_the_writer_process_writes_what_the_recorder_would_and_commits_before_re
     _record(tmp_path / f"process{suffix}", True, seen)
     _record(tmp_path / f"inline{suffix}", False)
     assert seen in ([0, 1, 2], None)  # each reset returned with the episode it ended readable by another reader
-    with open_reader(tmp_path / f"process{suffix}") as a, open_reader(tmp_path / f"inline{suffix}") as b:
-        assert len(a) == len(b) == 3 and a.damaged == b.damaged == []
+    _assert_same_recordings(tmp_path / f"process{suffix}", tmp_path / f"inline{suffix}", 3)
+
+
+def _assert_same_recordings(a_path: Path, b_path: Path, episodes: int) -> None:
+    """Both files hold `episodes` undamaged episodes with the same metadata, actions, rewards, success, contact forces
+    and states, bit for bit."""
+    with open_reader(a_path) as a, open_reader(b_path) as b:
+        assert len(a) == len(b) == episodes and a.damaged == b.damaged == []
         for m in a.episodes:
             x, y = a.read_episode(m.index), b.read_episode(m.index)
             assert x.meta.to_json() == y.meta.to_json()
@@ -429,3 +435,35 @@ def test_a_block_whose_captures_do_not_pickle_is_converted_here_and_written_the_
         got = written.info[name.removeprefix("info/")] if name.startswith("info/") else getattr(written, name)
         assert got.dtype == rows.dtype and np.array_equal(got, rows), name
     np.testing.assert_array_equal(written.actions, episode.actions)
+
+
+def test_row_sources_travel_once_and_a_full_table_forgets_the_least_used_without_losing_a_block(tmp_path, monkeypatch):
+    """A block's captures name their row sources by number, each source sent to the writer process once; a scene the
+    env rebuilds brings a new state source, and past `_MAX_SOURCES` the child forgets the least recently used. With
+    room for only a block's four, every rebuilt scene makes it forget one: the file must still be the one a writer in
+    the recorder's process writes."""
+    import simreel.formats.writer_process as writer_process
+
+    monkeypatch.setattr(writer_process, "_MAX_SOURCES", 4)
+    learned = []
+
+    def noting_lessons(send):
+        def noted(message, *args, **kwargs):
+            if message[0] == "learn":
+                learned.append(message[1])
+            send(message, *args, **kwargs)
+        return noted
+
+    for process in (True, False):
+        rng = np.random.default_rng(0)
+        rec = RecordWrapper(make_env("PickCube-v1", env_kwargs={"reconfiguration_freq": 1}), tmp_path / f"{process}.h5",
+                            writer_process=process)
+        if process:
+            rec._writer._send = noting_lessons(rec._writer._send)
+        for k in range(4):
+            rec.reset(seed=k)
+            for _ in range(3):
+                rec.step(rng.uniform(-1, 1, rec.action_space.shape).astype(np.float32))
+        rec.close()
+    assert len(learned) == len(set(learned)) == 3 + 4  # scalars, contacts, actions once; one state source per scene
+    _assert_same_recordings(tmp_path / "True.h5", tmp_path / "False.h5", 4)
