@@ -11,14 +11,46 @@ from typing import Any
 from simreel.errors import UsageError
 
 __all__ = ["add_env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
-           "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar"]
+           "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar",
+           "LOG_LINE_SECONDS"]
+
+
+LOG_LINE_SECONDS = 60.0
+"""Off a terminal, a progress bar is a plain line on stderr this often, the first once the work has run this long."""
 
 
 def progress_bar(items: Iterable[Any] | None = None, *, quiet: bool, **options: Any) -> Any:
-    """A tqdm bar on stderr, shown only on a terminal (logs and CI output stay readable) and never with -q."""
+    """A tqdm bar on stderr, never with -q. On a terminal it redraws in place; elsewhere (a log file, CI, a pipe) it
+    is a plain line every `LOG_LINE_SECONDS`, the first once the work has run that long: a long batch job shows it
+    is alive and how far it got, and a short run's stderr is only what the command says."""
     from tqdm import tqdm
 
-    return tqdm(items, disable=True if quiet else None, file=sys.stderr, **options)
+    if quiet:
+        return tqdm(items, disable=True, **options)
+    if sys.stderr.isatty():
+        return tqdm(items, file=sys.stderr, **options)
+    return tqdm(items, file=_LogLines(sys.stderr), ascii=True, delay=LOG_LINE_SECONDS, mininterval=LOG_LINE_SECONDS,
+                miniters=1, **options)
+
+
+class _LogLines:
+    """Where a progress bar draws off a terminal: each redraw (tqdm begins it with a carriage return and pads it with
+    spaces) becomes a line of its own, but for the one closing the bar where it repeats the last count."""
+
+    def __init__(self, stream: Any) -> None:
+        self._stream = stream
+        self._count = ""
+        """The last line's text before its times ("record PickCube-v1:  40%|####      | 4/10")."""
+
+    def write(self, text: str) -> None:
+        for line in text.replace("\r", "\n").split("\n"):
+            count = line.split("[")[0].rstrip()
+            if count and count != self._count:
+                self._stream.write(line.rstrip() + "\n")
+                self._count = count
+
+    def flush(self) -> None:
+        self._stream.flush()
 
 
 def add_import_option(p: argparse.ArgumentParser) -> None:

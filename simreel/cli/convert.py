@@ -175,7 +175,7 @@ def _convert(args: argparse.Namespace) -> int:
                            desc=f"convert {conversion.reader.meta.env_id}")
 
         def progress(ep: Any) -> None:
-            bar.set_postfix_str(f"{ep.index}: {ep.verdict}")
+            bar.set_postfix_str(f"{ep.index}: {ep.verdict}", refresh=False)
             bar.update()
 
         with bar:

@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
 
     def progress(item: Any, report: Any) -> None:
         where = f"{shown_path(item.path)}:{item.index}" if len(files) > 1 else str(item.index)
-        bar.set_postfix_str(f"{where} {report.verdict}")
+        bar.set_postfix_str(f"{where} {report.verdict}", refresh=False)
         bar.update()
 
     try:

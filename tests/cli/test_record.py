@@ -202,3 +202,22 @@ def test_parallel_envs_record_exactly_the_episodes_asked_with_seeds_in_range(epi
     record._record_batched(rec, policy, args, 10)
     assert [(s - seed, env) for s, env in rec.episodes_committed] == committed
     assert max(rec.seeds) <= 2**32 - 1
+
+
+def test_off_a_terminal_progress_is_a_plain_line_now_and_then_and_a_short_run_shows_none(tmp_path, capsys,
+                                                                                          monkeypatch):
+    """Off a terminal (a log, CI) the progress bar is a plain line every `LOG_LINE_SECONDS` once the work has run that
+    long: never a carriage return, the closing line not repeating the last count; a run shorter than that writes
+    nothing to stderr. With the interval at 0 every episode is a line."""
+    import re
+
+    import simreel.cli.common as common
+
+    args = ["record", "PickCube-v1", "-n", "3", "--max-steps", "5", "--render-backend", "none"]
+    assert main([*args, "-o", str(tmp_path / "short.h5")]) == 0
+    assert capsys.readouterr().err == ""
+    monkeypatch.setattr(common, "LOG_LINE_SECONDS", 0.0)
+    assert main([*args, "-o", str(tmp_path / "logged.h5")]) == 0
+    lines = capsys.readouterr().err.splitlines(keepends=True)
+    assert [re.search(r"\| (\d)/3 \[", line).group(1) for line in lines] == ["0", "1", "2", "3"]
+    assert all(line.startswith("record PickCube-v1: ") and "\r" not in line for line in lines)

@@ -78,3 +78,19 @@ def test_an_episode_of_inconsistent_length_is_a_simreel_error(tmp_path, rec):
     assert isinstance(info.value, SimreelError)  # the CLI prints it as one line, exit 2
     with open_writer(tmp_path / "out.h5", meta) as w, pytest.raises(EpisodeLayoutError):
         w.write_episode(short)
+
+
+def test_off_a_terminal_replay_progress_is_a_line_now_and_then_naming_the_last_verdict(capsys, monkeypatch, rec):
+    """A short replay off a terminal writes nothing to stderr (each episode's verdict does not redraw the bar there);
+    with `LOG_LINE_SECONDS` at 0 every episode is a plain line ending with the last episode's verdict."""
+    import re
+
+    import simreel.cli.common as common
+
+    assert _run(capsys, ["replay", str(rec)]) == (0, "")
+    monkeypatch.setattr(common, "LOG_LINE_SECONDS", 0.0)
+    code, err = _run(capsys, ["replay", str(rec)])
+    assert code == 0
+    lines = err.splitlines()
+    assert [re.search(r"\| (\d)/2 \[", line).group(1) for line in lines] == ["0", "1", "2"], err
+    assert lines[1].endswith("0 exact]") and lines[2].endswith("1 exact]"), err
