@@ -21,7 +21,7 @@ from pathlib import Path
 
 from simreel.errors import UsageError
 from simreel.formats.lock import WriterLock, being_written
-from simreel.formats.targets import check_output
+from simreel.formats.targets import check_output, process_alive
 
 __all__ = ["RecordingTarget", "side_folder", "replacement_note", "refuse_kept_recording", "staging_path",
            "is_staging_path", "stale_staging"]
@@ -177,21 +177,10 @@ def stale_staging(final: Path) -> list[Path]:
     found = []
     for path in sorted(final.parent.glob(f".*.simreel-*{final.suffix}")):
         match = _STAGING_STEM.fullmatch(path.stem)
-        if (match and match["stem"] == final.stem and path.is_file() and not _alive(int(match["pid"]))
+        if (match and match["stem"] == final.stem and path.is_file() and not process_alive(int(match["pid"]))
                 and not being_written(path)):
             found.append(path)
     return found
-
-
-def _alive(pid: int) -> bool:
-    """Whether process `pid` runs on this machine (this one included; one that cannot be asked counts as alive)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OverflowError):
-        return True
-    return True
 
 
 def is_staging_path(path: str | os.PathLike[str]) -> bool:

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import glob
 import os
+import socket
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -20,7 +22,7 @@ from typing import IO
 from simreel.errors import UsageError
 
 __all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output",
-           "move_into_place", "OVERWRITE_HINT"]
+           "move_into_place", "process_alive", "OVERWRITE_HINT"]
 
 OVERWRITE_HINT = "pass --overwrite to replace it (overwrite=True from Python)"
 """How every refusal to replace a file says what to do: the CLI's option and the Python API's keyword."""
@@ -75,9 +77,10 @@ def check_distinct(outputs: Mapping[str, Iterable[str | Path]], input_files: Seq
 def open_text_atomic(path: str | Path) -> Iterator[IO[str]]:
     """A text file to write `path` through: a temporary file in the same folder, renamed to `path` when the block
     ends without error. A reader sees the old file or the whole new one, never a part; an interrupted write leaves
-    no temporary file behind."""
+    no temporary file behind (a kill -9 leaves one, which the next write of `path` on this machine removes:
+    `_temporary_file`)."""
     p = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.resolve().parent)
+    fd, tmp = _temporary_file(p, ".tmp")
     try:
         os.fchmod(fd, 0o666 & ~_umask())  # as open() would make it: mkstemp's 0600 hides it from other users
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
@@ -97,8 +100,9 @@ def write_text_atomic(path: str | Path, text: str) -> None:
 @contextlib.contextmanager
 def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[Path]:
     """A temporary file to write `path` through: in the same folder, under a name no other run uses
-    (``.NAME.XXXXXXXX.partial.EXT``, the extension kept for writers that go by it), moved to `path` when the block
-    ends without error and removed when it raises (an error, a full disk, Ctrl-C, SIGTERM). So `path` is never a
+    (``.NAME.PID@HOST.XXXXXXXX.partial.EXT``, the extension kept for writers that go by it, `_temporary_file`), moved
+    to `path` when the block ends without error and removed when it raises (an error, a full disk, Ctrl-C, SIGTERM;
+    after a kill -9, by the next run writing `path` on this machine). So `path` is never a
     part of a file, and an old one stays as it was until a whole new one replaces it. Without `overwrite`, a file
     that appeared at `path` meanwhile (another run's) is not replaced: `UsageError`. `option` names the CLI option
     in messages (``--save``)."""
@@ -106,7 +110,7 @@ def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[
 
     real = path.resolve()  # a symbolic link is written through: its file is replaced, the link kept
     try:
-        fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".partial{path.suffix}", dir=real.parent)
+        fd, name = _temporary_file(path, f".partial{path.suffix}")
     except OSError as e:
         if is_storage_error(e):
             raise storage_error(path, e, lost="nothing was written") from None
@@ -119,6 +123,45 @@ def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[
         _publish(partial, real, overwrite=overwrite, option=option)
     finally:
         partial.unlink(missing_ok=True)
+
+
+def _temporary_file(path: Path, suffix: str) -> tuple[int, str]:
+    """A new temporary file to write `path` through (`tempfile.mkstemp`: open, its name no other run's), beside the
+    file `path` names: ``.NAME.PID@HOST.XXXXXXXX`` + `suffix`. First the ones runs of this machine left there for the
+    same `path` and `suffix` and never removed (a kill -9 runs no cleanup) are removed: those whose process is gone."""
+    prefix, folder = f".{path.name}.", path.resolve().parent
+    mine = f"{prefix}{os.getpid()}@{socket.gethostname()}."
+    for leftover in folder.glob(glob.escape(prefix) + "*@*" + glob.escape(suffix)):
+        pid = _left_by(leftover.name, prefix, suffix)
+        if pid is not None and not process_alive(pid):
+            leftover.unlink(missing_ok=True)
+    return tempfile.mkstemp(prefix=mine, suffix=suffix, dir=folder)
+
+
+def _left_by(name: str, prefix: str, suffix: str) -> int | None:
+    """The process of this machine that made temporary file `name` (`_temporary_file`), or None when another machine
+    did, or another program."""
+    pid, _, rest = name[len(prefix):len(name) - len(suffix)].partition("@")
+    host = socket.gethostname()
+    random = rest[len(host) + 1:]
+    if not pid.isdigit() or rest[:len(host) + 1] != f"{host}." or len(random) != _MKSTEMP_RANDOM or "." in random:
+        return None
+    return int(pid)
+
+
+_MKSTEMP_RANDOM = 8
+"""The characters `tempfile.mkstemp` puts between a prefix and a suffix."""
+
+
+def process_alive(pid: int) -> bool:
+    """Whether process `pid` runs on this machine (this one included; one that cannot be asked counts as alive)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True
+    return True
 
 
 def _publish(partial: Path, path: Path, *, overwrite: bool, option: str) -> None:

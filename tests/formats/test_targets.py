@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 from simreel.errors import UsageError
-from simreel.formats.targets import check_distinct, check_output, write_text_atomic
+from simreel.formats.targets import check_distinct, check_output, staged_output, write_text_atomic
 
 
 @pytest.mark.parametrize(
@@ -118,3 +122,41 @@ def test_a_staged_output_through_a_symbolic_link_replaces_the_linked_file_and_ke
         partial.write_text("new")
     assert link.is_symlink() and link.read_text() == "new" == real.read_text()
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["elsewhere", "link.rrd", "real.rrd"]
+
+
+_KILLED_WRITER = """
+import sys, time
+from pathlib import Path
+from simreel.formats.targets import open_text_atomic, staged_output
+out = Path(sys.argv[2])
+with staged_output(out, overwrite=False) if sys.argv[1] == "staged" else open_text_atomic(out):
+    print(*out.parent.glob(".*"), flush=True)  # its temporary file, the folder's one hidden file
+    time.sleep(120)
+"""
+
+
+@pytest.mark.parametrize(("kind", "name", "suffix"), [("staged", "out.mp4", ".partial.mp4"),
+                                                     ("atomic", "report.json", ".tmp")])
+def test_the_temporary_file_a_killed_run_left_is_removed_by_the_next_write_of_its_file(tmp_path, kind, name, suffix):
+    """kill -9 runs no cleanup: a run writing OUT leaves its hidden temporary file beside it. The next write of OUT on
+    this machine removes it, and keeps those of live processes, of other machines and any other file."""
+    out = tmp_path / name
+    proc = subprocess.Popen([sys.executable, "-c", _KILLED_WRITER, kind, str(out)], stdout=subprocess.PIPE, text=True)
+    left = Path(proc.stdout.readline().strip())
+    proc.kill()
+    proc.wait()
+    assert left.exists() and left.name.startswith(f".{name}.{proc.pid}@")
+    host = socket.gethostname()
+    kept = [tmp_path / f".{name}.{os.getpid()}@{host}.abcd1234{suffix}",  # a live process's (this one)
+            tmp_path / f".{name}.{proc.pid}@not-{host}.abcd1234{suffix}",  # another machine's
+            tmp_path / f".{name}.{proc.pid}@{host}.notes{suffix}",  # not a name simreel makes
+            tmp_path / f".other.{proc.pid}@{host}.abcd1234{suffix}"]  # another file's
+    for path in kept:
+        path.write_text("kept")
+    if kind == "staged":
+        with staged_output(out, overwrite=False) as partial:
+            partial.write_text("new")
+    else:
+        write_text_atomic(out, "new")
+    assert out.read_text() == "new" and not left.exists()
+    assert all(path.read_text() == "kept" for path in kept)
