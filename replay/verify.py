@@ -371,9 +371,18 @@ class ReplayRun:
         f = self.worklist.files[0]
         job = self._job()
         spec = ReplayOutput(opts.output, opts.overwrite, opts.obs_mode, job.replayer_options(f.meta).pose_bodies,
-                            opts.command)
+                            opts.command, changes={"provenance": self._provenance(f.path, f.meta.provenance)})
         with published(ReplayedWriter(spec, f.meta, list(f.episodes))) as sink:
             yield sink
+
+    def _provenance(self, path: str | Path, of: dict[str, Any]) -> dict[str, Any]:
+        """What `-o` writes says of where it came from (`RecordingMeta.provenance`): the replay of `path`, its mode and
+        the tolerances that judged each episode, which `simreel view --compare` and `video --compare` judge it with
+        again; the provenance of `path` itself (`of`), if it has one, kept as ``input``."""
+        opts = self.options
+        made = {"operation": "replay", "source": str(Path(path).resolve()), "mode": opts.mode, "resync": opts.resync,
+                "tolerances": self.tolerances.to_json()}
+        return {**made, "input": of} if of else made
 
     def _collector(self, log: ReportLog | None, sink: ReplayedWriter | None,
                    progress: Progress | None) -> Callable[[EpisodeResult], None]:

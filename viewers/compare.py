@@ -10,17 +10,19 @@ time.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from simreel.compare import BlockComparison, Divergence, EpisodeComparison, Tolerances
+from simreel.compare import DEFAULT_TOLERANCES, BlockComparison, Divergence, EpisodeComparison, Tolerances
 from simreel.divergence import Explanation, describe_divergence
-from simreel.episode import ContactChannel, Episode, StepBlock
+from simreel.episode import ContactChannel, Episode, RecordingMeta, StepBlock
 from simreel.formats.base import EpisodeRows, block_rows
 
-__all__ = ["ViewComparison", "compare_for_view", "divergence_row", "explain_for_view", "DEFAULT_MODE"]
+__all__ = ["ViewComparison", "compare_for_view", "divergence_row", "explain_for_view", "judging_tolerances",
+           "DEFAULT_MODE"]
 
 DEFAULT_MODE = "actions"
 """Whose default tolerances apply: `simreel replay --mode` (actions, states or step); actions is its default."""
@@ -42,6 +44,8 @@ class ViewComparison:
     """Why fewer steps were compared than the recording has, if so."""
     recorded_steps: int | None = None
     """The recording's steps (None: `steps`); more than `steps` when the replay is shorter."""
+    judged_with: str = ""
+    """Which tolerances judged it, where they are not the ones asked for (`judging_tolerances`)."""
 
     @property
     def divergence(self) -> Divergence | None:
@@ -81,6 +85,41 @@ class ViewComparison:
 
 def _rows(episode: Episode | EpisodeRows) -> EpisodeRows:
     return EpisodeRows.of(episode) if isinstance(episode, Episode) else episode
+
+
+def judging_tolerances(mode: str | None, atol: float | None, groups: Mapping[str, float] | None,
+                       compared: RecordingMeta, recording: str | Path) -> tuple[Tolerances, str]:
+    """The tolerances that judge the file `compared` (its metadata) beside the recording at path `recording`, and
+    what they are where they are not the ones asked for ("" otherwise), for the output.
+
+    Asked for (`mode`, `atol` or `groups`): `mode`'s defaults (`DEFAULT_MODE`'s when None) with those overrides. None
+    asked for: where `compared` is a replay or a conversion of this very recording (its provenance names the same
+    file), the tolerances that judged it when it was written, so that its verdict here is that run's (a ``--mode
+    step`` replay's are far wider than actions'); else `DEFAULT_MODE`'s. `ValueError` for an unknown mode or group."""
+    if mode is None and atol is None and not groups:
+        stored = _stored_tolerances(compared, recording)
+        if stored is not None:
+            return stored
+    return Tolerances.for_mode(mode or DEFAULT_MODE, atol=atol, groups=groups), ""
+
+
+def _stored_tolerances(compared: RecordingMeta, recording: str | Path) -> tuple[Tolerances, str] | None:
+    """The tolerances `simreel replay -o` or `simreel convert` judged `compared` with, when it made it from the
+    recording at `recording` (`RecordingMeta.provenance`), and what they are; None otherwise."""
+    made = compared.provenance or {}
+    operation, stored = made.get("operation"), made.get("tolerances")
+    if operation not in ("replay", "convert") or not made.get("source") or not isinstance(stored, Mapping):
+        return None
+    if Path(made["source"]).resolve() != Path(recording).resolve():
+        return None
+    mode = made.get("mode") if operation == "replay" else None
+    try:
+        tolerances = Tolerances.for_mode(mode if mode in DEFAULT_TOLERANCES else DEFAULT_MODE, groups=stored)
+    except (TypeError, ValueError):  # a provenance this simreel cannot read: judged as any other file
+        return None
+    run = "simreel convert" if operation == "convert" else f"simreel replay --mode {mode}" + (
+        f" --resync {made['resync']}" if made.get("resync") else "")
+    return tolerances, f"judged with the tolerances `{run}` judged it with when it wrote it"
 
 
 def compare_for_view(

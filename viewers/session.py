@@ -35,6 +35,7 @@ from simreel.viewers.compare import (
     compare_for_view,
     divergence_row,
     explain_for_view,
+    judging_tolerances,
 )
 from simreel.viewers.paths import step_of_row
 from simreel.viewers.rrd_file import first_line, write_rrd
@@ -79,8 +80,10 @@ class ViewOptions:
         geometry: ``"auto"`` (visual shapes when a render device exists, else collision shapes),
             ``"visual"`` or ``"collision"``.
         mode, atol, tolerances: the comparison's tolerances, as for ``simreel replay --mode/--atol/--tol``: the
-            defaults of `mode` (``actions``, ``states`` or ``step``), `atol` for every group, then per-group
-            overrides such as ``{"pos": 1e-4}`` (see `simreel.compare.Tolerances.for_mode`).
+            defaults of `mode` (``actions``, ``states`` or ``step``; None: actions'), `atol` for every group, then
+            per-group overrides such as ``{"pos": 1e-4}`` (see `simreel.compare.Tolerances.for_mode`). With none
+            of them, a `compare` file that is a replay or a conversion of this recording is judged with the
+            tolerances that judged it when it was written (`simreel.viewers.compare.judging_tolerances`).
         block_steps: steps per block read from the files, compared and sent with `send_columns` (bounds the memory of
             observations and derived data); None: `simreel.formats.base.block_rows` of the recording (~4 MiB).
         imports: ``--import`` specs that register the task, used instead of those the recording names.
@@ -89,20 +92,21 @@ class ViewOptions:
     episode: int | None = None
     compare: Source | None = None
     geometry: str = "auto"
-    mode: str = DEFAULT_MODE
+    mode: str | None = None
     atol: float | None = None
     tolerances: dict[str, float] | None = None
     block_steps: int | None = None
     imports: tuple[str, ...] = ()
 
     def check(self) -> Tolerances:
-        """The comparison's tolerances; `UsageError` for a bad geometry source, block size or tolerance."""
+        """The tolerances asked for (`judging_tolerances` may judge with others); `UsageError` for a bad geometry
+        source, block size or tolerance."""
         if self.geometry not in GEOMETRY_SOURCES:
             raise UsageError(f"--geometry {self.geometry!r}: expected one of {', '.join(GEOMETRY_SOURCES)}")
         if self.block_steps is not None and self.block_steps < 1:
             raise UsageError(f"block_steps must be ≥ 1, got {self.block_steps}")
         try:
-            return Tolerances.for_mode(self.mode, atol=self.atol, groups=self.tolerances)
+            return Tolerances.for_mode(self.mode or DEFAULT_MODE, atol=self.atol, groups=self.tolerances)
         except ValueError as e:
             raise UsageError(str(e)) from None
 
@@ -451,7 +455,7 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
         EnvBuildError / RenderUnavailableError: the env cannot be rebuilt.
     """
     opts = dataclasses.replace(options or ViewOptions(), **overrides)
-    tolerances = opts.check()
+    opts.check()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     runs = [read_run(source, opts.episode)]
@@ -468,8 +472,11 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
     if rep_run is not None:
         with session.closed_on_error():
             channels = rec_run.meta.contact_channels
+            tolerances, judged_with = judging_tolerances(opts.mode, opts.atol, opts.tolerances, rep_run.meta,
+                                                         _source_path(source))
             session.comparison = compare_for_view(rec_run.rows, rep_run.rows, channels=channels,
                                                   tolerances=tolerances, rows=opts.block_steps)
+            session.comparison.judged_with = judged_with
             session.explanation = explain_for_view(rec_run.episode, rep_run.episode, session.comparison, channels)
     return session
 
@@ -480,8 +487,7 @@ def _session(source: Source, env: Any, opts: ViewOptions, runs: tuple[EpisodeRun
     owns = env is None
     t1 = time.perf_counter()
     if env is None:
-        path = source.path if isinstance(source, EpisodeReader) else source
-        env = rebuild_env(runs[0].meta, geometry=opts.geometry, imports=opts.imports, recording=path)
+        env = rebuild_env(runs[0].meta, geometry=opts.geometry, imports=opts.imports, recording=_source_path(source))
     timings["env_s"] = time.perf_counter() - t1
     try:
         return _prepare(env, owns, opts, runs, timings)
@@ -489,6 +495,11 @@ def _session(source: Source, env: Any, opts: ViewOptions, runs: tuple[EpisodeRun
         if owns:
             env.close()
         raise
+
+
+def _source_path(source: Source) -> str | Path:
+    """The recording's path, however it was given."""
+    return source.path if isinstance(source, EpisodeReader) else source
 
 
 def states_by_stepping(unwrapped: Any, episode: Episode) -> None:

@@ -24,14 +24,14 @@ from typing import Any
 
 import numpy as np
 
-from simreel.compare import Tolerances
+from simreel.compare import DEFAULT_TOLERANCES, Tolerances
 from simreel.episode import Episode, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.base import recover_hint
 from simreel.formats.durable import STORAGE_ERRNOS, raise_if_stopped, storage_error
 from simreel.formats.targets import check_output, staged_output
-from simreel.viewers.compare import DEFAULT_MODE, compare_for_view
+from simreel.viewers.compare import compare_for_view, judging_tolerances
 from simreel.viewers.session import states_by_stepping
 from simreel.viewers.sources import read_compare, read_run
 
@@ -53,7 +53,9 @@ class VideoOptions:
             recording.
         camera: a camera whose ``rgb`` observations the recording holds (None: render each restored state).
         fps: frames per second, a positive number (None: the recording's control frequency, else 20).
-        mode: whose default tolerances judge a replay shown with `compare` (as ``simreel view --compare``).
+        mode: whose default tolerances judge a replay shown with `compare` (as ``simreel view --compare``; None: a
+            replay or a conversion of this recording is judged with the tolerances that judged it when it was
+            written, any other file with actions', `simreel.viewers.compare.judging_tolerances`).
         overwrite: replace existing videos.
         imports: ``--import`` specs registering the task, used instead of the recorded ones (else those are found
             where `simreel.sim.user_code.resolve_task_imports` looks, beside the recording too).
@@ -64,7 +66,7 @@ class VideoOptions:
     size: tuple[int, int] = (512, 256)
     camera: str | None = None
     fps: float | None = None
-    mode: str = DEFAULT_MODE
+    mode: str | None = None
     overwrite: bool = False
     imports: tuple[str, ...] = ()
 
@@ -77,6 +79,8 @@ class VideoOptions:
                              "takes 200 MB of memory); choose a smaller size")
         if self.compare is not None and width % 4:
             raise UsageError(f"--size {width}x{height}: side by side, the width must be a multiple of 4")
+        if self.mode is not None and self.mode not in DEFAULT_TOLERANCES:
+            raise UsageError(f"--mode {self.mode!r}: expected one of {', '.join(DEFAULT_TOLERANCES)}")
         if self.fps is not None and not (math.isfinite(self.fps) and self.fps > 0):
             raise UsageError(f"--fps {self.fps:g}: frames per second must be a positive number; leave it out for the "
                              "recording's control frequency")
@@ -164,12 +168,13 @@ class VideoRun:
         at a time as they are encoded."""
         with open_reader(self.path) as r:
             left = r.open_episode(index).episode(obs=False)
-        right, conversion = None, None
+        right, conversion, tolerances = None, None, None
         if self.options.compare is not None:
             with open_reader(self.options.compare) as other:
                 right = other.open_episode(self.compared[index]).episode(obs=False)
                 conversion = _stored_conversion(other.meta, right, self.path, index)
-        labels = _labels(left, right, self.meta, self.options, conversion)
+                tolerances, _ = judging_tolerances(self.options.mode, None, None, other.meta, self.path)
+        labels = _labels(left, right, self.meta, tolerances, conversion)
         out = video_path(self.folder, self.path, index)
         count = _encode(out, self._frames(frames, left, right, labels, progress), self._fps(),
                         overwrite=self.options.overwrite)
@@ -328,11 +333,11 @@ def _stored_conversion(compare_meta: RecordingMeta, right: Episode, path: str | 
     return judged
 
 
-def _labels(left: Episode, right: Episode | None, meta: RecordingMeta, options: VideoOptions,
+def _labels(left: Episode, right: Episode | None, meta: RecordingMeta, tolerances: Tolerances | None,
             conversion: dict | None = None) -> _Labels:
     """The labels of a video of `left`, beside `right` when given: the verdict of `conversion` (the stored one of
-    `_stored_conversion`), else that of comparing the two (`ViewComparison.verdict`: a shorter `right` is
-    ``incomplete``, its frames past its end say they were not checked)."""
+    `_stored_conversion`), else that of comparing the two with `tolerances` (`ViewComparison.verdict`: a shorter
+    `right` is ``incomplete``, its frames past its end say they were not checked)."""
     labels = _Labels(left.length, success=left.success)
     if right is None:
         return labels
@@ -343,7 +348,7 @@ def _labels(left: Episode, right: Episode | None, meta: RecordingMeta, options: 
             labels.out_at = int(first["step"]) + (0 if first.get("at") == "reset" else 1)
             labels.detail = f"{first['key']} off by {first['error']:.3g} at step {first['step']}"
         return labels
-    cmp = compare_for_view(left, right, channels=meta.contact_channels, tolerances=Tolerances.for_mode(options.mode))
+    cmp = compare_for_view(left, right, channels=meta.contact_channels, tolerances=tolerances)
     labels.verdict = f"replay {cmp.verdict()}"
     if cmp.divergence is not None:
         d = cmp.divergence

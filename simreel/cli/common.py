@@ -155,12 +155,13 @@ def parse_group_tolerance(text: str, groups: list[str] | tuple[str, ...] | None 
     return group, number
 
 
-def add_tolerance_options(p: argparse.ArgumentParser, *, mode_help: str) -> None:
-    """`--mode` (a replay mode: whose default tolerances apply), `--atol X` and `--tol GROUP=X` (repeatable)."""
+def add_tolerance_options(p: argparse.ArgumentParser, *, mode_help: str, mode_default: str | None = "actions") -> None:
+    """`--mode` (a replay mode: whose default tolerances apply; `mode_default` when not given), `--atol X` and
+    `--tol GROUP=X` (repeatable)."""
     from simreel.compare import TOLERANCE_MODES
 
     modes = [m for m in TOLERANCE_MODES if m != "resync"]  # resync is `--mode actions --resync K`
-    p.add_argument("--mode", choices=modes, default="actions", help=mode_help)
+    p.add_argument("--mode", choices=modes, default=mode_default, help=mode_help)
     p.add_argument("--atol", type=parse_tolerance, default=None, metavar="X",
                    help="one absolute tolerance for every compared value (flags stay exact)")
     p.add_argument("--tol", type=parse_group_tolerance, action="append", default=[], metavar="GROUP=X",

@@ -30,8 +30,10 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--camera", default=None, metavar="NAME", help="use the recorded rgb images of this camera")
     p.add_argument("--fps", type=float, default=None,
                    help="frames per second, a positive number (default: the control frequency)")
-    p.add_argument("--mode", choices=("actions", "states", "step"), default="actions",
-                   help="whose default tolerances judge a replay given with --compare (as simreel replay --mode)")
+    p.add_argument("--mode", choices=("actions", "states", "step"), default=None,
+                   help="whose default tolerances judge a replay given with --compare (as simreel replay --mode); "
+                        "default: a replay or conversion of PATH is judged with the tolerances that judged it when "
+                        "it was written, any other file with actions'")
     p.add_argument("--overwrite", action="store_true", help="replace existing videos")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     add_import_option(p)

@@ -31,8 +31,10 @@ def add_parser(sub: Any) -> None:
                    help="episode index (default: the first in the file); see `simreel inspect PATH`")
     p.add_argument("--compare", default=None, metavar="OTHER",
                    help="a replay of the recording (`simreel replay -o OTHER`): ghost overlay + first divergence")
-    add_tolerance_options(p, mode_help="whose default tolerances judge --compare: the `simreel replay --mode` that "
-                                       "wrote it (default actions)")
+    add_tolerance_options(p, mode_default=None,
+                          mode_help="whose default tolerances judge --compare (as `simreel replay --mode`). Default, "
+                                    "with no --atol/--tol either: a replay or conversion of PATH is judged with the "
+                                    "tolerances that judged it when it was written, any other file with actions'")
     sink = p.add_mutually_exclusive_group()
     sink.add_argument("--save", default=None, metavar="OUT.rrd",
                       help="write a .rrd file (the default when no viewer can be opened: <recording>.episode<I>.rrd)")
@@ -270,6 +272,8 @@ def _print_comparison(c: Any, explanation: Any) -> None:
         return
     if c.note:
         print(f"note: {c.note}")
+    if c.judged_with:
+        print(f"note: {c.judged_with}")
     d = c.divergence
     if d is not None:
         print(d.sentence("replay diverges"))

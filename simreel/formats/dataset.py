@@ -722,6 +722,8 @@ def describe_provenance(provenance: Mapping[str, Any]) -> str:
     """One line saying what made a recording from others (`RecordingMeta.provenance`), for `simreel inspect`."""
     if provenance.get("operation") == "convert":
         return _describe_conversion(provenance)
+    if provenance.get("operation") == "replay":
+        return _describe_replay(provenance)
     inputs = provenance.get("inputs") or []
     names = ", ".join(f"{Path(i.get('path', '?')).name} ({i.get('episodes', '?')} episode(s))" for i in inputs[:5])
     names += f", ... ({len(inputs)} files)" if len(inputs) > 5 else ""
@@ -742,6 +744,14 @@ def _describe_conversion(provenance: Mapping[str, Any]) -> str:
     keep = (provenance.get("filters") or {}).get("keep")
     return (f"convert of {provenance.get('source')} (episodes {episodes}): {'; '.join(changed)}"
             + (f"; kept: {', '.join(keep)}" if keep else ""))
+
+
+def _describe_replay(provenance: Mapping[str, Any]) -> str:
+    """``replay of /data/demos.h5 (--mode step), each episode's verdict kept; the input: convert of ...``."""
+    mode = f"--mode {provenance.get('mode')}" + (f" --resync {provenance['resync']}" if provenance.get("resync") else "")
+    line = f"replay of {provenance.get('source')} ({mode}), each episode's verdict kept"
+    of = provenance.get("input")
+    return line + (f"; the input: {describe_provenance(of)}" if of else "")
 
 
 def describe_origin(origin: Mapping[str, Any]) -> str:

@@ -448,3 +448,40 @@ def test_a_shorter_replay_is_incomplete_never_exact(pickcube_h5, tmp_path, capsy
     assert main(["view", str(pickcube_h5), "--compare", str(cut), "--save", str(out), "--geometry", "collision"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert verdict in lines and not any("exact: no value" in line for line in lines), lines
+
+
+def test_view_and_video_judge_a_step_mode_replay_with_the_tolerances_that_judged_it(record, tmp_path, capsys):
+    """`replay -o` keeps the tolerances that judged each episode (its provenance), and `view --compare` and `video
+    --compare` judge the replay with them when told no others: a cube moved by 0.1 mm in one recorded state is within
+    `--mode step`'s tolerances, as replay said, where actions' (the default for any other file) call it diverged."""
+    import json
+
+    from simreel.formats import open_reader, open_writer
+
+    moved = tmp_path / "moved.h5"
+    with open_reader(record("PickCube-v1", 1, 10)) as r, open_writer(moved, r.meta) as w:
+        episode = r.read_episode(0)
+        episode.env_states["actors/cube"] = episode.env_states["actors/cube"].copy()
+        episode.env_states["actors/cube"][5, 0] += 1e-4
+        w.write_episode(episode)
+    replayed, report = tmp_path / "replayed.h5", tmp_path / "report.json"
+    assert main(["replay", str(moved), "--mode", "step", "-o", str(replayed), "--report", str(report), "-q"]) == 0
+    assert json.loads(report.read_text())["episodes"][0]["verdict"] == "within_tolerance"
+    capsys.readouterr()
+    assert main(["inspect", str(replayed)]) == 0
+    assert f"made by    replay of {moved.resolve()} (--mode step), each episode's verdict kept" in capsys.readouterr().out
+
+    view = ["view", str(moved), "--compare", str(replayed), "--geometry", "collision", "--overwrite"]
+    assert main([*view, "--save", str(tmp_path / "stored.rrd")]) == 0
+    out = capsys.readouterr().out
+    assert "note: judged with the tolerances `simreel replay --mode step` judged it with when it wrote it" in out
+    assert "replay within tolerance: no value leaves its tolerance" in out
+    assert main([*view, "--save", str(tmp_path / "actions.rrd"), "--mode", "actions"]) == 0
+    out = capsys.readouterr().out
+    assert "judged with" not in out and "replay diverges" in out and "env_states/actors/cube[p]" in out
+
+    video = ["video", str(moved), "--compare", str(replayed), "-o", str(tmp_path), "--overwrite", "-q"]
+    assert main(video) == 0
+    assert "replay within tolerance" in capsys.readouterr().out
+    assert main([*video, "--mode", "actions"]) == 0
+    assert "replay diverged" in capsys.readouterr().out
