@@ -21,7 +21,7 @@ from pathlib import Path
 
 from simreel.errors import UsageError
 from simreel.formats.lock import WriterLock, being_written
-from simreel.formats.targets import check_output, process_alive
+from simreel.formats.targets import check_output, made_by_gone_process, process_alive, process_tag
 
 __all__ = ["RecordingTarget", "side_folder", "replacement_note", "refuse_kept_recording", "staging_path",
            "is_staging_path", "stale_staging"]
@@ -159,28 +159,36 @@ class RecordingTarget:
         self.locks = []
 
 
-_STAGING_STEM = re.compile(r"\.(?P<stem>.+)\.simreel-(?P<pid>[0-9]+)")
-"""The stem of a staging name (`staging_path`): ``.OUT-STEM.simreel-PID``."""
+_STAGING_STEM = re.compile(r"\.(?P<stem>.+)\.simreel-(?P<tag>[0-9]+(@.+)?)")
+"""The stem of a staging name (`staging_path`): ``.OUT-STEM.simreel-PID@HOST`` (``.OUT-STEM.simreel-PID`` before
+simreel named the machine too)."""
 
 
 def staging_path(final: Path) -> Path:
-    """The name an output of merge or filter is written under beside `final` (``.merged.simreel-PID.h5`` for
-    ``merged.h5``) until it is checked and moved there: hidden, and this process's own, so that two commands writing
-    one OUT never share it."""
-    return final.with_name(f".{final.stem}.simreel-{os.getpid()}{final.suffix}")
+    """The name an output of merge or filter is written under beside `final` (``.merged.simreel-PID@HOST.h5`` for
+    ``merged.h5``, `process_tag`) until it is checked and moved there: hidden, and this process's own, so that two
+    commands writing one OUT never share it, on this machine or another."""
+    return final.with_name(f".{final.stem}.simreel-{process_tag()}{final.suffix}")
 
 
 def stale_staging(final: Path) -> list[Path]:
     """What commands killed before they moved their output to `final` left beside it under a staging name
     (`staging_path`): unchecked copies of their inputs, never a recording of its own. Not those a writer holds or
-    whose process lives (a command checking its output holds no writer lock), nor any of this process."""
+    whose process lives (a command checking its output holds no writer lock), nor those of another machine (its
+    run may go on: a shared folder), nor any of this process."""
     found = []
     for path in sorted(final.parent.glob(f".*.simreel-*{final.suffix}")):
         match = _STAGING_STEM.fullmatch(path.stem)
-        if (match and match["stem"] == final.stem and path.is_file() and not process_alive(int(match["pid"]))
+        if (match and match["stem"] == final.stem and path.is_file() and _left_behind(match["tag"])
                 and not being_written(path)):
             found.append(path)
     return found
+
+
+def _left_behind(tag: str) -> bool:
+    """Whether the process a staging name names is gone (`made_by_gone_process`); a name of an earlier simreel, which
+    named no machine, is judged by its PID alone, as it was then."""
+    return made_by_gone_process(tag) or (tag.isdigit() and not process_alive(int(tag)))
 
 
 def is_staging_path(path: str | os.PathLike[str]) -> bool:

@@ -22,7 +22,7 @@ from typing import IO
 from simreel.errors import UsageError
 
 __all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output",
-           "move_into_place", "process_alive", "OVERWRITE_HINT"]
+           "move_into_place", "process_alive", "process_tag", "made_by_gone_process", "OVERWRITE_HINT"]
 
 OVERWRITE_HINT = "pass --overwrite to replace it (overwrite=True from Python)"
 """How every refusal to replace a file says what to do: the CLI's option and the Python API's keyword."""
@@ -127,30 +127,32 @@ def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[
 
 def _temporary_file(path: Path, suffix: str) -> tuple[int, str]:
     """A new temporary file to write `path` through (`tempfile.mkstemp`: open, its name no other run's), beside the
-    file `path` names: ``.NAME.PID@HOST.XXXXXXXX`` + `suffix`. First the ones runs of this machine left there for the
-    same `path` and `suffix` and never removed (a kill -9 runs no cleanup) are removed: those whose process is gone."""
+    file `path` names: ``.NAME.PID@HOST.XXXXXXXX`` + `suffix` (`process_tag`). First the ones runs of this machine
+    left there for the same `path` and `suffix` and never removed (a kill -9 runs no cleanup) are removed: those
+    whose process is gone."""
     prefix, folder = f".{path.name}.", path.resolve().parent
-    mine = f"{prefix}{os.getpid()}@{socket.gethostname()}."
     for leftover in folder.glob(glob.escape(prefix) + "*@*" + glob.escape(suffix)):
-        pid = _left_by(leftover.name, prefix, suffix)
-        if pid is not None and not process_alive(pid):
+        tag, _, random = leftover.name[len(prefix):len(leftover.name) - len(suffix)].rpartition(".")
+        if len(random) == _MKSTEMP_RANDOM and made_by_gone_process(tag):
             leftover.unlink(missing_ok=True)
-    return tempfile.mkstemp(prefix=mine, suffix=suffix, dir=folder)
-
-
-def _left_by(name: str, prefix: str, suffix: str) -> int | None:
-    """The process of this machine that made temporary file `name` (`_temporary_file`), or None when another machine
-    did, or another program."""
-    pid, _, rest = name[len(prefix):len(name) - len(suffix)].partition("@")
-    host = socket.gethostname()
-    random = rest[len(host) + 1:]
-    if not pid.isdigit() or rest[:len(host) + 1] != f"{host}." or len(random) != _MKSTEMP_RANDOM or "." in random:
-        return None
-    return int(pid)
+    return tempfile.mkstemp(prefix=f"{prefix}{process_tag()}.", suffix=suffix, dir=folder)
 
 
 _MKSTEMP_RANDOM = 8
 """The characters `tempfile.mkstemp` puts between a prefix and a suffix."""
+
+
+def process_tag() -> str:
+    """``PID@HOST``: this process and machine, in the names of the files a run writes before they are whole (a
+    temporary file, a staged output), so that what a killed run left is known as such (`made_by_gone_process`)."""
+    return f"{os.getpid()}@{socket.gethostname()}"
+
+
+def made_by_gone_process(tag: str) -> bool:
+    """Whether `tag` (`process_tag`) names a process of this machine that no longer runs: what it left is garbage.
+    Never for another machine's process (it may be running: a shared folder), nor for what is no tag."""
+    pid, at, host = tag.partition("@")
+    return bool(at) and pid.isdigit() and host == socket.gethostname() and not process_alive(int(pid))
 
 
 def process_alive(pid: int) -> bool:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -142,7 +143,7 @@ def test_ctrl_c_during_the_copy_leaves_no_output_and_the_inputs_as_they_were(inp
     try:
         assert child.stdout.readline().strip() == "copying"
         staged = [p.name for p in tmp_path.iterdir() if p.name.startswith(".out.simreel-")]
-        assert f".out.simreel-{child.pid}.h5" in staged  # two episodes are in it by now
+        assert f".out.simreel-{child.pid}@{socket.gethostname()}.h5" in staged  # two episodes are in it by now
         child.send_signal(signal.SIGINT)
         _, err = child.communicate(timeout=60)
     finally:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -76,8 +77,8 @@ def test_a_recordings_identity_covers_the_sidecar_a_reader_reads(tmp_path):
 
 
 def _killed_filter(data: Path, src: Path) -> Path:
-    """The staged output (``.kept.simreel-PID.h5``) a filter of `src` into ``data/kept.h5`` leaves when it is killed
-    with two episodes written."""
+    """The staged output (``.kept.simreel-PID@HOST.h5``) a filter of `src` into ``data/kept.h5`` leaves when it is
+    killed with two episodes written."""
     support = Path(__file__).resolve().parents[1] / "support"
     child = subprocess.Popen([sys.executable, str(support / "paused_copy.py"), "filter", str(src), "-o",
                               str(data / "kept.h5"), "--episodes", "0-3"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
@@ -86,13 +87,18 @@ def _killed_filter(data: Path, src: Path) -> Path:
     finally:
         child.send_signal(signal.SIGKILL)
         child.wait(timeout=60)
-    leftover = data / f".kept.simreel-{child.pid}.h5"
+    leftover = data / f".kept.simreel-{child.pid}@{socket.gethostname()}.h5"
     assert leftover.is_file() and not (data / "kept.h5").exists()
     return leftover
 
 
+def leftover_pid(leftover: Path) -> int:
+    """The PID in the staging name of what `_killed_filter` left."""
+    return int(leftover.stem.split(".simreel-")[1].split("@")[0])
+
+
 def test_a_killed_filters_staged_output_is_skipped_by_scans_and_named_once(tmp_path, capsys):
-    """Regression: a `kill -9`'d merge or filter leaves its staged output (``.OUT.simreel-PID.h5``) beside OUT, and
+    """Regression: a `kill -9`'d merge or filter leaves its staged output (``.OUT.simreel-PID@HOST.h5``) beside OUT, and
     `simreel inspect DIR` / `replay DIR` took it for a recording. A scan skips it and says so once on stderr; named
     explicitly it is still read (to inspect what is left)."""
     data = tmp_path / "data"
@@ -125,11 +131,15 @@ def test_the_next_filter_of_the_same_output_removes_what_a_killed_one_left(tmp_p
     src = write(data / "src.h5", meta, [synthetic_episode(meta, i, 3) for i in range(4)])
     leftover = _killed_filter(data, src)
     assert leftover.with_suffix(".json").is_file()
-    other = data / ".other.simreel-1.h5"  # another output's: kept
-    other.write_bytes(leftover.read_bytes())
+    host = socket.gethostname()
     running = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
-    live = data / f".kept.simreel-{running.pid}.h5"  # a run's still checking (its writer closed): kept
-    live.write_bytes(leftover.read_bytes())
+    kept = [data / f".other.simreel-1@{host}.h5",  # another output's
+            data / f".kept.simreel-{running.pid}@{host}.h5",  # a run's still checking (its writer closed)
+            data / f".kept.simreel-{leftover_pid(leftover)}@not-{host}.h5"]  # another machine's: it may go on
+    for path in kept:
+        path.write_bytes(leftover.read_bytes())
+    legacy = data / f".kept.simreel-{leftover_pid(leftover)}.h5"  # an earlier simreel's, its process gone: removed
+    legacy.write_bytes(leftover.read_bytes())
     capsys.readouterr()
     try:
         assert main(["filter", str(src), "-o", str(data / "kept.h5"), "--episodes", "0-3", "-q"]) == 0
@@ -138,6 +148,6 @@ def test_the_next_filter_of_the_same_output_removes_what_a_killed_one_left(tmp_p
         running.wait()
     out = capsys.readouterr().out
     assert not leftover.exists() and not leftover.with_suffix(".json").exists()  # with its sidecar
-    assert other.exists() and live.exists() and (data / "kept.h5").is_file()
+    assert all(path.exists() for path in kept) and not legacy.exists() and (data / "kept.h5").is_file()
     assert f"note: removed {shown_path(leftover)}: the unchecked output of a merge or filter of kept.h5 killed " \
            "before it finished" in out
