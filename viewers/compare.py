@@ -45,7 +45,7 @@ class ViewComparison:
     recorded_steps: int | None = None
     """The recording's steps (None: `steps`); more than `steps` when the replay is shorter."""
     judged_with: str = ""
-    """Which tolerances judged it, where they are not the ones asked for (`judging_tolerances`)."""
+    """Which tolerances judged it, where they are neither those asked for nor the default (`judging_tolerances`)."""
 
     @property
     def divergence(self) -> Divergence | None:
@@ -90,7 +90,7 @@ def _rows(episode: Episode | EpisodeRows) -> EpisodeRows:
 def judging_tolerances(mode: str | None, atol: float | None, groups: Mapping[str, float] | None,
                        compared: RecordingMeta, recording: str | Path) -> tuple[Tolerances, str]:
     """The tolerances that judge the file `compared` (its metadata) beside the recording at path `recording`, and
-    what they are where they are not the ones asked for ("" otherwise), for the output.
+    what they are where they are neither those asked for nor `DEFAULT_MODE`'s ("" otherwise), for the output.
 
     Asked for (`mode`, `atol` or `groups`): `mode`'s defaults (`DEFAULT_MODE`'s when None) with those overrides. None
     asked for: where `compared` is a replay or a conversion of this very recording (its provenance names the same
@@ -117,6 +117,8 @@ def _stored_tolerances(compared: RecordingMeta, recording: str | Path) -> tuple[
         tolerances = Tolerances.for_mode(mode if mode in DEFAULT_TOLERANCES else DEFAULT_MODE, groups=stored)
     except (TypeError, ValueError):  # a provenance this simreel cannot read: judged as any other file
         return None
+    if tolerances.to_json() == Tolerances.for_mode(DEFAULT_MODE).to_json():
+        return tolerances, ""
     run = "simreel convert" if operation == "convert" else f"simreel replay --mode {mode}" + (
         f" --resync {made['resync']}" if made.get("resync") else "")
     return tolerances, f"judged with the tolerances `{run}` judged it with when it wrote it"

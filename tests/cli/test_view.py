@@ -454,9 +454,12 @@ def test_view_and_video_judge_a_step_mode_replay_with_the_tolerances_that_judged
     """`replay -o` keeps the tolerances that judged each episode (its provenance), and `view --compare` and `video
     --compare` judge the replay with them when told no others: a cube moved by 0.1 mm in one recorded state is within
     `--mode step`'s tolerances, as replay said, where actions' (the default for any other file) call it diverged."""
+    import dataclasses
     import json
 
+    from simreel.compare import Tolerances
     from simreel.formats import open_reader, open_writer
+    from simreel.viewers.compare import judging_tolerances
 
     moved = tmp_path / "moved.h5"
     with open_reader(record("PickCube-v1", 1, 10)) as r, open_writer(moved, r.meta) as w:
@@ -479,6 +482,13 @@ def test_view_and_video_judge_a_step_mode_replay_with_the_tolerances_that_judged
     assert main([*view, "--save", str(tmp_path / "actions.rrd"), "--mode", "actions"]) == 0
     out = capsys.readouterr().out
     assert "judged with" not in out and "replay diverges" in out and "env_states/actors/cube[p]" in out
+
+    with open_reader(replayed) as r:  # a replay judged with the default tolerances gets no note: nothing to say
+        stored = r.meta.provenance
+        as_actions = dataclasses.replace(r.meta, provenance={**stored, "mode": "actions",
+                                                             "tolerances": Tolerances.for_mode("actions").to_json()})
+    assert judging_tolerances(None, None, None, as_actions, moved)[1] == ""
+    assert judging_tolerances(None, None, None, r.meta, moved)[0].to_json() == stored["tolerances"]
 
     video = ["video", str(moved), "--compare", str(replayed), "-o", str(tmp_path), "--overwrite", "-q"]
     assert main(video) == 0
