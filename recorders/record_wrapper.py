@@ -467,18 +467,19 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         block = None if sink is None else self._take(i)
         if block is not None:
             sink.append(block)
+            self._sent[i], self._success[i], self._ever_success[i] = self._with_block(i, block)
 
     def _take(self, i: int) -> StepBlock | None:
-        """Env i's buffered steps (None: none), counted as sent to its episode's sink, noting whether the episode has
-        succeeded; the caller hands them over."""
-        if not self._buffer.pending(i):
-            return None
-        block = self._buffer.take(i, defer=self._defer)
+        """Env i's buffered steps not yet handed to its episode's sink (None: none); the caller hands them over."""
+        return self._buffer.take(i, defer=self._defer) if self._buffer.pending(i) else None
+
+    def _with_block(self, i: int, block: StepBlock | None) -> tuple[int, bool, bool]:
+        """Env i's episode as it stands with `block` handed over too: (its length, whether its last step succeeded,
+        whether any did). Noted once the sink has taken the block: one it refused is not in the file."""
+        if block is None:
+            return self._sent[i], bool(self._success[i]), bool(self._ever_success[i])
         success = self._success_rows(block)
-        self._success[i] = success[-1]
-        self._ever_success[i] |= success.any()
-        self._sent[i] += block.rows
-        return block
+        return self._sent[i] + block.rows, bool(success[-1]), bool(self._ever_success[i] or success.any())
 
     def _success_rows(self, block: StepBlock) -> np.ndarray:
         """The success flags of `block`'s steps, also where they are still captured (`StepBuffer.take`)."""
@@ -489,23 +490,26 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _finish(self, i: int) -> None:
         """End env i's episode: commit it with the steps it has (discard it with none). Signals are held throughout,
-        so an ended episode is always committed or discarded, never left to neither."""
+        so an ended episode is always committed or discarded, never left to neither. Where the sink refuses the last
+        steps (a block that breaks the layout: the error goes on), the episode stays running without them, and `stop`
+        or `close` commits it with the steps handed over before."""
         with deferred_signals():
             sink, meta = self._sinks[i], self._episodes[i]
             if sink is None:
                 return
             last = self._take(i)
+            meta.length, success, ever_success = self._with_block(i, last)
+            if self._has_success:
+                meta.success, meta.ever_success = success, ever_success
+            if meta.length:
+                sink.finish(meta, last)
+                self._chain_ran[i] += 1
             self._sinks[i] = None
             self._episodes[i] = None
             self._open -= 1
-            meta.length = self._sent[i]
-            if self._has_success:
-                meta.success, meta.ever_success = bool(self._success[i]), bool(self._ever_success[i])
-            if meta.length == 0:
+            self._sent[i] = meta.length
+            if not meta.length:
                 sink.discard()
-                return
-            sink.finish(meta, last)
-            self._chain_ran[i] += 1
 
 
 def what_stopped(error: BaseException) -> str:

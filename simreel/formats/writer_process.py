@@ -333,18 +333,21 @@ class _ProcessSink:
 
     def finish(self, meta: EpisodeMeta, last: StepBlock | None = None) -> None:
         """`EpisodeSink.finish`, as one message: the episode's last block and its commit."""
-        self._writer._committing[meta.index] = meta  # first: a Ctrl-C held during the send is raised right after it
-        self._send("finish", last, meta)
+        self._send("finish", last, meta, committing=meta)
 
-    def _send(self, op: str, block: StepBlock | None, *args: Any) -> None:
-        """Send `op` for this episode with `block` (checked against the field table here) and `args`."""
-        parts = None if block is None else self._writer.block_parts(block, self._index)
+    def _send(self, op: str, block: StepBlock | None, *args: Any, committing: EpisodeMeta | None = None) -> None:
+        """Send `op` for this episode with `block` (checked against the field table here) and `args`; `committing`:
+        the episode this commits, noted as sent before the send (a Ctrl-C held during it is raised right after it).
+        A block whose captures, or their row sources, do not pickle is converted here and sent as arrays."""
         try:
+            parts = None if block is None else self._writer.block_parts(block, self._index)
+            if committing is not None:
+                self._writer._committing[committing.index] = committing
             self._writer._send((op, self._index, parts, *args))
-        except (pickle.PicklingError, TypeError, AttributeError):  # a capture that does not pickle; nothing sent
+        except (pickle.PicklingError, TypeError, AttributeError):  # nothing of this block was sent
             if block is None or not block.captured:
                 raise
-            self._send(op, block.converted(), *args)
+            self._send(op, block.converted(), *args, committing=committing)
 
     def discard(self) -> None:
         if not isinstance(self._writer._failed, _Gone):  # a child that is gone keeps nothing of it anyway

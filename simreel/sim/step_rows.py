@@ -4,7 +4,9 @@ A recorder copies each step's numbers out as plain Python objects right after th
 call costs several times its usual price) and converts a block of steps at once, later
 (`simreel.recorders.step_buffer`). These classes do the converting. They hold only numbers and names, so they
 pickle: a recorder whose writer runs in a child process sends a block's captures with their sources, and the child
-converts them while the env goes on (`simreel.episode.StepBlock.captured`).
+converts them while the env goes on (`simreel.episode.StepBlock.captured`). The child keeps each source it was sent
+and is sent only its number after (`simreel.formats.writer_process.ProcessWriter`), so a source never changes once a
+block has used it.
 
 Each is called with the captures of k steps, in step order, and returns each of its fields (`names`) as a
 (k, num_envs, ...) array:

@@ -467,3 +467,29 @@ def test_row_sources_travel_once_and_a_full_table_forgets_the_least_used_without
         rec.close()
     assert len(learned) == len(set(learned)) == 3 + 4  # scalars, contacts, actions once; one state source per scene
     _assert_same_recordings(tmp_path / "True.h5", tmp_path / "False.h5", 4)
+
+
+def test_a_row_source_that_does_not_pickle_falls_back_to_converting_here(tmp_path):
+    """A row source is sent to the writer process once, before the first block that uses it; one that does not
+    pickle (a user's subclass holding a lock) must not stop the recording either: its block is converted here."""
+    from simreel.episode import StepBlock
+    from simreel.sim.step_rows import ScalarRows
+
+    class Locked(ScalarRows):
+        def __init__(self, *args):
+            super().__init__(*args)
+            self.lock = threading.Lock()
+
+    meta = synthetic_meta(poses=False)
+    episode = synthetic_episode(meta, 0, 4)
+    source = Locked(1, ["success", "fail", "is_grasped", "elapsed_steps"],
+                    [(n, n.removeprefix("info/"), d) for n, d in (("success", bool), ("fail", bool),
+                                                                 ("info/is_grasped", bool), ("info/elapsed_steps", np.int32))])
+    captures = [[[0.5 * t], [False], [t == 3], [t > 1], [False], [True], [t + 1]] for t in range(4)]
+    plain = {name: a for name, a in episode.steps_block().arrays.items() if name not in source.names}
+    w = ProcessWriter(tmp_path / "r.h5").open(meta)
+    sink = w.begin_episode(episode.meta, episode.reset_block())
+    sink.finish(episode.meta, StepBlock(plain, 4, ((source, captures, 0),)))
+    w.close()
+    with open_reader(tmp_path / "r.h5") as r:
+        assert r.read_episode(0).info["elapsed_steps"].tolist() == [1, 2, 3, 4]

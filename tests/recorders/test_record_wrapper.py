@@ -486,3 +486,38 @@ def test_stop_keeps_the_old_file_and_notes_only_the_episode_it_cut(tmp_path, suf
     rec.stop("a test")  # the episode ended at its last step: nothing is noted
     with open_reader(tmp_path / f"r{suffix}.partial" / f"r{suffix}") as r:
         assert [(m.length, m.notes) for m in r.episodes] == [(50, [])]
+
+
+def _refusing(rec: RecordWrapper):
+    """Make the next block the recorder takes break the layout (a field the recording does not list), so the sink
+    refuses it, as it refuses any block that does not fit (`StepBlock.conform`); returns what undoes it."""
+    buffer = rec._buffer
+    buffer._arrays["bogus"] = np.zeros((buffer.capacity, rec.unwrapped.num_envs), np.float32)
+    return lambda: buffer._arrays.pop("bogus")
+
+
+@pytest.mark.parametrize("writer_process", [False, True])
+def test_steps_the_sink_refuses_are_not_counted_and_an_episode_whose_end_is_refused_is_committed_by_stop(
+        tmp_path, writer_process):
+    """Regression: the steps of a refused block were counted in the episode's length before the sink took them (the
+    file then said 5 steps and held 3), and a refused last block left its episode neither committed nor discarded."""
+    from simreel.errors import EpisodeLayoutError
+
+    for where in ("a block", "the last block"):
+        path = tmp_path / f"{writer_process}-{where}.h5"
+        rec = RecordWrapper(make_env("PickCube-v1"), path, writer_process=writer_process)
+        rec.reset(seed=0)
+        for k in range(5):
+            rec.step(np.zeros(rec.action_space.shape, np.float32))
+            if k == 2:
+                rec._flush(0)  # steps 0-2 handed over
+        undo = _refusing(rec)
+        with pytest.raises(EpisodeLayoutError, match="bogus not in the recording's layout"):
+            rec._flush(0) if where == "a block" else rec.reset(seed=1)  # steps 3-4 refused
+        undo()
+        rec.stop("an error (test)")
+        with open_reader(path) as r:
+            assert [m.index for m in r.episodes] == [0] and r.damaged == [], where
+            episode = r.read_episode(0)
+            assert episode.length == len(episode.actions) == 3, where
+            assert "cut short" in " ".join(episode.meta.notes), where
