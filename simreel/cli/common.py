@@ -29,8 +29,11 @@ def progress_bar(items: Iterable[Any] | None = None, *, quiet: bool, **options: 
         return tqdm(items, disable=True, **options)
     if sys.stderr.isatty():
         return tqdm(items, file=sys.stderr, **options)
-    return tqdm(items, file=_LogLines(sys.stderr), ascii=True, delay=LOG_LINE_SECONDS, mininterval=LOG_LINE_SECONDS,
-                miniters=1, **options)
+    lines = _LogLines(sys.stderr)
+    bar = tqdm(items, file=lines, ascii=True, delay=LOG_LINE_SECONDS, mininterval=LOG_LINE_SECONDS, miniters=1,
+               **options)
+    lines.bar = bar
+    return bar
 
 
 class _LogLines:
@@ -39,13 +42,15 @@ class _LogLines:
 
     def __init__(self, stream: Any) -> None:
         self._stream = stream
-        self._count = ""
-        """The last line's text before its times ("record PickCube-v1:  40%|####      | 4/10")."""
+        self.bar: Any = None
+        """The bar drawing here (its count tells a new line from the closing one); None while it is made."""
+        self._count: float | None = None
+        """The count of the last line written."""
 
     def write(self, text: str) -> None:
+        count = None if self.bar is None else self.bar.n
         for line in text.replace("\r", "\n").split("\n"):
-            count = line.split("[")[0].rstrip()
-            if count and count != self._count:
+            if line.strip() and (count is None or count != self._count):
                 self._stream.write(line.rstrip() + "\n")
                 self._count = count
 

@@ -40,3 +40,18 @@ def test_tolerance_parsing():
     assert parse_tolerance("1e-3") == 1e-3
     with pytest.raises(argparse.ArgumentTypeError, match="must be a finite number >= 0, got inf"):
         parse_tolerance("inf")
+
+
+def test_a_progress_line_off_a_terminal_counts_on_whatever_its_label_holds(capsys, monkeypatch):
+    """Regression: off a terminal a line was told from the closing one by its text before the first "[", which a
+    label holding a file name like run[2].h5 never changes: every line after the first was dropped."""
+    import re
+
+    import simreel.cli.common as common
+
+    monkeypatch.setattr(common, "LOG_LINE_SECONDS", 0.0)
+    for _ in common.progress_bar(range(3), quiet=False, desc="convert run[2].h5", unit="ep"):
+        pass
+    lines = capsys.readouterr().err.splitlines()
+    assert [re.search(r"\| (\d)/3 \[", line).group(1) for line in lines] == ["0", "1", "2", "3"], lines
+    assert all(line.startswith("convert run[2].h5: ") for line in lines)
