@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import glob
+import hashlib
 import os
 import socket
 import tempfile
@@ -130,16 +131,28 @@ def _temporary_file(path: Path, suffix: str) -> tuple[int, str]:
     file `path` names: ``.NAME.PID@HOST.XXXXXXXX`` + `suffix` (`process_tag`). First the ones runs of this machine
     left there for the same `path` and `suffix` and never removed (a kill -9 runs no cleanup) are removed: those
     whose process is gone."""
-    prefix, folder = f".{path.name}.", path.resolve().parent
+    prefix, folder = f".{_short(path.name)}.", path.resolve().parent
     for leftover in folder.glob(glob.escape(prefix) + "*@*" + glob.escape(suffix)):
         tag, _, random = leftover.name[len(prefix):len(leftover.name) - len(suffix)].rpartition(".")
         if len(random) == _MKSTEMP_RANDOM and made_by_gone_process(tag):
-            leftover.unlink(missing_ok=True)
+            with contextlib.suppress(OSError):  # another user's, in a shared folder: theirs to remove
+                leftover.unlink(missing_ok=True)
     return tempfile.mkstemp(prefix=f"{prefix}{process_tag()}.", suffix=suffix, dir=folder)
 
 
 _MKSTEMP_RANDOM = 8
 """The characters `tempfile.mkstemp` puts between a prefix and a suffix."""
+_NAME_KEPT = 100
+"""A file name up to this long stays whole in its temporary file's name; a longer one is cut (`_short`)."""
+
+
+def _short(name: str) -> str:
+    """`name`, or where it is longer than `_NAME_KEPT`, its start and a digest of it: with the process tag and the
+    rest, a temporary file's name stays under the file system's 255 bytes."""
+    if len(name.encode()) <= _NAME_KEPT:
+        return name
+    digest = hashlib.sha1(name.encode()).hexdigest()[:12]
+    return f"{name.encode()[:_NAME_KEPT - 13].decode(errors='ignore')}~{digest}"
 
 
 def process_tag() -> str:

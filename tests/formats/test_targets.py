@@ -160,3 +160,16 @@ def test_the_temporary_file_a_killed_run_left_is_removed_by_the_next_write_of_it
         write_text_atomic(out, "new")
     assert out.read_text() == "new" and not left.exists()
     assert all(path.read_text() == "kept" for path in kept)
+
+
+@pytest.mark.parametrize("kind", ["staged", "atomic"])
+def test_a_file_of_a_long_name_is_written_through_a_temporary_name_the_file_system_takes(tmp_path, kind):
+    """The process tag makes a temporary file's name longer than its file's: a 240-byte name (of 255 allowed) is cut
+    and digested there, so it is written as any other."""
+    out = tmp_path / ("r" * 235 + ".json")
+    if kind == "staged":
+        with staged_output(out, overwrite=False) as partial:
+            partial.write_text("whole")
+    else:
+        write_text_atomic(out, "whole")
+    assert out.read_text() == "whole" and [p.name for p in tmp_path.iterdir()] == [out.name]
