@@ -686,7 +686,8 @@ class ConversionRun:
 
     def _provenance(self) -> dict[str, Any]:
         opts = self.options
-        return {"operation": "convert", "source": str(Path(self.path).resolve()), "source_kind": self.reader.kind,
+        return {"operation": "convert", "source": str(Path(self.path).resolve()),
+                "source_recording_id": self.reader.meta.recording_id, "source_kind": self.reader.kind,
                 "source_episodes": list(self.indices), "conversion": self._conversion(),
                 "tolerances": self.tolerances.to_json(), "filters": {"episodes": opts.episodes, "count": opts.count,
                                                                      "keep": list(opts.keep)}}

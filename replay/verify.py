@@ -30,6 +30,7 @@ from typing import Any
 
 from simreel import __version__
 from simreel.compare import Tolerances
+from simreel.episode import RecordingMeta
 from simreel.errors import FileProblemError, ReplayError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, recording_files
 from simreel.formats.durable import is_storage_error, raise_if_stopped, storage_error
@@ -371,18 +372,18 @@ class ReplayRun:
         f = self.worklist.files[0]
         job = self._job()
         spec = ReplayOutput(opts.output, opts.overwrite, opts.obs_mode, job.replayer_options(f.meta).pose_bodies,
-                            opts.command, changes={"provenance": self._provenance(f.path, f.meta.provenance)})
+                            opts.command, changes={"provenance": self._provenance(f.path, f.meta)})
         with published(ReplayedWriter(spec, f.meta, list(f.episodes))) as sink:
             yield sink
 
-    def _provenance(self, path: str | Path, of: dict[str, Any]) -> dict[str, Any]:
-        """What `-o` writes says of where it came from (`RecordingMeta.provenance`): the replay of `path`, its mode and
-        the tolerances that judged each episode, which `simreel view --compare` and `video --compare` judge it with
-        again; the provenance of `path` itself (`of`), if it has one, kept as ``input``."""
+    def _provenance(self, path: str | Path, meta: RecordingMeta) -> dict[str, Any]:
+        """What `-o` writes says of where it came from (`RecordingMeta.provenance`): the replay of the recording
+        `meta` at `path`, its mode and the tolerances that judged each episode, which `simreel view --compare` and
+        `video --compare` judge it with again; that recording's own provenance, if it has one, kept as ``input``."""
         opts = self.options
-        made = {"operation": "replay", "source": str(Path(path).resolve()), "mode": opts.mode, "resync": opts.resync,
-                "tolerances": self.tolerances.to_json()}
-        return {**made, "input": of} if of else made
+        made = {"operation": "replay", "source": str(Path(path).resolve()), "source_recording_id": meta.recording_id,
+                "mode": opts.mode, "resync": opts.resync, "tolerances": self.tolerances.to_json()}
+        return {**made, "input": meta.provenance} if meta.provenance else made
 
     def _collector(self, log: ReportLog | None, sink: ReplayedWriter | None,
                    progress: Progress | None) -> Callable[[EpisodeResult], None]:

@@ -128,6 +128,12 @@ class Tolerances:
     def to_json(self) -> dict[str, float]:
         return {g: float(v) for g, v in self.values.items()}
 
+    def overrides(self, mode: str) -> str:
+        """The groups whose tolerance is not `mode`'s default, as ``pos 1e-4, quat 0.1`` ("" when none is): what a
+        run given ``--atol``/``--tol`` changed, for the messages that name its tolerances."""
+        defaults = DEFAULT_TOLERANCES[mode]
+        return ", ".join(f"{g} {format_number(v)}" for g, v in self.values.items() if defaults.get(g) != v)
+
 
 @dataclass(frozen=True)
 class Component:

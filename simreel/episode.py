@@ -204,8 +204,11 @@ class RecordingMeta:
     "episodes", "versions", "created_utc", "command", "source", "provenance"}, ...], "criteria": {...}, "part": "kept"
     | "rest"}`` (`simreel.formats.dataset`; size and mtime as `simreel.formats.inputs.file_identity` says); ``"convert"`` (``simreel convert`` to a new observation or control
     mode): ``{"operation", "source": path, "source_kind", "source_episodes", "conversion": {what changed, how it
-    was checked}, "tolerances", "filters"}``, each episode's own verdict in `EpisodeMeta.provenance`. Unlike
-    `source`, which says where a file simreel did not record came from."""
+    was checked}, "tolerances", "filters", "source_recording_id"}``, each episode's own verdict in
+    `EpisodeMeta.provenance`; ``"replay"`` (``simreel replay -o``): ``{"operation", "source": path,
+    "source_recording_id", "mode", "resync", "tolerances", "input": the source's own provenance, if any}``, each
+    episode's verdict in `EpisodeMeta.verification`. Unlike `source`, which says where a file simreel did not record
+    came from."""
 
     @property
     def control_period(self) -> float | None:

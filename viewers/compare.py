@@ -13,16 +13,18 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from simreel.compare import DEFAULT_TOLERANCES, BlockComparison, Divergence, EpisodeComparison, Tolerances
+from simreel.compare import BlockComparison, Divergence, EpisodeComparison, Tolerances
 from simreel.divergence import Explanation, describe_divergence
 from simreel.episode import ContactChannel, Episode, RecordingMeta, StepBlock
 from simreel.formats.base import EpisodeRows, block_rows
+from simreel.formats.dataset import provenance_tolerances
 
 __all__ = ["ViewComparison", "compare_for_view", "divergence_row", "explain_for_view", "judging_tolerances",
-           "DEFAULT_MODE"]
+           "made_from", "DEFAULT_MODE"]
 
 DEFAULT_MODE = "actions"
 """Whose default tolerances apply: `simreel replay --mode` (actions, states or step); actions is its default."""
@@ -87,41 +89,42 @@ def _rows(episode: Episode | EpisodeRows) -> EpisodeRows:
     return EpisodeRows.of(episode) if isinstance(episode, Episode) else episode
 
 
-def judging_tolerances(mode: str | None, atol: float | None, groups: Mapping[str, float] | None,
-                       compared: RecordingMeta, recording: str | Path) -> tuple[Tolerances, str]:
-    """The tolerances that judge the file `compared` (its metadata) beside the recording at path `recording`, and
-    what they are where they are neither those asked for nor `DEFAULT_MODE`'s ("" otherwise), for the output.
+def judging_tolerances(asked: Tolerances | None, compared: RecordingMeta, recording: RecordingMeta,
+                       path: str | Path) -> tuple[Tolerances, str]:
+    """The tolerances that judge the file `compared` (its metadata) beside the recording `recording` at `path`, and
+    a note saying what they are where that is not plain ("" otherwise), for the output.
 
-    Asked for (`mode`, `atol` or `groups`): `mode`'s defaults (`DEFAULT_MODE`'s when None) with those overrides. None
-    asked for: where `compared` is a replay or a conversion of this very recording (its provenance names the same
-    file), the tolerances that judged it when it was written, so that its verdict here is that run's (a ``--mode
-    step`` replay's are far wider than actions'); else `DEFAULT_MODE`'s. `ValueError` for an unknown mode or group."""
-    if mode is None and atol is None and not groups:
-        stored = _stored_tolerances(compared, recording)
-        if stored is not None:
-            return stored
-    return Tolerances.for_mode(mode or DEFAULT_MODE, atol=atol, groups=groups), ""
-
-
-def _stored_tolerances(compared: RecordingMeta, recording: str | Path) -> tuple[Tolerances, str] | None:
-    """The tolerances `simreel replay -o` or `simreel convert` judged `compared` with, when it made it from the
-    recording at `recording` (`RecordingMeta.provenance`), and what they are; None otherwise."""
+    Those `asked` for (``--mode/--atol/--tol``) where some were. None asked for: where `compared` is a replay or a
+    conversion of this very recording (`made_from`), the tolerances that judged it when it was written, so that its
+    verdict here is that run's (a ``--mode step`` replay's are far wider than actions'); else `DEFAULT_MODE`'s."""
+    if asked is not None:
+        return asked, ""
     made = compared.provenance or {}
-    operation, stored = made.get("operation"), made.get("tolerances")
-    if operation not in ("replay", "convert") or not made.get("source") or not isinstance(stored, Mapping):
-        return None
-    if Path(made["source"]).resolve() != Path(recording).resolve():
-        return None
-    mode = made.get("mode") if operation == "replay" else None
-    try:
-        tolerances = Tolerances.for_mode(mode if mode in DEFAULT_TOLERANCES else DEFAULT_MODE, groups=stored)
-    except (TypeError, ValueError):  # a provenance this simreel cannot read: judged as any other file
-        return None
-    if tolerances.to_json() == Tolerances.for_mode(DEFAULT_MODE).to_json():
+    operation = made.get("operation")
+    defaults = Tolerances.for_mode(DEFAULT_MODE)
+    if operation not in ("replay", "convert") or not made.get("source"):
+        return defaults, ""
+    if not made_from(made, recording, path):
+        return defaults, (f"the compared file is a {operation} of another recording ({made['source']}): judged with "
+                          f"the default tolerances (--mode {DEFAULT_MODE})")
+    stored = provenance_tolerances(made)
+    if stored is None:
+        return defaults, ""
+    tolerances, run, base = stored
+    if tolerances.to_json() == defaults.to_json():
         return tolerances, ""
-    run = "simreel convert" if operation == "convert" else f"simreel replay --mode {mode}" + (
-        f" --resync {made['resync']}" if made.get("resync") else "")
-    return tolerances, f"judged with the tolerances `{run}` judged it with when it wrote it"
+    changed = tolerances.overrides(base)
+    return tolerances, (f"judged with the tolerances `{run}` judged it with when it wrote it"
+                        + (f" ({changed} instead of its defaults)" if changed else ""))
+
+
+def made_from(made: Mapping[str, Any], recording: RecordingMeta, path: str | Path) -> bool:
+    """Whether the provenance `made` (of a replay or a conversion) names the recording `recording` at `path` as its
+    source: by its `RecordingMeta.recording_id` where both have one (a moved file is the same recording, a new one at
+    the same path is not), else by the resolved path."""
+    if made.get("source_recording_id") and recording.recording_id:
+        return made["source_recording_id"] == recording.recording_id
+    return Path(made["source"]).resolve() == Path(path).resolve()
 
 
 def compare_for_view(

@@ -98,13 +98,15 @@ class ViewOptions:
     block_steps: int | None = None
     imports: tuple[str, ...] = ()
 
-    def check(self) -> Tolerances:
-        """The tolerances asked for (`judging_tolerances` may judge with others); `UsageError` for a bad geometry
-        source, block size or tolerance."""
+    def check(self) -> Tolerances | None:
+        """The tolerances asked for (None: none were; `judging_tolerances` then chooses); `UsageError` for a bad
+        geometry source, block size or tolerance."""
         if self.geometry not in GEOMETRY_SOURCES:
             raise UsageError(f"--geometry {self.geometry!r}: expected one of {', '.join(GEOMETRY_SOURCES)}")
         if self.block_steps is not None and self.block_steps < 1:
             raise UsageError(f"block_steps must be ≥ 1, got {self.block_steps}")
+        if self.mode is None and self.atol is None and not self.tolerances:
+            return None
         try:
             return Tolerances.for_mode(self.mode or DEFAULT_MODE, atol=self.atol, groups=self.tolerances)
         except ValueError as e:
@@ -455,7 +457,7 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
         EnvBuildError / RenderUnavailableError: the env cannot be rebuilt.
     """
     opts = dataclasses.replace(options or ViewOptions(), **overrides)
-    opts.check()
+    asked = opts.check()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     runs = [read_run(source, opts.episode)]
@@ -472,8 +474,7 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
     if rep_run is not None:
         with session.closed_on_error():
             channels = rec_run.meta.contact_channels
-            tolerances, judged_with = judging_tolerances(opts.mode, opts.atol, opts.tolerances, rep_run.meta,
-                                                         _source_path(source))
+            tolerances, judged_with = judging_tolerances(asked, rep_run.meta, rec_run.meta, _source_path(source))
             session.comparison = compare_for_view(rec_run.rows, rep_run.rows, channels=channels,
                                                   tolerances=tolerances, rows=opts.block_steps)
             session.comparison.judged_with = judged_with

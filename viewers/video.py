@@ -31,7 +31,7 @@ from simreel.formats import open_reader
 from simreel.formats.base import recover_hint
 from simreel.formats.durable import STORAGE_ERRNOS, raise_if_stopped, storage_error
 from simreel.formats.targets import check_output, staged_output
-from simreel.viewers.compare import compare_for_view, judging_tolerances
+from simreel.viewers.compare import compare_for_view, judging_tolerances, made_from
 from simreel.viewers.session import states_by_stepping
 from simreel.viewers.sources import read_compare, read_run
 
@@ -124,6 +124,8 @@ class VideoRun:
         """Episode index → the index of the episode of `options.compare` drawn beside it."""
         self.written: list[EpisodeVideo] = []
         """The videos `execute` has written so far."""
+        self.notes: list[str] = []
+        """What the videos' verdicts were judged with, where that is not plain (`judging_tolerances`)."""
         if opts.camera is not None and not any(k.startswith(f"sensor_data/{opts.camera}/rgb") for k in self.meta.obs_layout):
             have = sorted({k.split("/")[1] for k in self.meta.obs_layout if k.startswith("sensor_data/")})
             raise UsageError(f"{path} holds no rgb observations of camera {opts.camera!r} (cameras: "
@@ -172,8 +174,11 @@ class VideoRun:
         if self.options.compare is not None:
             with open_reader(self.options.compare) as other:
                 right = other.open_episode(self.compared[index]).episode(obs=False)
-                conversion = _stored_conversion(other.meta, right, self.path, index)
-                tolerances, _ = judging_tolerances(self.options.mode, None, None, other.meta, self.path)
+                conversion = _stored_conversion(other.meta, right, self.meta, self.path, index)
+                asked = None if self.options.mode is None else Tolerances.for_mode(self.options.mode)
+                tolerances, note = judging_tolerances(asked, other.meta, self.meta, self.path)
+                if note and note not in self.notes:
+                    self.notes.append(note)
         labels = _labels(left, right, self.meta, tolerances, conversion)
         out = video_path(self.folder, self.path, index)
         count = _encode(out, self._frames(frames, left, right, labels, progress), self._fps(),
@@ -319,16 +324,17 @@ class _Labels:
         return self.success is not None and row >= 1 and bool(self.success[row - 1])
 
 
-def _stored_conversion(compare_meta: RecordingMeta, right: Episode, path: str | Path, index: int) -> dict | None:
+def _stored_conversion(compare_meta: RecordingMeta, right: Episode, meta: RecordingMeta, path: str | Path,
+                       index: int) -> dict | None:
     """The verdict ``simreel convert`` stored with `right` (`EpisodeMeta.provenance`), when it judged this very
-    episode: the compare file is a conversion of the recording `path` (its provenance names the same resolved file)
-    and `right` converts episode `index`. None otherwise: a conversion of another recording or episode says nothing
-    of this one, which is then compared as any other file is."""
+    episode: the compare file is a conversion of the recording `meta` at `path` (`made_from`) and `right` converts
+    episode `index`. None otherwise: a conversion of another recording or episode says nothing of this one, which is
+    then compared as any other file is."""
     judged = right.meta.provenance or {}
     made = compare_meta.provenance or {}
     if not judged.get("verdict") or made.get("operation") != "convert" or not made.get("source"):
         return None
-    if Path(made["source"]).resolve() != Path(path).resolve() or judged.get("source_episode") != index:
+    if not made_from(made, meta, path) or judged.get("source_episode") != index:
         return None
     return judged
 

@@ -57,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
     finally:  # a stop or an error: the videos written before it are named too
         for v in videos.written:
             print(f"episode {v.index}: {v.path} ({v.frames} frames{', ' + v.verdict if v.verdict else ''})")
+        for note in videos.notes:
+            print(f"note: {note}")
     damaged = videos.damage_error()
     if damaged is not None:  # never left out silently
         raise damaged

@@ -32,6 +32,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from simreel import FORMAT_VERSION
+from simreel.compare import Tolerances
 from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock, new_recording_id
 from simreel.errors import OutputCheckError, RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
@@ -747,11 +748,34 @@ def _describe_conversion(provenance: Mapping[str, Any]) -> str:
 
 
 def _describe_replay(provenance: Mapping[str, Any]) -> str:
-    """``replay of /data/demos.h5 (--mode step), each episode's verdict kept; the input: convert of ...``."""
-    mode = f"--mode {provenance.get('mode')}" + (f" --resync {provenance['resync']}" if provenance.get("resync") else "")
-    line = f"replay of {provenance.get('source')} ({mode}), each episode's verdict kept"
+    """``replay of /data/demos.h5 (simreel replay --mode step; pos 0.1 instead of its defaults), each episode's
+    verdict kept; the input: convert of ...``."""
+    judged = provenance_tolerances(provenance)
+    run = judged[1] if judged else f"simreel replay --mode {provenance.get('mode')}"
+    changed = judged[0].overrides(judged[2]) if judged else ""
+    if changed:
+        run += f"; {changed} instead of its defaults"
+    line = f"replay of {provenance.get('source')} ({run}), each episode's verdict kept"
     of = provenance.get("input")
     return line + (f"; the input: {describe_provenance(of)}" if of else "")
+
+
+def provenance_tolerances(made: Mapping[str, Any]) -> tuple[Tolerances, str, str] | None:
+    """The tolerances the replay (``simreel replay -o``) or conversion of provenance `made` judged its file with, the
+    command that did (``simreel replay --mode step``), and the mode whose defaults it started from; None where it
+    holds none this simreel can read (a control-mode conversion's tracking tolerances, another operation)."""
+    stored = made.get("tolerances")
+    if made.get("operation") == "replay":
+        mode, resync = made.get("mode"), made.get("resync")
+        base, run = ("resync" if resync else mode), f"simreel replay --mode {mode}" + (f" --resync {resync}" if resync else "")
+    elif made.get("operation") == "convert":
+        base, run = "states", "simreel convert"
+    else:
+        return None
+    try:
+        return Tolerances.for_mode(base, groups=stored), run, base
+    except (TypeError, ValueError):  # no tolerances, or not these groups
+        return None
 
 
 def describe_origin(origin: Mapping[str, Any]) -> str:

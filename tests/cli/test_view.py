@@ -452,10 +452,13 @@ def test_a_shorter_replay_is_incomplete_never_exact(pickcube_h5, tmp_path, capsy
 
 def test_view_and_video_judge_a_step_mode_replay_with_the_tolerances_that_judged_it(record, tmp_path, capsys):
     """`replay -o` keeps the tolerances that judged each episode (its provenance), and `view --compare` and `video
-    --compare` judge the replay with them when told no others: a cube moved by 0.1 mm in one recorded state is within
-    `--mode step`'s tolerances, as replay said, where actions' (the default for any other file) call it diverged."""
+    --compare` judge the replay with them when told no others, and say which: a cube moved by 0.1 mm in one recorded
+    state is within `--mode step --tol pos=0.01`'s tolerances, as replay said, where actions' (the default for any
+    other file) call it diverged. The replay is known as this recording's by its id: also once the recording is moved,
+    never of another recording at the same path."""
     import dataclasses
     import json
+    import shutil
 
     from simreel.compare import Tolerances
     from simreel.formats import open_reader, open_writer
@@ -468,30 +471,41 @@ def test_view_and_video_judge_a_step_mode_replay_with_the_tolerances_that_judged
         episode.env_states["actors/cube"][5, 0] += 1e-4
         w.write_episode(episode)
     replayed, report = tmp_path / "replayed.h5", tmp_path / "report.json"
-    assert main(["replay", str(moved), "--mode", "step", "-o", str(replayed), "--report", str(report), "-q"]) == 0
+    assert main(["replay", str(moved), "--mode", "step", "--tol", "pos=0.01", "-o", str(replayed), "--report",
+                 str(report), "-q"]) == 0
     assert json.loads(report.read_text())["episodes"][0]["verdict"] == "within_tolerance"
     capsys.readouterr()
     assert main(["inspect", str(replayed)]) == 0
-    assert f"made by    replay of {moved.resolve()} (--mode step), each episode's verdict kept" in capsys.readouterr().out
+    assert (f"made by    replay of {moved.resolve()} (simreel replay --mode step; pos 0.01 instead of its defaults), "
+            "each episode's verdict kept") in capsys.readouterr().out
 
     view = ["view", str(moved), "--compare", str(replayed), "--geometry", "collision", "--overwrite"]
     assert main([*view, "--save", str(tmp_path / "stored.rrd")]) == 0
     out = capsys.readouterr().out
-    assert "note: judged with the tolerances `simreel replay --mode step` judged it with when it wrote it" in out
+    assert ("note: judged with the tolerances `simreel replay --mode step` judged it with when it wrote it (pos 0.01 "
+            "instead of its defaults)") in out
     assert "replay within tolerance: no value leaves its tolerance" in out
     assert main([*view, "--save", str(tmp_path / "actions.rrd"), "--mode", "actions"]) == 0
     out = capsys.readouterr().out
     assert "judged with" not in out and "replay diverges" in out and "env_states/actors/cube[p]" in out
 
-    with open_reader(replayed) as r:  # a replay judged with the default tolerances gets no note: nothing to say
-        stored = r.meta.provenance
-        as_actions = dataclasses.replace(r.meta, provenance={**stored, "mode": "actions",
-                                                             "tolerances": Tolerances.for_mode("actions").to_json()})
-    assert judging_tolerances(None, None, None, as_actions, moved)[1] == ""
-    assert judging_tolerances(None, None, None, r.meta, moved)[0].to_json() == stored["tolerances"]
-
     video = ["video", str(moved), "--compare", str(replayed), "-o", str(tmp_path), "--overwrite", "-q"]
     assert main(video) == 0
-    assert "replay within tolerance" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "replay within tolerance" in out and "note: judged with the tolerances `simreel replay --mode step`" in out
     assert main([*video, "--mode", "actions"]) == 0
     assert "replay diverged" in capsys.readouterr().out
+
+    with open_reader(moved) as r, open_reader(replayed) as o:
+        recording, made = r.meta, o.meta
+    stored = made.provenance["tolerances"]
+    elsewhere = shutil.copy(moved, tmp_path / "elsewhere.h5")  # a copy keeps the recording's id
+    assert judging_tolerances(None, made, recording, elsewhere)[0].to_json() == stored
+    another = dataclasses.replace(recording, recording_id="another")  # a new recording at the same path
+    tolerances, note = judging_tolerances(None, made, another, moved)
+    assert tolerances.to_json() == Tolerances.for_mode("actions").to_json()
+    assert note == (f"the compared file is a replay of another recording ({moved.resolve()}): judged with the default "
+                    "tolerances (--mode actions)")
+    as_actions = dataclasses.replace(made, provenance={**made.provenance, "mode": "actions",
+                                                       "tolerances": Tolerances.for_mode("actions").to_json()})
+    assert judging_tolerances(None, as_actions, recording, moved)[1] == ""  # the defaults: nothing to say
