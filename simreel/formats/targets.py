@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import glob
 import hashlib
 import os
@@ -82,6 +83,7 @@ def open_text_atomic(path: str | Path) -> Iterator[IO[str]]:
     `_temporary_file`)."""
     p = Path(path)
     fd, tmp = _temporary_file(p, ".tmp")
+    held = os.dup(fd)  # keeps the file's lock (`_temporary_file`) until it is renamed, after `fh` is closed
     try:
         os.fchmod(fd, 0o666 & ~_umask())  # as open() would make it: mkstemp's 0600 hides it from other users
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
@@ -90,6 +92,8 @@ def open_text_atomic(path: str | Path) -> Iterator[IO[str]]:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    finally:
+        os.close(held)
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:
@@ -119,25 +123,39 @@ def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[
     partial = Path(name)
     try:
         os.fchmod(fd, 0o666 & ~_umask())  # as open() would make it: mkstemp's 0600 hides it from other users
-        os.close(fd)
         yield partial
         _publish(partial, real, overwrite=overwrite, option=option)
     finally:
         partial.unlink(missing_ok=True)
+        os.close(fd)  # and with it the file's lock (`_temporary_file`)
 
 
 def _temporary_file(path: Path, suffix: str) -> tuple[int, str]:
     """A new temporary file to write `path` through (`tempfile.mkstemp`: open, its name no other run's), beside the
-    file `path` names: ``.NAME.PID@HOST.XXXXXXXX`` + `suffix` (`process_tag`). First the ones runs of this machine
-    left there for the same `path` and `suffix` and never removed (a kill -9 runs no cleanup) are removed: those
-    whose process is gone."""
+    file `path` names: ``.NAME.PID@HOST.XXXXXXXX`` + `suffix` (`process_tag`), locked (`flock`) for as long as the
+    caller holds the descriptor. First the ones runs of this machine left there for the same `path` and `suffix`
+    and never removed (a kill -9 runs no cleanup) are removed: those whose process is gone and whose lock is free
+    (a PID another container reuses, which shares the host name, leaves its live file locked)."""
     prefix, folder = f".{_short(path.name)}.", path.resolve().parent
     for leftover in folder.glob(glob.escape(prefix) + "*@*" + glob.escape(suffix)):
         tag, _, random = leftover.name[len(prefix):len(leftover.name) - len(suffix)].rpartition(".")
         if len(random) == _MKSTEMP_RANDOM and made_by_gone_process(tag):
-            with contextlib.suppress(OSError):  # another user's, in a shared folder: theirs to remove
-                leftover.unlink(missing_ok=True)
-    return tempfile.mkstemp(prefix=f"{prefix}{process_tag()}.", suffix=suffix, dir=folder)
+            _remove_unlocked(leftover)
+    fd, name = tempfile.mkstemp(prefix=f"{prefix}{process_tag()}.", suffix=suffix, dir=folder)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return fd, name
+
+
+def _remove_unlocked(leftover: Path) -> None:
+    """Remove `leftover` unless a process holds its lock; nothing where it cannot be (another user's, in a shared
+    folder: theirs to remove)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(leftover, os.O_RDONLY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # BlockingIOError: a live writer holds it
+            leftover.unlink(missing_ok=True)
+        finally:
+            os.close(fd)
 
 
 _MKSTEMP_RANDOM = 8

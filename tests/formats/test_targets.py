@@ -173,3 +173,23 @@ def test_a_file_of_a_long_name_is_written_through_a_temporary_name_the_file_syst
     else:
         write_text_atomic(out, "whole")
     assert out.read_text() == "whole" and [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
+def test_a_temporary_file_whose_lock_is_held_is_kept_whatever_its_name_says(tmp_path):
+    """A process of another PID namespace (a container sharing the host name) may name a PID that is gone here: its
+    temporary file is locked while it writes, and a locked one is never removed; once free, it is."""
+    import fcntl
+
+    out = tmp_path / "out.json"
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    live = tmp_path / f".out.json.{int(gone.stdout)}@{socket.gethostname()}.abcd1234.tmp"
+    live.write_text("another container's, being written")
+    fd = os.open(live, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        write_text_atomic(out, "one")
+        assert live.exists()
+    finally:
+        os.close(fd)
+    write_text_atomic(out, "two")
+    assert not live.exists() and out.read_text() == "two"
