@@ -142,7 +142,8 @@ def _temporary_file(path: Path, suffix: str) -> tuple[int, str]:
         if len(random) == _MKSTEMP_RANDOM and made_by_gone_process(tag):
             _remove_unlocked(leftover)
     fd, name = tempfile.mkstemp(prefix=f"{prefix}{process_tag()}.", suffix=suffix, dir=folder)
-    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    with contextlib.suppress(OSError):  # a file system without locks: no leftover there is ever removed either
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     return fd, name
 
 

@@ -2,16 +2,16 @@
 checksums, HDF5's object headers: ~4 ms an HDF5 episode) runs beside the env's own reset instead of before it.
 
 The recorder keeps the writer's interface: `begin_episode` gives a sink, whose `append`, `commit`, `finish` and
-`discard` are sent to the child in order and return at once (`finish`, an episode's last block and its commit, as one
-message); each block is checked against the field table here first, so
-a bad block still fails where it is appended, but for the fields a block may bring as the recorder captured them
-(`StepBlock.captured`, one env's): the child converts those (~0.4 ms a 50-step PickCube-v1 block, off the recorder's
-time; the format's sink does it) and checks them before it writes them. Their row sources travel once each, then by
-number (`ProcessWriter._source_number`). A block whose captures do not pickle is converted here. `settle` waits until the child has done everything sent (up to the last
-`checkpoint`) and raises the error the child met first, if any (the same error, e.g. the one-line `StorageError` of a
-full disk); `committed` lists the episodes the child has reported committed. A recorder sends the episodes a reset
-ends, asks for a `checkpoint`, resets the env and settles at the end of the reset (the child's answer is waiting by
-then, not a round trip away); `close` settles too. So once `reset()` returns the episodes it ended are committed, as
+`discard` are sent to the child in order and return at once (`finish`, an episode's last block and its commit, as
+one message); each block is checked against the field table here first, so a bad block still fails where it is
+appended, but for the fields a block may bring as the recorder captured them (`StepBlock.captured`, one env's): the
+child converts those (~0.4 ms a 50-step PickCube-v1 block, off the recorder's time; the format's sink does it) and
+checks them before it writes them. Their row sources travel once each, then by number
+(`ProcessWriter._source_number`). A block whose captures or sources do not pickle is converted here. `settle` waits
+until the child has done everything sent (up to the last `checkpoint`) and raises the error the child met first, if
+any (the same error, e.g. the one-line `StorageError` of a full disk); `committed` lists the episodes the child has
+reported committed. A recorder sends the episodes a reset ends, asks for a `checkpoint`, resets the env and settles
+at the end of the reset (the child's answer is waiting by then, not a round trip away); `close` settles too. So once `reset()` returns the episodes it ended are committed, as
 with a writer in the same process. An error stops the writer for good, as it stops a writer in the recorder's process:
 the child writes nothing more and tells it at once; the next write here (or settle, or close) raises it, and every later
 write raises it again. (An error that begins the episode a reset starts, sent after the reset's checkpoint, is raised
