@@ -507,7 +507,6 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._sinks[i] = None
             self._episodes[i] = None
             self._open -= 1
-            self._sent[i] = meta.length
             if not meta.length:
                 sink.discard()
 

@@ -11,7 +11,7 @@ from typing import Any
 from simreel.errors import UsageError
 
 __all__ = ["add_env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
-           "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar",
+           "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar", "mode_choices",
            "LOG_LINE_SECONDS"]
 
 
@@ -160,13 +160,17 @@ def parse_group_tolerance(text: str, groups: list[str] | tuple[str, ...] | None 
     return group, number
 
 
+def mode_choices() -> list[str]:
+    """What `--mode` takes wherever it chooses tolerances: the replay modes (resync is `--mode actions --resync K`)."""
+    from simreel.compare import TOLERANCE_MODES
+
+    return [m for m in TOLERANCE_MODES if m != "resync"]
+
+
 def add_tolerance_options(p: argparse.ArgumentParser, *, mode_help: str, mode_default: str | None = "actions") -> None:
     """`--mode` (a replay mode: whose default tolerances apply; `mode_default` when not given), `--atol X` and
     `--tol GROUP=X` (repeatable)."""
-    from simreel.compare import TOLERANCE_MODES
-
-    modes = [m for m in TOLERANCE_MODES if m != "resync"]  # resync is `--mode actions --resync K`
-    p.add_argument("--mode", choices=modes, default=mode_default, help=mode_help)
+    p.add_argument("--mode", choices=mode_choices(), default=mode_default, help=mode_help)
     p.add_argument("--atol", type=parse_tolerance, default=None, metavar="X",
                    help="one absolute tolerance for every compared value (flags stay exact)")
     p.add_argument("--tol", type=parse_group_tolerance, action="append", default=[], metavar="GROUP=X",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from simreel.cli.common import add_import_option, parse_index_ranges, parse_size, progress_bar
+from simreel.cli.common import add_import_option, mode_choices, parse_index_ranges, parse_size, progress_bar
 from simreel.errors import UsageError
 
 __all__ = ["add_parser", "run"]
@@ -30,7 +30,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--camera", default=None, metavar="NAME", help="use the recorded rgb images of this camera")
     p.add_argument("--fps", type=float, default=None,
                    help="frames per second, a positive number (default: the control frequency)")
-    p.add_argument("--mode", choices=("actions", "states", "step"), default=None,
+    p.add_argument("--mode", choices=mode_choices(), default=None,
                    help="whose default tolerances judge a replay given with --compare (as simreel replay --mode); "
                         "default: a replay or conversion of PATH is judged with the tolerances that judged it when "
                         "it was written, any other file with actions'")

@@ -750,8 +750,7 @@ def _describe_conversion(provenance: Mapping[str, Any]) -> str:
 def _describe_replay(provenance: Mapping[str, Any]) -> str:
     """``replay of /data/demos.h5 (simreel replay --mode step; pos 0.1 instead of its defaults), each episode's
     verdict kept; the input: convert of ...``."""
-    judged = provenance_tolerances(provenance)
-    run = judged[1] if judged else f"simreel replay --mode {provenance.get('mode')}"
+    run, judged = _replay_command(provenance), provenance_tolerances(provenance)
     changed = judged[0].overrides(judged[2]) if judged else ""
     if changed:
         run += f"; {changed} instead of its defaults"
@@ -760,14 +759,20 @@ def _describe_replay(provenance: Mapping[str, Any]) -> str:
     return line + (f"; the input: {describe_provenance(of)}" if of else "")
 
 
+def _replay_command(made: Mapping[str, Any]) -> str:
+    """``simreel replay --mode actions --resync 5``: the replay of provenance `made`, its options that chose its
+    tolerances' defaults."""
+    resync = made.get("resync")
+    return f"simreel replay --mode {made.get('mode')}" + (f" --resync {resync}" if resync else "")
+
+
 def provenance_tolerances(made: Mapping[str, Any]) -> tuple[Tolerances, str, str] | None:
     """The tolerances the replay (``simreel replay -o``) or conversion of provenance `made` judged its file with, the
     command that did (``simreel replay --mode step``), and the mode whose defaults it started from; None where it
     holds none this simreel can read (a control-mode conversion's tracking tolerances, another operation)."""
     stored = made.get("tolerances")
     if made.get("operation") == "replay":
-        mode, resync = made.get("mode"), made.get("resync")
-        base, run = ("resync" if resync else mode), f"simreel replay --mode {mode}" + (f" --resync {resync}" if resync else "")
+        base, run = ("resync" if made.get("resync") else made.get("mode")), _replay_command(made)
     elif made.get("operation") == "convert":
         base, run = "states", "simreel convert"
     else:

@@ -11,10 +11,10 @@ checks them before it writes them. Their row sources travel once each, then by n
 until the child has done everything sent (up to the last `checkpoint`) and raises the error the child met first, if
 any (the same error, e.g. the one-line `StorageError` of a full disk); `committed` lists the episodes the child has
 reported committed. A recorder sends the episodes a reset ends, asks for a `checkpoint`, resets the env and settles
-at the end of the reset (the child's answer is waiting by then, not a round trip away); `close` settles too. So once `reset()` returns the episodes it ended are committed, as
-with a writer in the same process. An error stops the writer for good, as it stops a writer in the recorder's process:
-the child writes nothing more and tells it at once; the next write here (or settle, or close) raises it, and every later
-write raises it again. (An error that begins the episode a reset starts, sent after the reset's checkpoint, is raised
+at the end of the reset (the child's answer is waiting by then, not a round trip away); `close` settles too. So once
+`reset()` returns the episodes it ended are committed, as with a writer in the same process. An error stops the
+writer for good, as it stops a writer in the recorder's process: the child writes nothing more and tells it at once;
+the next write here (or settle, or close) raises it, and every later write raises it again. (An error that begins the episode a reset starts, sent after the reset's checkpoint, is raised
 by the next reset, or by a step that fills a block.)
 
 The child holds the file's locks and writes where the format's writer says, as that writer would in the recorder's
