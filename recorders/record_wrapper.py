@@ -209,11 +209,12 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obs, info = self.env.reset(seed=seed, options=options or None)
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
         state = read_state(self._u)
-        check_same_layout(self.meta.env_id, self.meta.state_layout, layout_of(state, batched=True))
+        packed = self._bind_fast_reader(state, reconfigured)
+        if packed is None:  # else `state` reads as the scene's proven reader, whose layout is the recording's
+            check_same_layout(self.meta.env_id, self.meta.state_layout, layout_of(state, batched=True))
         if reconfigured or self._sampler.px is not self._u.scene.px:
             self._bind_sampler()
-        self._bind_fast_reader(state, reconfigured)
-        reset_rows = self._per_state_rows(state, obs)
+        reset_rows, captured = self._reset_rows(state, obs, packed)
         stored_options = json.loads(json.dumps({k: v for k, v in options.items() if k != "env_idx"},
                                                default=json_default))
         if reconfigured:
@@ -224,7 +225,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             meta = EpisodeMeta(index=self._next_index, seed=seed_i, reset_options=stored_options, env_idx=i,
                                reconfigured=reconfigured, scene_seed=self._scene_seed[i],
                                scene_changes=self._scene_changes[i], chain=self._chain_of(i, reconfigured))
-            self._start(i, meta, StepBlock({k: a[i : i + 1] for k, a in reset_rows.items()}, 1))
+            self._start(i, meta, StepBlock({k: a[i : i + 1] for k, a in reset_rows.items()}, 1, captured))
         self._settle()
         return obs, info
 
@@ -420,8 +421,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             return [int(x) for x in drawn]
         return [None] * len(idxs)
 
-    def _bind_fast_reader(self, state: dict[str, np.ndarray], reconfigured: bool) -> None:
-        """Bind a fast state reader to the scene after a reset (a reconfiguring reset builds new bodies).
+    def _bind_fast_reader(self, state: dict[str, np.ndarray], reconfigured: bool) -> bytes | None:
+        """Bind a fast state reader to the scene after a reset (a reconfiguring reset builds new bodies); the reader's
+        capture of `state` where it is the scene's proven reader, kept (else None).
 
         A reader is checked bit for bit against `get_state_dict()` after the first step of an episode (`_state`; after
         a reset most velocities are zero, a weaker check), and any difference retires it. Once a scene's reader has
@@ -429,18 +431,31 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reset row just read through `get_state_dict()`): one fast read rather than one more `get_state_dict()` per
         episode. A reader that differs there is rebuilt and checked after the first step again."""
         if self._fast_refuted:
-            return
+            return None
         px = self._u.scene.px
         if reconfigured:
             self._fast_scene = None
         kept = self._fast is not None and self._fast.px is px and self._fast_scene is px
-        if kept and self._fast.equals(state):  # the scene's proven reader, checked again
+        packed = self._fast.capture_equal_to(state) if kept else None
+        if packed is not None:  # the scene's proven reader, checked again
             self._fast_unchecked = False
-            return
+            return packed
         self._fast = FastStateReader.for_env(self._u)
         self._fast_unchecked = self._fast is not None
         if self._fast is not None:
             self._state_rows = dataclasses.replace(self._fast.packed_rows, prefix="env_states/")
+        return None
+
+    def _reset_rows(self, state: dict[str, np.ndarray], obs: Any,
+                    packed: bytes | None) -> tuple[dict[str, np.ndarray], tuple[tuple[Any, list[Any], int], ...]]:
+        """The reset row of every env: (its fields, `StepBlock.captured`). Where the writer process converts captures
+        and the proven reader captured `state` (`packed`, one env), the leaves it holds go as that capture: one byte
+        string to send rather than an array per leaf."""
+        if packed is None or not self._defer:
+            return self._per_state_rows(state, obs), ()
+        held = {key for key, _, _ in self._fast.packed_rows.slices}
+        rest = {key: a for key, a in state.items() if key not in held}
+        return self._per_state_rows(rest, obs), ((self._state_rows, [packed], 0),)
 
     def _state(self) -> tuple[dict[str, np.ndarray], bytes | None]:
         """The state after a step: (state leaves read now, the packed rest for `_state_rows` or None). Through the
@@ -478,15 +493,17 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         whether any did). Noted once the sink has taken the block: one it refused is not in the file."""
         if block is None:
             return self._sent[i], bool(self._success[i]), bool(self._ever_success[i])
-        success = self._success_rows(block)
-        return self._sent[i] + block.rows, bool(success[-1]), bool(self._ever_success[i] or success.any())
+        last, any_success = self._success_flags(block)
+        return self._sent[i] + block.rows, last, bool(self._ever_success[i]) or any_success
 
-    def _success_rows(self, block: StepBlock) -> np.ndarray:
-        """The success flags of `block`'s steps, also where they are still captured (`StepBuffer.take`)."""
+    def _success_flags(self, block: StepBlock) -> tuple[bool, bool]:
+        """Whether `block`'s last step succeeded, and whether any did, also where its flags are still captured
+        (`StepBuffer.take`)."""
         for source, captures, env in block.captured:
             if source is self._scalars.rows:
-                return source.field(captures, "success")[:, env]
-        return block["success"]
+                return source.last_and_any(captures, "success", env)
+        success = block["success"]
+        return bool(success[-1]), bool(success.any())
 
     def _finish(self, i: int) -> None:
         """End env i's episode: commit it with the steps it has (discard it with none). Signals are held throughout,

@@ -127,10 +127,11 @@ class ProcessWriter:
         self._closed = True
         self._end_child()
 
-    def block_parts(self, block: StepBlock, episode: int) -> tuple[dict[str, Any], int, tuple[Any, ...]]:
-        """`block` checked against the field table, as the child rebuilds it (`_Child._block`): its arrays, rows, and
-        captures with their row sources by number (`_source_number`)."""
-        arrays = block.conform(self.fields, episode=episode)
+    def block_parts(self, block: StepBlock, episode: int,
+                    fields: list[Any] | None = None) -> tuple[dict[str, Any], int, tuple[Any, ...]]:
+        """`block` checked against the field table (`fields`: those of a reset row), as the child rebuilds it
+        (`_Child._block`): its arrays, rows, and captures with their row sources by number (`_source_number`)."""
+        arrays = block.conform(self.fields if fields is None else fields, episode=episode)
         return arrays, block.rows, tuple((self._source_number(s), held, env) for s, held, env in block.captured)
 
     def _source_number(self, source: Any) -> int:
@@ -150,8 +151,7 @@ class ProcessWriter:
         return number
 
     def begin_episode(self, meta: EpisodeMeta, reset: StepBlock) -> _ProcessSink:
-        arrays = reset.conform(self.reset_fields, episode=meta.index)
-        self._send(("begin", meta, StepBlock(arrays, reset.rows)))
+        self._send(("begin", meta, self.block_parts(reset, meta.index, self.reset_fields)))
         return _ProcessSink(self, meta.index)
 
     def checkpoint(self) -> None:
@@ -511,9 +511,9 @@ class _Child:
         if self._writer is None:
             os._exit(0)
 
-    def _begin(self, meta: EpisodeMeta, reset: StepBlock) -> None:
+    def _begin(self, meta: EpisodeMeta, parts: tuple[Any, ...]) -> None:
         def begun() -> None:
-            self._sinks[meta.index] = self._writer.begin_episode(meta, reset)
+            self._sinks[meta.index] = self._writer.begin_episode(meta, self._block(parts))
 
         self._guarded(begun)
 

@@ -155,13 +155,30 @@ class FastStateReader:
     def equals(self, state: Mapping[str, np.ndarray]) -> bool:
         """Whether `read()` equals `state` (a flat state dict read through `get_state_dict()` now), bit for bit, key
         for key."""
-        fast = self.read()
-        if list(fast) != list(state):
-            return False
-        return all(
-            fast[k].shape == state[k].shape and fast[k].dtype == state[k].dtype and np.array_equal(fast[k], state[k])
-            for k in state
-        )
+        return self.capture_equal_to(state) is not None
+
+    def capture_equal_to(self, state: Mapping[str, np.ndarray]) -> bytes | None:
+        """A `capture()` now, where it and `extras()` read as `state` (a flat state dict read through
+        `get_state_dict()` now), bit for bit, key for key; else None (also where the scene's bodies changed since
+        the reader was built). The packed leaves are compared as one byte string: one comparison, not one per leaf."""
+        packed = self.capture()
+        if packed is None:
+            return None
+        extras = self.extras()
+        slices = self.packed_rows.slices
+        if list(state) != [key for key, _, _ in slices] + list(extras):
+            return None
+        leaves = [state[key] for key, _, _ in slices]
+        if any(a.dtype != np.float32 or a.shape != (1, b - s) for a, (_, s, b) in zip(leaves, slices, strict=True)):
+            return None
+        if self.packed_rows.gather([packed]).tobytes() != np.concatenate([a.reshape(-1) for a in leaves]).tobytes():
+            return None
+        same = all(_same_bits(a, state[key]) for key, a in extras.items())
+        return packed if same else None
+
+
+def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
 
 _BODY_FLOATS = 13

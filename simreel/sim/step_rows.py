@@ -51,9 +51,13 @@ class PackedRows:
 
     def __call__(self, captures: list[bytes]) -> dict[str, np.ndarray]:
         """The leaves of `len(captures)` packed states, each (k, 1, ...) float32: one gather for all of them."""
-        joined = b"".join(part for packed in captures for part in (packed, _ZERO_F32))
-        flat = np.frombuffer(joined, np.float32).reshape(len(captures), -1)[:, self.index]
+        flat = self.gather(captures)
         return {self.prefix + key: flat[:, None, a:b] for key, a, b in self.slices}
+
+    def gather(self, captures: list[bytes]) -> np.ndarray:
+        """Every leaf's float32s of `len(captures)` packed states, in the order of `slices`: (k, index size)."""
+        joined = b"".join(part for packed in captures for part in (packed, _ZERO_F32))
+        return np.frombuffer(joined, np.float32).reshape(len(captures), -1)[:, self.index]
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,6 +156,20 @@ class ScalarRows:
         """One field taken from the info (`optional`) of `len(captures)` steps, (steps, num_envs)."""
         j, dtype = next((j, dtype) for field, j, dtype in self._optional if field == name)
         return self._optional_rows([c[j] for c in captures], dtype)
+
+    def last_and_any(self, captures: list[list[Any]], name: str, env: int) -> tuple[bool, bool]:
+        """Whether field `name` (taken from the info) is true for env `env` at the last of `len(captures)` steps, and
+        at any of them: `field`'s answer, read in Python where each step gave that env a bool (no numpy call for a
+        recorder's episode end)."""
+        j = next(j for field, j, _ in self._optional if field == name)
+        try:
+            flags = [c[j][env] for c in captures]
+        except (TypeError, IndexError, KeyError):
+            flags = []
+        if flags and set(map(type, flags)) == {bool}:
+            return flags[-1], True in flags
+        rows = self.field(captures, name)[:, env]
+        return bool(rows[-1]), bool(rows.any())
 
     def _all_numeric(self, captures: list[list[Any]]) -> np.ndarray | None:
         """Every capture as one (steps, values, num_envs) float64 array, when each value is one number per env and

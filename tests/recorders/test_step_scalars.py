@@ -105,3 +105,26 @@ def test_a_capture_holds_only_plain_numbers_and_converts_as_the_recorder_reads_s
     assert rows["success"].tolist() == scalars.rows.field(captures, "success").tolist() == [[False], [True]]
     assert rows["fail"].tolist() == [[False], [False]] and rows["info/is_grasped"].tolist() == [[True], [False]]
     assert rows["rewards"].tolist() == [[0.5], [1.0]]
+
+
+def test_the_success_flags_of_an_episode_end_are_the_ones_written():
+    """`last_and_any`, which the recorder reads as an episode ends (in Python where each step gave bools), answers as
+    the rows written do, whatever each step captured for each env."""
+    scalars = StepScalars(2, [("info/success", np.dtype(bool))])
+
+    def step(success):
+        return scalars.capture(torch.zeros(2), torch.zeros(2, dtype=torch.bool), torch.zeros(2, dtype=torch.bool),
+                               {} if success is None else {"success": success})
+
+    blocks = [
+        [step(torch.tensor([False, True])), step(torch.tensor([True, False]))],  # bools: read in Python
+        [step(torch.tensor([True, True])), step(None)],  # absent at the end: zeros
+        [step([None, 1]), step([0.5, 0])],  # not bools: read as the rows
+        [step(torch.tensor([False, False]))],
+    ]
+    for captures in blocks:
+        rows = scalars.rows(captures)["success"]
+        for env in (0, 1):
+            assert scalars.rows.last_and_any(captures, "success", env) == (bool(rows[-1, env]), bool(rows[:, env].any()))
+    assert scalars.rows.last_and_any(blocks[0], "success", 0) == (True, True)
+    assert scalars.rows.last_and_any(blocks[0], "success", 1) == (False, True)

@@ -88,3 +88,28 @@ def test_fast_state_reader_is_bit_identical_or_not_used(record, env_id, extra, f
                 assert list(got) == list(want)  # the same keys in the same order: writers store them so
                 for k in want:
                     assert got[k].dtype == want[k].dtype and np.array_equal(got[k], want[k]), k
+
+
+def test_the_fast_readers_check_is_bit_for_bit_and_hands_back_what_it_checked():
+    """Regression: the check compared values, so a reader that read 0.0 where `get_state_dict()` held -0.0 passed it
+    (the recorder then stores other bits than the env's state dict). `capture_equal_to` gives the capture it checked,
+    which a recorder stores as the reset row; any other key order, bit or extra leaf is no capture."""
+    from simreel.sim.make import make_env
+    from simreel.sim.state import FastStateReader
+
+    env = make_env("PickCube-v1", control_mode="pd_ee_target_delta_pos")  # + controller state, read as an extra
+    try:
+        env.reset(seed=0)
+        reader = FastStateReader.for_env(env.unwrapped)
+        state = flatten(env.unwrapped.get_state_dict())
+        assert reader.capture_equal_to(state) == reader.capture() and reader.equals(state)
+        velocities = state["actors/cube"].copy()
+        assert velocities[0, 7] == 0.0  # at rest after a reset
+        velocities[0, 7] = -0.0
+        assert not reader.equals({**state, "actors/cube": velocities})
+        assert reader.capture_equal_to({**state, "actors/cube": velocities}) is None
+        assert reader.capture_equal_to(dict(reversed(state.items()))) is None
+        target = state["controller/arm/target_pose"]
+        assert reader.capture_equal_to({**state, "controller/arm/target_pose": np.nextafter(target, 1)}) is None
+    finally:
+        env.close()

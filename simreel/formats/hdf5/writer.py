@@ -88,7 +88,7 @@ class _Hdf5Sink(EpisodeSink):
         self._file: Any = None
         self._pending: dict[str, list[np.ndarray]] = {}
         self._pending_bytes = 0
-        self._hold(reset.conform(writer.reset_fields, episode=meta.index))
+        self._hold(reset.converted().conform(writer.reset_fields, episode=meta.index))
         writer.episode_began(meta)
 
     def _hold(self, arrays: dict[str, np.ndarray]) -> None:

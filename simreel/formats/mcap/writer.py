@@ -144,7 +144,7 @@ class McapWriter(EpisodeWriter):
         self._check_usable()
         if meta.index in self._begun:
             raise UsageError(f"{self.path}: episode {meta.index} was already written; episode indices must be unique")
-        arrays = reset.conform(self.reset_fields, episode=meta.index)
+        arrays = reset.converted().conform(self.reset_fields, episode=meta.index)
         lane = EpisodeLane(meta.index, meta.env_idx, self._lane_next.get(meta.env_idx, 0))
         self._begun.add(meta.index)
         self._lane_next[meta.env_idx] = lane.start_ns + self._channels.step_ns  # a lane holds one running episode
