@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from simreel.episode import EpisodeMeta, StepBlock, json_default
-from simreel.errors import SimreelError, StateLayoutError, Terminated, UsageError
+from simreel.errors import EpisodeLayoutError, SimreelError, StateLayoutError, Terminated, UsageError
 from simreel.formats import format_of, open_writer, records_poses_by_default
 from simreel.formats.durable import deferred_signals
 from simreel.formats.writer_process import ProcessWriter
@@ -150,6 +150,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._sinks: list[Any] = [None] * self._n
         self._episodes: list[EpisodeMeta | None] = [None] * self._n
         self._open = 0
+        self._refused: dict[int, str] = {}
+        """Envs whose running episode stopped where the sink refused its steps (`_refuse`), with what it refused."""
         # Per-env running counts, folded into each episode's EpisodeMeta when it ends: its length is the rows handed
         # to its sink (so it always says what the file holds); its success flags are updated from each of those blocks.
         self._sent = [0] * self._n
@@ -275,8 +277,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._buffer.start[i] = self._buffer.rows
 
     def step(self, action: Any) -> Any:
-        if self._open < self._n:
+        if self._open < self._n or self._refused:
             self._check_open("step()")
+            self._check_not_refused()
             raise UsageError("RecordWrapper.step() before reset(): reset the env first so the episode has a start")
         actions = self._actions(action)
         result = self.env.step(action)
@@ -291,10 +294,39 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         buffer.push(fields, captures)
         if buffer.full:
             with deferred_signals():  # `_flush`
-                for i in range(self._n):
-                    self._flush(i)
-                buffer.rewind()
+                self._flush_all()
         return result
+
+    def _flush_all(self) -> None:
+        """Hand every env's buffered steps to its episode's sink and start the buffer over. Steps a sink refuses (a
+        block that breaks the layout) are lost and stop their episode there (`_refuse`); the first refusal is raised
+        once the other envs' steps are handed over."""
+        refusal = None
+        for i in range(self._n):
+            try:
+                self._flush(i)
+            except EpisodeLayoutError as e:
+                self._refuse(i, e)
+                refusal = refusal or e
+        self._buffer.rewind()
+        if refusal is not None:
+            raise refusal
+
+    def _refuse(self, i: int, error: EpisodeLayoutError) -> None:
+        """Stop env i's episode where its sink refused steps: a later step would leave a hole in it. It is committed
+        with the steps handed over before, and a note, when the env is reset (or the recording stopped or closed);
+        until then `step()` refuses to run (`_check_not_refused`)."""
+        self._refused[i] = f"{error}"
+        self._episodes[i].notes.append(f"cut short at step {self._sent[i]}: the writer refused the steps from there "
+                                       f"on ({error})")
+
+    def _check_not_refused(self) -> None:
+        """`UsageError` where an env's episode stopped at steps its sink refused (`_refuse`), saying how to go on."""
+        for i, error in self._refused.items():
+            reset = "reset()" if self._n == 1 else f"reset(options={{'env_idx': [{i}]}})"
+            raise UsageError(f"RecordWrapper.step(): episode {self._episodes[i].index} (env {i}) stopped at step "
+                             f"{self._sent[i]}, where the writer refused its steps ({error}); {reset} to begin the next "
+                             "episode")
 
     def _after_step(self, obs: Any) -> tuple[dict[str, np.ndarray], list[tuple[Any, Any]]]:
         """The state, observations, poses and contact forces after a step: (fields read now, what is captured now
@@ -327,6 +359,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 self._sinks[i] = None
                 self._episodes[i] = None
                 self._open -= 1
+        self._refused.clear()
         self._buffer.rewind()
 
     def close(self) -> None:
@@ -351,7 +384,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         replace an old file (`overwrite`) stays in its side folder, the old file as it was (its readers say where the
         new one is, `simreel.formats.staging`). Then the env is closed, as by `close`."""
         for i, meta in enumerate(self._episodes):
-            if meta is not None and not self._ended(i):
+            if meta is not None and not self._ended(i) and i not in self._refused:
                 meta.notes.append(f"cut short: {reason} stopped the recording before this episode ended")
         self._close(replace=False)
 
@@ -508,8 +541,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _finish(self, i: int) -> None:
         """End env i's episode: commit it with the steps it has (discard it with none). Signals are held throughout,
         so an ended episode is always committed or discarded, never left to neither. Where the sink refuses the last
-        steps (a block that breaks the layout: the error goes on), the episode stays running without them, and `stop`
-        or `close` commits it with the steps handed over before."""
+        steps (a block that breaks the layout: the error goes on), the episode stays running without them, stopped
+        there (`_refuse`), and the next reset, `stop` or `close` commits it with the steps handed over before."""
         with deferred_signals():
             sink, meta = self._sinks[i], self._episodes[i]
             if sink is None:
@@ -519,10 +552,15 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             if self._has_success:
                 meta.success, meta.ever_success = success, ever_success
             if meta.length:
-                sink.finish(meta, last)
+                try:
+                    sink.finish(meta, last)
+                except EpisodeLayoutError as e:
+                    self._refuse(i, e)
+                    raise
                 self._chain_ran[i] += 1
             self._sinks[i] = None
             self._episodes[i] = None
+            self._refused.pop(i, None)
             self._open -= 1
             if not meta.length:
                 sink.discard()

@@ -521,3 +521,39 @@ def test_steps_the_sink_refuses_are_not_counted_and_an_episode_whose_end_is_refu
             episode = r.read_episode(0)
             assert episode.length == len(episode.actions) == 3, where
             assert "cut short" in " ".join(episode.meta.notes), where
+
+
+@pytest.mark.parametrize("writer_process", [False, True])
+@pytest.mark.parametrize("where", ["a block", "the last block"])
+def test_an_episode_whose_steps_the_sink_refused_stops_there_even_for_a_caller_that_goes_on(
+        tmp_path, writer_process, where):
+    """Regression: a caller that caught the sink's refusal and stepped on got an episode with a hole (its later steps
+    appended after the refused ones, the file calling it whole); the buffer then never filled again. Now the episode
+    stops at the refused steps: step() says to reset, the reset commits the steps before them with a note, and the
+    next episode records as usual."""
+    from simreel.errors import EpisodeLayoutError
+
+    path = tmp_path / "r.h5"
+    rec = RecordWrapper(make_env("PickCube-v1"), path, writer_process=writer_process, block_steps=4)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, size=(20, *rec.action_space.shape)).astype(np.float32)
+    rec.reset(seed=0)
+    for a in actions[:7]:  # steps 0-3 handed over with the first block
+        rec.step(a)
+    undo = _refusing(rec)
+    with pytest.raises(EpisodeLayoutError, match="bogus"):  # steps 4-7, or 4-6, refused
+        rec.step(actions[7]) if where == "a block" else rec.reset(seed=1)
+    undo()
+    with pytest.raises(UsageError, match=r"episode 0 .*stopped at step 4.*reset\(\)"):
+        rec.step(actions[8])
+    rec.reset(seed=1)
+    for a in actions[9:18]:
+        rec.step(a)
+    rec.close()
+    with open_reader(path) as r:
+        first, second = r.read_episode(0), r.read_episode(1)
+    assert first.length == 4 and np.array_equal(first.actions, actions[:4])
+    assert first.meta.notes == ["cut short at step 4: the writer refused the steps from there on (episode 0: bogus "
+                                "not in the recording's layout; describe every field in the RecordingMeta "
+                                "(state_layout, obs_layout, info_layout, contact_channels, pose_bodies))"]
+    assert second.length == 9 and np.array_equal(second.actions, actions[9:18]) and second.meta.notes == []
