@@ -212,11 +212,10 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
         state = read_state(self._u)
         packed = self._bind_fast_reader(state, reconfigured)
-        if packed is None:  # else `state` reads as the scene's proven reader, whose layout is the recording's
-            check_same_layout(self.meta.env_id, self.meta.state_layout, layout_of(state, batched=True))
+        unpacked = self._check_state_layout(state, packed)
         if reconfigured or self._sampler.px is not self._u.scene.px:
             self._bind_sampler()
-        reset_rows, captured = self._reset_rows(state, obs, packed)
+        reset_rows, captured = self._reset_rows(state, unpacked, obs, packed)
         stored_options = json.loads(json.dumps({k: v for k, v in options.items() if k != "env_idx"},
                                                default=json_default))
         if reconfigured:
@@ -397,16 +396,26 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return any(bool(flags[i] if isinstance(flags, list) else flags) for flags in (terminated, truncated))
 
     def _close(self, *, replace: bool) -> None:
+        """Commit the running episodes, close the writer and the env. An episode whose last steps the sink refuses
+        is committed with the steps before them (`_refuse`), and the other envs' episodes too; the first refusal is
+        raised once the file is closed."""
+        refusal = None
         try:
             if not self._closed:
                 self._closed = True
                 try:
                     for i in range(self._n):
-                        self._finish(i)
+                        try:
+                            self._finish(i)
+                        except EpisodeLayoutError as e:  # its refused steps are taken: the rest commits now
+                            refusal = refusal or e
+                            self._finish(i)
                 finally:
                     self._writer.close(replace=replace)
         finally:
             self.env.close()
+        if refusal is not None:
+            raise refusal
 
     def _check_open(self, call: str) -> None:
         if self._closed:
@@ -479,16 +488,28 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._state_rows = dataclasses.replace(self._fast.packed_rows, prefix="env_states/")
         return None
 
-    def _reset_rows(self, state: dict[str, np.ndarray], obs: Any,
+    def _check_state_layout(self, state: dict[str, np.ndarray], packed: bytes | None) -> dict[str, np.ndarray]:
+        """Refuse a reset whose state (just read through `get_state_dict()`) is not in the recording's layout
+        (`StateLayoutError` naming the leaves); returns the leaves of `state` that `packed`, the scene's proven reader's
+        capture of it (`_bind_fast_reader`), does not hold: all of them without one. The leaves the capture holds
+        need no check: they equal, bit for bit, those of the same reader at a reset whose layout was checked whole
+        (when it was built); the others (controller targets, custom state) may change at any reset."""
+        layout = self.meta.state_layout
+        if packed is not None:
+            held = self._fast.packed_keys
+            state = {key: a for key, a in state.items() if key not in held}
+            layout = {key: spec for key, spec in layout.items() if key not in held}
+        check_same_layout(self.meta.env_id, layout, layout_of(state, batched=True))
+        return state
+
+    def _reset_rows(self, state: dict[str, np.ndarray], unpacked: dict[str, np.ndarray], obs: Any,
                     packed: bytes | None) -> tuple[dict[str, np.ndarray], tuple[tuple[Any, list[Any], int], ...]]:
         """The reset row of every env: (its fields, `StepBlock.captured`). Where the writer process converts captures
-        and the proven reader captured `state` (`packed`, one env), the leaves it holds go as that capture: one byte
-        string to send rather than an array per leaf."""
+        and the proven reader captured `state` (`packed`, one env), the leaves it holds go as that capture (one byte
+        string to send rather than an array per leaf), the rest (`unpacked`) as arrays."""
         if packed is None or not self._defer:
             return self._per_state_rows(state, obs), ()
-        held = {key for key, _, _ in self._fast.packed_rows.slices}
-        rest = {key: a for key, a in state.items() if key not in held}
-        return self._per_state_rows(rest, obs), ((self._state_rows, [packed], 0),)
+        return self._per_state_rows(unpacked, obs), ((self._state_rows, [packed], 0),)
 
     def _state(self) -> tuple[dict[str, np.ndarray], bytes | None]:
         """The state after a step: (state leaves read now, the packed rest for `_state_rows` or None). Through the

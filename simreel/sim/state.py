@@ -86,6 +86,8 @@ class FastStateReader:
                                                          *range(s + 7, s + 13 + 2 * dof)])
         self.packed_rows = PackedRows(np.asarray(index, np.intp), tuple(slices))
         """What turns a block of `capture`s into the actor and articulation leaves, key path → (k, 1, ...) float32."""
+        self.packed_keys = frozenset(key for key, _, _ in slices)
+        """The state leaves a `capture` holds (the others are `extras`)."""
         self._custom = type(u).get_state_dict is _base_get_state_dict()[1]
         self._agent = getattr(u, "agent", None)
         if self._agent is not None and not self._controller_state():

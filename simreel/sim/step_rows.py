@@ -162,12 +162,11 @@ class ScalarRows:
         at any of them: `field`'s answer, read in Python where each step gave that env a bool (no numpy call for a
         recorder's episode end)."""
         j = next(j for field, j, _ in self._optional if field == name)
-        try:
-            flags = [c[j][env] for c in captures]
-        except (TypeError, IndexError, KeyError):
-            flags = []
-        if flags and set(map(type, flags)) == {bool}:
-            return flags[-1], True in flags
+        column = [c[j] for c in captures]
+        if column and all(type(v) is list and len(v) == self._n for v in column):
+            flags = [v[env] for v in column]
+            if set(map(type, flags)) == {bool}:
+                return flags[-1], True in flags
         rows = self.field(captures, name)[:, env]
         return bool(rows[-1]), bool(rows.any())
 

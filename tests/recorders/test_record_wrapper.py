@@ -557,3 +557,60 @@ def test_an_episode_whose_steps_the_sink_refused_stops_there_even_for_a_caller_t
                                 "not in the recording's layout; describe every field in the RecordingMeta "
                                 "(state_layout, obs_layout, info_layout, contact_channels, pose_bodies))"]
     assert second.length == 9 and np.array_equal(second.actions, actions[9:18]) and second.meta.notes == []
+
+
+@pytest.mark.parametrize("end", ["close", "stop"])
+def test_an_episode_whose_last_steps_close_or_stop_cannot_hand_over_keeps_the_steps_before_them(tmp_path, end):
+    """Regression: a block refused while close() or stop() committed the running episodes ended their loop, and the
+    writer closed with the episode still running: the steps handed over before were lost."""
+    from simreel.errors import EpisodeLayoutError
+
+    path = tmp_path / "r.h5"
+    rec = RecordWrapper(make_env("PickCube-v1"), path, block_steps=4)
+    rec.reset(seed=0)
+    for _ in range(6):  # steps 0-3 handed over
+        rec.step(np.zeros(rec.action_space.shape, np.float32))
+    _refusing(rec)
+    with pytest.raises(EpisodeLayoutError, match="bogus"):
+        rec.close() if end == "close" else rec.stop("a test")
+    with open_reader(path) as r:
+        assert [(m.index, m.length) for m in r.episodes] == [(0, 4)]
+        assert r.episodes[0].notes[-1].startswith("cut short at step 4: the writer refused the steps from there on")
+
+
+@pytest.fixture(scope="module")
+def level_task():
+    """LiftCube with a second custom-state leaf, `level`, that a reset rebuilds from its options (another dtype or
+    shape): a task whose state layout changes between episodes."""
+    from mani_skill.utils.registration import register_env
+
+    from simreel.tasks.lift_cube import LiftCubeEnv
+
+    @register_env("SimreelTestLevel-v1", max_episode_steps=20)
+    class Level(LiftCubeEnv):
+        custom_state = ("goal_height", "level")
+
+        def _load_scene(self, options):
+            super()._load_scene(options)
+            self.level = torch.zeros(self.num_envs, dtype=torch.float32)
+
+        def _initialize_episode(self, env_idx, options):
+            super()._initialize_episode(env_idx, options)
+            if "level" in options:
+                self.level = torch.full((self.num_envs, *options.get("shape", ())), options["level"])
+
+    return "SimreelTestLevel-v1"
+
+
+@pytest.mark.parametrize("change", [{"level": 16777217}, {"level": 1.0, "shape": (2,)}], ids=["dtype", "shape"])
+def test_a_custom_leaf_that_changes_layout_is_refused_once_the_fast_reader_is_proven(tmp_path, level_task, change):
+    """Regression: once the scene's fast reader was proven, its bit-for-bit check at a reset stood in for the layout
+    check, but it compares the custom leaves only with the state just read: an int64 leaf was recorded cast to
+    float32 (16777217 as 16777216.0), a reshaped one refused as a broken block rather than a changed layout."""
+    rec = RecordWrapper(make_env(level_task), tmp_path / "r.h5", contacts="none")
+    rec.reset(seed=0)
+    for _ in range(2):  # the reader is proven after the first step
+        rec.step(np.zeros(rec.action_space.shape, np.float32))
+    with pytest.raises(StateLayoutError, match="level"):
+        rec.reset(seed=1, options=change)
+    rec.close()

@@ -128,3 +128,12 @@ def test_the_success_flags_of_an_episode_end_are_the_ones_written():
             assert scalars.rows.last_and_any(captures, "success", env) == (bool(rows[-1, env]), bool(rows[:, env].any()))
     assert scalars.rows.last_and_any(blocks[0], "success", 0) == (True, True)
     assert scalars.rows.last_and_any(blocks[0], "success", 1) == (False, True)
+
+
+def test_the_success_flags_of_an_episode_end_ignore_a_list_that_is_not_one_per_env():
+    """Regression: a success list of another length than the envs was read at `env` although the rows hold zeros
+    for it (an info entry of another shape): the episode's success said True, its success rows False."""
+    scalars = StepScalars(1, [("info/success", np.dtype(bool))])
+    captures = [scalars.capture([0.0], [False], [False], {"success": [True, False]})]
+    assert scalars.rows(captures)["success"].tolist() == [[False]]
+    assert scalars.rows.last_and_any(captures, "success", 0) == (False, False)
