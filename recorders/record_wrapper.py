@@ -321,11 +321,13 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _check_not_refused(self) -> None:
         """`UsageError` where an env's episode stopped at steps its sink refused (`_refuse`), saying how to go on."""
-        for i, error in self._refused.items():
-            reset = "reset()" if self._n == 1 else f"reset(options={{'env_idx': [{i}]}})"
-            raise UsageError(f"RecordWrapper.step(): episode {self._episodes[i].index} (env {i}) stopped at step "
-                             f"{self._sent[i]}, where the writer refused its steps ({error}); {reset} to begin the next "
-                             "episode")
+        if not self._refused:
+            return
+        i, error = next(iter(self._refused.items()))
+        reset = "reset()" if self._n == 1 else f"reset(options={{'env_idx': [{i}]}})"
+        raise UsageError(f"RecordWrapper.step(): episode {self._episodes[i].index} (env {i}) stopped at step "
+                         f"{self._sent[i]}, where the writer refused its steps ({error}); {reset} to begin the next "
+                         "episode")
 
     def _after_step(self, obs: Any) -> tuple[dict[str, np.ndarray], list[tuple[Any, Any]]]:
         """The state, observations, poses and contact forces after a step: (fields read now, what is captured now
