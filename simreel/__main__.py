@@ -1,7 +1,5 @@
 """`python -m simreel` runs the CLI."""
 
-import sys
+from simreel.cli.main import run
 
-from simreel.cli.main import main
-
-sys.exit(main())
+run()

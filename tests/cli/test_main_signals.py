@@ -91,3 +91,26 @@ def test_a_bug_while_a_commit_held_a_ctrl_c_is_still_an_internal_error(monkeypat
     monkeypatch.setattr(inspect_cmd, "run", failing_commit)
     assert main(["inspect", "whatever.h5"]) == 3
     assert capsys.readouterr().err.splitlines()[-1].startswith("simreel inspect: internal error: RuntimeError: boom")
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_once_the_command_has_finished_changes_nothing(tmp_path, signum):
+    """Regression: the interpreter takes ~0.6 s to exit after a command that imported torch, and a Ctrl-C then killed
+    the process (exit 130 with no line, or Python's KeyboardInterrupt traceback from its shutdown) although the
+    recording was complete and said so. The executable (`run`, as `python -m simreel` and the console script) ignores
+    the signals once the command has returned: it exits with the command's status."""
+    import importlib.metadata
+    import time
+
+    [script] = [e for e in importlib.metadata.entry_points(group="console_scripts") if e.name == "simreel"]
+    assert script.value == "simreel.cli.main:run"  # the `simreel` executable exits as `python -m simreel` does
+    out = tmp_path / "r.h5"
+    process = subprocess.Popen([sys.executable, "-m", "simreel", "record", "PickCube-v1", "-o", str(out), "-n", "1",
+                                "--max-steps", "3", "--render-backend", "none", "-q"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = iter(process.stdout.readline, "")
+    summary = next(line for line in lines if line.startswith("recorded "))
+    time.sleep(0.1)  # the command has returned: the interpreter is shutting down
+    process.send_signal(signum)
+    _, stderr = process.communicate(timeout=120)
+    assert (process.returncode, stderr) == (0, ""), summary
