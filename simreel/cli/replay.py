@@ -41,7 +41,7 @@ def add_parser(sub: Any) -> None:
                    help="stream every verdict into REPORT.jsonl as it comes and write the report REPORT.json")
     p.add_argument("--resume", default=None, metavar="REPORT.json",
                    help="finish the run that wrote REPORT.json (interrupted, killed): replay only the episodes it "
-                        "has no verdict for, with its recordings and options")
+                        "has no verdict for, with its recordings and options (not a run with -o)")
     p.add_argument("-o", "--output", default=None, metavar="REPLAYED",
                    help="write the replayed episodes of one recording (.h5/.mcap)")
     p.add_argument("--overwrite", action="store_true", help="replace the -o and --report files if they exist")
