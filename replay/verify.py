@@ -32,10 +32,10 @@ from simreel import __version__
 from simreel.compare import Tolerances
 from simreel.episode import RecordingMeta
 from simreel.errors import FileProblemError, ReplayError, StorageError, UsageError
-from simreel.formats import check_writable, format_of, recording_files
+from simreel.formats import check_report_writable, check_writable, format_of, recording_files
 from simreel.formats.durable import is_storage_error, raise_if_stopped, storage_error
 from simreel.formats.inputs import file_identity
-from simreel.formats.targets import check_distinct, check_output
+from simreel.formats.targets import check_distinct
 from simreel.replay.engine import MODES
 from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchFolder, published
 from simreel.replay.report import EpisodeReport, recording_limits
@@ -243,7 +243,8 @@ class ReplayRun:
         if opts.output is not None:
             check_writable(opts.output, overwrite=opts.overwrite)
         if self.report_json is not None and not opts.resume:
-            check_output(self.report_json, overwrite=opts.overwrite, side_paths=[self.report_log], option="--report")
+            check_report_writable(self.report_json, overwrite=opts.overwrite, side_paths=[self.report_log],
+                                  option="--report")
 
     def _check_unchanged(self, logged: LoggedRun) -> None:
         """A resumed run must replay the files the report began with, every one of them, not newer versions."""

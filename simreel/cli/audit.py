@@ -77,16 +77,29 @@ def _along(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def _check_json(args: argparse.Namespace) -> None:
+    """Refuse --json, before any env is built, where the report would replace the recording audited (--trajectory)
+    or a file of it, or a file another recording keeps beside it (its JSON sidecar), `--overwrite` or not; without
+    --overwrite, any file. Nothing of the recording is ever replaced by a report of it."""
+    from simreel.formats import check_report_writable, recording_files
+    from simreel.formats.targets import check_distinct
+
+    if args.trajectory is not None:
+        check_distinct({"--json": [args.json]}, recording_files(args.trajectory),
+                       input_label="the --trajectory recording")
+    check_report_writable(args.json, overwrite=args.overwrite, option="--json")
+
+
 def run(args: argparse.Namespace) -> int:
     if args.steps < 1:
         raise UsageError(f"--steps must be >= 1, got {args.steps}")
     if args.env_id is None and args.trajectory is None:
         raise UsageError("name the task to audit (ENV_ID), or a recording with --trajectory")
-    from simreel.formats.targets import check_output, write_text_atomic
+    from simreel.formats.targets import write_text_atomic
     from simreel.replay.audit import AuditOptions, audit_task
 
     if args.json is not None:
-        check_output(args.json, overwrite=args.overwrite, option="--json")
+        _check_json(args)
     options = AuditOptions(imports=tuple(args.imports), steps=args.steps, seed=args.seed, control_mode=args.control_mode,
                            obs_mode=args.obs_mode, reward_mode=args.reward_mode, env_kwargs=args.env_kwargs,
                            **_along(args))

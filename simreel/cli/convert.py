@@ -161,15 +161,15 @@ def _options(args: argparse.Namespace) -> Any:
 
 
 def _convert(args: argparse.Namespace) -> int:
-    from simreel.formats import recording_files
-    from simreel.formats.targets import check_distinct, check_output, write_text_atomic
+    from simreel.formats import check_report_writable, recording_files
+    from simreel.formats.targets import check_distinct, write_text_atomic
     from simreel.replay.convert import ConversionRun
 
     options = _options(args)
     if args.report is not None:
         check_distinct({"OUT": recording_files(args.output), "--report": [args.report]}, recording_files(args.input),
                        input_label="IN")
-        check_output(args.report, overwrite=args.overwrite, option="--report")
+        check_report_writable(args.report, overwrite=args.overwrite, option="--report")
     with ConversionRun(args.input, args.output, options) as conversion:  # bad files and options fail here
         bar = progress_bar(quiet=args.quiet, total=conversion.total, unit="ep",
                            desc=f"convert {conversion.reader.meta.env_id}")

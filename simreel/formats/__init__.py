@@ -5,24 +5,28 @@ HDF5 without simreel's metadata, with traj_N groups and a JSON sidecar).
 
 `open_writer("x.h5", meta)` / `open_writer("x.mcap", meta)` and `open_reader(path)` are the only entry
 points the rooms use; no code outside `simreel.formats` knows how a format lays out its bytes or which
-files it writes beside the recording (`check_writable`, `remove_recording`, `records_poses_by_default`
-answer for it).
+files it writes beside the recording (`check_writable`, `check_report_writable`, `remove_recording`,
+`records_poses_by_default` answer for it).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from simreel.episode import RecordingMeta, StepBlock
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats.base import EpisodeReader, EpisodeSink, EpisodeWriter
+from simreel.formats.maniskill.layout import refuse_replacing_sidecar
+from simreel.formats.targets import check_output
 
 __all__ = [
     "open_writer",
     "open_reader",
     "format_of",
     "check_writable",
+    "check_report_writable",
     "remove_recording",
     "recording_files",
     "records_poses_by_default",
@@ -67,6 +71,20 @@ def check_writable(path: str | Path, *, overwrite: bool = False) -> None:
     itself (unknown suffix, missing folder, an existing file or side file without `overwrite`, an MCAP file
     another recording is writing), without creating anything: a command checks its output before slow work."""
     _writer_class(path).check_target(Path(path), overwrite=overwrite)
+
+
+def check_report_writable(path: str | Path, *, overwrite: bool, option: str,
+                          side_paths: Sequence[Path] = ()) -> Path:
+    """Raise the `UsageError` that writing the report `path` of a command's `option` (``--report``, ``--json``: a
+    file that is no recording), and the `side_paths` it writes beside it, would meet; touch nothing. Returns `path`.
+
+    What `check_writable` refuses a recording, a report is refused by the same rule: a file a recording keeps beside
+    it (an HDF5 file's JSON sidecar, which ManiSkill's tools read with it), `overwrite` or not
+    (`simreel.formats.maniskill.layout.refuse_replacing_sidecar`); then what `simreel.formats.targets.check_output`
+    refuses. That `path` is none of the command's inputs the command checks first (`check_distinct`): it knows them."""
+    for file in (Path(path), *side_paths):
+        refuse_replacing_sidecar(file, writing=f"{option} {path}")
+    return check_output(path, overwrite=overwrite, side_paths=side_paths, option=option)
 
 
 def recording_files(path: str | Path) -> list[Path]:

@@ -1,5 +1,6 @@
 """The `simreel` command as a whole: bad input to any command is one line and exit 2 (a table, run in-process),
-no command replaces a file without --overwrite, an internal error is exit 3, and `--help` is instant."""
+no command replaces a file without --overwrite, no report replaces a recording or its sidecar even with it, an
+internal error is exit 3, and `--help` is instant."""
 
 from __future__ import annotations
 
@@ -259,6 +260,53 @@ def test_no_command_replaces_a_file_without_overwrite(tmp_path, capsys, rec, arg
     assert err.count("\n") == 1 and f"{target} already exists" in err and "pass --overwrite" in err, err
     kept = target / "traj_0.h5" if target.is_dir() else target
     assert kept.read_bytes() == b"mine"
+
+
+# A report (audit --json, replay --report, convert --report) never replaces a recording the command reads nor a file
+# of it, nor the JSON sidecar another recording keeps beside it (ManiSkill's tools read the two together), even with
+# --overwrite: every case is refused before any work, in one line, and leaves every file as it was.
+REPORT_ONTO_RECORDING = [
+    ("audit-json-is-trajectory", ["audit", "--trajectory", "{mine}", "--episodes", "0", "--json", "{mine}"],
+     "--json {mine} is the --trajectory recording; write it to another file"),
+    ("audit-json-is-trajectory-sidecar", ["audit", "--trajectory", "{mine}", "--episodes", "0", "--json",
+                                          "{mine_sidecar}"],
+     "--json {mine_sidecar} is a file of the --trajectory recording; write it to another file"),
+    ("audit-json-other-sidecar", ["audit", "--trajectory", "{mine}", "--episodes", "0", "--json", "{other_sidecar}"],
+     "{other_sidecar} is the JSON sidecar of {other}, which ManiSkill's tools read with it; writing --json "
+     "{other_sidecar} would replace it: name the output otherwise"),
+    ("audit-json-hdf5-sidecar", ["audit", "PickCube-v1", "--steps", "2", "--json", "{twin_sidecar}"],
+     "{twin_sidecar} is the JSON sidecar of {twin}"),
+    ("replay-report-other-sidecar", ["replay", "{mine}", "--report", "{other_sidecar}", "-q"],
+     "{other_sidecar} is the JSON sidecar of {other}, which ManiSkill's tools read with it; writing --report "
+     "{other_sidecar} would replace it: name the output otherwise"),
+    ("replay-report-hdf5-sidecar", ["replay", "{mine}", "--report", "{twin_sidecar}", "-q"],
+     "{twin_sidecar} is the JSON sidecar of {twin}"),
+    ("convert-report-other-sidecar", ["convert", "{mine}", "{tmp}/out.h5", "--obs-mode", "state", "--report",
+                                      "{other_sidecar}", "-q"],
+     "{other_sidecar} is the JSON sidecar of {other}, which ManiSkill's tools read with it; writing --report "
+     "{other_sidecar} would replace it: name the output otherwise"),
+]
+
+
+@pytest.mark.parametrize(("argv", "message"), [c[1:] for c in REPORT_ONTO_RECORDING],
+                         ids=[c[0] for c in REPORT_ONTO_RECORDING])
+def test_no_report_replaces_a_recording_or_its_sidecar_even_with_overwrite(tmp_path, capsys, rec, argv, message):
+    """Regression: `audit --trajectory x.h5 --json x.h5 --overwrite` replaced the recording it audited with its
+    report, and a --json/--report named like another recording's sidecar replaced that sidecar."""
+    import shutil
+
+    names = {"mine": "mine.h5", "other": "other.h5", "twin": "twin.hdf5"}
+    paths = {}
+    for key, name in names.items():
+        paths[key] = shutil.copy(rec, tmp_path / name)
+        paths[f"{key}_sidecar"] = shutil.copy(rec.with_suffix(".json"), (tmp_path / name).with_suffix(".json"))
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    argv = [a.format(tmp=tmp_path, **paths) for a in [*argv, "--overwrite"]]
+    code, err = _run(capsys, argv)
+    assert code == 2, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert message.format(tmp=tmp_path, **paths) in err
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # nothing replaced, nothing written
 
 
 def test_the_command_line_itself_gives_one_line_and_exit_2():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from simreel.errors import UsageError
-from simreel.formats import check_writable, records_poses_by_default
+from simreel.formats import check_report_writable, check_writable, records_poses_by_default
 
 
 @pytest.mark.parametrize(
@@ -72,3 +72,33 @@ def test_a_sidecar_another_hdf5_file_shares_is_never_replaced(tmp_path, record):
         assert str(err.value) == said
     assert sorted(tmp_path.iterdir()) == before and (tmp_path / "x.json").read_bytes() == sidecar
     check_writable(tmp_path / "x.h5", overwrite=True)  # the sidecar's own recording may replace it
+
+
+@pytest.mark.parametrize(
+    ("files", "owner"),
+    [
+        (["x.h5", "x.json"], "x.h5"),
+        (["x.hdf5", "x.json"], "x.hdf5"),
+        (["x.H5", "x.json"], "x.H5"),
+        (["x.json"], None),  # a report being replaced: no recording reads it
+        (["x.h5"], None),  # no sidecar there to lose (simreel's .h5 holds its own metadata)
+        (["x.b.h5", "x.json"], None),  # x.b.h5's sidecar is x.b.json
+        (["x.mcap", "x.json"], None),
+    ],
+)
+def test_a_report_never_replaces_a_recordings_sidecar(tmp_path, files, owner):
+    """Regression: `--report x.json --overwrite` (replay, convert) and `audit --json x.json --overwrite` replaced
+    the JSON sidecar of `x.h5`, which ManiSkill's tools read with it; the recordings' own rule refuses it now,
+    --overwrite or not, and touches nothing."""
+    for name in files:
+        (tmp_path / name).write_text(name)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    if owner is None:
+        assert check_report_writable(tmp_path / "x.json", overwrite=True, option="--report") == tmp_path / "x.json"
+    else:
+        with pytest.raises(UsageError) as err:
+            check_report_writable(tmp_path / "x.json", overwrite=True, option="--report")
+        assert str(err.value) == (f"{tmp_path}/x.json is the JSON sidecar of {tmp_path}/{owner}, which ManiSkill's "
+                                  f"tools read with it; writing --report {tmp_path}/x.json would replace it: name "
+                                  "the output otherwise")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

@@ -21,7 +21,6 @@ one by `close` (`simreel.formats.staging`); a second writer of the same name is 
 from __future__ import annotations
 
 import contextlib
-import glob
 import json
 import os
 import shutil
@@ -57,7 +56,7 @@ from simreel.formats.hdf5.layout import (
     sidecar_path,
 )
 from simreel.formats.lock import CommitLock
-from simreel.formats.maniskill.layout import OBS, dataset_name
+from simreel.formats.maniskill.layout import OBS, dataset_name, refuse_replacing_sidecar
 from simreel.formats.maniskill.sidecar import SidecarFile
 from simreel.formats.staging import RecordingTarget
 
@@ -168,7 +167,7 @@ class Hdf5Writer(EpisodeWriter):
         self._journal_fd: int | None = None
         self._failed: StorageError | None = None
         self._closed = self._aborted = False
-        _refuse_shared_sidecar(self.path)
+        refuse_replacing_sidecar(sidecar_path(self.path), writing=self.path, own=self.path)
         self._target = RecordingTarget.claim(self.path, self.side_paths(self.path), overwrite=overwrite)
         self.partial = self._target.folder
         try:
@@ -192,7 +191,7 @@ class Hdf5Writer(EpisodeWriter):
 
     @classmethod
     def check_target(cls, path: Path, *, overwrite: bool) -> None:
-        _refuse_shared_sidecar(path)
+        refuse_replacing_sidecar(sidecar_path(path), writing=path, own=path)
         super().check_target(path, overwrite=overwrite)
 
     @property
@@ -411,18 +410,3 @@ def _bound_metadata_cache(file: Any, datasets: int) -> None:
     config.min_size = config.max_size // 2
     config.incr_mode = config.decr_mode = config.flash_incr_mode = 0  # H5C_incr__off, H5C_decr__off, H5C_flash_incr__off
     file.id.set_mdc_config(config)
-
-
-def _refuse_shared_sidecar(path: Path) -> None:
-    """`UsageError` when the JSON sidecar a recording at `path` writes is another HDF5 file's too (`x.h5` and
-    `x.hdf5` share `x.json`, which ManiSkill's tools read for both): `--overwrite` of the one never replaces the
-    other's."""
-    from simreel.formats import HDF5_SUFFIXES
-
-    sidecar = sidecar_path(path)
-    if not (sidecar.exists() or sidecar.is_symlink()):
-        return
-    for other in sorted(path.parent.glob(glob.escape(path.stem) + ".*")):
-        if other.name != path.name and other.suffix.lower() in HDF5_SUFFIXES and other.is_file():
-            raise UsageError(f"{sidecar} is the JSON sidecar of {other}, which ManiSkill's tools read with it; writing "
-                             f"{path} would replace it: name the output otherwise")

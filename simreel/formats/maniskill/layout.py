@@ -17,13 +17,15 @@ it as the dataset ``obs`` itself; `dataset_name` and `field_name` translate.
 
 from __future__ import annotations
 
+import glob
 import re
 from pathlib import Path
 
 from simreel.episode import RecordingMeta
+from simreel.errors import UsageError
 
-__all__ = ["group_name", "group_index", "sidecar_path", "obs_is_array", "dataset_name", "field_name", "maniskill_tools",
-           "OBS"]
+__all__ = ["group_name", "group_index", "sidecar_path", "refuse_replacing_sidecar", "obs_is_array", "dataset_name",
+           "field_name", "maniskill_tools", "OBS"]
 
 OBS = "obs"
 _GROUP = re.compile(r"traj_(0|[1-9][0-9]*)")
@@ -44,6 +46,24 @@ def group_index(name: str) -> int | None:
 def sidecar_path(path: Path) -> Path:
     """The JSON sidecar beside `path` (`x.h5` → `x.json`), as ManiSkill's tools look for it."""
     return Path(path).with_suffix(".json")
+
+
+def refuse_replacing_sidecar(file: Path, *, writing: str | Path, own: Path | None = None) -> None:
+    """`UsageError` when `file`, which writing `writing` would replace, is the JSON sidecar of an HDF5 file other
+    than `own` (`x.json` is the sidecar of `x.h5` and of `x.hdf5`), `--overwrite` or not: ManiSkill's tools read a
+    recording with its sidecar, so another recording sharing its name, or a report (`--report`, `--json`), that
+    replaced it would leave the recording unreadable to them. Only a sidecar that is there is guarded."""
+    from simreel.formats import HDF5_SUFFIXES
+
+    file = Path(file)
+    if file.suffix != ".json" or not (file.exists() or file.is_symlink()):
+        return
+    for other in sorted(file.parent.glob(glob.escape(file.stem) + ".*")):
+        if other.stem != file.stem or other.suffix.lower() not in HDF5_SUFFIXES or not other.is_file():
+            continue
+        if own is None or other.name != Path(own).name:
+            raise UsageError(f"{file} is the JSON sidecar of {other}, which ManiSkill's tools read with it; writing "
+                             f"{writing} would replace it: name the output otherwise")
 
 
 def obs_is_array(meta: RecordingMeta) -> bool:
