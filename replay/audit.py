@@ -24,13 +24,14 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from simreel.compare import Tolerances
+from simreel.episode import EpisodeSelection
 from simreel.errors import EnvBuildError, UsageError
 from simreel.replay.audit_checks import (
     DECLARE,
@@ -76,8 +77,9 @@ class AuditOptions:
     trajectory: str | None = None
     """Also audit along the episodes of this recording (`simreel.replay.audit_trajectory`); its env, control mode
     and kwargs are the recording's."""
-    trajectory_episodes: tuple[int, ...] | None = None
-    """Which of its episodes (None: all)."""
+    trajectory_episodes: EpisodeSelection | Sequence[int] | None = None
+    """Which of its episodes (None: all): an `EpisodeSelection` (``--episodes 0,3-7``, walked one index at a time,
+    so a range past the file's end is refused at the first episode it lacks) or indices."""
     policy: Callable[[Any, Any], Any] | None = None
     """Also audit along `episodes` episodes of this policy (`policy(env, obs) -> action`), seeds `seed`, `seed` + 1, ..."""
     policy_name: str = "the policy"
@@ -356,9 +358,8 @@ def _trajectories(opts: AuditOptions) -> Any:
     from simreel.replay.audit_trajectory import policy_trajectories, recorded_trajectories
 
     if opts.trajectory is not None:
-        indices = None if opts.trajectory_episodes is None else list(opts.trajectory_episodes)
-        return recorded_trajectories(opts.trajectory, indices)
-    seeds = [opts.seed + k for k in range(opts.episodes)]
+        return recorded_trajectories(opts.trajectory, opts.trajectory_episodes)
+    seeds = range(opts.seed, opts.seed + opts.episodes)  # one at a time: a huge --episodes N holds no list
     return policy_trajectories(opts.policy, seeds, _POLICY_STEPS, opts.policy_name)
 
 

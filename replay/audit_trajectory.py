@@ -12,7 +12,7 @@ trajectory was in (``grasped``, ``success``, ``cabinet moving``, ...), from A's 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -51,15 +51,16 @@ class Trajectory:
     length: int = 0
 
 
-def recorded_trajectories(path: str, indices: list[int] | None = None) -> Iterator[Trajectory]:
-    """The episodes of the recording at `path` (all, or `indices`), each with its recorded actions (read one episode
-    at a time, without its observations: camera frames are never held)."""
+def recorded_trajectories(path: str, indices: Iterable[int] | None = None) -> Iterator[Trajectory]:
+    """The episodes of the recording at `path` (all, or `indices`: `RecordingFileError` for the first it lacks, before
+    any is read), each with its recorded actions (read one episode at a time, without its observations: camera
+    frames are never held)."""
     from simreel.formats import open_reader
 
     with open_reader(path) as reader:
         if indices is None:
             reader.refuse_damaged("audited along")
-        for index in indices if indices is not None else [m.index for m in reader.episodes]:
+        for index in reader.named_episodes(indices) if indices is not None else [m.index for m in reader.episodes]:
             episode = reader.open_episode(index).episode(obs=False)
             actions = episode.actions
 
@@ -71,7 +72,7 @@ def recorded_trajectories(path: str, indices: list[int] | None = None) -> Iterat
             yield Trajectory(f"episode {index} of {path}", episode.meta, act, episode.length)
 
 
-def policy_trajectories(policy: Callable[[Any, Any], Any], seeds: list[int], max_steps: int,
+def policy_trajectories(policy: Callable[[Any, Any], Any], seeds: Iterable[int], max_steps: int,
                         name: str = "the policy") -> Iterator[Trajectory]:
     """One episode per seed, driven by `policy(env, obs) -> action` for up to `max_steps` steps (or until it ends)."""
     for k, seed in enumerate(seeds):

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from simreel.compare import CompareScope, Tolerances, format_number
-from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock, new_recording_id
+from simreel.episode import EpisodeMeta, EpisodeSelection, RecordingMeta, StepBlock, new_recording_id
 from simreel.errors import OutputCheckError, SimreelError, UsageError
 from simreel.formats import EpisodeReader, check_writable, format_of, open_reader, recording_files
 from simreel.formats.dataset import FieldHashes, field_digests
@@ -91,7 +91,8 @@ class ConvertOptions:
         control_mode: convert the actions to this control mode (`simreel.replay.control.SUPPORTED`).
         camera_size: (width, height) of every sensor camera (ManiSkill's ``sensor_configs``).
         shader: ManiSkill's ``shader_dir`` for every camera (``"default"``, ``"rt"``, ...).
-        episodes: episode indices to convert (None: all, in file order); `count`: only the first N of them.
+        episodes: episode indices to convert, an `EpisodeSelection` (``--episodes 0,3-7``) or indices (None: all, in
+            file order); `count`: only the first N of them.
         keep: write only episodes that are ``verified``, ended in ``success``, and/or ``not_truncated``: chosen
             among the `count` converted (the first N episodes are converted, at most N written).
         group_tolerances: tracking tolerances overriding the defaults (`simreel.replay.tracking`), e.g.
@@ -110,7 +111,7 @@ class ConvertOptions:
     control_mode: str | None = None
     camera_size: tuple[int, int] | None = None
     shader: str | None = None
-    episodes: tuple[int, ...] | None = None
+    episodes: EpisodeSelection | Sequence[int] | None = None
     count: int | None = None
     keep: tuple[str, ...] = ()
     group_tolerances: Mapping[str, float] = field(default_factory=dict)
@@ -123,7 +124,8 @@ class ConvertOptions:
     block_rows: int | None = None
 
     def __post_init__(self) -> None:
-        for name in ("episodes", "keep", "imports", "camera_size"):
+        object.__setattr__(self, "episodes", EpisodeSelection.of(self.episodes))  # ranges, whatever the numbers
+        for name in ("keep", "imports", "camera_size"):
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, tuple(value))
@@ -616,9 +618,7 @@ class ConversionRun:
         if episodes is None:
             indices = [m.index for m in self.reader.episodes]
         else:
-            for i in episodes:
-                self.reader.episode_meta(i)  # raises RecordingFileError naming the episodes the file has
-            indices = list(dict.fromkeys(episodes))
+            indices = list(dict.fromkeys(self.reader.named_episodes(episodes)))
         indices = indices[: self.options.count]
         if not indices:
             raise UsageError(f"{self.path}: the recording has no episodes to convert")
@@ -689,8 +689,13 @@ class ConversionRun:
         return {"operation": "convert", "source": str(Path(self.path).resolve()),
                 "source_recording_id": self.reader.meta.recording_id, "source_kind": self.reader.kind,
                 "source_episodes": list(self.indices), "conversion": self._conversion(),
-                "tolerances": self.tolerances.to_json(), "filters": {"episodes": opts.episodes, "count": opts.count,
+                "tolerances": self.tolerances.to_json(), "filters": {"episodes": self._named(), "count": opts.count,
                                                                      "keep": list(opts.keep)}}
+
+    def _named(self) -> list[int] | None:
+        """The episodes --episodes named, as the provenance lists them (None: all): as many as the file has at most,
+        since `_indices` refused any it lacks."""
+        return None if self.options.episodes is None else list(self.options.episodes)
 
     def execute(self, progress: Callable[[EpisodeReport], None] | None = None) -> ConversionReport:
         """Convert every episode, calling `progress` with each one's report as it finishes; closes the input. The

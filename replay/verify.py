@@ -30,7 +30,7 @@ from typing import Any
 
 from simreel import __version__
 from simreel.compare import Tolerances
-from simreel.episode import RecordingMeta
+from simreel.episode import EpisodeSelection, RecordingMeta
 from simreel.errors import FileProblemError, ReplayError, StorageError, UsageError
 from simreel.formats import check_report_writable, check_writable, format_of, recording_files
 from simreel.formats.durable import is_storage_error, raise_if_stopped, storage_error
@@ -51,7 +51,14 @@ from simreel.replay.workers import (
     run_pool,
     start_pool,
 )
-from simreel.replay.worklist import RecordingInfo, WorkItem, WorkList, build_worklist, chain_groups
+from simreel.replay.worklist import (
+    LACKING_LISTED,
+    RecordingInfo,
+    WorkItem,
+    WorkList,
+    build_worklist,
+    chain_groups,
+)
 from simreel.sim.user_code import import_user_code, recorded_spec
 
 __all__ = ["ReplayOptions", "ReplayRun", "verify_recording"]
@@ -67,7 +74,8 @@ class ReplayOptions:
     Attributes:
         mode: "actions", "states" or "step" (see `simreel.replay.engine`).
         resync: with mode "actions", restore the recorded state before every `resync`-th action.
-        episodes: episode indices of every recording (None: all, in file order).
+        episodes: episode indices of every recording, an `EpisodeSelection` (``--episodes 0,3-7``) or indices (None:
+            all, in file order).
         atol: one absolute tolerance for every group (flags stay exact); `group_tolerances` then overrides
             single groups, e.g. ``{"contact": 5.0}``. Defaults: `simreel.compare.DEFAULT_TOLERANCES`.
         output: write the replayed episodes here (.h5 or .mcap; one recording only), with observations when the
@@ -89,7 +97,7 @@ class ReplayOptions:
 
     mode: str = "actions"
     resync: int | None = None
-    episodes: tuple[int, ...] | None = None
+    episodes: EpisodeSelection | Sequence[int] | None = None
     atol: float | None = None
     group_tolerances: Mapping[str, float] = field(default_factory=dict)
     output: str | None = None
@@ -105,8 +113,8 @@ class ReplayOptions:
     ship: bool = False
 
     def __post_init__(self) -> None:
-        if self.episodes is not None:
-            object.__setattr__(self, "episodes", tuple(self.episodes))
+        # ranges, whatever the numbers; a report keeps the text (`_json_value`), which `of` reads back
+        object.__setattr__(self, "episodes", EpisodeSelection.of(self.episodes))
         # a file by its absolute path: a resumed run, or a worker, may work in another folder
         object.__setattr__(self, "imports", tuple(recorded_spec(spec) for spec in self.imports))
         object.__setattr__(self, "group_tolerances", dict(self.group_tolerances))
@@ -143,6 +151,8 @@ _VERDICT_OPTIONS = ("mode", "resync", "episodes", "atol", "group_tolerances", "o
 
 
 def _json_value(value: Any) -> Any:
+    if isinstance(value, EpisodeSelection):
+        return value.to_json()
     return list(value) if isinstance(value, tuple) else value
 
 
@@ -150,6 +160,8 @@ def _run_options(run: Mapping[str, Any]) -> dict[str, Any]:
     """The verdict options of a report's run line, its ``--import`` files found where that run found them: from its
     working folder (a report of a run before imports were kept absolute names them relative to it)."""
     options = dict(run["options"])
+    # its text, as this run's options put it (`_json_value`); a report of an earlier simreel holds a list of indices
+    options["episodes"] = _json_value(EpisodeSelection.of(options.get("episodes")))
     options["imports"] = [recorded_spec(spec, base=run.get("cwd")) for spec in options.get("imports") or ()]
     return options
 
@@ -183,8 +195,7 @@ class ReplayRun:
         if self.strict and not self.worklist.items and logged is None:
             raise UsageError(f"{self.inputs[0]}: the recording has no episodes to replay")
         if opts.episodes and logged is None and self.worklist.readable and not self.worklist.items:
-            raise UsageError(f"--episodes {','.join(map(str, opts.episodes))}: none of the recordings has any of "
-                             "these episodes")
+            raise UsageError(f"--episodes {opts.episodes}: none of the recordings has any of these episodes")
         for spec in opts.imports:  # a bad --import is one line now, not an error for every episode
             import_user_code(spec)
 
@@ -472,7 +483,7 @@ def _lacking_warning(f: RecordingInfo) -> list[str]:
     """What a dataset run says of a file that lacks episodes --episodes names (it replays those it has)."""
     if not f.lacking:
         return []
-    lacking = ", ".join(map(str, f.lacking))
+    lacking = ", ".join(map(str, f.lacking[:LACKING_LISTED])) + (", ..." if len(f.lacking) > LACKING_LISTED else "")
     if not f.episodes:
         return [f"has none of the episodes --episodes names (no episode {lacking}): nothing of it is replayed"]
     return [f"has no episode {lacking} of those --episodes names: only its episode(s) "

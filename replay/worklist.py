@@ -19,13 +19,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from simreel.episode import RecordingMeta, json_default
+from simreel.episode import EpisodeSelection, RecordingMeta, json_default
 from simreel.errors import FileProblemError, SimreelError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.inputs import expand_inputs, file_identity
 from simreel.scene_history import SceneChains
 
 __all__ = ["RecordingInfo", "WorkItem", "WorkList", "env_key", "build_worklist", "chain_groups", "next_item"]
+
+LACKING_LISTED = 20
+"""How many of the episodes a file lacks a dataset run's warning names (`RecordingInfo.lacking`)."""
+
 
 @dataclass(frozen=True)
 class WorkItem:
@@ -56,7 +60,8 @@ class RecordingInfo:
     mtime_ns: int | None = None
     """What identifies this version of the file: a resumed run refuses a file that changed."""
     lacking: list[int] = field(default_factory=list)
-    """Episodes `--episodes` asks for that the file does not have (a dataset run replays the others)."""
+    """Episodes `--episodes` asks for that the file does not have (a dataset run replays the others): the first
+    `LACKING_LISTED` + 1 at most (a range may name billions past the file's end)."""
     chains: dict[int, str] = field(default_factory=dict)
     """Index → its scene chain (`simreel.scene_history.SceneChains.key`), for a run that replays actions."""
 
@@ -89,7 +94,7 @@ def env_key(meta: RecordingMeta) -> str:
     return json.dumps(parts, sort_keys=True, default=json_default)
 
 
-def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None, *, some: bool,
+def _read_header(path: Path, wanted: EpisodeSelection | None, restores: str | None, *, some: bool,
                  chains: bool) -> RecordingInfo:
     """The header of the recording at `path`, with the episodes of `wanted` (None: all) it has; `some`: a file that
     lacks some of them replays the others (a dataset's files differ in length), else it is refused."""
@@ -101,16 +106,16 @@ def _read_header(path: Path, wanted: Sequence[int] | None, restores: str | None,
         if wanted is None:
             reader.refuse_damaged("replayed")  # a damaged episode is never left out silently
         steps = {m.index: m.length for m in reader.episodes}
-        lacking = [] if wanted is None else [i for i in dict.fromkeys(wanted) if i not in steps]
+        lacking = [] if wanted is None else wanted.missing(steps, LACKING_LISTED + 1)
         if lacking and (not some or reader.damaged):  # a damaged episode is not listed: never take it for absent
             reader.episode_meta(lacking[0])  # raises RecordingFileError naming the episodes the file has
         if wanted is not None:
-            steps = {i: steps[i] for i in dict.fromkeys(wanted) if i in steps}
+            steps = {i: steps[i] for i in wanted.pick(steps)}
         return RecordingInfo(str(path), reader.meta, steps, size=size, mtime_ns=mtime_ns, lacking=lacking,
                              chains=SceneChains(reader.episodes).key if chains else {})
 
 
-def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | None = None,
+def build_worklist(specs: Sequence[str | Path], *, episodes: EpisodeSelection | Sequence[int] | None = None,
                    done: Iterable[tuple[str, int]] = (), restores: str | None = None,
                    chains: bool = False) -> WorkList:
     """Read every input's header and list its episodes to replay (`episodes`: these indices of every file),
@@ -124,10 +129,11 @@ def build_worklist(specs: Sequence[str | Path], *, episodes: Sequence[int] | Non
     the one file of a one-file run is refused.
     """
     files: list[RecordingInfo] = []
+    wanted = EpisodeSelection.of(episodes)
     found = expand_inputs(specs)
     for path, explicit in found:
         try:
-            files.append(_read_header(path, episodes, restores, some=len(found) > 1 or not explicit, chains=chains))
+            files.append(_read_header(path, wanted, restores, some=len(found) > 1 or not explicit, chains=chains))
         except SimreelError as e:
             if explicit:
                 raise

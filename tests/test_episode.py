@@ -12,6 +12,7 @@ from simreel.episode import (
     ContactChannel,
     Episode,
     EpisodeMeta,
+    EpisodeSelection,
     FieldSpec,
     RecordingMeta,
     StepBlock,
@@ -228,3 +229,43 @@ def test_malformed_episode_metadata_is_named(doc, message):
     with pytest.raises(MetadataError) as e:
         EpisodeMeta.from_json(doc)
     assert str(e.value) == message
+
+
+# ------------------------------------------------------------------------------------------- episode selections
+HUGE = 10**20
+"""Past any C size: a range of it must never be built (len(), list()), only walked as far as a file's episodes go."""
+
+
+@pytest.mark.parametrize(("text", "ranges"), [
+    ("0,3-7", ((0, 0), (3, 7))),
+    (" 1 , 2 - 4 ,,", ((1, 1), (2, 4))),
+    (",", ()),
+    (f"0-{HUGE}", ((0, HUGE),)),
+])
+def test_a_selection_keeps_the_ranges_as_typed(text, ranges):
+    selection = EpisodeSelection.parse(text)
+    assert selection.ranges == ranges and bool(selection) == bool(ranges)
+    assert EpisodeSelection.of(str(selection)) == selection  # its text (a report's) reads back as itself
+
+
+@pytest.mark.parametrize("text", ["1_0", "+1", "-1", "x", "1-", "3-2", "1.0", "²", "٣", "1-2-3"])
+def test_a_selection_is_digits_only(text):
+    """Python's int() takes ``1_0`` (10), ``+1``, other scripts' digits; an episode list takes none of them."""
+    with pytest.raises(ValueError):
+        EpisodeSelection.parse(text)
+
+
+def test_a_huge_range_is_answered_by_the_files_episodes_not_walked():
+    """`pick` and `missing` cost what the file's episodes and the ranges cost, whatever the numbers."""
+    selection = EpisodeSelection.parse(f"5,2-{HUGE},0")
+    assert selection.pick(range(4)) == [2, 3, 0]  # in the order named, each once
+    assert selection.missing({0, 1, 2, 3}, 3) == [5, 4, 6]
+    assert selection.missing(range(10), 1) == [10]
+    assert HUGE in selection and HUGE + 1 not in selection and 1 not in selection
+    assert str(selection) == f"5,2-{HUGE},0"
+
+
+def test_indices_are_one_range_each_in_their_order():
+    selection = EpisodeSelection.of([3, 1, 1])
+    assert list(selection) == [3, 1, 1] and selection.pick([1, 3]) == [3, 1] and selection.missing([1], 5) == [3]
+    assert EpisodeSelection.of(None) is None and EpisodeSelection.of(selection) is selection

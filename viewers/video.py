@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from simreel.compare import DEFAULT_TOLERANCES, Tolerances
-from simreel.episode import Episode, RecordingMeta
+from simreel.episode import Episode, EpisodeSelection, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.base import recover_hint
@@ -47,7 +47,7 @@ class VideoOptions:
     """What `VideoRun` writes.
 
     Attributes:
-        episodes: episode indices (None: all).
+        episodes: episode indices, an `EpisodeSelection` (``--episodes 0,3-7``) or indices (None: all).
         compare: another recording of the same task (a replay, a conversion) shown on the right.
         size: (width, height) of the video frame (both even: H.264 in yuv420p); side by side, each half is one
             recording.
@@ -61,7 +61,7 @@ class VideoOptions:
             where `simreel.sim.user_code.resolve_task_imports` looks, beside the recording too).
     """
 
-    episodes: tuple[int, ...] | None = None
+    episodes: EpisodeSelection | Sequence[int] | None = None
     compare: str | None = None
     size: tuple[int, int] = (512, 256)
     camera: str | None = None
@@ -116,7 +116,7 @@ class VideoRun:
             raise UsageError(f"-o {folder}: not a folder (create it first)")
         with open_reader(path) as r:
             self.meta = r.meta
-            self.indices = list(opts.episodes) if opts.episodes is not None else [m.index for m in r.episodes]
+            self.indices = r.named_episodes(opts.episodes) if opts.episodes is not None else [m.index for m in r.episodes]
             self.lengths = {i: r.episode_meta(i).length for i in self.indices}
             self.damaged: list[str] = list(r.damaged) if opts.episodes is None else []
             """What is wrong with each episode that got no video because it is damaged."""

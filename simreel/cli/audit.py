@@ -59,7 +59,7 @@ def _along(args: argparse.Namespace) -> dict[str, Any]:
         raise UsageError("--episodes needs --policy or --trajectory")
     out: dict[str, Any] = {"every": args.every, "trajectory": args.trajectory}
     if args.trajectory is not None and args.episodes is not None:
-        out["trajectory_episodes"] = tuple(parse_index_ranges(args.episodes))
+        out["trajectory_episodes"] = parse_index_ranges(args.episodes)
     if args.policy is not None:
         if args.env_id is None:
             raise UsageError("--policy needs the task's ENV_ID")
@@ -71,7 +71,7 @@ def _along(args: argparse.Namespace) -> dict[str, Any]:
         call = PolicyCall(args.policy, load_policy(args.policy, args.env_id), check=True)
         out.update(policy=lambda env, obs: call(env, obs), policy_name=f"--policy {args.policy}")
         if args.episodes is not None:
-            if not args.episodes.isdigit():
+            if not (args.episodes.isascii() and args.episodes.isdigit()):
                 raise UsageError(f"--episodes with --policy is a number of episodes, got {args.episodes!r}")
             out["episodes"] = int(args.episodes)
     return out

@@ -8,6 +8,7 @@ import sys
 from collections.abc import Iterable
 from typing import Any
 
+from simreel.episode import EpisodeSelection
 from simreel.errors import UsageError
 
 __all__ = ["add_env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
@@ -99,24 +100,13 @@ def parse_json_kwargs(text: str) -> dict[str, Any]:
     return value
 
 
-def parse_index_ranges(text: str) -> list[int]:
-    """`"0,3-7"` → [0, 3, 4, 5, 6, 7]."""
-    out: list[int] = []
-    for part in text.split(","):
-        part = part.strip()
-        if not part:
-            continue
-        try:
-            if "-" in part:
-                lo, hi = (int(x) for x in part.split("-", 1))
-                if hi < lo:
-                    raise ValueError
-                out.extend(range(lo, hi + 1))
-            else:
-                out.append(int(part))
-        except ValueError:
-            raise UsageError(f"bad episode list {text!r}: expected e.g. 0,3-7") from None
-    return out
+def parse_index_ranges(text: str) -> EpisodeSelection:
+    """`--episodes`: `"0,3-7"` → the selection of 0 and 3 to 7, kept as ranges (`EpisodeSelection`), so a huge range
+    costs no memory; `UsageError` unless every part is N or N-M (M >= N) in digits."""
+    try:
+        return EpisodeSelection.parse(text)
+    except ValueError:
+        raise UsageError(f"bad episode list {text!r}: expected e.g. 0,3-7") from None
 
 
 def parse_size(text: str) -> tuple[int, int]:

@@ -50,7 +50,7 @@ def _criteria(args: argparse.Namespace) -> Any:
     episodes = None if args.episodes is None else parse_index_ranges(args.episodes)
     if episodes is not None and not episodes:
         raise UsageError(f"--episodes {args.episodes!r} names no episode")
-    return EpisodeCriteria(episodes=None if episodes is None else tuple(episodes), success=args.success,
+    return EpisodeCriteria(episodes=episodes, success=args.success,
                            min_steps=args.min_steps, max_steps=args.max_steps, **_verdicts(args))
 
 

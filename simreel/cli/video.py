@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     if episodes is not None and not episodes:
         raise UsageError(f"--episodes {args.episodes!r} names no episode")
     size = args.size or ((512, 256) if args.compare else (256, 256))
-    options = VideoOptions(episodes=None if episodes is None else tuple(episodes), compare=args.compare, size=size,
+    options = VideoOptions(episodes=episodes, compare=args.compare, size=size,
                            camera=args.camera, fps=args.fps, mode=args.mode, overwrite=args.overwrite,
                            imports=tuple(args.imports))
     videos = VideoRun(args.path, args.output, options)  # bad files, episodes and targets fail here

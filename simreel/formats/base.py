@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import shutil
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any, ClassVar
@@ -371,6 +371,17 @@ class EpisodeReader(ABC):
             raise RecordingFileError(self.path, f"no readable episode {index} (readable: {have}); damaged: "
                                                 f"{'; '.join(self.damaged)}; {recover_hint(self.path)}")
         raise RecordingFileError(self.path, f"no episode {index} (episodes: {have})")
+
+    def named_episodes(self, episodes: Iterable[int]) -> list[int]:
+        """The indices of `episodes` (an `EpisodeSelection`, or indices), in the order named; `episode_meta`'s
+        `RecordingFileError` for the first the file lacks. Each is checked as it comes, so a range that runs past
+        the file's episodes is refused at the first it lacks, never walked to its end (``--episodes 0-99999999``)."""
+        held, named = {m.index for m in self.episodes}, []
+        for index in episodes:
+            if index not in held:
+                self.episode_meta(index)  # raises, naming the episodes the file has
+            named.append(index)
+        return named
 
     def close(self) -> None:  # noqa: B027 - optional hook
         pass

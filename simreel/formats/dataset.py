@@ -25,7 +25,7 @@ import json
 import shutil
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from itertools import groupby
+from itertools import groupby, islice
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -33,7 +33,7 @@ import numpy as np
 
 from simreel import FORMAT_VERSION
 from simreel.compare import Tolerances
-from simreel.episode import Episode, EpisodeMeta, RecordingMeta, StepBlock, new_recording_id
+from simreel.episode import Episode, EpisodeMeta, EpisodeSelection, RecordingMeta, StepBlock, new_recording_id
 from simreel.errors import OutputCheckError, RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
 from simreel.formats.base import EpisodeRows, PassedRows, not_a_file
@@ -83,7 +83,7 @@ class EpisodeCriteria:
     """Which episodes `filter_recording` keeps: those that meet every criterion given (None: not a criterion).
 
     Attributes:
-        episodes: original indices to keep.
+        episodes: original indices to keep: an `EpisodeSelection` (``--episodes 0,3-7``) or indices.
         success: True keeps episodes whose final success is True, False those whose final success is False; an
             episode whose file holds no success (None) meets neither.
         min_steps, max_steps: bounds on the episode's length, inclusive.
@@ -93,7 +93,7 @@ class EpisodeCriteria:
         report: where `verdicts` came from, for the provenance.
     """
 
-    episodes: tuple[int, ...] | None = None
+    episodes: EpisodeSelection | Sequence[int] | None = None
     success: bool | None = None
     min_steps: int | None = None
     max_steps: int | None = None
@@ -102,6 +102,7 @@ class EpisodeCriteria:
     report: str = ""
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "episodes", EpisodeSelection.of(self.episodes))  # ranges, whatever the numbers
         for name in ("min_steps", "max_steps"):
             value = getattr(self, name)
             if value is not None and value < 0:
@@ -122,8 +123,9 @@ class EpisodeCriteria:
         whether an episode's metadata meets it."""
         parts: list[tuple[str, Callable[[EpisodeMeta], bool]]] = []
         if self.episodes is not None:
-            shown = ",".join(str(i) for i in self.episodes[:10])
-            parts.append((f"episodes {shown}{',...' if len(self.episodes) > 10 else ''}",
+            first = list(islice(self.episodes, 11))  # a range is walked no further than shown
+            shown = ",".join(str(i) for i in first[:10])
+            parts.append((f"episodes {shown}{',...' if len(first) > 10 else ''}",
                           lambda m: m.index in self.episodes))
         if self.success is not None:
             parts.append(("success" if self.success else "no success", lambda m: m.success is self.success))
@@ -163,7 +165,7 @@ class EpisodeCriteria:
         """The criteria given, for the provenance (the verdicts as the report's path and the verdicts kept)."""
         d: dict[str, Any] = {k: getattr(self, k) for k in ("episodes", "success", "min_steps", "max_steps")
                              if getattr(self, k) is not None}
-        if "episodes" in d:
+        if "episodes" in d:  # as many as the file has at most: `filter_recording` refused any it lacks
             d["episodes"] = list(d["episodes"])
         if self.verdicts is not None:
             d.update(report=self.report, verdicts=list(self.keep_verdicts))
@@ -689,8 +691,10 @@ def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCrit
     outputs = [output] if rest is None else [output, rest]
     _check_outputs(outputs, [path], opts)
     source = _Source.read(path)
-    for index in criteria.episodes or ():
-        _episode_meta(source, index)
+    held = {m.index for m in source.episodes}
+    for index in criteria.episodes or ():  # one at a time: a range past the file's end stops at its first gap
+        if index not in held:
+            _episode_meta(source, index)  # raises, naming the episodes the file has
     provenance: dict[str, Any] = {"operation": "filter", "criteria": criteria.to_json()}
     parts = ["kept", "rest"][: len(outputs)]
     targets = [Target(Path(p), _output_meta([source], {**provenance, "part": part}, opts.command), opts.overwrite)

@@ -88,6 +88,11 @@ BAD_INPUT = [
     ("replay-junk", ["replay", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
     ("replay-no-episode", ["replay", "{rec}", "--episodes", "7"], "no episode 7 (episodes: 0, 1)"),
     ("replay-bad-episodes", ["replay", "{rec}", "--episodes", "x"], "bad episode list 'x'"),
+    ("replay-huge-episodes", ["replay", "{rec}", "--episodes", "0-99999999999999999999"],
+     "no episode 2 (episodes: 0, 1)"),  # a range is walked to the file's first gap, never built
+    ("replay-episodes-underscore", ["replay", "{rec}", "--episodes", "1_0"],
+     "bad episode list '1_0': expected e.g. 0,3-7"),  # int() reads 10 there: digits only
+    ("replay-episodes-sign", ["replay", "{rec}", "--episodes", "+1"], "bad episode list '+1'"),
     ("replay-resync-mode", ["replay", "{rec}", "--mode", "states", "--resync", "5"],
      "--resync works with --mode actions only"),
     ("replay-resync-0", ["replay", "{rec}", "--resync", "0"], "--resync must be >= 1, got 0"),
@@ -157,6 +162,10 @@ BAD_INPUT = [
     ("filter-no-criterion", ["filter", "{rec}", "-o", "{tmp}/out.h5"], "no criterion: give --episodes"),
     ("filter-no-episode", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--episodes", "7"],
      "no episode 7 (episodes: 0, 1)"),
+    ("filter-huge-episodes", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--episodes", "1-99999999999999999999"],
+     "no episode 2 (episodes: 0, 1)"),
+    ("filter-episodes-underscore", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--episodes", "0_1"],
+     "bad episode list '0_1'"),
     ("filter-nothing-kept", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--min-steps", "21"], "nothing matches"),
     ("filter-min-max", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--min-steps", "9", "--max-steps", "1"],
      "--min-steps 9 is above --max-steps 1"),

@@ -4,6 +4,9 @@ user errors in worker processes, episodes of inconsistent length."""
 from __future__ import annotations
 
 import dataclasses
+import resource
+import subprocess
+import sys
 
 import pytest
 
@@ -23,6 +26,21 @@ def _run(capsys, args):
         code = e.code
     err = capsys.readouterr().err.strip()
     return code, err
+
+
+def _limit_memory() -> None:
+    """In the child: 3 GB of address space, enough to start simreel and replay, not to hold billions of indices."""
+    resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+
+
+@pytest.mark.parametrize("episodes", ["0-5000000000", "1,0-99999999999999999999"])
+def test_a_huge_episode_range_costs_no_memory_and_is_refused_as_a_short_one(rec, episodes):
+    """`--episodes 0-5000000000` is two numbers, never a list of billions (a MemoryError, an OverflowError past the
+    C size: exit 3): the range is walked to the first episode the file lacks, and refused there in one line, as
+    ``--episodes 0-2`` is."""
+    done = subprocess.run([sys.executable, "-m", "simreel", "replay", str(rec), "-q", "--episodes", episodes],
+                          capture_output=True, text=True, timeout=300, preexec_fn=_limit_memory)
+    assert (done.returncode, done.stderr) == (2, f"simreel replay: error: {rec}: no episode 2 (episodes: 0, 1)\n")
 
 
 def test_a_recording_of_another_layout_is_refused(tmp_path, capsys, rec):
