@@ -21,7 +21,7 @@ from pathlib import Path
 
 from simreel.errors import UsageError
 from simreel.formats.lock import WriterLock, being_written
-from simreel.formats.targets import check_output, made_by_gone_process, process_alive, process_tag
+from simreel.formats.targets import check_output, made_by_gone_process, process_alive, process_tag, short_name
 
 __all__ = ["RecordingTarget", "side_folder", "replacement_note", "refuse_kept_recording", "staging_path",
            "is_staging_path", "stale_staging"]
@@ -167,8 +167,9 @@ simreel named the machine too)."""
 def staging_path(final: Path) -> Path:
     """The name an output of merge or filter is written under beside `final` (``.merged.simreel-PID@HOST.h5`` for
     ``merged.h5``, `process_tag`) until it is checked and moved there: hidden, and this process's own, so that two
-    commands writing one OUT never share it, on this machine or another."""
-    return final.with_name(f".{final.stem}.simreel-{process_tag()}{final.suffix}")
+    commands writing one OUT never share it, on this machine or another. A long stem is cut as temporary files' are
+    (`short_name`), so that a name the file system takes for OUT gives a staging name it takes too."""
+    return final.with_name(f".{short_name(final.stem)}.simreel-{process_tag()}{final.suffix}")
 
 
 def stale_staging(final: Path) -> list[Path]:
@@ -179,7 +180,7 @@ def stale_staging(final: Path) -> list[Path]:
     found = []
     for path in sorted(final.parent.glob(f".*.simreel-*{final.suffix}")):
         match = _STAGING_STEM.fullmatch(path.stem)
-        if (match and match["stem"] == final.stem and path.is_file() and _left_behind(match["tag"])
+        if (match and match["stem"] == short_name(final.stem) and path.is_file() and _left_behind(match["tag"])
                 and not being_written(path)):
             found.append(path)
     return found

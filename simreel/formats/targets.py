@@ -24,21 +24,28 @@ from typing import IO
 from simreel.errors import UsageError
 
 __all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output",
-           "move_into_place", "process_alive", "process_tag", "made_by_gone_process", "OVERWRITE_HINT"]
+           "move_into_place", "process_alive", "process_tag", "made_by_gone_process", "short_name", "OVERWRITE_HINT",
+           "NAME_MAX"]
 
 OVERWRITE_HINT = "pass --overwrite to replace it (overwrite=True from Python)"
 """How every refusal to replace a file says what to do: the CLI's option and the Python API's keyword."""
+NAME_MAX = 255
+"""The longest file or folder name, in bytes, where the file system does not say (Linux's NAME_MAX: ext4, xfs,
+btrfs, tmpfs); a longer one is refused by every call that names it (ENAMETOOLONG)."""
 
 
 def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path] = (), option: str = "") -> Path:
     """Raise `UsageError` unless a new file can be written at `path` (and its `side_paths`); touch nothing.
 
-    Refused: `path` is a folder; its folder does not exist, is not a folder or is not writable; and, without
-    `overwrite`, `path` or one of `side_paths` already exists. `option` names the CLI option in messages
-    (``--report``). Returns `path` as a `Path`.
+    Refused: a name in `path`, or a side file's name, longer than the file system takes (`check_name_lengths`);
+    `path` is a folder; its folder does not exist, is not a folder or is not writable; and, without `overwrite`,
+    `path` or one of `side_paths` already exists. `option` names the CLI option in messages (``--report``).
+    Returns `path` as a `Path`.
     """
     p = Path(path)
     label = f"{option} {p}" if option else str(p)
+    side_paths = list(side_paths)
+    check_name_lengths(p, side_paths, label=label)
     if p.is_dir():
         raise UsageError(f"{label}: that is a folder; name the file to write")
     folder = p.resolve().parent
@@ -56,6 +63,35 @@ def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path
         if side.exists() or side.is_symlink():
             raise UsageError(f"{side} already exists and writing {p.name} would replace it; {OVERWRITE_HINT}")
     return p
+
+
+def check_name_lengths(path: Path, side_paths: Iterable[Path] = (), *, label: str = "") -> None:
+    """`UsageError` when a name in `path` (a folder's, or the file's), or the name of one of the `side_paths` its
+    writer keeps beside it, is longer than the file system takes: one line before any work, where the first call
+    that named it would fail with ENAMETOOLONG. The limit is the folder's (`os.pathconf`), else `NAME_MAX`."""
+    label = label or str(path)
+    for part in path.parent.parts:
+        _check_name_length(part, NAME_MAX, label, "a folder name in it")
+    limit = _name_max(path.parent)
+    _check_name_length(path.name, limit, label, "its name")
+    for side in side_paths:
+        _check_name_length(side.name, limit, label, f"the name of the {side.suffix} file beside it")
+
+
+def _check_name_length(name: str, limit: int, label: str, what: str) -> None:
+    """`UsageError` when `name` is longer than `limit` bytes, saying `what` it is of `label`."""
+    size = len(os.fsencode(name))
+    if size > limit:
+        raise UsageError(f"cannot write {label}: {what} is {size} bytes long, and the file system takes names of "
+                         f"{limit} bytes at most; choose a shorter name")
+
+
+def _name_max(folder: Path) -> int:
+    """The longest name `folder`'s file system takes, in bytes; `NAME_MAX` where it cannot be asked (no such folder)."""
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return NAME_MAX
 
 
 def check_distinct(outputs: Mapping[str, Iterable[str | Path]], input_files: Sequence[str | Path], *,
@@ -136,7 +172,7 @@ def _temporary_file(path: Path, suffix: str) -> tuple[int, str]:
     caller holds the descriptor. First the ones runs of this machine left there for the same `path` and `suffix`
     and never removed (a kill -9 runs no cleanup) are removed: those whose process is gone and whose lock is free
     (a PID another container reuses, which shares the host name, leaves its live file locked)."""
-    prefix, folder = f".{_short(path.name)}.", path.resolve().parent
+    prefix, folder = f".{short_name(path.name)}.", path.resolve().parent
     for leftover in folder.glob(glob.escape(prefix) + "*@*" + glob.escape(suffix)):
         tag, _, random = leftover.name[len(prefix):len(leftover.name) - len(suffix)].rpartition(".")
         if len(random) == _MKSTEMP_RANDOM and made_by_gone_process(tag):
@@ -162,12 +198,13 @@ def _remove_unlocked(leftover: Path) -> None:
 _MKSTEMP_RANDOM = 8
 """The characters `tempfile.mkstemp` puts between a prefix and a suffix."""
 _NAME_KEPT = 100
-"""A file name up to this long stays whole in its temporary file's name; a longer one is cut (`_short`)."""
+"""A file name up to this long stays whole in its temporary file's name; a longer one is cut (`short_name`)."""
 
 
-def _short(name: str) -> str:
+def short_name(name: str) -> str:
     """`name`, or where it is longer than `_NAME_KEPT`, its start and a digest of it: with the process tag and the
-    rest, a temporary file's name stays under the file system's 255 bytes."""
+    rest, the name of a temporary file or a staged output (`simreel.formats.staging.staging_path`) made from it
+    stays under the file system's 255 bytes."""
     if len(name.encode()) <= _NAME_KEPT:
         return name
     digest = hashlib.sha1(name.encode()).hexdigest()[:12]

@@ -143,6 +143,8 @@ BAD_INPUT = [
     ("convert-folder", ["convert", "{tmp}", "{tmp}/out.mcap"], ": a folder, not a recording file"),
     ("inspect-device", ["inspect", "/dev/null"], "/dev/null: not a regular file"),
     ("convert-same", ["convert", "{rec}", "{rec}"], "OUT {rec} is IN; write it to another file"),
+    ("convert-name-too-long", ["convert", "{rec}", "{tmp}/" + "x" * 300 + ".mcap"],
+     "its name is 305 bytes long, and the file system takes names of 255 bytes at most; choose a shorter name"),
     ("convert-o-shares-sidecar", ["convert", "{rec}", "{rec_twin}", "--overwrite"], "is a file of IN"),
     # recover
     ("recover-junk", ["recover", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
@@ -158,6 +160,10 @@ BAD_INPUT = [
     ("merge-other-env", ["merge", "{rec}", "{tmp}/other.h5", "-o", "{tmp}/out.h5"],
      "{tmp}/other.h5 records another env than {rec}: env_id is 'Synthetic-v0' there, 'PickCube-v1' in {rec}"),
     ("merge-suffix", ["merge", "{rec}", "-o", "{tmp}/out.txt"], "unknown recording suffix '.txt'"),
+    ("merge-folder-name-too-long", ["merge", "{rec}", "-o", "{tmp}/" + "z" * 300 + "/m.h5"],
+     "a folder name in it is 300 bytes long, and the file system takes names of 255 bytes at most"),
+    ("merge-side-name-too-long", ["merge", "{rec}", "-o", "{tmp}/" + "v" * 250 + ".h5"],
+     "the name of the .partial file beside it is 261 bytes long"),  # the HDF5 file's folder of unfinished episodes
     # filter
     ("filter-no-criterion", ["filter", "{rec}", "-o", "{tmp}/out.h5"], "no criterion: give --episodes"),
     ("filter-no-episode", ["filter", "{rec}", "-o", "{tmp}/out.h5", "--episodes", "7"],

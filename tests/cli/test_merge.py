@@ -210,3 +210,17 @@ def test_a_block_that_fails_its_checksum_mid_episode_leaves_no_output(inputs, tm
     [line] = capsys.readouterr().err.splitlines()
     assert line.startswith(f"simreel merge: error: {src}: ") and "traj_1/actions" in line, line
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("command", ["merge", "filter"])
+def test_an_output_of_a_long_name_the_file_system_takes_is_written(inputs, tmp_path, capsys, command):
+    """A 240-byte OUT (of 255 allowed) is written as `convert` and `record` write it: the hidden name it is staged
+    under (``.OUT.simreel-PID@HOST.h5``, longer by the process tag) is cut and digested as temporary files' names
+    are, never past the file system's limit; nothing of it is left beside OUT."""
+    out = tmp_path / ("y" * 240 + ".h5")
+    args = [str(inputs[0]), "-o", str(out), "-q"] + (["--episodes", "0,2"] if command == "filter" else [])
+    assert main([command, *args]) == 0, capsys.readouterr().err
+    with open_reader(out) as r:
+        assert len(r) == (2 if command == "filter" else 3)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["a.h5", "a.json", "b.mcap", out.name,
+                                                                 out.with_suffix(".json").name])

@@ -14,7 +14,7 @@ from support.mcap_samples import synthetic_episode, synthetic_meta, write
 
 from simreel.errors import UsageError
 from simreel.formats import check_writable, open_reader, open_writer
-from simreel.formats.staging import side_folder
+from simreel.formats.staging import is_staging_path, side_folder, staging_path, stale_staging
 
 
 def simreel(*args: str) -> subprocess.CompletedProcess:
@@ -153,3 +153,14 @@ def test_a_signal_while_a_staged_hdf5_is_published_never_pairs_it_with_the_old_s
         held = [(m.index, m.seed) for m in r.episodes]
     listed = [(e["episode_id"], e["episode_seed"]) for e in json.loads((tmp_path / "OUT.json").read_text())["episodes"]]
     assert held == listed and len(held) == 3
+
+
+def test_the_staging_name_of_a_long_output_name_is_one_the_file_system_takes(tmp_path):
+    """Merge and filter write OUT under ``.OUT.simreel-PID@HOST.h5``, longer than OUT by the process tag: a stem
+    past `short_name`'s length is cut and digested there, as temporary files' are, and is still known as OUT's."""
+    final = tmp_path / ("y" * 240 + ".h5")
+    staged = staging_path(final)
+    assert len(staged.name.encode()) <= 200 and staged.parent == tmp_path and is_staging_path(staged)
+    assert staging_path(final) == staged and staging_path(final.with_name("y" * 239 + "z.h5")) != staged
+    staged.write_bytes(b"")
+    assert stale_staging(final) == []  # this process's own: never stale while it lives

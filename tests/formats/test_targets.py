@@ -39,6 +39,23 @@ def test_check_output(tmp_path, target, overwrite, message):
     assert sorted(tmp_path.iterdir()) == before and (tmp_path / "old.json").read_text() == "mine"
 
 
+@pytest.mark.parametrize("overwrite", [False, True])
+def test_a_name_longer_than_the_file_system_takes_is_one_line(tmp_path, overwrite):
+    """A name past 255 bytes fails every call that names it (ENAMETOOLONG, an internal error where it surfaced): it is
+    refused here, before any work, saying which name; 255 bytes is still a name."""
+    long = tmp_path / ("é" * 128 + ".json")  # 261 bytes in 133 characters: the limit is in bytes
+    with pytest.raises(UsageError) as e:
+        check_output(long, overwrite=overwrite, option="--report")
+    assert str(e.value) == (f"cannot write --report {long}: its name is 261 bytes long, and the file system takes "
+                            "names of 255 bytes at most; choose a shorter name")
+    with pytest.raises(UsageError, match="a folder name in it is 300 bytes long"):
+        check_output(tmp_path / ("d" * 300) / "r.json", overwrite=overwrite)
+    with pytest.raises(UsageError, match=r"the name of the \.partial file beside it is 258 bytes long"):
+        check_output(tmp_path / ("s" * 250), overwrite=overwrite, side_paths=[tmp_path / ("s" * 250 + ".partial")])
+    assert check_output(tmp_path / ("n" * 255), overwrite=overwrite) == tmp_path / ("n" * 255)
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_side_file_is_named_as_what_the_recording_would_replace(tmp_path):
     (tmp_path / "out.json").write_text("mine")
     with pytest.raises(UsageError) as e:

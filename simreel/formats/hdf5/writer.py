@@ -59,6 +59,7 @@ from simreel.formats.lock import CommitLock
 from simreel.formats.maniskill.layout import OBS, dataset_name, refuse_replacing_sidecar
 from simreel.formats.maniskill.sidecar import SidecarFile
 from simreel.formats.staging import RecordingTarget
+from simreel.formats.targets import check_name_lengths
 
 __all__ = ["Hdf5Writer", "image_storage"]
 
@@ -191,6 +192,7 @@ class Hdf5Writer(EpisodeWriter):
 
     @classmethod
     def check_target(cls, path: Path, *, overwrite: bool) -> None:
+        check_name_lengths(path, cls.side_paths(path))  # first: looking for the sidecar of a name too long fails
         refuse_replacing_sidecar(sidecar_path(path), writing=path, own=path)
         super().check_target(path, overwrite=overwrite)
 
