@@ -113,14 +113,14 @@ def open_reader(path: str | Path) -> EpisodeReader:
     """A reader for `path`, chosen by the file's magic bytes, whatever its suffix."""
     from simreel.formats.hdf5.layout import HDF5_MAGIC
     from simreel.formats.mcap.records import MCAP_MAGIC
+    from simreel.formats.paths import read_head
 
     p = Path(path)
     if not p.is_file():
         from simreel.formats.base import not_a_file
 
         raise not_a_file(p)
-    with open(p, "rb") as fh:
-        head = fh.read(8)
+    head = read_head(p, 8)  # a file this user may not read: a RecordingFileError saying so
     if head == HDF5_MAGIC:
         from simreel.formats.hdf5.reader import Hdf5Reader, holds_simreel_metadata
 

@@ -35,6 +35,7 @@ from simreel.episode import (
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats.durable import is_storage_error, storage_error
 from simreel.formats.lock import being_written
+from simreel.formats.paths import SYMLINK_LOOP, is_symlink_loop
 from simreel.formats.staging import refuse_kept_recording
 from simreel.formats.targets import check_output
 
@@ -48,8 +49,11 @@ _MAX_BLOCK_ROWS = 4096
 
 
 def not_a_file(path: Path) -> RecordingFileError:
-    """The error for a recording path that is not a regular file: missing, a folder, or a device, pipe or socket."""
-    if path.is_dir():
+    """The error for a recording path that is not a regular file: missing, a symbolic link loop, a folder, or a
+    device, pipe or socket."""
+    if is_symlink_loop(path):  # which `is_file` and `exists` take for a missing file
+        reason = SYMLINK_LOOP
+    elif path.is_dir():
         reason = "a folder, not a recording file"
     elif path.exists():
         reason = "not a regular file"

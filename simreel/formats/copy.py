@@ -18,6 +18,7 @@ from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, open_writer, recording_files
 from simreel.formats.base import EpisodeReader, EpisodeRows, EpisodeWriter
 from simreel.formats.durable import raise_if_stopped
+from simreel.formats.paths import real_path
 from simreel.formats.staging import replacement_note
 from simreel.formats.targets import check_distinct
 
@@ -223,7 +224,7 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
     intact) is left as it is."""
     src = Path(path)
     format_of(src)
-    in_place = output is None or Path(output).resolve() == src.resolve()
+    in_place = output is None or real_path(output) == real_path(src)
     note = replacement_note(src)
     if in_place and note is not None:
         raise UsageError(f"{src}: {note}; recover that one with -o, or remove it, before recovering {src} in place")

@@ -40,6 +40,7 @@ from simreel.formats.base import EpisodeRows, PassedRows, not_a_file
 from simreel.formats.copy import Target, write_episodes
 from simreel.formats.durable import deferred_signals, raise_if_stopped
 from simreel.formats.inputs import file_identity, shown_path
+from simreel.formats.paths import real_path
 from simreel.formats.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.staging import staging_path, stale_staging
 from simreel.formats.targets import OVERWRITE_HINT, check_distinct, move_into_place
@@ -264,7 +265,7 @@ class _Source:
             if reader.damaged:  # never left out silently: the output would lack them without a word
                 raise RecordingFileError(path, f"{len(reader.damaged)} damaged episode(s) ({'; '.join(reader.damaged)})"
                                                f"; `simreel recover {path} -o OUT` copies the intact ones")
-            source = cls(Path(path).resolve(), str(path), reader.meta, list(reader.episodes))
+            source = cls(real_path(path), str(path), reader.meta, list(reader.episodes))
             size, mtime_ns = file_identity(path)
             m = reader.meta
             source.identity = {
@@ -663,7 +664,7 @@ def merge(inputs: Sequence[str | Path], output: str | Path, options: DatasetOpti
     opts = _options(options, overrides)
     if not inputs:
         raise UsageError("no input to merge")
-    resolved = [Path(p).resolve() for p in inputs]
+    resolved = [real_path(p) for p in inputs]
     twice = next((p for k, p in enumerate(inputs) if resolved[k] in resolved[:k]), None)
     if twice is not None:
         raise UsageError(f"{twice} is given twice; each input is merged once")
@@ -802,7 +803,7 @@ def report_verdicts(path: str | Path, verdicts: Mapping[tuple[str, int], str],
     p = Path(path)
     if not p.is_file():
         raise not_a_file(p)
-    entry = next((f for f in files if Path(f).resolve() == p.resolve()), None)
+    entry = next((f for f in files if real_path(f) == real_path(p)), None)
     if entry is None:
         raise UsageError(f"{report} holds no verdict for {path}: replay it with --report first (simreel replay "
                          f"{path} --report REPORT.json)")

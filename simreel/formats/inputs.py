@@ -11,6 +11,7 @@ from pathlib import Path
 
 from simreel.errors import UsageError
 from simreel.formats import HDF5_SUFFIXES, MCAP_SUFFIXES, recording_files
+from simreel.formats.paths import is_symlink_loop, real_path
 from simreel.formats.staging import is_staging_path
 
 __all__ = ["RECORDING_SUFFIXES", "expand_inputs", "file_identity", "shown_path"]
@@ -44,10 +45,11 @@ def _is_pattern(spec: str) -> bool:
 
 
 def _found_in(spec: str) -> list[Path]:
-    """Recording files below a folder or matching a glob (not the scratch files of running HDF5 recordings)."""
+    """Recording files below a folder or matching a glob (not the scratch files of running HDF5 recordings). A
+    symbolic link loop named as a recording is one too: its reader says what it is, where skipping it would hide it."""
     p = Path(spec)
     found = p.rglob("*") if p.is_dir() else (Path(x) for x in glob.glob(spec, recursive=True))
-    return sorted(x for x in found if x.is_file() and x.suffix.lower() in RECORDING_SUFFIXES
+    return sorted(x for x in found if (x.is_file() or is_symlink_loop(x)) and x.suffix.lower() in RECORDING_SUFFIXES
                   and not any(part.endswith(".partial") for part in x.parts))
 
 
@@ -71,7 +73,8 @@ def _say_skipped(staged: Sequence[Path]) -> None:
 def expand_inputs(specs: Sequence[str | Path]) -> list[tuple[Path, bool]]:
     """(absolute path, named explicitly) for every input file: a file as given; a folder or glob as the
     recordings it holds (`UsageError` when it holds none), without the staged outputs of a merge or filter, which
-    are named once on stderr. Each file once, in the order given."""
+    are named once on stderr. Each file once, in the order given. A path that names no readable file (missing, a
+    symbolic link loop) is kept for its reader to say why."""
     out: dict[Path, tuple[Path, bool]] = {}
     skipped: dict[Path, None] = {}
     for spec in map(str, specs):
@@ -82,9 +85,9 @@ def expand_inputs(specs: Sequence[str | Path]) -> list[tuple[Path, bool]]:
                 _say_skipped(list(skipped))
                 kind = "folder" if Path(spec).is_dir() else "pattern"
                 raise UsageError(f"{spec}: no recordings (.h5, .hdf5, .mcap) found in this {kind}")
-            out.update((f.resolve(), (Path(os.path.abspath(f)), False)) for f in found if f.resolve() not in out)
+            out.update((real_path(f), (Path(os.path.abspath(f)), False)) for f in found if real_path(f) not in out)
         else:
-            out.setdefault(Path(spec).resolve(), (Path(os.path.abspath(spec)), True))
+            out.setdefault(real_path(spec), (Path(os.path.abspath(spec)), True))
     _say_skipped(list(skipped))
     return list(out.values())
 

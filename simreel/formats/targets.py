@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import IO
 
 from simreel.errors import UsageError
+from simreel.formats.paths import SYMLINK_LOOP, is_symlink_loop, real_path
 
 __all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output",
            "move_into_place", "process_alive", "process_tag", "made_by_gone_process", "short_name", "OVERWRITE_HINT",
@@ -38,9 +39,10 @@ def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path
     """Raise `UsageError` unless a new file can be written at `path` (and its `side_paths`); touch nothing.
 
     Refused: a name in `path`, or a side file's name, longer than the file system takes (`check_name_lengths`);
-    `path` is a folder; its folder does not exist, is not a folder or is not writable; and, without `overwrite`,
-    `path` or one of `side_paths` already exists. `option` names the CLI option in messages (``--report``).
-    Returns `path` as a `Path`.
+    `path` is a folder or runs into a symbolic link loop (even with `overwrite`: nothing can be written through one);
+    its folder does not exist, is not a folder or is not writable; and, without `overwrite`, `path` or one of
+    `side_paths` already exists. `option` names the CLI option in messages (``--report``). Returns `path` as a
+    `Path`.
     """
     p = Path(path)
     label = f"{option} {p}" if option else str(p)
@@ -48,7 +50,9 @@ def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path
     check_name_lengths(p, side_paths, label=label)
     if p.is_dir():
         raise UsageError(f"{label}: that is a folder; name the file to write")
-    folder = p.resolve().parent
+    if is_symlink_loop(p):
+        raise UsageError(f"cannot write {label}: {SYMLINK_LOOP}")
+    folder = real_path(p).parent
     if not folder.exists():
         raise UsageError(f"cannot write {p}: folder {folder} does not exist")
     if not folder.is_dir():
@@ -102,10 +106,10 @@ def check_distinct(outputs: Mapping[str, Iterable[str | Path]], input_files: Seq
     files); `input_files` are the input and the files beside it (`simreel.formats.recording_files`)."""
     seen: dict[Path, str] = {}
     for k, p in enumerate(input_files):
-        seen[Path(p).resolve()] = input_label if k == 0 else f"a file of {input_label}"
+        seen[real_path(p)] = input_label if k == 0 else f"a file of {input_label}"
     for option, paths in outputs.items():
         for path in paths:
-            resolved = Path(path).resolve()
+            resolved = real_path(path)
             if resolved in seen:
                 raise UsageError(f"{option} {path} is {seen[resolved]}; write it to another file")
             seen[resolved] = f"also written by {option}"

@@ -24,6 +24,7 @@ from types import ModuleType
 
 from simreel.errors import EnvBuildError, TaskCodeError, UsageError
 from simreel.formats.durable import deferred_signals
+from simreel.formats.paths import SYMLINK_LOOP, is_symlink_loop, real_path
 from simreel.sim.render_device import configure_vulkan
 
 __all__ = ["found_spec", "import_user_code", "imported_user_code", "import_mani_skill", "native_import",
@@ -105,7 +106,7 @@ def recorded_spec(spec: str, *, base: str | Path | None = None) -> str:
     was given in (default: the current one), e.g. the working folder of the run a report resumes."""
     if not _is_path(spec):
         return spec
-    return str((Path(base or os.getcwd()) / Path(spec).expanduser()).resolve())
+    return str(real_path(Path(base or os.getcwd()) / Path(spec).expanduser()))
 
 
 def found_spec(spec: str) -> str:
@@ -113,6 +114,8 @@ def found_spec(spec: str) -> str:
     module that can be imported (the same rule `import_user_code` applies, without importing it again), else
     `UsageError`. A spec that resolves nowhere when it is recorded could never be imported by a replay."""
     stored = recorded_spec(spec)
+    if _is_path(spec) and is_symlink_loop(stored):
+        raise UsageError(f"imports: {spec}: {SYMLINK_LOOP}")
     if _is_path(spec) and not os.path.isfile(stored):
         raise UsageError(f"imports: {spec}: no such file ({stored}); name the .py file that registers the task")
     if not _is_path(spec) and not _module_found(spec):
@@ -211,9 +214,9 @@ def _import_user_code(spec: str) -> ModuleType:
 
 
 def _import_file(path: Path) -> ModuleType:
-    path = path.expanduser().resolve()
+    path = real_path(path.expanduser())
     if not path.is_file():
-        raise EnvBuildError(f"--import {path}: file not found")
+        raise EnvBuildError(f"--import {path}: {SYMLINK_LOOP if is_symlink_loop(path) else 'file not found'}")
     name = path.stem if path.stem.isidentifier() else "simreel_user_module"
     existing = sys.modules.get(name)
     if existing is not None:

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+from support.unreadable import link_loop, unreadable_copy
 
 from simreel.cli.main import main
 
@@ -27,6 +28,10 @@ def _run(capsys, argv: list[str]) -> tuple[int, str]:
 def rec(record) -> Path:
     return record("PickCube-v1", 2, 20)
 
+
+LOOP = "a symbolic link loop (following its links never reaches a file); fix or remove the link"
+"""What a path that runs into a symbolic link loop is, read or written (`test_bad_input_is_one_line_and_exit_2` makes
+loop.h5, loop.mcap, report_loop.json and loop.py loops)."""
 
 BAD_INPUT = [
     # record
@@ -79,13 +84,20 @@ BAD_INPUT = [
      "cube:table-workspace"], "contact pair 'cube:table-workspace' is named twice"),
     ("record-contacts-empty", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--contacts", ","],
      "contacts ',' names no pair; give auto, none or pairs like panda/panda_leftfinger:cube"),
+    ("record-o-loop", ["record", "PickCube-v1", "-o", "{tmp}/loop.h5"], "cannot write {tmp}/loop.h5: " + LOOP),
+    ("record-o-loop-mcap", ["record", "PickCube-v1", "-o", "{tmp}/loop.mcap", "--overwrite"],
+     "cannot write {tmp}/loop.mcap: " + LOOP),
     # inspect
     ("inspect-missing", ["inspect", "{tmp}/missing.h5"], "missing.h5: no such file"),
     ("inspect-junk", ["inspect", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
     ("inspect-empty-folder", ["inspect", "{tmp}/empty"], "no recordings (.h5, .hdf5, .mcap) found in this folder"),
+    ("inspect-loop", ["inspect", "{tmp}/loop.h5"], "{tmp}/loop.h5: " + LOOP),
     # replay
     ("replay-missing", ["replay", "{tmp}/nope.h5"], "nope.h5: no such file"),
     ("replay-junk", ["replay", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
+    ("replay-loop", ["replay", "{tmp}/loop.mcap"], "{tmp}/loop.mcap: " + LOOP),
+    ("replay-report-loop", ["replay", "{rec}", "--report", "{tmp}/report_loop.json"],
+     "cannot write --report {tmp}/report_loop.json: " + LOOP),
     ("replay-no-episode", ["replay", "{rec}", "--episodes", "7"], "no episode 7 (episodes: 0, 1)"),
     ("replay-bad-episodes", ["replay", "{rec}", "--episodes", "x"], "bad episode list 'x'"),
     ("replay-huge-episodes", ["replay", "{rec}", "--episodes", "0-99999999999999999999"],
@@ -108,6 +120,7 @@ BAD_INPUT = [
      "--report {tmp}/out.json is also written by -o"),
     ("replay-bad-import", ["replay", "{rec}", "--import", "no_such_module_xyz"],
      "no module named 'no_such_module_xyz'"),
+    ("replay-import-loop", ["replay", "{rec}", "--import", "{tmp}/loop.py"], "--import {tmp}/loop.py: " + LOOP),
     ("replay-nothing", ["replay"], "name the recordings to replay (files, folders, patterns), or --resume"),
     ("replay-empty-folder", ["replay", "{tmp}/empty"], "empty: no recordings (.h5, .hdf5, .mcap) found in this folder"),
     ("replay-no-match", ["replay", "{tmp}/*.mcap"], "no recordings (.h5, .hdf5, .mcap) found in this pattern"),
@@ -135,12 +148,15 @@ BAD_INPUT = [
     ("view-no-episode", ["view", "{rec}", "--episode", "7"], "no episode 7 (episodes: 0, 1)"),
     ("view-save-suffix", ["view", "{rec}", "--save", "x.png"], "--save x.png: the output must end in .rrd"),
     ("view-block-steps", ["view", "{rec}", "--block-steps", "0"], "--block-steps must be ≥ 1, got 0"),
+    ("view-loop", ["view", "{tmp}/loop.h5", "--save", "{tmp}/v.rrd"], "{tmp}/loop.h5: " + LOOP),
     ("view-compare-missing", ["view", "{rec}", "--compare", "{tmp}/missing.h5", "--save", "{tmp}/v.rrd"],
      "missing.h5: no such file"),
     # convert
     ("convert-suffix", ["convert", "{rec}", "{tmp}/out.txt"], "unknown recording suffix '.txt'"),
     ("convert-missing", ["convert", "{tmp}/missing.h5", "{tmp}/out.mcap"], "missing.h5: no such file"),
     ("convert-folder", ["convert", "{tmp}", "{tmp}/out.mcap"], ": a folder, not a recording file"),
+    ("convert-loop", ["convert", "{tmp}/loop.mcap", "{tmp}/out.h5"], "{tmp}/loop.mcap: " + LOOP),
+    ("convert-o-loop", ["convert", "{rec}", "{tmp}/loop.mcap", "--overwrite"], "cannot write {tmp}/loop.mcap: " + LOOP),
     ("inspect-device", ["inspect", "/dev/null"], "/dev/null: not a regular file"),
     ("convert-same", ["convert", "{rec}", "{rec}"], "OUT {rec} is IN; write it to another file"),
     ("convert-name-too-long", ["convert", "{rec}", "{tmp}/" + "x" * 300 + ".mcap"],
@@ -149,12 +165,16 @@ BAD_INPUT = [
     # recover
     ("recover-junk", ["recover", "{tmp}/junk.h5"], "neither an HDF5 nor an MCAP file"),
     ("recover-missing", ["recover", "{tmp}/missing.mcap"], "missing.mcap: no such file"),
+    ("recover-loop", ["recover", "{tmp}/loop.mcap"], "{tmp}/loop.mcap: " + LOOP),
+    ("recover-o-loop", ["recover", "{rec}", "-o", "{tmp}/loop.h5"], "cannot write {tmp}/loop.h5: " + LOOP),
     ("recover-o-shares-sidecar", ["recover", "{rec}", "-o", "{rec_twin}", "--overwrite"],
      "is a file of the recording to recover"),
     # merge
     ("merge-no-o", ["merge", "{rec}"], "the following arguments are required: -o/--output"),
     ("merge-missing", ["merge", "{rec}", "{tmp}/missing.h5", "-o", "{tmp}/out.h5"], "missing.h5: no such file"),
     ("merge-junk", ["merge", "{rec}", "{tmp}/junk.h5", "-o", "{tmp}/out.h5"], "neither an HDF5 nor an MCAP file"),
+    ("merge-loop", ["merge", "{rec}", "{tmp}/loop.h5", "-o", "{tmp}/out.h5"], "{tmp}/loop.h5: " + LOOP),
+    ("merge-o-loop", ["merge", "{rec}", "-o", "{tmp}/loop.h5"], "cannot write {tmp}/loop.h5: " + LOOP),
     ("merge-o-is-input", ["merge", "{rec}", "{tmp}/junk.h5", "-o", "{rec}", "--overwrite"], "is input {rec}"),
     ("merge-twice", ["merge", "{rec}", "{rec}", "-o", "{tmp}/out.h5"], "is given twice; each input is merged once"),
     ("merge-other-env", ["merge", "{rec}", "{tmp}/other.h5", "-o", "{tmp}/out.h5"],
@@ -179,6 +199,8 @@ BAD_INPUT = [
      "--rest {tmp}/out.h5 is also written by -o"),
     ("filter-missing", ["filter", "{tmp}/missing.mcap", "-o", "{tmp}/out.h5", "--success"],
      "missing.mcap: no such file"),
+    ("filter-loop", ["filter", "{tmp}/loop.h5", "-o", "{tmp}/out.h5", "--success"], "{tmp}/loop.h5: " + LOOP),
+    ("filter-o-loop", ["filter", "{rec}", "-o", "{tmp}/loop.mcap", "--success"], "cannot write {tmp}/loop.mcap: " + LOOP),
 ]
 
 
@@ -219,6 +241,9 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, recs, argv, message)
     (tmp_path / "no_tasks.py").write_text("VALUE = 1\n")
     (tmp_path / "policies.py").write_text(POLICIES)
     (tmp_path / "bad_tasks.py").write_text(BAD_TASKS)
+    if any("loop" in a for a in argv):
+        for loop in ("loop.h5", "loop.mcap", "report_loop.json", "loop.py"):
+            link_loop(tmp_path / loop)
     if any("other.h5" in a for a in argv):
         from support.mcap_samples import synthetic_episode, synthetic_meta, write
 
@@ -229,6 +254,42 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, recs, argv, message)
     assert code == 2, err
     assert err.count("\n") == 1 and "Traceback" not in err, err
     assert message.format(tmp=tmp_path, **recs) in err
+
+
+# A recording this user may not read, whichever command reads it: one line naming it and why, exit 2. Run as a shell
+# would, where the file's mode bites (for root, without the capabilities that read any file: `support.unreadable`).
+UNREADABLE = [
+    ("inspect", ["inspect", "{tmp}/nr.h5"]),
+    ("inspect-mcap", ["inspect", "{tmp}/nr.mcap"]),
+    ("replay", ["replay", "{tmp}/nr.h5", "-q"]),
+    ("convert", ["convert", "{tmp}/nr.mcap", "{tmp}/out.h5", "-q"]),
+    ("merge", ["merge", "{rec}", "{tmp}/nr.h5", "-o", "{tmp}/out.h5", "-q"]),
+    ("filter", ["filter", "{tmp}/nr.mcap", "-o", "{tmp}/out.h5", "--success", "-q"]),
+    ("recover", ["recover", "{tmp}/nr.mcap"]),
+    ("view", ["view", "{tmp}/nr.h5", "--save", "{tmp}/v.rrd"]),
+    ("video", ["video", "{tmp}/nr.mcap", "-o", "{tmp}"]),
+]
+
+
+@pytest.fixture(scope="module")
+def rec_mcap(rec, tmp_path_factory) -> Path:
+    """{rec} converted to MCAP."""
+    out = tmp_path_factory.mktemp("mcap") / "rec.mcap"
+    assert main(["convert", str(rec), str(out), "-q"]) == 0
+    return out
+
+
+@pytest.mark.parametrize("argv", [c[1] for c in UNREADABLE], ids=[c[0] for c in UNREADABLE])
+def test_a_recording_this_user_may_not_read_is_one_line_and_exit_2(tmp_path, rec, rec_mcap, argv):
+    """Regression: the reader's open() raised PermissionError, which the CLI took for a bug of simreel's (exit 3)."""
+    prefix = unreadable_copy(rec, tmp_path / "nr.h5")
+    unreadable_copy(rec_mcap, tmp_path / "nr.mcap")
+    argv = [a.format(tmp=tmp_path, rec=rec) for a in argv]
+    done = subprocess.run([*prefix, sys.executable, "-m", "simreel", *argv], capture_output=True, text=True,
+                          timeout=120)
+    unreadable = next(a for a in argv if "/nr." in a)
+    assert (done.returncode, done.stderr) == (
+        2, f"simreel {argv[0]}: error: {unreadable}: permission denied (this user may not read it)\n")
 
 
 # Every command that writes, and every file it would write: an existing one is refused without --overwrite,

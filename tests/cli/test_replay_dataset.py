@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
+import sys
 from collections import Counter
 
 import h5py
 import pytest
 from support.maniskill_files import record_maniskill
+from support.unreadable import link_loop, unreadable_copy
 
 from simreel.cli.main import main
 
@@ -110,3 +113,47 @@ def test_episodes_a_file_lacks_are_named_and_those_it_has_replayed(record, tmp_p
     assert main(["replay", "data", "--episodes", "5", "-q"]) == 2
     assert capsys.readouterr().err == ("simreel replay: error: --episodes 5: none of the recordings has any of these "
                                        "episodes\n")
+
+
+LOOP = "a symbolic link loop (following its links never reaches a file); fix or remove the link"
+DENIED = "permission denied (this user may not read it)"
+
+
+def _rows(out: str) -> dict[str, str]:
+    """The lines of a run or an inspection by the file each starts with: the rest, its words joined by one space."""
+    return {line.split()[0]: " ".join(line.split()[1:]) for line in out.splitlines() if line.strip()}
+
+
+def test_a_symbolic_link_loop_in_a_dataset_is_reported_and_the_run_goes_on(record, tmp_path, capsys, monkeypatch):
+    """Regression: `Path.resolve` raised RuntimeError for a loop (exit 3, nothing replayed), and a folder's scan
+    skipped one without a word."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "data").mkdir()
+    shutil.copy(record("PickCube-v1", 2, 8), tmp_path / "data" / "pick.h5")
+    link_loop(tmp_path / "data" / "loop.mcap")  # and loop.other.mcap, its other half
+    assert main(["replay", "data", "-q"]) == 2
+    rows = _rows(capsys.readouterr().out)
+    assert rows["data/pick.h5"] == "PickCube-v1 2 2 0 0 0"
+    assert rows["data/loop.mcap"] == rows["data/loop.other.mcap"] == f"cannot be replayed: {LOOP}"
+    assert main(["inspect", "data"]) == 2
+    out = capsys.readouterr().out
+    assert _rows(out)["data/loop.mcap"] == f"unreadable: {LOOP}"
+    assert out.splitlines()[-1] == "3 recordings (2 unreadable): 2 episodes, 16 steps"
+
+
+@pytest.mark.parametrize(("argv", "pick", "locked"), [
+    (["replay", "data", "-q"], "PickCube-v1 2 2 0 0 0", f"cannot be replayed: {DENIED}"),
+    (["inspect", "data"], "PickCube-v1 2 16 0 simreel HDF5 recording (format 1)", f"unreadable: {DENIED}"),
+], ids=["replay", "inspect"])
+def test_a_file_this_user_may_not_read_in_a_dataset_is_reported_and_the_run_goes_on(record, tmp_path, argv, pick,
+                                                                                      locked):
+    """Regression: the reader's open() raised PermissionError, which ended the run as a bug of simreel's (exit 3)
+    before anything was replayed. Run as a shell would, where the file's mode bites (`support.unreadable`)."""
+    (tmp_path / "data").mkdir()
+    shutil.copy(record("PickCube-v1", 2, 8), tmp_path / "data" / "pick.h5")
+    prefix = unreadable_copy(record("PickCube-v1", 2, 8), tmp_path / "data" / "locked.h5")
+    done = subprocess.run([*prefix, sys.executable, "-m", "simreel", *argv], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=300)
+    assert (done.returncode, done.stderr) == (2, ""), done.stdout
+    rows = _rows(done.stdout)
+    assert (rows["data/pick.h5"], rows["data/locked.h5"]) == (pick, locked), done.stdout

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 from support.mcap_samples import synthetic_episode, synthetic_meta, write
+from support.unreadable import link_loop
 
 from simreel.cli.main import main
 from simreel.errors import UsageError
@@ -38,6 +39,17 @@ def test_files_folders_and_patterns_each_once_in_the_order_given(tmp_path, monke
 def test_a_named_file_is_kept_even_if_missing_so_its_reader_can_say_why(tmp_path):
     ((path, explicit),) = expand_inputs([tmp_path / "missing.h5"])
     assert path == tmp_path / "missing.h5" and explicit
+
+
+def test_a_symbolic_link_loop_is_kept_for_its_reader_to_name(tmp_path, monkeypatch):
+    """Named or found in a folder or by a pattern, a loop is listed like a file (its reader says what it is), never
+    skipped without a word nor a crash of `Path.resolve`."""
+    monkeypatch.chdir(tmp_path)
+    _touch(tmp_path / "data" / "a.h5")
+    link_loop(tmp_path / "data" / "loop.mcap")
+    found = expand_inputs(["data/loop.mcap", "data", "data/*.mcap"])
+    assert [(os.path.relpath(p), explicit) for p, explicit in found] == [
+        ("data/loop.mcap", True), ("data/a.h5", False), ("data/loop.other.mcap", False)]
 
 
 @pytest.mark.parametrize(("spec", "kind"), [("empty", "folder"), ("*.mcap", "pattern")])

@@ -9,9 +9,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from support.unreadable import link_loop
 
 from simreel.errors import UsageError
 from simreel.formats.targets import check_distinct, check_output, staged_output, write_text_atomic
+
+LOOP = "a symbolic link loop (following its links never reaches a file); fix or remove the link"
 
 
 @pytest.mark.parametrize(
@@ -24,11 +27,14 @@ from simreel.formats.targets import check_distinct, check_output, staged_output,
         ("dir", True, "--report {tmp}/dir: that is a folder; name the file to write"),
         ("missing/r.json", True, "cannot write {tmp}/missing/r.json: folder {tmp}/missing does not exist"),
         ("old.json/r.json", True, "cannot write {tmp}/old.json/r.json: {tmp}/old.json is not a folder"),
+        ("loop.json", False, "cannot write --report {tmp}/loop.json: " + LOOP),
+        ("loop.json", True, "cannot write --report {tmp}/loop.json: " + LOOP),
     ],
 )
 def test_check_output(tmp_path, target, overwrite, message):
     (tmp_path / "old.json").write_text("mine")
     (tmp_path / "dir").mkdir()
+    link_loop(tmp_path / "loop.json")
     before = sorted(tmp_path.iterdir())
     if message is None:
         assert check_output(tmp_path / target, overwrite=overwrite, option="--report") == tmp_path / target
@@ -94,6 +100,16 @@ def test_check_distinct(tmp_path, monkeypatch, outputs, message):
     with pytest.raises(UsageError) as e:
         check_distinct(outputs, ["in.h5", "in.json"], input_label="the recording")
     assert str(e.value) == message
+
+
+def test_check_distinct_compares_a_symbolic_link_loop_as_its_path(tmp_path, monkeypatch):
+    """A loop is no file, but comparing it with others must not fail (Python 3.11's `Path.resolve` raises
+    `RuntimeError` for one): `check_output` or the reader says what it is."""
+    monkeypatch.chdir(tmp_path)
+    link_loop(tmp_path / "loop.h5")
+    check_distinct({"-o": ["loop.h5"]}, ["in.h5"])
+    with pytest.raises(UsageError, match="^-o loop.h5 is the input; write it to another file$"):
+        check_distinct({"-o": ["loop.h5"]}, [tmp_path / "loop.h5"])
 
 
 def test_write_text_atomic_replaces_whole_and_leaves_no_temporary_file(tmp_path, monkeypatch):

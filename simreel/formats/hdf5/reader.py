@@ -33,6 +33,7 @@ from simreel import FORMAT_VERSION
 from simreel.episode import EpisodeMeta, FieldSpec, RecordingMeta, StepBlock, episode_fields, json_default
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader, EpisodeRows, not_a_file
+from simreel.formats.durable import errno_of
 from simreel.formats.hdf5.layout import (
     EPISODE_ATTR,
     HDF5_MAGIC,
@@ -47,6 +48,7 @@ from simreel.formats.hdf5.layout import (
 from simreel.formats.lock import CommitLock, being_written
 from simreel.formats.maniskill.layout import dataset_name, group_index, sidecar_path
 from simreel.formats.maniskill.sidecar import sidecar_document
+from simreel.formats.paths import read_head, read_problem
 from simreel.formats.staging import replacement_note
 
 __all__ = ["Hdf5Reader", "Hdf5Rows", "open_hdf5", "holds_simreel_metadata", "unlisted_datasets_problem", "H5PY_ERRORS"]
@@ -64,7 +66,7 @@ def open_hdf5(path: Path) -> Any:
     try:
         return h5py.File(path, "r", locking=False)
     except OSError as e:
-        raise RecordingFileError(path, _open_problem(e)) from None
+        raise RecordingFileError(path, read_problem(errno_of(e)) or _open_problem(e)) from None
     except H5PY_ERRORS as e:
         raise RecordingFileError(path, f"corrupt HDF5 file ({type(e).__name__}: {e})") from None
 
@@ -125,9 +127,8 @@ class Hdf5Reader(EpisodeReader):
         self.path = Path(path)
         if not self.path.is_file():
             raise not_a_file(self.path)
-        with open(self.path, "rb") as fh:
-            if fh.read(len(HDF5_MAGIC)) != HDF5_MAGIC:
-                raise RecordingFileError(self.path, "not an HDF5 file")
+        if read_head(self.path, len(HDF5_MAGIC)) != HDF5_MAGIC:
+            raise RecordingFileError(self.path, "not an HDF5 file")
         self.live = being_written(self.path)
         """A writer (in any process) is still writing the file: it holds the episodes committed so far."""
         with CommitLock.reading(partial_dir(self.path), self.path) if self.live else nullcontext():

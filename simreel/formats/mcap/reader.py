@@ -44,6 +44,7 @@ from simreel.formats.mcap.records import (
     record_kind,
     unseal,
 )
+from simreel.formats.paths import open_for_reading
 from simreel.formats.staging import replacement_note
 
 __all__ = ["McapReader", "McapRows"]
@@ -111,7 +112,7 @@ class McapReader(EpisodeReader):
         self.path = Path(path)
         if not self.path.is_file():
             raise not_a_file(self.path)
-        self._fh: IO[bytes] = open(self.path, "rb")
+        self._fh: IO[bytes] = open_for_reading(self.path)
         try:
             self._open(recover)
         except BaseException:
