@@ -74,10 +74,13 @@ def expand_inputs(specs: Sequence[str | Path]) -> list[tuple[Path, bool]]:
     """(absolute path, named explicitly) for every input file: a file as given; a folder or glob as the
     recordings it holds (`UsageError` when it holds none), without the staged outputs of a merge or filter, which
     are named once on stderr. Each file once, in the order given. A path that names no readable file (missing, a
-    symbolic link loop) is kept for its reader to say why."""
+    symbolic link loop) is kept for its reader to say why; an empty one is `UsageError`."""
     out: dict[Path, tuple[Path, bool]] = {}
     skipped: dict[Path, None] = {}
     for spec in map(str, specs):
+        if not spec.strip():  # Path("") is the working folder: `simreel replay "$UNSET"` would read all it holds
+            raise UsageError("an empty path names no recording (an unset shell variable?); name the files, folders "
+                             "or patterns to read")
         if Path(spec).is_dir() or (_is_pattern(spec) and not Path(spec).exists()):
             found, staged = _without_staged(_found_in(spec))
             skipped.update(dict.fromkeys(staged))

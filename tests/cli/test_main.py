@@ -100,6 +100,8 @@ BAD_INPUT = [
      "cannot write --report {tmp}/report_loop.json: " + LOOP),
     ("replay-no-episode", ["replay", "{rec}", "--episodes", "7"], "no episode 7 (episodes: 0, 1)"),
     ("replay-bad-episodes", ["replay", "{rec}", "--episodes", "x"], "bad episode list 'x'"),
+    ("replay-empty-path", ["replay", ""], "an empty path names no recording"),  # was: every recording in the folder
+    ("inspect-empty-path", ["inspect", "{rec}", " "], "an empty path names no recording"),
     ("replay-huge-episodes", ["replay", "{rec}", "--episodes", "0-99999999999999999999"],
      "no episode 2 (episodes: 0, 1)"),  # a range is walked to the file's first gap, never built
     ("replay-episodes-underscore", ["replay", "{rec}", "--episodes", "1_0"],
