@@ -101,10 +101,14 @@ def test_what_a_file_does_not_hold_is_unknown_never_invented(ms_dir, capsys):
          '{json}: env_info.env_kwargs.num_envs is "two", expected a whole number'),
         (lambda p: edit_sidecar(p, lambda d: d["episodes"][1].update(episode_id=0)),
          "{json}: lists traj_0 more than once: a sidecar lists each episode once"),
+        (lambda p: edit_sidecar(p, lambda d: d["env_info"].update(max_episode_steps=-1)),  # was: replay "diverged"
+         "{json}: env_info.max_episode_steps is -1, expected a whole number >= 1 or null"),
+        (lambda p: edit_sidecar(p, lambda d: d["env_info"].update(max_episode_steps="x")),  # was: read as no limit
+         '{json}: env_info.max_episode_steps is "x", expected a whole number >= 1 or null'),
     ],
     ids=["missing", "not-json", "no-env-info", "episode-not-in-h5", "episodes-not-a-list", "episode-id-not-a-number",
          "episode-id-negative", "elapsed-steps-not-a-number", "options-not-an-object", "num-envs-not-a-number",
-         "episode-listed-twice"],
+         "episode-listed-twice", "time-limit-negative", "time-limit-not-a-number"],
 )
 def test_a_missing_or_mismatching_sidecar_is_one_line(ms_dir, tmp_path, capsys, make_bad, message):
     path = copy_recording(ms_dir, "demos", tmp_path)

@@ -180,12 +180,24 @@ class Sidecar:
         if not isinstance(kwargs, Mapping):
             raise RecordingFileError(path, f"env_info.env_kwargs is {type(kwargs).__name__}, expected an object")
         _check_types(path, "env_info.env_kwargs", kwargs, _KWARG_TYPES)
-        steps = info.get("max_episode_steps")
+        steps = _time_limit(path, info.get("max_episode_steps"))
         source = {k: doc[k] for k in ("source_type", "source_desc", "commit_info") if doc.get(k) is not None}
         other = {k: v for k, v in doc.items() if k not in _DOCUMENT_KEYS}
         other.update({f"env_info.{k}": v for k, v in info.items() if k not in _ENV_INFO_KEYS})
-        return cls(path, info["env_id"], dict(kwargs), steps if isinstance(steps, int) else None,
-                   [_episode_read(path, i, e) for i, e in enumerate(episodes)], source, other)
+        return cls(path, info["env_id"], dict(kwargs), steps, [_episode_read(path, i, e) for i, e in enumerate(episodes)],
+                   source, other)
+
+
+def _time_limit(path: Path, steps: Any) -> int | None:
+    """``env_info.max_episode_steps``: a whole number ≥ 1, or null where the env had no time limit. Anything else is
+    `RecordingFileError`: read as no limit, or as -1, the replay's env would end its episodes elsewhere than the
+    recording's, and the replay be called diverged for a fault of the file."""
+    if steps is None:
+        return None
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise RecordingFileError(path, f"env_info.max_episode_steps is {json.dumps(steps, default=str)[:60]}, "
+                                       f"expected {_WHOLE} >= 1 or null")
+    return steps
 
 
 _DOCUMENT_KEYS = ("env_info", "episodes", "source_type", "source_desc", "commit_info")
