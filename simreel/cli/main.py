@@ -11,6 +11,7 @@ and so does an import of mani_skill (`simreel.sim.user_code.native_import`).
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
 import shlex
@@ -119,16 +120,26 @@ def _stopped(prog: str, stop: KeyboardInterrupt) -> int:
 
 
 def _unexpected(args: argparse.Namespace, e: Exception) -> int:
-    """Exit 3 for a bug of simreel's, one line; exit 2 where the user's task code raised (`task_code_error`)."""
+    """Exit 3 for a bug of simreel's, one line; exit 2 where the user's task code raised (`task_code_error`) or a
+    path given is longer than the file system takes (`_name_too_long`)."""
     from simreel.sim.user_code import task_code_error
 
-    user_bug = task_code_error(e)
+    user_bug = task_code_error(e) or _name_too_long(e)
     if user_bug is not None:
         _fail(args, f"error: {user_bug}")
         return 2
     how = "please report it" if args.debug else "rerun with --debug for the traceback, and please report it"
     _fail(args, f"internal error: {type(e).__name__}: {e} ({how})")
     return 3
+
+
+def _name_too_long(e: Exception) -> str | None:
+    """What to say of ENAMETOOLONG, wherever a command first touched the path (None for another error): names simreel
+    makes itself are cut to fit (`simreel.formats.targets.short_name`) and outputs are checked before any work
+    (`check_name_lengths`), so the name is one the user gave, e.g. a recording to read."""
+    if not isinstance(e, OSError) or e.errno != errno.ENAMETOOLONG:
+        return None
+    return f"{e.filename}: a name in this path is longer than the file system takes; give a shorter path"
 
 
 def _fail(args: argparse.Namespace, message: str) -> None:

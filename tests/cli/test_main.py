@@ -101,6 +101,10 @@ BAD_INPUT = [
     ("replay-no-episode", ["replay", "{rec}", "--episodes", "7"], "no episode 7 (episodes: 0, 1)"),
     ("replay-bad-episodes", ["replay", "{rec}", "--episodes", "x"], "bad episode list 'x'"),
     ("replay-empty-path", ["replay", ""], "an empty path names no recording"),  # was: every recording in the folder
+    ("inspect-name-too-long", ["inspect", "{tmp}/" + "z" * 300 + ".h5"],  # was: exit 3, OSError
+     "a name in this path is longer than the file system takes"),
+    ("convert-name-too-long", ["convert", "{tmp}/" + "z" * 300 + ".h5", "{tmp}/out.mcap"],
+     "a name in this path is longer than the file system takes"),
     ("inspect-empty-path", ["inspect", "{rec}", " "], "an empty path names no recording"),
     ("replay-huge-episodes", ["replay", "{rec}", "--episodes", "0-99999999999999999999"],
      "no episode 2 (episodes: 0, 1)"),  # a range is walked to the file's first gap, never built
