@@ -11,7 +11,7 @@ from typing import Any
 from simreel.episode import EpisodeSelection
 from simreel.errors import UsageError
 
-__all__ = ["add_env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
+__all__ = ["add_env_options", "env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
            "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar", "mode_choices",
            "LOG_LINE_SECONDS"]
 
@@ -72,15 +72,32 @@ def add_import_option(p: argparse.ArgumentParser) -> None:
 
 
 def add_env_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--obs-mode", default="state", help="ManiSkill obs_mode (default: state)")
+    """The env's gym.make options; each not given stays None, its default `simreel.sim.make.EnvConfig`'s
+    (`env_options`)."""
+    p.add_argument("--obs-mode", default=None, help="ManiSkill obs_mode (default: state)")
     p.add_argument("--control-mode", default=None, help="ManiSkill control_mode (default: the task's)")
     p.add_argument("--reward-mode", default=None, help="ManiSkill reward_mode (default: the task's)")
-    p.add_argument("--sim-backend", default="auto", help="physx_cpu, physx_cuda or auto (default)")
-    p.add_argument("--render-backend", default="auto", help="gpu, cpu, none or auto (default: detected)")
-    p.add_argument("--num-envs", type=int, default=1, help="parallel envs (>1 needs the GPU sim)")
+    p.add_argument("--sim-backend", default=None, help="physx_cpu, physx_cuda or auto (default)")
+    p.add_argument("--render-backend", default=None, help="gpu, cpu, none or auto (default: detected)")
+    p.add_argument("--num-envs", type=int, default=None, help="parallel envs (>1 needs the GPU sim; default: 1)")
     p.add_argument("--env-kwargs", type=parse_json_kwargs, default={}, metavar="JSON",
                    help='extra gym.make kwargs as a JSON object, e.g. \'{"robot_uids": "panda"}\'')
     add_import_option(p)
+
+
+_ENV_OPTIONS = ("obs_mode", "control_mode", "reward_mode", "sim_backend", "render_backend", "num_envs")
+"""The `EnvConfig` fields `add_env_options` gives options for."""
+
+
+def env_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The env options given (`add_env_options`), as `EnvConfig` arguments; `EnvBuildError` where --env-kwargs gives
+    one of them too, otherwise (``--obs-mode state --env-kwargs '{"obs_mode": "rgb"}'``), even at its default value,
+    which `EnvConfig` alone cannot tell from one not given."""
+    from simreel.sim.make import refuse_repeated
+
+    given = {name: getattr(args, name) for name in _ENV_OPTIONS if getattr(args, name) is not None}
+    refuse_repeated(args.env_id, given, args.env_kwargs)
+    return given
 
 
 def apply_imports(specs: list[str]) -> None:

@@ -6,7 +6,7 @@ import argparse
 from dataclasses import dataclass
 from typing import Any
 
-from simreel.cli.common import add_env_options, apply_imports, progress_bar
+from simreel.cli.common import add_env_options, apply_imports, env_options, progress_bar
 from simreel.cli.policy_option import POLICY_HELP
 from simreel.errors import UsageError
 from simreel.formats.durable import raise_if_stopped
@@ -55,9 +55,12 @@ def _check_counts(args: argparse.Namespace) -> None:
     if args.max_steps is not None and not 1 <= args.max_steps <= _STEP_LIMIT:
         raise UsageError(f"--max-steps must be from 1 to {_STEP_LIMIT} (ManiSkill counts steps in 32 bits), got "
                          f"{args.max_steps}")
-    if args.num_envs < 1:
-        raise UsageError(f"--num-envs must be ≥ 1, got {args.num_envs}")
-    last = args.seed + max(args.episodes, args.num_envs) - 1  # the largest seed a run uses (`_record_batched`)
+    from simreel.sim.make import EnvConfig
+
+    num_envs = EnvConfig.num_envs if args.num_envs is None else args.num_envs
+    if num_envs < 1:
+        raise UsageError(f"--num-envs must be ≥ 1, got {num_envs}")
+    last = args.seed + max(args.episodes, num_envs) - 1  # the largest seed a run uses (`_record_batched`)
     if args.seed < 0 or last >= _SEED_LIMIT:
         raise UsageError(f"--seed {args.seed}: this run would use seeds {args.seed} to {last}, but ManiSkill takes "
                          f"seeds from 0 to {_SEED_LIMIT - 1}; choose a seed in that range")
@@ -149,9 +152,7 @@ def _recorder(args: argparse.Namespace, time_limit: int | None) -> Any:
     from simreel.recorders import RecordWrapper
     from simreel.sim.make import EnvConfig, make_env
 
-    config = EnvConfig(num_envs=args.num_envs, obs_mode=args.obs_mode, control_mode=args.control_mode,
-                       reward_mode=args.reward_mode, sim_backend=args.sim_backend,
-                       render_backend=args.render_backend, env_kwargs=args.env_kwargs, max_episode_steps=time_limit)
+    config = EnvConfig(**env_options(args), env_kwargs=args.env_kwargs, max_episode_steps=time_limit)
     env = make_env(args.env_id, config)
     try:
         return RecordWrapper(env, args.output, contacts=args.contacts, record_obs=args.record_obs, poses=args.poses,

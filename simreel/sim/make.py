@@ -13,6 +13,7 @@ import dataclasses
 import difflib
 import os
 import traceback
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -124,14 +125,20 @@ def _fold_env_kwargs(env_id: str, cfg: EnvConfig) -> EnvConfig:
     repeated = sorted(set(cfg.env_kwargs) & set(EnvConfig.names()) - {"env_kwargs"})
     if not repeated:
         return cfg
-    kwargs, moved, default = dict(cfg.env_kwargs), {}, EnvConfig()
-    for name in repeated:
-        value, own = kwargs.pop(name), getattr(cfg, name)
-        if own != getattr(default, name) and own != value:
-            raise EnvBuildError(f"{env_id}: {name} is given twice, {own!r} and {value!r} in env_kwargs "
-                                "(--env-kwargs); give it once")
-        moved[name] = value
-    return dataclasses.replace(cfg, env_kwargs=kwargs, **moved)
+    default = EnvConfig()
+    refuse_repeated(env_id, {name: getattr(cfg, name) for name in repeated
+                             if getattr(cfg, name) != getattr(default, name)}, cfg.env_kwargs)
+    kwargs = dict(cfg.env_kwargs)
+    return dataclasses.replace(cfg, env_kwargs=kwargs, **{name: kwargs.pop(name) for name in repeated})
+
+
+def refuse_repeated(env_id: str, given: Mapping[str, Any], env_kwargs: Mapping[str, Any]) -> None:
+    """`EnvBuildError` where an argument `given` by its name (an `EnvConfig` field, a CLI option) is also in
+    `env_kwargs` with another value: the env would be built with one of the two without a word."""
+    for name in sorted(set(given) & set(env_kwargs)):
+        if given[name] != env_kwargs[name]:
+            raise EnvBuildError(f"{env_id}: {name} is given twice, {given[name]!r} and {env_kwargs[name]!r} in "
+                                "env_kwargs (--env-kwargs); give it once")
 
 
 def camera_use(obs_mode: str | None, render_mode: str | None = None) -> str | None:

@@ -42,6 +42,9 @@ BAD_INPUT = [
     ("record-unknown-body", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--contacts", "panda/nose:cube"],
      "unknown body 'panda/nose'"),
     ("record-bad-pair", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--contacts", "cube"], "bad contact pair 'cube'"),
+    ("record-option-and-env-kwarg", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--obs-mode", "state",
+                                     "--env-kwargs", '{{"obs_mode": "state_dict"}}'],  # was: state_dict, without a word
+     "PickCube-v1: obs_mode is given twice, 'state' and 'state_dict' in env_kwargs (--env-kwargs); give it once"),
     ("record-no-dir", ["record", "PickCube-v1", "-o", "{tmp}/no/such/dir/x.h5"], "does not exist"),
     ("record-bad-suffix", ["record", "PickCube-v1", "-o", "{tmp}/x.txt"], "unknown recording suffix '.txt'"),
     ("record-bad-policy", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "nosuchmod:f"],
