@@ -115,11 +115,11 @@ class Tolerances:
             raise ValueError(f"unknown mode {mode!r}; expected one of {', '.join(DEFAULT_TOLERANCES)}")
         values = dict(DEFAULT_TOLERANCES[mode])
         if atol is not None:
-            values = {g: (0.0 if g == "flag" else float(atol)) for g in values}
+            values = {g: (0.0 if g == "flag" else _tolerance(atol, "atol")) for g in values}
         for group, tol in (groups or {}).items():
             if group not in values:
                 raise ValueError(f"unknown tolerance group {group!r}; expected one of {', '.join(GROUPS)}")
-            values[group] = float(tol)
+            values[group] = _tolerance(tol, f"tolerance {group}")
         return cls(values)
 
     def __getitem__(self, group: str) -> float:
@@ -133,6 +133,18 @@ class Tolerances:
         run given ``--atol``/``--tol`` changed, for the messages that name its tolerances."""
         defaults = DEFAULT_TOLERANCES[mode]
         return ", ".join(f"{g} {format_number(v)}" for g, v in self.values.items() if defaults.get(g) != v)
+
+
+def _tolerance(value: Any, what: str) -> float:
+    """`value` as a tolerance: a finite number >= 0, else `ValueError`. NaN would pass every comparison (a replay
+    that diverged would be called within tolerance) and a negative one fail an exact match."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} {value!r} is not a number") from None
+    if not 0 <= number < math.inf:
+        raise ValueError(f"{what} {value!r}: a tolerance must be a finite number >= 0")
+    return number
 
 
 @dataclass(frozen=True)

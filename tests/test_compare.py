@@ -238,3 +238,19 @@ def test_info_the_replay_lacks_is_named_never_compared():
     cmp = blocks.comparison()
     assert cmp.not_compared == [line] and "info/is_grasped" not in cmp.max_abs_error | cmp.tolerance
     assert "info/height_error" in cmp.max_abs_error
+
+
+@pytest.mark.parametrize("bad", [math.nan, -1.0, math.inf, "x"], ids=["nan", "negative", "inf", "text"])
+def test_a_tolerance_that_is_not_a_finite_number_at_least_0_is_refused(bad):
+    """Regression: from Python a NaN group tolerance passed every comparison (a perturbed recording replayed "within
+    tolerance", all verified), and a negative one failed an exact match; only --atol/--tol on the command line were
+    checked."""
+    from simreel.errors import UsageError
+    from simreel.replay import ReplayOptions
+
+    with pytest.raises(ValueError, match="a tolerance must be a finite number >= 0|is not a number"):
+        Tolerances.for_mode("actions", groups={"contact": bad})
+    with pytest.raises(ValueError, match="a tolerance must be a finite number >= 0|is not a number"):
+        Tolerances.for_mode("actions", atol=bad)
+    with pytest.raises(UsageError, match="tolerance pos"):
+        ReplayOptions(group_tolerances={"pos": bad}).tolerances()
