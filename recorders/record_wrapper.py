@@ -79,12 +79,17 @@ class RecordOptions:
     writer_process: bool = True
 
     def __post_init__(self) -> None:
-        """Check the options whose wrong type would fail later as a raw Python error, and put them in one form: contacts
-        as one string (`contacts_spec`), imports as a tuple."""
+        """Check the options whose wrong type would fail later as a raw Python error, or be taken for another value (a
+        flag given as a string), or be stored where the file could not be read back (a command that is not a
+        string); put them in one form: contacts as one string (`contacts_spec`), imports as a tuple."""
         steps = self.block_steps
         if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 1:
             raise UsageError(f"block_steps={steps!r}: give the number of steps to buffer, an int ≥ 1 (default 256)")
         object.__setattr__(self, "block_steps", int(steps))
+        for name in ("record_obs", "overwrite", "writer_process") + (("poses",) if self.poses is not None else ()):
+            _check_flag(name, getattr(self, name))
+        if not isinstance(self.command, str):
+            raise UsageError(f"command={self.command!r}: give the command line as a string (stored for provenance)")
         object.__setattr__(self, "contacts", contacts_spec(self.contacts))
         object.__setattr__(self, "imports", _import_specs(self.imports))
         if not isinstance(self.writer_options, Mapping) or not all(isinstance(k, str) for k in self.writer_options):
@@ -596,6 +601,13 @@ def what_stopped(error: BaseException) -> str:
     if isinstance(error, KeyboardInterrupt):
         return "Ctrl-C (SIGINT)"
     return f"an error ({error})" if isinstance(error, SimreelError) else f"an error ({type(error).__name__})"
+
+
+def _check_flag(name: str, value: Any) -> None:
+    """`UsageError` for a yes/no option that is not a bool: any truthy value would count as yes (``overwrite="no"``
+    replacing a file)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise UsageError(f"{name}={value!r}: give True or False")
 
 
 def _constructor_options(opts: RecordOptions) -> dict[str, Any]:

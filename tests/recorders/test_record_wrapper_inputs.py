@@ -115,9 +115,15 @@ def test_the_neutral_wrappers_below_are_accepted_and_their_recording_replays_exa
          "file that registers the task"),
         ({"imports": 7}, "imports=7: give the .py files or modules that register the task, as a tuple of strings, "
                          "e.g. (\"my_tasks.py\",)"),
+        ({"command": 5}, "command=5: give the command line as a string (stored for provenance)"),  # was: a file
+        ({"overwrite": "no"}, "overwrite='no': give True or False"),  # that could not be read back; a truthy "no"
+        ({"record_obs": 1}, "record_obs=1: give True or False"),
+        ({"poses": "yes"}, "poses='yes': give True or False"),
+        ({"writer_process": None}, "writer_process=None: give True or False"),
     ],
     ids=["contacts-int", "block_steps-str", "block_steps-bool", "writer_options-unknown", "writer_options-list",
-         "imports-missing-file", "imports-missing-module", "imports-int"],
+         "imports-missing-file", "imports-missing-module", "imports-int", "command-int", "overwrite-str",
+         "record_obs-int", "poses-str", "writer_process-none"],
 )
 def test_a_bad_option_is_one_usage_error_and_nothing_is_written(tmp_path, monkeypatch, options, message):
     """From Python these were AttributeError (contacts=123), TypeError (block_steps="x", an unknown writer option),
