@@ -14,6 +14,7 @@ episode together from the same blocks. A reader names what it could not read (`d
 
 from __future__ import annotations
 
+import errno
 import shutil
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -35,7 +36,7 @@ from simreel.episode import (
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats.durable import is_storage_error, storage_error
 from simreel.formats.lock import being_written
-from simreel.formats.paths import SYMLINK_LOOP, is_symlink_loop
+from simreel.formats.paths import is_symlink_loop, read_problem
 from simreel.formats.staging import refuse_kept_recording
 from simreel.formats.targets import check_output
 
@@ -50,16 +51,12 @@ _MAX_BLOCK_ROWS = 4096
 
 def not_a_file(path: Path) -> RecordingFileError:
     """The error for a recording path that is not a regular file: missing, a symbolic link loop, a folder, or a
-    device, pipe or socket."""
-    if is_symlink_loop(path):  # which `is_file` and `exists` take for a missing file
-        reason = SYMLINK_LOOP
-    elif path.is_dir():
-        reason = "a folder, not a recording file"
-    elif path.exists():
-        reason = "not a regular file"
-    else:
-        reason = "no such file"
-    return RecordingFileError(path, reason)
+    device, pipe or socket. The first three in the words a refused open of them gets (`read_problem`)."""
+    if path.exists() and not path.is_dir():
+        return RecordingFileError(path, "not a regular file")
+    # a symbolic link loop, which `is_file` and `exists` take for a missing file, first
+    code = errno.ELOOP if is_symlink_loop(path) else errno.EISDIR if path.is_dir() else errno.ENOENT
+    return RecordingFileError(path, read_problem(code))
 
 
 def block_rows(fields: Sequence[FieldSpec], budget: int = BLOCK_BYTES) -> int:
