@@ -37,6 +37,7 @@ from simreel.sim.contacts import ContactSampler, contact_channels, contacts_spec
 from simreel.sim.describe import flatten_obs, recording_meta
 from simreel.sim.fingerprint import fingerprint_changes, scene_fingerprint
 from simreel.sim.poses import pose_body_names, sample_body_poses
+from simreel.sim.seeds import SEED_LIMIT, is_seed
 from simreel.sim.state import FastStateReader, check_same_layout, read_state
 from simreel.sim.step_rows import ActionRows, PackedRows
 from simreel.sim.user_code import found_spec
@@ -197,17 +198,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None) -> Any:
         self._check_open("reset()")
-        options = dict(options or {})
-        env_idx = options.get("env_idx")
-        named = None if env_idx is None else to_numpy(env_idx).reshape(-1)
-        if named is not None and named.size and named.dtype.kind not in "iu":
-            raise UsageError(f"reset(options={{'env_idx': ...}}) holds {named.dtype} values; give the indices of the "
-                             f"envs to reset, from 0 to {self._n - 1}")
-        idxs = list(range(self._n)) if named is None else [int(i) for i in named]
-        if not idxs or len(set(idxs)) != len(idxs) or not all(0 <= i < self._n for i in idxs):
-            raise UsageError(f"reset(options={{'env_idx': {idxs}}}): name each env to reset once, from 0 to "
-                             f"{self._n - 1} (an env named twice would begin two episodes at once)")
-        self._check_seed_count(seed, idxs)
+        options = _reset_options(options)
+        idxs = self._envs_to_reset(options.get("env_idx"))
+        self._check_seeds(seed, idxs)
         for i in idxs:
             self._finish(i)
         if self._buffer.rows and all(s is None for s in self._sinks):
@@ -245,13 +238,44 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._chain_start[i] = self._next_index
         return {"start": self._chain_start[i], "position": self._chain_ran[i]}
 
-    def _check_seed_count(self, seed: Any, idxs: list[int]) -> None:
-        """Refuse a seed list of another length than one seed, one per env, or one per env reset (`idxs`), before
-        anything changes: ManiSkill 3.0.1 takes any list as the episode seeds of all its envs, so with another length
-        no seed belongs to an env and the recording would lose its seed (`_episode_seeds`)."""
-        if seed is None or isinstance(seed, str) or not np.iterable(seed):
+    def _envs_to_reset(self, env_idx: Any) -> list[int]:
+        """The envs a reset with ``options={"env_idx": env_idx}`` resets (None: all of them); `UsageError`, before
+        anything changes, for what ManiSkill would fail on inside its reset (a single index, which it takes the
+        ``len()`` of; an index out of range) or would reset wrongly (an env named twice)."""
+        if env_idx is None:
+            return list(range(self._n))
+        named = to_numpy(env_idx)
+        if named.ndim == 0:
+            example = [int(env_idx)] if isinstance(env_idx, numbers.Integral) else [0]
+            raise UsageError(f"reset(options={{'env_idx': {env_idx!r}}}): give a list of the envs to reset, from 0 to "
+                             f"{self._n - 1}, e.g. {{'env_idx': {example}}} (ManiSkill takes no single index)")
+        named = named.reshape(-1)
+        if named.size and named.dtype.kind not in "iu":
+            raise UsageError(f"reset(options={{'env_idx': ...}}) holds {named.dtype} values; give the indices of the "
+                             f"envs to reset, from 0 to {self._n - 1}")
+        idxs = [int(i) for i in named]
+        if not idxs or len(set(idxs)) != len(idxs) or not all(0 <= i < self._n for i in idxs):
+            raise UsageError(f"reset(options={{'env_idx': {idxs}}}): name each env to reset once, from 0 to "
+                             f"{self._n - 1} (an env named twice would begin two episodes at once)")
+        return idxs
+
+    def _check_seeds(self, seed: Any, idxs: list[int]) -> None:
+        """Refuse, before anything changes, a seed ManiSkill would fail on inside its reset, once the episodes this
+        reset ends were committed (anything but ints from 0 to 2**32 - 1: `is_seed`), and a seed list of another
+        length than one seed, one per env, or one per env reset (`idxs`): ManiSkill 3.0.1 takes any list as the
+        episode seeds of all its envs, so with another length no seed belongs to an env and the recording would lose
+        its seed (`_episode_seeds`)."""
+        if seed is None:
             return
-        count = to_numpy(seed).size
+        seeds = _seed_list(seed)
+        if seeds is None and not is_seed(seed):
+            raise UsageError(f"reset(seed={seed!r}): ManiSkill takes seeds from 0 to {SEED_LIMIT - 1}; give one such "
+                             f"int, or a list of one per env ({self._n})")
+        bad = [s for s in seeds or () if not is_seed(s)]
+        if bad:
+            raise UsageError(f"reset(seed=...) holds {bad[0]!r}: ManiSkill takes seeds from 0 to {SEED_LIMIT - 1}; "
+                             f"give ints in that range, one seed or a list of one per env ({self._n})")
+        count = 1 if seeds is None else len(seeds)
         if count not in (1, self._n, len(idxs)):
             per_reset = f" or one per env reset ({len(idxs)})" if len(idxs) != self._n else ""
             raise UsageError(f"reset(seed=...) got {count} seeds for {self._n} env(s); give one seed, or a list of one "
@@ -601,6 +625,26 @@ def what_stopped(error: BaseException) -> str:
     if isinstance(error, KeyboardInterrupt):
         return "Ctrl-C (SIGINT)"
     return f"an error ({error})" if isinstance(error, SimreelError) else f"an error ({type(error).__name__})"
+
+
+def _reset_options(options: Any) -> dict[str, Any]:
+    """`reset()`'s options as a dict of its own (None: none); `UsageError` for anything but a dict."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise UsageError(f"reset(options={options!r}): give a dict of reset options, e.g. {{'env_idx': [0]}} or "
+                         "{'reconfigure': True}")
+    return dict(options)
+
+
+def _seed_list(seed: Any) -> list[Any] | None:
+    """The seeds of `reset(seed=...)` given as a list, a tuple, an array or a tensor (one value each), or None for
+    anything else, a single seed or not one at all."""
+    if isinstance(seed, (list, tuple)):
+        return list(seed)
+    if hasattr(seed, "dtype") and hasattr(seed, "shape"):
+        return to_numpy(seed).reshape(-1).tolist()
+    return None
 
 
 def _check_flag(name: str, value: Any) -> None:

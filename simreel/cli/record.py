@@ -14,8 +14,6 @@ from simreel.formats.durable import raise_if_stopped
 __all__ = ["add_parser", "run"]
 
 _DEFAULT_MAX_STEPS = 200
-_SEED_LIMIT = 2**32
-"""ManiSkill's seeds are unsigned 32-bit numbers."""
 _STEP_LIMIT = 2**31 - 1
 """The longest time limit ManiSkill can keep: it counts an episode's steps in int32 (beyond, every step ends it)."""
 
@@ -60,10 +58,12 @@ def _check_counts(args: argparse.Namespace) -> None:
     num_envs = EnvConfig.num_envs if args.num_envs is None else args.num_envs
     if num_envs < 1:
         raise UsageError(f"--num-envs must be ≥ 1, got {num_envs}")
+    from simreel.sim.seeds import SEED_LIMIT, is_seed
+
     last = args.seed + max(args.episodes, num_envs) - 1  # the largest seed a run uses (`_record_batched`)
-    if args.seed < 0 or last >= _SEED_LIMIT:
+    if not (is_seed(args.seed) and is_seed(last)):
         raise UsageError(f"--seed {args.seed}: this run would use seeds {args.seed} to {last}, but ManiSkill takes "
-                         f"seeds from 0 to {_SEED_LIMIT - 1}; choose a seed in that range")
+                         f"seeds from 0 to {SEED_LIMIT - 1}; choose a seed in that range")
 
 
 @dataclass(frozen=True)

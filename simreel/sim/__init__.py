@@ -2,7 +2,8 @@
 
 - `make`: build an env (`make_env`, `EnvConfig`), with `render_device` (which device renders) and `norender`
   (the state-only compatibility layer); `user_code`: the ``--import`` of user tasks and policies
-- `rebuild`: rebuild a recording's env from its metadata and reset it to an episode's scene
+- `rebuild`: rebuild a recording's env from its metadata and reset it to an episode's scene; `seeds`: the seeds
+  ManiSkill takes
 - `describe`: the `RecordingMeta` of a live env and the names of its bodies
 - `state`: read, restore and layout-check the state dict; `contacts`, `poses`: contact forces and body poses;
   `step_rows`: what turns a block of a recorder's per-step captures into arrays (in its writer process too)

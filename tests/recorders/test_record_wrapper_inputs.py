@@ -199,3 +199,44 @@ def test_a_seed_list_of_another_length_is_refused_before_the_env_resets(tmp_path
     rec.close()
     with open_reader(tmp_path / "r.h5") as r:
         assert [(m.seed, m.length) for m in r.episodes] == [(0, 2), (4, 1)]
+
+
+SEED_RANGE = "ManiSkill takes seeds from 0 to 4294967295"
+
+
+@pytest.mark.parametrize(
+    ("reset", "message"),
+    [
+        ({"seed": "abc"}, f"reset(seed='abc'): {SEED_RANGE}; give one such int, or a list of one per env (1)"),
+        ({"seed": 1.5}, f"reset(seed=1.5): {SEED_RANGE}; give one such int, or a list of one per env (1)"),
+        ({"seed": -1}, f"reset(seed=-1): {SEED_RANGE}; give one such int, or a list of one per env (1)"),
+        ({"seed": 2**70}, f"reset(seed={2**70}): {SEED_RANGE}; give one such int, or a list of one per env (1)"),
+        ({"seed": {}}, f"reset(seed={{}}): {SEED_RANGE}; give one such int, or a list of one per env (1)"),
+        ({"seed": True}, f"reset(seed=True): {SEED_RANGE}; give one such int, or a list of one per env (1)"),
+        ({"seed": np.array([2**32])}, f"reset(seed=...) holds 4294967296: {SEED_RANGE}; give ints in that range, one "
+                                      "seed or a list of one per env (1)"),
+        ({"options": {"env_idx": 0}}, "reset(options={'env_idx': 0}): give a list of the envs to reset, from 0 to 0, "
+                                      "e.g. {'env_idx': [0]} (ManiSkill takes no single index)"),
+        ({"options": [1]}, "reset(options=[1]): give a dict of reset options, e.g. {'env_idx': [0]} or "
+                           "{'reconfigure': True}"),
+    ],
+    ids=["str", "float", "negative", "2**70", "dict", "bool", "2**32-in-array", "scalar-env_idx", "options-list"],
+)
+def test_a_bad_seed_or_reset_option_is_refused_before_the_running_episode_ends(tmp_path, reset, message):
+    """Regression: these failed inside ManiSkill's reset (numpy's or ManiSkill's raw errors) after the running episode
+    had been ended and committed, and with the writer process `episodes_committed` did not list it. Refused first,
+    the episode goes on, and a correct reset afterwards commits it."""
+    rec = RecordWrapper(make_env("PushCube-v1"), tmp_path / "r.h5", contacts="none")
+    zero = np.zeros(rec.action_space.shape, np.float32)
+    rec.reset(seed=0)
+    rec.step(zero)
+    with pytest.raises(UsageError) as refused:
+        rec.reset(**reset)
+    assert str(refused.value) == message
+    rec.step(zero)
+    rec.reset(seed=2**32 - 1)  # the largest seed ManiSkill takes
+    assert [(m.seed, m.length) for m in rec.episodes_committed] == [(0, 2)]
+    rec.step(zero)
+    rec.close()
+    with open_reader(tmp_path / "r.h5") as r:
+        assert [(m.seed, m.length) for m in r.episodes] == [(0, 2), (2**32 - 1, 1)]
