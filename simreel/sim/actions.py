@@ -48,6 +48,9 @@ class ActionCheck:
         if not kind or kind not in "biuf":
             what = f"dtype {action.dtype}" if hasattr(action, "dtype") else f"type {type(action).__name__}"
             raise ActionError(f"an action of {what}; {self.env_id} takes a numeric array of shape {self.shape}")
+        wide = a.dtype.itemsize > 4
+        if wide and (kind == "u" or a.dtype.itemsize > 8):  # uint64, longdouble: rare, checked only here
+            _check_array_dtype(a)
         if a.shape not in self._shapes:
             raise ActionError(f"an action of shape {a.shape}; {self.env_id} takes shape "
                               f"{(self.num_envs, *self.shape) if self.num_envs > 1 else self.shape}")
@@ -55,12 +58,12 @@ class ActionCheck:
             values = a.ravel().tolist()
             if kind == "f" and not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):  # a sum may
                 raise _non_finite(a)  # overflow where every number is finite
-            if a.dtype.itemsize > 4 and kind == "f" and values and max(map(abs, values)) > _FLOAT32_MAX:
+            if wide and kind == "f" and values and max(map(abs, values)) > _FLOAT32_MAX:
                 raise _beyond_float32(a)
             return values
         if kind == "f" and not np.isfinite(a).all():
             raise _non_finite(a)
-        if a.dtype.itemsize > 4 and kind == "f" and np.abs(a).max() > _FLOAT32_MAX:
+        if wide and kind == "f" and np.abs(a).max() > _FLOAT32_MAX:
             raise _beyond_float32(a)
         return a.astype(np.float32, copy=False).reshape(self.num_envs, -1)
 
@@ -77,7 +80,8 @@ def _as_array(action: Any) -> np.ndarray | None:
 
 
 _UNCLIPPABLE = ("torch.uint16", "torch.uint32", "torch.uint64")
-"""Tensor dtypes torch cannot clamp, as ManiSkill does with every action."""
+"""Tensor dtypes torch cannot clamp, as ManiSkill does with every action. Of numpy arrays, only uint64 ones become such
+a tensor: ManiSkill 3.0.1 turns uint16 and uint32 arrays into int32 and int64 first (`to_tensor`)."""
 
 
 def _check_tensor(action: Any) -> None:
@@ -88,6 +92,17 @@ def _check_tensor(action: Any) -> None:
         raise ActionError("an action tensor on torch's meta device, which holds no numbers")
     if str(getattr(action, "dtype", "")) in _UNCLIPPABLE:
         raise ActionError(f"an action of dtype {action.dtype}, which ManiSkill cannot clip to the action space")
+
+
+def _check_array_dtype(a: np.ndarray) -> None:
+    """`ActionError` for a numpy array of 8 bytes or more per number that ManiSkill cannot step with: one that becomes
+    a tensor torch cannot clamp (`_UNCLIPPABLE`: uint64) or one torch has no dtype for (longdouble)."""
+    if f"torch.{a.dtype.name}" in _UNCLIPPABLE:
+        raise ActionError(f"an action of dtype {a.dtype}, which ManiSkill cannot clip to the action space; give "
+                          "float32 actions")
+    if a.dtype.itemsize > 8:
+        raise ActionError(f"an action of dtype {a.dtype}, which torch, and so ManiSkill, cannot take; give float32 "
+                          "actions")
 
 
 def _non_finite(a: np.ndarray) -> ActionError:

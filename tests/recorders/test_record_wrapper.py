@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
 
@@ -614,3 +615,28 @@ def test_a_custom_leaf_that_changes_layout_is_refused_once_the_fast_reader_is_pr
     with pytest.raises(StateLayoutError, match="level"):
         rec.reset(seed=1, options=change)
     rec.close()
+
+
+def test_a_numpy_action_of_a_dtype_maniskill_cannot_step_with_is_refused_before_the_env_steps(tmp_path):
+    """Regression: a numpy uint64 action failed inside ManiSkill's step with torch's NotImplementedError
+    ("clamp_scalar_cpu" not implemented for 'UInt64'), a longdouble one with torch's TypeError. The other numpy dtypes
+    ManiSkill steps with (uint16 and uint32 it widens first, float16, bool) are recorded as given."""
+    from simreel.errors import ActionError
+
+    rec = RecordWrapper(make_env("PickCube-v1"), tmp_path / "a.h5", contacts="none", writer_process=False)
+    rec.reset(seed=0)
+    refused = [(np.uint64, "an action of dtype uint64, which ManiSkill cannot clip to the action space; give float32 "
+                           "actions"),
+               (np.longdouble, f"an action of dtype {np.dtype(np.longdouble)}, which torch, and so ManiSkill, cannot "
+                               "take; give float32 actions")]
+    for dtype, message in refused:
+        for shape in ((8,), (1, 8)):
+            with pytest.raises(ActionError, match=f"^{re.escape(message)}$"):
+                rec.step(np.ones(shape, dtype))
+    taken = [np.ones(8, dtype) for dtype in (np.uint16, np.uint32, np.float16, np.int8, bool)]
+    for action in taken:
+        rec.step(action)
+    rec.close()
+    with open_reader(tmp_path / "a.h5") as r:
+        episode = r.read_episode(0)
+    assert episode.length == len(taken) and np.array_equal(episode.actions, np.ones((len(taken), 8), np.float32))
