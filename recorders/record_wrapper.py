@@ -25,7 +25,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from simreel.episode import EpisodeMeta, StepBlock, json_default
+from simreel.episode import EpisodeMeta, StepBlock, episode_fields, json_default
 from simreel.errors import EpisodeLayoutError, SimreelError, StateLayoutError, Terminated, UsageError
 from simreel.formats import format_of, open_writer, records_poses_by_default
 from simreel.formats.durable import deferred_signals
@@ -41,7 +41,7 @@ from simreel.sim.seeds import SEED_LIMIT, is_seed
 from simreel.sim.state import FastStateReader, check_same_layout, read_state
 from simreel.sim.step_rows import ActionRows, PackedRows
 from simreel.sim.user_code import found_spec
-from simreel.state_tree import layout_of, to_numpy
+from simreel.state_tree import LeafSpec, layout_differences, layout_of, to_numpy
 
 __all__ = ["RecordWrapper", "RecordOptions", "what_stopped"]
 
@@ -319,7 +319,10 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._last_scalars = self._scalars.capture(*result[1:])
         captures.append((self._scalars.rows, self._last_scalars))
         buffer = self._buffer
-        buffer.push(fields, captures)
+        try:
+            buffer.push(fields, captures)
+        except (ValueError, TypeError) as e:  # a row that no longer fits its field: diagnosed only then
+            self._refuse_step(fields, e)
         if buffer.full:
             with deferred_signals():  # `_flush`
                 self._flush_all()
@@ -334,29 +337,61 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             try:
                 self._flush(i)
             except EpisodeLayoutError as e:
-                self._refuse(i, e)
+                self._refuse(i, f"the writer refused the steps from there on ({e})")
                 refusal = refusal or e
         self._buffer.rewind()
-        if refusal is not None:
+        if refusal is not None:  # the buffer's fields may be shaped after a refused row: it makes them again
+            self._buffer = StepBuffer(self.options.block_steps, self._n)
             raise refusal
 
-    def _refuse(self, i: int, error: EpisodeLayoutError) -> None:
-        """Stop env i's episode where its sink refused steps: a later step would leave a hole in it. It is committed
-        with the steps handed over before, and a note, when the env is reset (or the recording stopped or closed);
-        until then `step()` refuses to run (`_check_not_refused`)."""
-        self._refused[i] = f"{error}"
-        self._episodes[i].notes.append(f"cut short at step {self._sent[i]}: the writer refused the steps from there "
-                                       f"on ({error})")
+    def _refuse(self, i: int, why: str) -> None:
+        """Stop env i's episode where its steps could not be recorded (`why`: its sink refused them, or a step's rows
+        did not fit, `_refuse_step`): a later step would leave a hole in it. It is committed with the steps handed
+        over before, and a note, when the env is reset (or the recording stopped or closed); until then `step()`
+        refuses to run (`_check_not_refused`)."""
+        self._refused[i] = why
+        self._episodes[i].notes.append(f"cut short at step {self._sent[i]}: {why}")
 
     def _check_not_refused(self) -> None:
-        """`UsageError` where an env's episode stopped at steps its sink refused (`_refuse`), saying how to go on."""
+        """`UsageError` where an env's episode stopped at steps that could not be recorded (`_refuse`), saying how to
+        go on."""
         if not self._refused:
             return
-        i, error = next(iter(self._refused.items()))
+        i, why = next(iter(self._refused.items()))
         reset = "reset()" if self._n == 1 else f"reset(options={{'env_idx': [{i}]}})"
         raise UsageError(f"RecordWrapper.step(): episode {self._episodes[i].index} (env {i}) stopped at step "
-                         f"{self._sent[i]}, where the writer refused its steps ({error}); {reset} to begin the next "
-                         "episode")
+                         f"{self._sent[i]}: {why}; {reset} to begin the next episode")
+
+    def _refuse_step(self, fields: dict[str, np.ndarray], error: Exception) -> None:
+        """A step whose rows did not fit the buffer (`error`, what storing them raised): where a field changed shape or
+        kind of dtype since the recording began, hand every env's steps before it to its sink, stop every running
+        episode there (`_refuse`; one push holds all envs' rows) and raise `EpisodeLayoutError` naming the fields;
+        otherwise `error` is the recorder's own bug and goes on as it is."""
+        changes = self._layout_changes(fields)
+        if not changes:
+            raise error
+        why = f"its rows did not fit the recording's layout ({'; '.join(changes)})"
+        with deferred_signals():
+            try:
+                self._flush_all()  # the steps before this one, each env's, are handed over
+            finally:
+                for i in range(self._n):
+                    if self._sinks[i] is not None and i not in self._refused:
+                        self._refuse(i, why)
+        stopped = (f"episode {self._episodes[0].index} stops at step {self._sent[0]}, kept with the steps before it; "
+                   "reset() to begin the next" if self._n == 1 else "every running episode stops at this step, kept "
+                   "with the steps before it; reset() to begin the next ones")
+        raise EpisodeLayoutError(f"{self.meta.env_id}: a step's rows do not fit the recording's layout "
+                                 f"({'; '.join(changes)}), which every step keeps; {stopped}") from None
+
+    def _layout_changes(self, fields: dict[str, np.ndarray]) -> list[str]:
+        """One line per field of a step (all envs' rows) whose per-env shape, or kind of dtype, is not the recording's:
+        ``"obs: recorded (42,) float32, now (43,) float32"``. Run only once storing a step has failed."""
+        recorded = {f.name: LeafSpec(f.shape, f.dtype) for f in episode_fields(self.meta)}
+        now = layout_of({name: to_numpy(a) for name, a in fields.items() if name in recorded}, batched=True)
+        changed = [name for name, spec in now.items() if spec.shape != recorded[name].shape
+                   or np.dtype(spec.dtype).kind != np.dtype(recorded[name].dtype).kind]
+        return layout_differences({name: recorded[name] for name in changed}, {name: now[name] for name in changed})
 
     def _after_step(self, obs: Any) -> tuple[dict[str, np.ndarray], list[tuple[Any, Any]]]:
         """The state, observations, poses and contact forces after a step: (fields read now, what is captured now
@@ -607,7 +642,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 try:
                     sink.finish(meta, last)
                 except EpisodeLayoutError as e:
-                    self._refuse(i, e)
+                    self._refuse(i, f"the writer refused the steps from there on ({e})")
                     raise
                 self._chain_ran[i] += 1
             self._sinks[i] = None

@@ -7,6 +7,7 @@ import re
 import shutil
 import signal
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -615,6 +616,83 @@ def test_a_custom_leaf_that_changes_layout_is_refused_once_the_fast_reader_is_pr
     with pytest.raises(StateLayoutError, match="level"):
         rec.reset(seed=1, options=change)
     rec.close()
+
+
+class _ObsGrows(gym.Wrapper):
+    """A plain wrapper below the recorder whose observations gain one number from step `at` of episode `episode` on
+    (counted from 1), as a user's own wrapper might."""
+
+    def __init__(self, env, *, at: int, episode: int | None = None):
+        super().__init__(env)
+        self.at, self.episode, self.resets, self.steps = at, episode, 0, 0
+
+    def reset(self, **kwargs):
+        self.resets, self.steps = self.resets + 1, 0
+        return self.env.reset(**kwargs)
+
+    def step(self, action):
+        self.steps += 1
+        obs, *rest = self.env.step(action)
+        if self.steps >= self.at and self.episode in (None, self.resets):
+            obs = torch.cat([obs, obs[:, :1]], dim=1)
+        return (obs, *rest)
+
+
+@pytest.mark.parametrize("writer_process", [False, True])
+def test_an_observation_that_changes_shape_stops_its_episode_with_the_steps_before_it(tmp_path, writer_process):
+    """Regression: an observation that gained a number mid-episode raised numpy's "could not broadcast (1,43) into
+    (1,42)" at that step and at every later one, the episode never stopped. Now it is EpisodeLayoutError naming the
+    field and both shapes; the episode is kept with its steps before that one and a note, step() says to reset, and
+    the next episode records as usual."""
+    from simreel.errors import EpisodeLayoutError
+
+    path = tmp_path / "r.h5"
+    rec = RecordWrapper(_ObsGrows(make_env("PickCube-v1"), at=7), path, record_obs=True, contacts="none",
+                        writer_process=writer_process, block_steps=4)
+    zero = np.zeros(rec.action_space.shape, np.float32)
+    rec.reset(seed=0)
+    for _ in range(6):  # steps 0-3 handed over with the first block, 4-5 buffered
+        rec.step(zero)
+    change = "obs/state: recorded (42,) float32, now (43,) float32"
+    with pytest.raises(EpisodeLayoutError, match=re.escape(
+            f"PickCube-v1: a step's rows do not fit the recording's layout ({change}), which every step keeps; "
+            "episode 0 stops at step 6, kept with the steps before it; reset() to begin the next")):
+        rec.step(zero)
+    with pytest.raises(UsageError, match=re.escape("episode 0 (env 0) stopped at step 6: its rows did not fit the "
+                                                   f"recording's layout ({change}); reset() to begin the next")):
+        rec.step(zero)
+    rec.reset(seed=1)
+    assert [m.length for m in rec.episodes_committed] == [6]
+    for _ in range(5):
+        rec.step(zero)
+    rec.close()
+    with open_reader(path) as r:
+        first, second = r.read_episode(0), r.read_episode(1)
+    assert first.length == 6 and first.obs["state"].shape == (7, 42)
+    assert first.meta.notes == [f"cut short at step 6: its rows did not fit the recording's layout ({change})"]
+    assert second.length == 5 and second.meta.notes == []
+
+
+def test_a_block_refused_for_its_first_rows_leaves_the_next_episode_recordable(tmp_path):
+    """Regression: the buffer shapes each field after the first row pushed; where that row did not fit, the writer
+    refused the block, and every later step raised numpy's broadcast error, in later episodes too."""
+    from simreel.errors import EpisodeLayoutError
+
+    path = tmp_path / "r.h5"
+    rec = RecordWrapper(_ObsGrows(make_env("PickCube-v1"), at=1, episode=1), path, record_obs=True, contacts="none",
+                        block_steps=4)
+    zero = np.zeros(rec.action_space.shape, np.float32)
+    rec.reset(seed=0)
+    for _ in range(3):
+        rec.step(zero)
+    with pytest.raises(EpisodeLayoutError, match=re.escape("obs/state has shape (4, 43), expected (4, 42)")):
+        rec.step(zero)
+    rec.reset(seed=1)
+    for _ in range(5):
+        rec.step(zero)
+    rec.close()
+    with open_reader(path) as r:
+        assert [(m.seed, m.length) for m in r.episodes] == [(1, 5)]  # the first had no step that fit
 
 
 def test_a_numpy_action_of_a_dtype_maniskill_cannot_step_with_is_refused_before_the_env_steps(tmp_path):
