@@ -364,10 +364,10 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _refuse_step(self, fields: dict[str, np.ndarray], error: Exception) -> None:
         """A step whose rows did not fit the buffer (`error`, what storing them raised): where a field changed shape or
-        kind of dtype since the recording began, hand every env's steps before it to its sink, stop every running
+        kind of dtype since the recording began, or is missing or new (`FieldsChanged`), hand every env's steps before it to its sink, stop every running
         episode there (`_refuse`; one push holds all envs' rows) and raise `EpisodeLayoutError` naming the fields;
         otherwise `error` is the recorder's own bug and goes on as it is."""
-        changes = self._layout_changes(fields)
+        changes = self._layout_changes(fields, error)
         if not changes:
             raise error
         why = f"its rows did not fit the recording's layout ({'; '.join(changes)})"
@@ -384,14 +384,17 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         raise EpisodeLayoutError(f"{self.meta.env_id}: a step's rows do not fit the recording's layout "
                                  f"({'; '.join(changes)}), which every step keeps; {stopped}") from None
 
-    def _layout_changes(self, fields: dict[str, np.ndarray]) -> list[str]:
-        """One line per field of a step (all envs' rows) whose per-env shape, or kind of dtype, is not the recording's:
-        ``"obs: recorded (42,) float32, now (43,) float32"``. Run only once storing a step has failed."""
+    def _layout_changes(self, fields: dict[str, np.ndarray], error: Exception) -> list[str]:
+        """One line per field of a step (all envs' rows) missing from it, new in it (`FieldsChanged`, the buffer's
+        `error`), or whose per-env shape or kind of dtype is not the recording's: ``"obs: recorded (42,) float32, now
+        (43,) float32"``. Run only once storing a step has failed."""
         recorded = {f.name: LeafSpec(f.shape, f.dtype) for f in episode_fields(self.meta)}
-        now = layout_of({name: to_numpy(a) for name, a in fields.items() if name in recorded}, batched=True)
-        changed = [name for name, spec in now.items() if spec.shape != recorded[name].shape
-                   or np.dtype(spec.dtype).kind != np.dtype(recorded[name].dtype).kind]
-        return layout_differences({name: recorded[name] for name in changed}, {name: now[name] for name in changed})
+        now = layout_of({name: to_numpy(a) for name, a in fields.items()}, batched=True)
+        changed = [name for name, spec in now.items() if name in recorded and (spec.shape != recorded[name].shape
+                   or np.dtype(spec.dtype).kind != np.dtype(recorded[name].dtype).kind)]
+        missing, new = getattr(error, "missing", []), getattr(error, "new", [])
+        return layout_differences({name: recorded[name] for name in [*changed, *missing] if name in recorded},
+                                  {name: now[name] for name in [*changed, *new] if name in now})
 
     def _after_step(self, obs: Any) -> tuple[dict[str, np.ndarray], list[tuple[Any, Any]]]:
         """The state, observations, poses and contact forces after a step: (fields read now, what is captured now

@@ -19,7 +19,7 @@ import numpy as np
 
 from simreel.episode import StepBlock
 
-__all__ = ["StepBuffer", "RowSource"]
+__all__ = ["StepBuffer", "RowSource", "FieldsChanged"]
 
 
 RowSource = Callable[[list[Any]], dict[str, np.ndarray]]
@@ -27,8 +27,19 @@ RowSource = Callable[[list[Any]], dict[str, np.ndarray]]
 `simreel.sim.step_rows` class, which names its fields (`names`) and pickles."""
 
 
+class FieldsChanged(ValueError):
+    """A step that does not bring the fields the buffer's first step brought (as arrays or through its captures'
+    sources): a field missing from it would keep the rows of an earlier block, or none at all (`StepBuffer.push`)."""
+
+    def __init__(self, missing: list[str], new: list[str]) -> None:
+        self.missing, self.new = missing, new
+        differences = [f"{what} {', '.join(names)}" for what, names in (("missing", missing), ("new", new)) if names]
+        super().__init__(f"a step whose fields are not the first step's: {'; '.join(differences)}")
+
+
 class StepBuffer:
-    """`capacity` rows × `num_envs` envs of named fields; rows are steps."""
+    """`capacity` rows × `num_envs` envs of named fields; rows are steps. Every step brings the same fields, as the
+    first step pushed did (`FieldsChanged` otherwise)."""
 
     def __init__(self, capacity: int, num_envs: int) -> None:
         self.capacity = capacity
@@ -38,6 +49,10 @@ class StepBuffer:
         self._arrays: dict[str, np.ndarray] = {}
         self._captured: dict[RowSource, tuple[list[int], list[Any]]] = {}
         """Per source, the rows it captured and not yet converted, and the captures (its own objects)."""
+        self._names: frozenset[str] | None = None
+        """The fields every step brings: those of the first step pushed (`_check_fields`)."""
+        self._arrays_brought: dict[int, int] = {}
+        """Per number of captures a step brings, how many arrays such a step brought when its fields were checked."""
 
     @property
     def full(self) -> bool:
@@ -45,10 +60,18 @@ class StepBuffer:
 
     def push(self, fields: dict[str, np.ndarray], captures: Iterable[tuple[RowSource, Any]] = ()) -> None:
         """Store one step: each field has a leading num_envs dimension; each capture becomes its source's fields
-        for this row when the rows are taken (a capture must not change after it is pushed)."""
-        r = self.rows
+        for this row when the rows are taken (a capture must not change after it is pushed). `FieldsChanged`, and the
+        step is not stored, where its fields (its arrays' and its sources') are not the first step's."""
+        captures = captures if isinstance(captures, list) else list(captures)
+        if self._arrays_brought.get(len(captures)) != len(fields):
+            self._check_fields(fields, captures)
+        r, arrays = self.rows, self._arrays
         for name, value in fields.items():
-            self._row_buffer(name, value)[r] = value
+            buf = arrays.get(name)
+            if buf is None:  # the first step, or a field it did not bring
+                self._check_fields(fields, captures)
+                buf = self._row_buffer(name, value)
+            buf[r] = value
         captured = self._captured
         for source, capture in captures:
             entry = captured.get(source)
@@ -57,6 +80,17 @@ class StepBuffer:
             entry[0].append(r)
             entry[1].append(capture)
         self.rows = r + 1
+
+    def _check_fields(self, fields: dict[str, np.ndarray], captures: list[tuple[RowSource, Any]]) -> None:
+        """Check a step's fields against the first step's, in full: run for the first step with each number of
+        captures and its count of arrays (a count that matches one checked is the same fields: a new field could
+        only keep the count by replacing one, and a field without rows yet is checked before they are made)."""
+        names = frozenset(fields).union(*(source.names for source, _ in captures))
+        if self._names is None:
+            self._names = names
+        elif names != self._names:
+            raise FieldsChanged(sorted(self._names - names), sorted(names - self._names))
+        self._arrays_brought[len(captures)] = len(fields)
 
     def _row_buffer(self, name: str, row: np.ndarray) -> np.ndarray:
         buf = self._arrays.get(name)

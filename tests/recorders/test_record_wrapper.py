@@ -673,6 +673,45 @@ def test_an_observation_that_changes_shape_stops_its_episode_with_the_steps_befo
     assert second.length == 5 and second.meta.notes == []
 
 
+class _ObsLosesExtra(gym.Wrapper):
+    """A plain wrapper below the recorder whose dict observations lose their "extra" entries from step `at` on."""
+
+    def __init__(self, env, *, at: int):
+        super().__init__(env)
+        self.at, self.steps = at, 0
+
+    def reset(self, **kwargs):
+        self.steps = 0
+        return self.env.reset(**kwargs)
+
+    def step(self, action):
+        self.steps += 1
+        obs, *rest = self.env.step(action)
+        return ({k: v for k, v in obs.items() if k != "extra" or self.steps < self.at}, *rest)
+
+
+def test_an_observation_that_loses_a_key_stops_its_episode_instead_of_recording_stale_rows(tmp_path):
+    """Regression: observations that lost a key mid-episode raised nothing; the block kept that field's rows as they
+    were (np.empty's garbage), and the file recorded them as observations. Now it is EpisodeLayoutError naming the
+    fields now absent, and the episode keeps only the steps that had them."""
+    from simreel.errors import EpisodeLayoutError
+
+    path = tmp_path / "r.h5"
+    rec = RecordWrapper(_ObsLosesExtra(make_env("PickCube-v1", obs_mode="state_dict"), at=3), path, record_obs=True,
+                        contacts="none")
+    zero = np.zeros(rec.action_space.shape, np.float32)
+    rec.reset(seed=0)
+    rec.step(zero)
+    rec.step(zero)
+    with pytest.raises(EpisodeLayoutError, match=re.escape("obs/extra/goal_pos: recorded (3,) float32, now absent")):
+        rec.step(zero)
+    rec.close()
+    with open_reader(path) as r:
+        episode = r.read_episode(0)
+    assert episode.length == 2 and np.isfinite(episode.obs["extra/tcp_pose"]).all()
+    assert episode.meta.notes[0].startswith("cut short at step 2: its rows did not fit the recording's layout")
+
+
 def test_a_block_refused_for_its_first_rows_leaves_the_next_episode_recordable(tmp_path):
     """Regression: the buffer shapes each field after the first row pushed; where that row did not fit, the writer
     refused the block, and every later step raised numpy's broadcast error, in later episodes too."""

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from simreel.errors import EpisodeLayoutError
-from simreel.recorders.step_buffer import StepBuffer
+from simreel.recorders.step_buffer import FieldsChanged, StepBuffer
 
 
 def test_envs_take_their_own_rows_across_partial_resets():
@@ -28,12 +28,14 @@ def test_envs_take_their_own_rows_across_partial_resets():
 
 
 class _Doubling:
-    """A row source (its `rows`): each capture (a list of one number per env) becomes row `2 * capture` of field "x"."""
+    """A row source: each capture (a list of one number per env) becomes row `2 * capture` of field "x"."""
+
+    names = ("x",)
 
     def __init__(self):
         self.calls = 0
 
-    def rows(self, captures):
+    def __call__(self, captures):
         self.calls += 1
         return {"x": 2 * np.array(captures)}
 
@@ -41,17 +43,17 @@ class _Doubling:
 def test_captures_become_rows_once_per_block_in_their_own_rows():
     source = _Doubling()
     buf = StepBuffer(capacity=4, num_envs=2)
-    buf.push({"y": np.array([0, 1])}, ((source.rows, [10, 11]),))
+    buf.push({"y": np.array([0, 1])}, ((source, [10, 11]),))
     buf.push({"x": np.array([-1, -2]), "y": np.array([2, 3])})  # a step whose x was read at once
-    buf.push({"y": np.array([4, 5])}, ((source.rows, [30, 31]),))
+    buf.push({"y": np.array([4, 5])}, ((source, [30, 31]),))
     assert source.calls == 0  # nothing converted before the rows are taken
     np.testing.assert_array_equal(buf.take(0)["x"], [20, -1, 60])
     np.testing.assert_array_equal(buf.take(1)["x"], [22, -2, 62])
     assert source.calls == 1  # one conversion for the block, whoever takes first
-    buf.push({"y": np.array([6, 7])}, ((source.rows, [40, 41]),))
+    buf.push({"y": np.array([6, 7])}, ((source, [40, 41]),))
     np.testing.assert_array_equal(buf.take(1)["x"], [82])
     buf.rewind()
-    buf.push({"y": np.array([8, 9])}, ((source.rows, [50, 51]),))
+    buf.push({"y": np.array([8, 9])}, ((source, [50, 51]),))
     np.testing.assert_array_equal(buf.take(0)["x"], [100])  # a rewind drops what was captured before it
 
 
@@ -103,3 +105,23 @@ def test_captures_are_converted_here_where_a_source_missed_a_step_or_there_are_m
     two.push({"y": np.array([0, 1])}, ((ActionRows(2), [1.0, 2.0, 3.0, 4.0]),))
     block = two.take(1, defer=True)  # each env's block would convert every env's captures
     assert block.captured == () and block["actions"].tolist() == [[3.0, 4.0]]
+
+
+def test_a_step_without_a_field_the_first_step_brought_is_refused_and_not_stored():
+    """Regression: a step whose observations lost a key left that field's row as it was: rows of an earlier block,
+    or np.empty's garbage, recorded as data. Every step must bring the first step's fields, as arrays or through its
+    captures' sources (a state read through get_state_dict() once the fast reader cannot: the same fields)."""
+    source = _Doubling()
+    buf = StepBuffer(capacity=4, num_envs=1)
+    buf.push({"x": np.array([1]), "y": np.array([2])})
+    buf.push({"y": np.array([3])}, ((source, [5]),))  # x through a source: the same fields
+    with pytest.raises(FieldsChanged) as missing:
+        buf.push({"y": np.array([4])})
+    assert (missing.value.missing, missing.value.new) == (["x"], [])
+    with pytest.raises(FieldsChanged) as swapped:  # as many arrays as a good step, one of them new
+        buf.push({"x": np.array([6]), "z": np.array([7])})
+    assert (swapped.value.missing, swapped.value.new) == (["y"], ["z"])
+    assert buf.rows == 2
+    buf.push({"x": np.array([8]), "y": np.array([9])})
+    block = buf.take(0)
+    assert set(block.arrays) == {"x", "y"} and block["x"].tolist() == [1, 10, 8] and block["y"].tolist() == [2, 3, 9]
