@@ -30,6 +30,7 @@ from simreel.errors import EpisodeLayoutError, SimreelError, StateLayoutError, T
 from simreel.formats import format_of, open_writer, records_poses_by_default
 from simreel.formats.durable import deferred_signals
 from simreel.formats.writer_process import ProcessWriter
+from simreel.option_checks import check_flag, check_text, whole_number
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.recorders.step_scalars import StepScalars, scalar_info
 from simreel.sim.actions import ActionCheck
@@ -40,7 +41,7 @@ from simreel.sim.poses import pose_body_names, sample_body_poses
 from simreel.sim.seeds import SEED_LIMIT, is_seed
 from simreel.sim.state import FastStateReader, check_same_layout, read_state
 from simreel.sim.step_rows import ActionRows, PackedRows
-from simreel.sim.user_code import found_spec
+from simreel.sim.user_code import found_spec, import_specs
 from simreel.state_tree import LeafSpec, layout_differences, layout_of, to_numpy
 
 __all__ = ["RecordWrapper", "RecordOptions", "what_stopped"]
@@ -83,16 +84,13 @@ class RecordOptions:
         """Check the options whose wrong type would fail later as a raw Python error, or be taken for another value (a
         flag given as a string), or be stored where the file could not be read back (a command that is not a
         string); put them in one form: contacts as one string (`contacts_spec`), imports as a tuple."""
-        steps = self.block_steps
-        if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 1:
-            raise UsageError(f"block_steps={steps!r}: give the number of steps to buffer, an int ≥ 1 (default 256)")
-        object.__setattr__(self, "block_steps", int(steps))
+        object.__setattr__(self, "block_steps", whole_number(
+            "block_steps", self.block_steps, "the number of steps to buffer, an int ≥ 1 (default 256)", minimum=1))
         for name in ("record_obs", "overwrite", "writer_process") + (("poses",) if self.poses is not None else ()):
-            _check_flag(name, getattr(self, name))
-        if not isinstance(self.command, str):
-            raise UsageError(f"command={self.command!r}: give the command line as a string (stored for provenance)")
+            check_flag(name, getattr(self, name))
+        check_text("command", self.command, "the command line as a string (stored for provenance)")
         object.__setattr__(self, "contacts", contacts_spec(self.contacts))
-        object.__setattr__(self, "imports", _import_specs(self.imports))
+        object.__setattr__(self, "imports", import_specs(self.imports))
         if not isinstance(self.writer_options, Mapping) or not all(isinstance(k, str) for k in self.writer_options):
             raise UsageError(f"writer_options={self.writer_options!r}: give a dict of the format's writer options, "
                              "e.g. {\"compression\": \"gzip\"}")
@@ -685,13 +683,6 @@ def _seed_list(seed: Any) -> list[Any] | None:
     return None
 
 
-def _check_flag(name: str, value: Any) -> None:
-    """`UsageError` for a yes/no option that is not a bool: any truthy value would count as yes (``overwrite="no"``
-    replacing a file)."""
-    if not isinstance(value, (bool, np.bool_)):
-        raise UsageError(f"{name}={value!r}: give True or False")
-
-
 def _constructor_options(opts: RecordOptions) -> dict[str, Any]:
     """The options that differ from the defaults, as plain values for ``env.spec`` (gymnasium's WrapperSpec)."""
     default = RecordOptions()
@@ -730,15 +721,6 @@ def _refuse_unknown_options(overrides: Mapping[str, Any]) -> None:
     if unknown:
         raise TypeError(f"RecordWrapper() got an unexpected keyword argument {unknown[0]!r}; its options are the "
                         f"fields of RecordOptions: {', '.join(fields)}")
-
-
-def _import_specs(imports: Any) -> tuple[str, ...]:
-    """The `imports` option as a tuple of specs: one string is one spec; anything but strings is `UsageError`."""
-    specs = (imports,) if isinstance(imports, str) else tuple(imports) if isinstance(imports, Iterable) else None
-    if specs is None or not all(isinstance(spec, str) for spec in specs):
-        raise UsageError(f"imports={imports!r}: give the .py files or modules that register the task, as a tuple of "
-                         "strings, e.g. (\"my_tasks.py\",)")
-    return specs
 
 
 def _check_writer_options(path: str | Path, options: Mapping[str, Any]) -> None:

@@ -21,9 +21,8 @@ import contextlib
 import dataclasses
 import datetime
 import functools
-import math
 import os
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,7 @@ from simreel.formats import check_report_writable, check_writable, format_of, re
 from simreel.formats.durable import is_storage_error, raise_if_stopped, storage_error
 from simreel.formats.inputs import file_identity
 from simreel.formats.targets import check_distinct
+from simreel.option_checks import check_flag, check_text, is_path, path_text, whole_number
 from simreel.replay.engine import MODES
 from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchFolder, published
 from simreel.replay.report import EpisodeReport, recording_limits
@@ -59,7 +59,7 @@ from simreel.replay.worklist import (
     build_worklist,
     chain_groups,
 )
-from simreel.sim.user_code import import_user_code, recorded_spec
+from simreel.sim.user_code import import_specs, import_user_code, recorded_spec
 
 __all__ = ["ReplayOptions", "ReplayRun", "verify_recording"]
 
@@ -113,14 +113,44 @@ class ReplayOptions:
     ship: bool = False
 
     def __post_init__(self) -> None:
+        """Check every option, so that a wrong one is a `UsageError` here, naming it and what to give, not a raw
+        error once the run starts or a value taken for another (``resync=True`` as 1, ``overwrite="no"`` as yes);
+        put them in one form: episodes as an `EpisodeSelection`, imports as a tuple of recorded specs, tolerances as
+        floats, counts as ints, paths as strings."""
+        self._check_types()
+        if self.resync is not None:
+            object.__setattr__(self, "resync", whole_number(
+                "resync", self.resync, "the number of actions between two restores of the recorded state, an int >= 1, "
+                "or None (never restore)"))
+        object.__setattr__(self, "workers", whole_number(
+            "workers", self.workers, "the number of processes (Ray actors with ray) replaying episodes, an int >= 1"))
         # ranges, whatever the numbers; a report keeps the text (`_json_value`), which `of` reads back
         object.__setattr__(self, "episodes", EpisodeSelection.of(self.episodes))
         # a file by its absolute path: a resumed run, or a worker, may work in another folder
-        object.__setattr__(self, "imports", tuple(recorded_spec(spec) for spec in self.imports))
-        object.__setattr__(self, "group_tolerances", dict(self.group_tolerances))
+        object.__setattr__(self, "imports", tuple(recorded_spec(spec) for spec in import_specs(self.imports)))
         for name in ("output", "report"):
             if getattr(self, name) is not None:
-                object.__setattr__(self, name, str(getattr(self, name)))
+                object.__setattr__(self, name, path_text(name, getattr(self, name), _PATH_OPTIONS[name]))
+        self.tolerances()  # the values: mode, resync, workers, tolerances
+        object.__setattr__(self, "group_tolerances", {g: float(t) for g, t in self.group_tolerances.items()})
+        if self.atol is not None:
+            object.__setattr__(self, "atol", float(self.atol))
+
+    def _check_types(self) -> None:
+        """`UsageError` for a flag, a string or the tolerance groups of the wrong type (`simreel.option_checks`);
+        the counts, episodes, imports, paths and tolerances are checked by the rules that read them."""
+        for name in ("overwrite", "resume", "ship"):
+            check_flag(name, getattr(self, name))
+        check_text("obs_mode", self.obs_mode, 'an observation mode as a string, e.g. "rgb", or None (the recorded '
+                   "one)", optional=True)
+        check_text("sim_backend", self.sim_backend, 'a sim backend as a string, e.g. "physx_cpu", or None (the '
+                   "recorded one)", optional=True)
+        check_text("ray", self.ray, '"local", "auto" or a cluster address ("ray://host:10001", "host:6379") as a '
+                   "string, or None (no Ray)", optional=True)
+        check_text("command", self.command, "the command line as a string (kept in the output's metadata)")
+        if not isinstance(self.group_tolerances, Mapping):
+            raise UsageError(f"group_tolerances={self.group_tolerances!r}: give a dict of tolerance groups and "
+                             "numbers, e.g. {\"contact\": 5.0}")
 
     def tolerances(self) -> Tolerances:
         """The tolerances these options ask for; `UsageError` for a bad mode, resync, worker count or tolerance."""
@@ -132,11 +162,9 @@ class ReplayOptions:
             raise UsageError(f"--resync must be >= 1, got {self.resync}")
         if self.workers < 1:
             raise UsageError(f"--workers must be >= 1, got {self.workers}")
-        if self.atol is not None and (not math.isfinite(self.atol) or self.atol < 0):
-            raise UsageError(f"--atol must be a number >= 0, got {self.atol}")
         if self.resume and self.report is None:
             raise UsageError("resume needs the report to continue (--resume REPORT.json)")
-        try:
+        try:  # the tolerances' own rule (`simreel.compare`): finite numbers >= 0, groups it knows
             return Tolerances.for_mode("resync" if self.resync else self.mode, atol=self.atol,
                                        groups=self.group_tolerances)
         except ValueError as e:
@@ -146,6 +174,12 @@ class ReplayOptions:
         """The options that decide the verdicts, as a report's run line keeps them (a resumed run uses them)."""
         return {name: _json_value(getattr(self, name)) for name in _VERDICT_OPTIONS}
 
+
+_PATH_OPTIONS = {
+    "output": "the file to write the replayed episodes to, a str or pathlib.Path ending in .h5 or .mcap, or None",
+    "report": "the report to write, a str or pathlib.Path (REPORT.json), or None",
+}
+"""What the path options take, for their `UsageError`."""
 
 _VERDICT_OPTIONS = ("mode", "resync", "episodes", "atol", "group_tolerances", "obs_mode", "sim_backend", "imports")
 
@@ -175,10 +209,13 @@ class ReplayRun:
 
     def __init__(self, inputs: str | Path | Sequence[str | Path], options: ReplayOptions | None = None,
                  **overrides: Any) -> None:
+        if options is not None and not isinstance(options, ReplayOptions):
+            raise UsageError(f"options={options!r}: give a ReplayOptions, or its fields as keywords, e.g. "
+                             "ReplayRun(paths, mode=\"step\")")
         opts = dataclasses.replace(options or ReplayOptions(), **overrides)
         self.options = opts
         self.tolerances = opts.tolerances()
-        self.inputs = [str(inputs)] if isinstance(inputs, (str, Path)) else [str(p) for p in inputs]
+        self.inputs = _input_paths(inputs)
         if not self.inputs:
             raise UsageError("no recordings to replay: name files, folders or patterns")
         self.strict = len(self.inputs) == 1 and Path(self.inputs[0]).is_file()
@@ -471,6 +508,16 @@ def _few_chains_note(asked: int, chains: int, episodes: int) -> str:
     return (f"--workers {asked}: {processes} replayed these {episodes} episodes, which form {form} "
             "(episodes that ran one after another in one scene since it was built); an actions replay replays each "
             "chain in turn in one process (PhysX results depend on the scene's history)")
+
+
+def _input_paths(inputs: Any) -> list[str]:
+    """`ReplayRun`'s inputs as a list of strings: one path (a str or `pathlib.Path`) or several; `UsageError` for
+    anything else, which would be taken for a file name (a number) or fail as a raw TypeError."""
+    paths = [inputs] if is_path(inputs) else list(inputs) if isinstance(inputs, Iterable) else None
+    if paths is None or not all(is_path(p) for p in paths):
+        raise UsageError(f"inputs={inputs!r}: give the recordings to replay (files, folders or glob patterns) as a "
+                         "str or pathlib.Path, or a list of them")
+    return [os.fspath(p) for p in paths]
 
 
 def _file_tally(f: RecordingInfo) -> FileTally:

@@ -137,11 +137,14 @@ class Tolerances:
 
 def _tolerance(value: Any, what: str) -> float:
     """`value` as a tolerance: a finite number >= 0, else `ValueError`. NaN would pass every comparison (a replay
-    that diverged would be called within tolerance) and a negative one fail an exact match."""
+    that diverged would be called within tolerance) and a negative one fail an exact match; a bool is no number
+    (True would be a tolerance of 1)."""
     try:
-        number = float(value)
+        number = float(value) if not isinstance(value, (bool, np.bool_)) else None
     except (TypeError, ValueError):
-        raise ValueError(f"{what} {value!r} is not a number") from None
+        number = None
+    if number is None:
+        raise ValueError(f"{what} {value!r} is not a number")
     if not 0 <= number < math.inf:
         raise ValueError(f"{what} {value!r}: a tolerance must be a finite number >= 0")
     return number

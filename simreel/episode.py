@@ -27,7 +27,6 @@ import bisect
 import dataclasses
 import itertools
 import json
-import operator
 import types
 import typing
 import uuid
@@ -39,7 +38,8 @@ from typing import Any
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.errors import EpisodeLayoutError, MetadataError
+from simreel.errors import EpisodeLayoutError, MetadataError, UsageError
+from simreel.option_checks import is_whole_number
 from simreel.state_tree import LeafSpec, unflatten
 
 __all__ = [
@@ -364,12 +364,19 @@ class EpisodeSelection:
     @classmethod
     def of(cls, value: EpisodeSelection | str | Iterable[int] | None) -> EpisodeSelection | None:
         """`value` as a selection: None stays None, text is parsed, indices (a library caller's list, a report's)
-        are one range each, in their order."""
+        are one range each, in their order. Anything else is `UsageError` saying what to give: a number alone, a
+        bool, a float, a negative index (the text takes none either), text that `parse` refuses."""
         if value is None or isinstance(value, EpisodeSelection):
             return value
-        if isinstance(value, str):
-            return cls.parse(value)
-        return cls(tuple((i, i) for i in map(operator.index, value)))
+        try:
+            if isinstance(value, str):
+                return cls.parse(value)
+            if isinstance(value, (bytes, bytearray)) or not isinstance(value, Iterable):
+                raise ValueError("not a list of indices")
+            return cls(tuple((i, i) for i in map(_episode_index, value)))
+        except ValueError as e:
+            raise UsageError(f"episodes={value!r}: {e}; give episode indices, ints >= 0 (e.g. [0, 3]), their text as "
+                             "--episodes takes it (\"0,3-7\"), or None (all)") from None
 
     def __iter__(self) -> Iterator[int]:
         for lo, hi in self.ranges:
@@ -413,6 +420,16 @@ class EpisodeSelection:
             if len(lacking) >= limit:
                 break
         return list(lacking)
+
+
+def _episode_index(value: Any) -> int:
+    """An episode index a library caller gave: an int (a numpy int too) >= 0, else `ValueError` (a bool too: True
+    is not episode 1)."""
+    if not is_whole_number(value):
+        raise ValueError(f"{value!r} is not a whole number")
+    if value < 0:
+        raise ValueError(f"{value} is negative")
+    return int(value)
 
 
 def _digits(text: str) -> int:

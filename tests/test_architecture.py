@@ -17,8 +17,9 @@ TESTS = REPO / "tests"
 ROOMS = {"recorders": "simreel.recorders", "replay": "simreel.replay", "viewers": "simreel.viewers"}
 PACKAGE_DIRS = {"simreel": REPO / "simreel", **{room: REPO / room for room in ROOMS}}
 CORE_TOP = {"__init__.py", "__main__.py", "errors.py", "episode.py", "state_tree.py", "compare.py", "divergence.py",
-            "scene_history.py"}
-"""The data model and what both the replay room and the viewer read from it: comparisons and divergence explanations."""
+            "scene_history.py", "option_checks.py"}
+"""The data model and what both the replay room and the viewer read from it: comparisons and divergence explanations;
+the checks of the options every room takes from Python."""
 
 
 def _imports(path: Path) -> set[str]:

@@ -240,11 +240,11 @@ def test_info_the_replay_lacks_is_named_never_compared():
     assert "info/height_error" in cmp.max_abs_error
 
 
-@pytest.mark.parametrize("bad", [math.nan, -1.0, math.inf, "x"], ids=["nan", "negative", "inf", "text"])
+@pytest.mark.parametrize("bad", [math.nan, -1.0, math.inf, "x", True], ids=["nan", "negative", "inf", "text", "bool"])
 def test_a_tolerance_that_is_not_a_finite_number_at_least_0_is_refused(bad):
     """Regression: from Python a NaN group tolerance passed every comparison (a perturbed recording replayed "within
     tolerance", all verified), and a negative one failed an exact match; only --atol/--tol on the command line were
-    checked."""
+    checked. A bool was taken for a tolerance of 1 (or 0)."""
     from simreel.errors import UsageError
     from simreel.replay import ReplayOptions
 

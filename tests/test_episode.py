@@ -18,7 +18,7 @@ from simreel.episode import (
     StepBlock,
     episode_fields,
 )
-from simreel.errors import EpisodeLayoutError, MetadataError
+from simreel.errors import EpisodeLayoutError, MetadataError, UsageError
 from simreel.state_tree import LeafSpec
 
 
@@ -269,3 +269,19 @@ def test_indices_are_one_range_each_in_their_order():
     selection = EpisodeSelection.of([3, 1, 1])
     assert list(selection) == [3, 1, 1] and selection.pick([1, 3]) == [3, 1] and selection.missing([1], 5) == [3]
     assert EpisodeSelection.of(None) is None and EpisodeSelection.of(selection) is selection
+    assert list(EpisodeSelection.of(np.array([2, 0]))) == [2, 0]  # numpy's ints are indices too
+
+
+@pytest.mark.parametrize(("value", "why"), [
+    (5, "not a list of indices"),  # was: TypeError 'int' object is not iterable
+    (b"01", "not a list of indices"),  # was: episodes 48 and 49
+    ([0, 1.5], "1.5 is not a whole number"),  # was: TypeError
+    ([True], "True is not a whole number"),  # was: episode 1
+    ([-1], "-1 is negative"),  # was: a range naming no episode
+    ("3-2", "range '3-2' runs backwards"),  # was: ValueError
+])
+def test_what_is_no_selection_is_one_usage_error_saying_what_to_give(value, why):
+    with pytest.raises(UsageError) as refused:
+        EpisodeSelection.of(value)
+    assert str(refused.value) == (f"episodes={value!r}: {why}; give episode indices, ints >= 0 (e.g. [0, 3]), their "
+                                  'text as --episodes takes it ("0,3-7"), or None (all)')

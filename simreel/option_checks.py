@@ -1,0 +1,66 @@
+"""Checks of the options the rooms take from Python (`RecordOptions` and `RecordWrapper`, `ReplayOptions` and
+`ReplayRun`): a value of the wrong type is a `UsageError` that names the option and says what to give, raised when
+the options are built, before anything starts. Unchecked, it fails later as a raw Python error, or is silently taken
+for another value: ``overwrite="no"`` counts as yes, ``resync=1.5`` restores at fractional steps, ``True`` counts
+as 1, a number is taken for a file name.
+
+Each rule is here once; the message is always ``name=value: give what``, `what` saying what the option means.
+"""
+
+from __future__ import annotations
+
+import numbers
+import os
+from typing import Any
+
+import numpy as np
+
+from simreel.errors import UsageError
+
+__all__ = ["check_flag", "check_text", "is_whole_number", "whole_number", "is_path", "path_text"]
+
+
+def _refused(name: str, value: Any, what: str) -> UsageError:
+    return UsageError(f"{name}={value!r}: give {what}")
+
+
+def check_flag(name: str, value: Any) -> None:
+    """`UsageError` for a yes/no option that is not a bool: any truthy value would count as yes (``overwrite="no"``
+    replacing a file)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise _refused(name, value, "True or False")
+
+
+def check_text(name: str, value: Any, what: str, *, optional: bool = False) -> None:
+    """`UsageError` saying to give `what` for an option that is not a string (or None, when `optional`): it would be
+    passed on to where a string is expected (an env's mode, a Ray address) and fail there, or be stored where the
+    file could not be read back."""
+    if not isinstance(value, str) and not (optional and value is None):
+        raise _refused(name, value, what)
+
+
+def is_whole_number(value: Any) -> bool:
+    """Whether `value` is a whole number: an int or a numpy int, not a bool. A bool or a float would be taken for
+    another count (True as 1, 1.5 where only whole steps exist), a string fail later as a raw TypeError."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, (bool, np.bool_))
+
+
+def whole_number(name: str, value: Any, what: str, *, minimum: int | None = None) -> int:
+    """`value` as an int; `UsageError` saying to give `what` unless it is a whole number (`is_whole_number`) of at
+    least `minimum` (when given)."""
+    if not is_whole_number(value) or (minimum is not None and value < minimum):
+        raise _refused(name, value, what)
+    return int(value)
+
+
+def is_path(value: Any) -> bool:
+    """Whether `value` names a file: a str or an `os.PathLike` of one (`pathlib.Path`), not bytes nor a number."""
+    return isinstance(value, str) or (isinstance(value, os.PathLike) and isinstance(os.fspath(value), str))
+
+
+def path_text(name: str, value: Any, what: str) -> str:
+    """`value`, a path (`is_path`), as a str; `UsageError` saying to give `what` for anything else: a number would be
+    taken for a file name, or fail later as a raw TypeError."""
+    if not is_path(value):
+        raise _refused(name, value, what)
+    return os.fspath(value)
