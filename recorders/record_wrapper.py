@@ -30,7 +30,7 @@ from simreel.errors import EpisodeLayoutError, SimreelError, StateLayoutError, T
 from simreel.formats import format_of, open_writer, records_poses_by_default
 from simreel.formats.durable import deferred_signals
 from simreel.formats.writer_process import ProcessWriter
-from simreel.option_checks import check_flag, check_text, whole_number
+from simreel.option_checks import check_flag, check_text, path_text, whole_number
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.recorders.step_scalars import StepScalars, scalar_info
 from simreel.sim.actions import ActionCheck
@@ -109,7 +109,11 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
 
     def __init__(self, env: gym.Env, path: str | Path, options: RecordOptions | None = None, **overrides: Any) -> None:
+        path = path_text("path", path, "the file to record to, a str or pathlib.Path ending in .h5 or .mcap")
         _refuse_unknown_options(overrides)
+        if options is not None and not isinstance(options, RecordOptions):
+            raise UsageError(f"options={options!r}: give a RecordOptions, or its fields as keywords, e.g. "
+                             "RecordWrapper(env, path, contacts=\"none\")")
         opts = dataclasses.replace(options or RecordOptions(), **overrides)
         gym.utils.RecordConstructorArgs.__init__(self, path=str(path), **_constructor_options(opts))
         gym.Wrapper.__init__(self, env)

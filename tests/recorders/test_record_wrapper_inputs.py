@@ -3,9 +3,12 @@ line naming the fix, raised before anything is written (the folder stays empty).
 
 from __future__ import annotations
 
+import os
+
 import gymnasium as gym
 import numpy as np
 import pytest
+from support.children import child_pids, wait_ended
 
 from simreel.cli.main import main
 from simreel.errors import UsageError
@@ -137,6 +140,42 @@ def test_a_bad_option_is_one_usage_error_and_nothing_is_written(tmp_path, monkey
     env.close()
     assert str(refused.value) == message.replace("{tmp}", str(tmp_path))
     assert list(out.iterdir()) == []
+
+
+@pytest.mark.parametrize("writer_process", [True, False], ids=["writer-process", "in-process"])
+def test_a_compression_the_hdf5_writer_does_not_take_is_one_usage_error_and_leaves_nothing_behind(tmp_path,
+                                                                                               writer_process):
+    """Regression: a plain ValueError from the HDF5 writer (MCAP's was a UsageError). Refused, the recorder leaves no
+    file, no NAME.partial folder and no writer process behind."""
+    before = set(child_pids(os.getpid()))
+    env = make_env("PushCube-v1")
+    with pytest.raises(UsageError) as refused:
+        RecordWrapper(env, tmp_path / "r.h5", writer_options={"compression": "bogus"}, writer_process=writer_process)
+    env.close()
+    assert str(refused.value) == "unknown HDF5 compression 'bogus'; use one of gzip, lzf, None"
+    wait_ended([pid for pid in child_pids(os.getpid()) if pid not in before])
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("path", "options", "message"),
+    [
+        (5, None, "path=5: give the file to record to, a str or pathlib.Path ending in .h5 or .mcap"),  # was: TypeError
+        ("r.h5", {"contacts": "none"}, "options={'contacts': 'none'}: give a RecordOptions, or its fields as keywords, "
+                                       'e.g. RecordWrapper(env, path, contacts="none")'),  # was: TypeError
+    ],
+    ids=["path-int", "options-dict"],
+)
+def test_a_path_or_options_of_the_wrong_type_is_one_usage_error(tmp_path, monkeypatch, path, options, message):
+    monkeypatch.chdir(tmp_path)
+    before = set(child_pids(os.getpid()))
+    env = make_env("PushCube-v1")
+    with pytest.raises(UsageError) as refused:
+        RecordWrapper(env, path, options)
+    env.close()
+    assert str(refused.value) == message
+    assert [pid for pid in child_pids(os.getpid()) if pid not in before] == []  # refused before the writer starts
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_an_unknown_writer_option_for_mcap_names_the_mcap_options(tmp_path):

@@ -14,6 +14,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from simreel.errors import UsageError
+
 __all__ = ["DatasetWriter", "COMPRESSIONS", "CHUNK_BYTES", "chunk_rows", "image_storage"]
 
 COMPRESSIONS = ("gzip", "lzf", None)
@@ -75,7 +77,7 @@ class DatasetWriter:
         from h5py import h5d, h5g, h5p, h5s
 
         if compression not in COMPRESSIONS:
-            raise ValueError(f"unknown HDF5 compression {compression!r}; use gzip, lzf or None")
+            raise UsageError(f"unknown HDF5 compression {compression!r}; use one of {', '.join(map(str, COMPRESSIONS))}")
         self.compression = compression
         self._lcpl = h5p.create(h5p.LINK_CREATE)
         self._lcpl.set_create_intermediate_group(True)
