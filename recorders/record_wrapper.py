@@ -451,8 +451,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def stop(self, reason: str) -> None:
         """End a recording stopped before it was complete (`reason`: what stopped it, e.g. "Ctrl-C (SIGINT)"): each
         running episode that has steps is committed with a note that it was cut short, and a recording that was to
-        replace an old file (`overwrite`) stays in its side folder, the old file as it was (its readers say where the
-        new one is, `simreel.formats.staging`). Then the env is closed, as by `close`."""
+        replace an old file (`overwrite`) stays in its side folder, the old file as it was (a reader of the old file
+        says where the new one is in its `notes`, as `simreel inspect` does: `simreel.formats.staging`). Then the env
+        is closed, as by `close`."""
         for i, meta in enumerate(self._episodes):
             if meta is not None and not self._ended(i) and i not in self._refused:
                 meta.notes.append(f"cut short: {reason} stopped the recording before this episode ended")

@@ -475,7 +475,11 @@ def test_stop_keeps_the_old_file_and_notes_only_the_episode_it_cut(tmp_path, suf
             old = out.read_bytes()
     rec.stop("a test")
     assert out.read_bytes() == old
-    with open_reader(tmp_path / f"r{suffix}.partial" / f"r{suffix}") as r:
+    staged = tmp_path / f"r{suffix}.partial" / f"r{suffix}"
+    with open_reader(out) as r:  # the old file's reader says where the new recording is (README, `stop`)
+        assert r.notes == [f"a recording that was to replace this one stopped before it was complete; its committed "
+                           f"episodes are in {staged} (this file is unchanged)"]
+    with open_reader(staged) as r:
         assert [(m.length, m.notes) for m in r.episodes] == [
             (50, []), (2, ["cut short: a test stopped the recording before this episode ended"])]
     with pytest.raises(UsageError, match="holds the episodes of a recording that stopped before it was complete"):
