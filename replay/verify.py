@@ -244,9 +244,10 @@ class ReplayRun:
         if set(execution) - allowed:
             raise UsageError(f"a resumed run takes its options from the report; only {', '.join(sorted(allowed))} "
                              f"may change, not {', '.join(sorted(set(execution) - allowed))}")
+        report = path_text("report", report, "the report to continue, a str or pathlib.Path (REPORT.json)")
         _, log = report_paths(report)
         run = load_log(log).run
-        options = ReplayOptions(**_run_options(run), report=str(report), resume=True, **execution)
+        options = ReplayOptions(**_run_options(run), report=report, resume=True, **execution)
         return cls(run["inputs"], options)
 
     # ------------------------------------------------------------------ checks

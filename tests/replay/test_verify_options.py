@@ -88,6 +88,14 @@ def test_a_replay_run_of_inputs_or_options_of_the_wrong_type_is_one_usage_error(
     assert list(tmp_path.iterdir()) == []
 
 
+def test_resuming_a_report_that_is_no_path_is_one_usage_error(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(UsageError) as refused:  # was: TypeError expected str, bytes or os.PathLike object, not int
+        ReplayRun.resume(5)
+    assert str(refused.value) == "report=5: give the report to continue, a str or pathlib.Path (REPORT.json)"
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_the_documented_forms_of_the_options_stay_valid(record, tmp_path):
     """Episodes as the CLI's text, as indices (numpy's too) or a selection; counts as numpy ints; tolerances as ints;
     one import as a string; paths as `pathlib.Path`: each is taken, in one form, and a run with them verifies."""
