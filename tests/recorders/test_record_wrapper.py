@@ -761,3 +761,52 @@ def test_a_numpy_action_of_a_dtype_maniskill_cannot_step_with_is_refused_before_
     with open_reader(tmp_path / "a.h5") as r:
         episode = r.read_episode(0)
     assert episode.length == len(taken) and np.array_equal(episode.actions, np.ones((len(taken), 8), np.float32))
+
+
+_DROPPED_RECORDER = """
+import sys
+import numpy as np
+from simreel.recorders import RecordWrapper
+from simreel.sim.make import make_env
+
+env = RecordWrapper(make_env("PickCube-v1", max_episode_steps=5), sys.argv[1], contacts="none")
+zero = np.zeros(env.action_space.shape, np.float32)
+for seed in (0, 1):
+    env.reset(seed=seed)
+    for _ in range(3):
+        env.step(zero)
+print("dropped")  # the script ends without env.close()
+"""
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".mcap"])
+def test_a_recorder_dropped_without_close_leaves_what_a_crash_leaves(tmp_path, suffix):
+    """The README's promise for a script that ends without close(): the committed episode stays, the running one is
+    lost and named (by inspect for HDF5, by recover for MCAP, whose file then has no footer)."""
+    import subprocess
+    import sys
+
+    from simreel.errors import RecordingFileError
+
+    path = tmp_path / f"r{suffix}"
+    run = subprocess.run([sys.executable, "-c", _DROPPED_RECORDER, str(path)], capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0 and "dropped" in run.stdout, run.stderr
+    simreel = [sys.executable, "-m", "simreel"]
+    if suffix == ".h5":
+        with open_reader(path) as r:
+            assert [m.length for m in r.episodes] == [3]
+        inspect = subprocess.run([*simreel, "inspect", str(path)], capture_output=True, text=True, timeout=120)
+        assert inspect.returncode == 0 and "were still running" in inspect.stderr + inspect.stdout
+        assert "episode 1 (env 0, seed 1" in inspect.stderr + inspect.stdout
+        return
+    with pytest.raises(RecordingFileError, match="no footer.*simreel recover"):
+        open_reader(path)
+    out = tmp_path / "recovered.mcap"
+    recover = subprocess.run([*simreel, "recover", str(path), "-o", str(out)], capture_output=True, text=True,
+                             timeout=120)
+    assert recover.returncode == 0, recover.stderr
+    assert "recovered 1 committed episode(s), 3 steps" in recover.stdout + recover.stderr
+    assert "lost (never committed): episode 1" in recover.stdout + recover.stderr
+    with open_reader(out) as r:
+        assert [m.length for m in r.episodes] == [3]
