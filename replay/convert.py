@@ -46,6 +46,7 @@ from simreel.formats import EpisodeReader, check_writable, format_of, open_reade
 from simreel.formats.dataset import FieldHashes, field_digests
 from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct
+from simreel.option_checks import check_flag, check_text, is_whole_number, whole_number
 from simreel.replay.control import check_pair
 from simreel.replay.engine import GPU_SIM_BACKENDS, BlockSink, Collected, EpisodeReplayer, ReplayerOptions
 from simreel.replay.output import (
@@ -70,7 +71,7 @@ from simreel.replay.workers import (
 )
 from simreel.replay.worklist import WorkItem
 from simreel.scene_history import SceneChains, run_scenes
-from simreel.sim.user_code import resolve_task_imports
+from simreel.sim.user_code import import_specs, resolve_task_imports
 
 __all__ = ["KEEP", "ConvertOptions", "ConvertJob", "ConvertWorker", "ConversionReport", "ConversionRun",
            "convert_recording"]
@@ -124,11 +125,29 @@ class ConvertOptions:
     block_rows: int | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "episodes", EpisodeSelection.of(self.episodes))  # ranges, whatever the numbers
-        for name in ("keep", "imports", "camera_size"):
+        """Check every option's type, so that a wrong one is a `UsageError` here, naming it and what to give, not a raw
+        error once the conversion runs or a value taken for another (``overwrite="no"`` as yes, ``imports="x.py"`` as
+        one spec per character); put them in one form: episodes as an `EpisodeSelection`, counts as ints, sequences
+        as tuples. Their values (counts >= 1, known `keep` names) are `check`'s, whose messages name the CLI's
+        options."""
+        check_flag("overwrite", self.overwrite)
+        for name, what in _TEXT_OPTIONS.items():
+            check_text(name, getattr(self, name), what, optional=name != "command")
+        for name, what in _COUNT_OPTIONS.items():
             value = getattr(self, name)
-            if value is not None:
-                object.__setattr__(self, name, tuple(value))
+            if value is not None or name == "workers":
+                object.__setattr__(self, name, whole_number(name, value, what))
+        object.__setattr__(self, "episodes", EpisodeSelection.of(self.episodes))  # ranges, whatever the numbers
+        object.__setattr__(self, "imports", import_specs(self.imports))
+        object.__setattr__(self, "keep", _keep(self.keep))
+        if self.camera_size is not None:
+            object.__setattr__(self, "camera_size", _camera_size(self.camera_size))
+        if not isinstance(self.group_tolerances, Mapping):
+            raise UsageError(f"group_tolerances={self.group_tolerances!r}: give a dict of tracking tolerance groups "
+                             "and numbers, e.g. {\"ee_pos\": 1e-3}")
+        if self.converter is not None and not callable(self.converter):
+            raise UsageError(f"converter={self.converter!r}: give a factory called as "
+                             "simreel.replay.control.converter_for is, or None")
 
     def check(self) -> None:
         """`UsageError` for options that cannot work whatever the file: nothing to convert, bad numbers."""
@@ -153,6 +172,42 @@ class ConvertOptions:
         if self.shader is not None:
             out["shader_dir"] = self.shader
         return out
+
+
+_TEXT_OPTIONS = {
+    "obs_mode": 'an observation mode as a string, e.g. "rgb", or None (the recorded one)',
+    "control_mode": 'a control mode as a string, e.g. "pd_ee_delta_pose", or None (the recorded one)',
+    "shader": 'a ManiSkill shader_dir as a string, e.g. "rt", or None (the default)',
+    "sim_backend": 'a sim backend as a string, e.g. "physx_cpu", or None (the recorded one)',
+    "command": "the command line as a string (kept in the output's metadata)",
+}
+"""`ConvertOptions`' options that are strings (all but `command` may be None), and what each means."""
+_COUNT_OPTIONS = {
+    "count": "the number of episodes to convert, an int >= 1, or None (all of them)",
+    "workers": "the number of processes converting episodes, an int >= 1",
+    "block_rows": "the number of steps converted at a time, an int >= 1, or None (the reader's)",
+}
+"""`ConvertOptions`' counts (all but `workers` may be None), and what each means."""
+
+
+def _keep(keep: Any) -> tuple[str, ...]:
+    """The `keep` option as a tuple of `KEEP` names: one string is one name (not one per character); anything but
+    strings is `UsageError` (names it does not know are `ConvertOptions.check`'s)."""
+    names = (keep,) if isinstance(keep, str) else tuple(keep) if isinstance(keep, (list, tuple, set, frozenset)) else None
+    if names is None or not all(isinstance(name, str) for name in names):
+        raise UsageError(f"keep={keep!r}: give the episodes to write as a tuple of any of {', '.join(KEEP)}, e.g. "
+                         "(\"verified\",)")
+    return names
+
+
+def _camera_size(size: Any) -> tuple[int, int]:
+    """The `camera_size` option as (width, height), two whole numbers (>= 1: `ConvertOptions.check`); `UsageError`
+    for anything else."""
+    what = "(width, height) of the cameras in pixels, two ints >= 1, e.g. (128, 128), or None (the task's)"
+    pair = tuple(size) if isinstance(size, (list, tuple)) else ()
+    if len(pair) != 2 or not all(map(is_whole_number, pair)):
+        raise UsageError(f"camera_size={size!r}: give {what}")
+    return int(pair[0]), int(pair[1])
 
 
 @dataclass(frozen=True)

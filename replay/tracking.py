@@ -82,8 +82,11 @@ def tracking_tolerances(groups: Mapping[str, float] | None = None) -> Tolerances
     for group, value in (groups or {}).items():
         if group not in values:
             raise UsageError(f"unknown tracking tolerance group {group!r}; expected one of {', '.join(TRACKING_GROUPS)}")
-        values[group] = float(value)
-    return Tolerances(values)
+        values[group] = value
+    try:  # the tolerances' own rule (`simreel.compare`): finite numbers >= 0
+        return Tolerances(values)
+    except ValueError as e:
+        raise UsageError(f"tracking {e}") from None
 
 
 class EndEffector:

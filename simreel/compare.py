@@ -102,9 +102,13 @@ DEFAULT_TOLERANCES["resync"] = dict(DEFAULT_TOLERANCES["step"])
 
 @dataclass(frozen=True)
 class Tolerances:
-    """Absolute tolerance per group (see `GROUPS`). Build with `Tolerances.for_mode(mode, ...)`."""
+    """Absolute tolerance per group (see `GROUPS`). Build with `Tolerances.for_mode(mode, ...)`. Every value is a
+    finite number >= 0 (`_tolerance`, `ValueError` otherwise), however the tolerances were built."""
 
     values: Mapping[str, float]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "values", {g: _tolerance(v, f"tolerance {g}") for g, v in self.values.items()})
 
     @classmethod
     def for_mode(
