@@ -673,7 +673,7 @@ class ConversionRun:
         if episodes is None:
             indices = [m.index for m in self.reader.episodes]
         else:
-            indices = list(dict.fromkeys(self.reader.named_episodes(episodes)))
+            indices = self.reader.named_episodes(episodes)
         indices = indices[: self.options.count]
         if not indices:
             raise UsageError(f"{self.path}: the recording has no episodes to convert")

@@ -11,6 +11,7 @@ files it writes beside the recording (`check_writable`, `check_report_writable`,
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -113,8 +114,11 @@ def open_reader(path: str | Path) -> EpisodeReader:
     """A reader for `path`, chosen by the file's magic bytes, whatever its suffix."""
     from simreel.formats.hdf5.layout import HDF5_MAGIC
     from simreel.formats.mcap.records import MCAP_MAGIC
-    from simreel.formats.paths import read_head
+    from simreel.formats.paths import read_head, refuse_empty
 
+    if not isinstance(path, (str, os.PathLike)):
+        raise UsageError(f"{path!r}: give a recording's path, a str or Path")
+    refuse_empty(path, what="recording", instead="name the recording to read")
     p = Path(path)
     if not p.is_file():
         from simreel.formats.base import not_a_file

@@ -374,15 +374,16 @@ class EpisodeReader(ABC):
         raise RecordingFileError(self.path, f"no episode {index} (episodes: {have})")
 
     def named_episodes(self, episodes: Iterable[int]) -> list[int]:
-        """The indices of `episodes` (an `EpisodeSelection`, or indices), in the order named; `episode_meta`'s
-        `RecordingFileError` for the first the file lacks. Each is checked as it comes, so a range that runs past
-        the file's episodes is refused at the first it lacks, never walked to its end (``--episodes 0-99999999``)."""
-        held, named = {m.index for m in self.episodes}, []
+        """The indices of `episodes` (an `EpisodeSelection`, or indices), each once, in the order first named (``0,0``
+        or ``0-3,2`` name an episode twice: one video, one conversion of it); `episode_meta`'s `RecordingFileError`
+        for the first the file lacks. Each is checked as it comes, so a range that runs past the file's episodes is
+        refused at the first it lacks, never walked to its end (``--episodes 0-99999999``)."""
+        held, named = {m.index for m in self.episodes}, {}
         for index in episodes:
             if index not in held:
                 self.episode_meta(index)  # raises, naming the episodes the file has
-            named.append(index)
-        return named
+            named[index] = None
+        return list(named)
 
     def close(self) -> None:  # noqa: B027 - optional hook
         pass

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from simreel.errors import UsageError
 from simreel.formats import HDF5_SUFFIXES, MCAP_SUFFIXES, recording_files
-from simreel.formats.paths import is_symlink_loop, real_path
+from simreel.formats.paths import is_symlink_loop, real_path, refuse_empty
 from simreel.formats.staging import is_staging_path
 
 __all__ = ["RECORDING_SUFFIXES", "expand_inputs", "file_identity", "shown_path"]
@@ -78,9 +78,7 @@ def expand_inputs(specs: Sequence[str | Path]) -> list[tuple[Path, bool]]:
     out: dict[Path, tuple[Path, bool]] = {}
     skipped: dict[Path, None] = {}
     for spec in map(str, specs):
-        if not spec.strip():  # Path("") is the working folder: `simreel replay "$UNSET"` would read all it holds
-            raise UsageError("an empty path names no recording (an unset shell variable?); name the files, folders "
-                             "or patterns to read")
+        refuse_empty(spec, what="recording", instead="name the files, folders or patterns to read")
         if Path(spec).is_dir() or (_is_pattern(spec) and not Path(spec).exists()):
             found, staged = _without_staged(_found_in(spec))
             skipped.update(dict.fromkeys(staged))

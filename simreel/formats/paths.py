@@ -15,12 +15,20 @@ import os
 from pathlib import Path
 from typing import BinaryIO
 
-from simreel.errors import RecordingFileError
+from simreel.errors import RecordingFileError, UsageError
 
-__all__ = ["SYMLINK_LOOP", "is_symlink_loop", "real_path", "read_problem", "open_for_reading", "read_head"]
+__all__ = ["SYMLINK_LOOP", "refuse_empty", "is_symlink_loop", "real_path", "read_problem", "open_for_reading", "read_head"]
 
 SYMLINK_LOOP = "a symbolic link loop (following its links never reaches a file); fix or remove the link"
 """What a path that runs into a symbolic link loop is, in the one line a command prints for it."""
+
+
+def refuse_empty(path: str | os.PathLike[str], *, what: str, instead: str) -> None:
+    """`UsageError` for an empty or blank `path`, which names no `what` (``recording``, ``folder``) though `Path("")`
+    is the working folder: ``simreel replay "$UNSET"`` would read everything there, ``video -o "$UNSET"`` write into
+    it. `instead` says what to give."""
+    if not str(path).strip():
+        raise UsageError(f"an empty path names no {what} (an unset shell variable?); {instead}")
 
 
 def is_symlink_loop(path: str | os.PathLike[str]) -> bool:
