@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
                 t0 = time.perf_counter()
                 session = build_session(path, env=env, geometry=args.geometry)
                 t1 = time.perf_counter()
-                session.save(out)
+                session.save(out, overwrite=True)
                 t2 = time.perf_counter()
                 if best is None or t2 - t0 < best[0]:
                     best = (t2 - t0, t1 - t0, t2 - t1, out.stat().st_size / 2**20)

@@ -27,8 +27,10 @@ from simreel.episode import Episode, RecordingMeta
 from simreel.errors import UsageError, ViewError
 from simreel.formats import EpisodeReader
 from simreel.formats.targets import staged_output
+from simreel.option_checks import is_whole_number
 from simreel.sim.rebuild import GYM_MAKE_SEED, reset_to_episode
 from simreel.sim.state import check_rebuilt_layout, read_state
+from simreel.sim.user_code import import_specs
 from simreel.viewers.compare import (
     DEFAULT_MODE,
     ViewComparison,
@@ -60,6 +62,7 @@ __all__ = [
     "ViewOptions",
     "ViewSession",
     "build_session",
+    "check_rrd_target",
     "rebuild_env",
     "viewer_executable",
     "web_viewer_url",
@@ -98,13 +101,20 @@ class ViewOptions:
     block_steps: int | None = None
     imports: tuple[str, ...] = ()
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "imports", import_specs(self.imports))
+
     def check(self) -> Tolerances | None:
         """The tolerances asked for (None: none were; `judging_tolerances` then chooses); `UsageError` for a bad
         geometry source, block size or tolerance."""
         if self.geometry not in GEOMETRY_SOURCES:
             raise UsageError(f"--geometry {self.geometry!r}: expected one of {', '.join(GEOMETRY_SOURCES)}")
-        if self.block_steps is not None and self.block_steps < 1:
-            raise UsageError(f"block_steps must be ≥ 1, got {self.block_steps}")
+        episode = self.episode
+        if episode is not None and not is_whole_number(episode):
+            raise UsageError(f"episode={episode!r}: give the episode's index, an int (`simreel inspect` lists them)")
+        steps = self.block_steps
+        if steps is not None and not (is_whole_number(steps) and steps >= 1):
+            raise UsageError(f"block_steps must be an int ≥ 1, got {steps!r}")
         if self.mode is None and self.atol is None and not self.tolerances:
             return None
         try:
@@ -134,6 +144,27 @@ def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto", imports: Sequenc
         render_backend="none" if geometry == "collision" else "auto",
         env_kwargs=state_only_kwargs(meta),
     )
+
+
+def check_rrd_target(path: str | Path, *, overwrite: bool, shown: Sequence[str | Path] = (),
+                     make_folder: bool = False) -> Path:
+    """`UsageError` unless a session can be saved at `path` (``--save``), before any work: a file name ending in
+    .rrd; none of the recordings `shown` nor a file kept beside one (`check_distinct`: a recording is known by its
+    bytes, whatever its name, so one named .rrd, or a link to one, would be written over); and what `check_output`
+    refuses (an existing file without `overwrite`, a missing folder unless `make_folder` makes it). Returns `path`."""
+    from simreel.formats import recording_files
+    from simreel.formats.targets import check_distinct, check_output
+    from simreel.option_checks import check_flag
+
+    check_flag("overwrite", overwrite)
+    if Path(path).suffix.lower() != ".rrd":  # a name, not what Path makes of it: Path("") is "."
+        raise UsageError(f"--save {path}: the output must be a file name ending in .rrd, such as run.rrd")
+    path = Path(path)
+    for recording in shown:
+        check_distinct({"--save": [path]}, recording_files(recording), input_label=f"the recording {recording}")
+    if make_folder and path.name:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    return check_output(path, overwrite=overwrite, option="--save")
 
 
 def viewer_executable() -> str | None:
@@ -348,17 +379,16 @@ class ViewSession:
 
         return rr.RecordingStream(APPLICATION_ID, recording_id=self.recording_id)
 
-    def save(self, path: str | Path, *, overwrite: bool = True) -> Path:
-        """Write the session to an .rrd file (with its blueprint) and return the path.
+    def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
+        """Write the session to an .rrd file (with its blueprint) and return the path; its folder is made if missing.
 
-        The file is written whole or not at all (`staged_output`): an existing one is replaced only once the new
-        one is complete, and not at all with ``overwrite=False`` (``simreel view --save`` without --overwrite: a
-        file another run wrote meanwhile is kept, `UsageError`); a full disk is a `StorageError`, never a wait.
+        `path` is checked first (`check_rrd_target`): an existing file is refused without `overwrite`, as every
+        simreel output is, and the recordings shown are never written over. The file is written whole or not at all
+        (`staged_output`): an existing one is replaced only once the new one is complete, and a file another run
+        wrote meanwhile is kept without `overwrite` (`UsageError`); a full disk is a `StorageError`, never a wait.
         """
-        path = Path(path)
-        if path.suffix.lower() != ".rrd":
-            raise UsageError(f"--save {path}: the output must end in .rrd")
-        path.parent.mkdir(parents=True, exist_ok=True)
+        shown = [run.path for run in (self.recording, self.replayed) if run is not None]
+        path = check_rrd_target(path, overwrite=overwrite, shown=shown, make_folder=True)
         with staged_output(path, overwrite=overwrite, option="--save") as partial:
             write_rrd(self.new_stream(), partial, path, self.blueprint(), self.log_to)
         return path

@@ -38,6 +38,8 @@ class EpisodeRun:
     file_name: str
     rows: EpisodeRows
     """The episode in its file, read a block of rows at a time."""
+    path: Path
+    """The file the episode is read from."""
     reader: EpisodeReader | None = None
     """The reader this run opened (closed by `close`); None when the caller's."""
 
@@ -91,7 +93,7 @@ def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun
         raise
     name = Path(reader.path).name
     label = f"{name} episode {index}" + (f" ({role})" if role else "")
-    return EpisodeRun(label, reader.meta, episode, name, rows, reader if owned else None)
+    return EpisodeRun(label, reader.meta, episode, name, rows, Path(reader.path), reader if owned else None)
 
 
 def read_compare(compare: Source, recorded: EpisodeRun, *, option: str = "--episode") -> EpisodeRun:

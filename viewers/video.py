@@ -15,7 +15,7 @@ Encoding: H.264 (yuv420p) by ffmpeg (imageio's binary), through a temporary file
 from __future__ import annotations
 
 import dataclasses
-import math
+import numbers
 import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -27,19 +27,25 @@ import numpy as np
 from simreel.compare import DEFAULT_TOLERANCES, Tolerances
 from simreel.episode import Episode, EpisodeSelection, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
-from simreel.formats import open_reader
+from simreel.formats import open_reader, recording_files
 from simreel.formats.base import recover_hint
 from simreel.formats.durable import STORAGE_ERRNOS, raise_if_stopped, storage_error
-from simreel.formats.targets import check_output, staged_output
+from simreel.formats.paths import refuse_empty
+from simreel.formats.targets import check_distinct, check_output, staged_output
+from simreel.option_checks import check_flag, is_whole_number
+from simreel.sim.user_code import import_specs
 from simreel.viewers.compare import compare_for_view, judging_tolerances, made_from
 from simreel.viewers.session import states_by_stepping
 from simreel.viewers.sources import read_compare, read_run
 
-__all__ = ["VideoOptions", "VideoRun", "EpisodeVideo", "video_path", "MAX_SIDE"]
+__all__ = ["VideoOptions", "VideoRun", "EpisodeVideo", "video_path", "MAX_SIDE", "FPS_RANGE"]
 
 MAX_SIDE = 8192
 """The largest width or height of a video (``--size``), 8K: larger frames cost gigabytes of memory to render and
 encode (100000 x 100000 is 30 GB a frame), and get a process killed rather than a video."""
+FPS_RANGE = (0.001, 1000.0)
+"""The frame rates a video may have (``--fps``): ffmpeg refuses rates far outside (1e-05 and 1e10 frames a second
+fail in it), and a video player has no use for them."""
 
 
 @dataclass(frozen=True)
@@ -70,7 +76,18 @@ class VideoOptions:
     overwrite: bool = False
     imports: tuple[str, ...] = ()
 
+    def __post_init__(self) -> None:
+        # ranges, whatever the numbers, as replay and convert keep them; text such as "0,3-7" is parsed
+        object.__setattr__(self, "episodes", EpisodeSelection.of(self.episodes))
+        object.__setattr__(self, "imports", import_specs(self.imports))
+
     def check(self) -> None:
+        """`UsageError` for options no recording could make work: a size, rate, mode or flag of the wrong kind."""
+        check_flag("overwrite", self.overwrite)
+        if not (isinstance(self.size, (tuple, list)) and len(self.size) == 2 and all(map(is_whole_number, self.size))):
+            raise UsageError(f"size={self.size!r}: give (width, height), two even ints such as (256, 256)")
+        if self.camera is not None and not isinstance(self.camera, str):
+            raise UsageError(f"camera={self.camera!r}: give the name of a camera whose rgb images the recording holds")
         width, height = self.size
         if width < 2 or height < 2 or width % 2 or height % 2:
             raise UsageError(f"--size {width}x{height}: width and height must be even numbers >= 2 (H.264, yuv420p)")
@@ -81,9 +98,11 @@ class VideoOptions:
             raise UsageError(f"--size {width}x{height}: side by side, the width must be a multiple of 4")
         if self.mode is not None and self.mode not in DEFAULT_TOLERANCES:
             raise UsageError(f"--mode {self.mode!r}: expected one of {', '.join(DEFAULT_TOLERANCES)}")
-        if self.fps is not None and not (math.isfinite(self.fps) and self.fps > 0):
-            raise UsageError(f"--fps {self.fps:g}: frames per second must be a positive number; leave it out for the "
-                             "recording's control frequency")
+        low, high = FPS_RANGE
+        if self.fps is not None and not (isinstance(self.fps, numbers.Real) and low <= self.fps <= high):
+            shown = f"{self.fps:g}" if isinstance(self.fps, numbers.Real) else repr(self.fps)
+            raise UsageError(f"--fps {shown}: frames per second must be a positive number from {low:g} to {high:g}; "
+                             "leave it out for the recording's control frequency")
 
 
 @dataclass
@@ -111,9 +130,14 @@ class VideoRun:
     def __init__(self, path: str | Path, folder: str | Path, options: VideoOptions | None = None, **overrides: Any):
         opts = dataclasses.replace(options or VideoOptions(), **overrides)
         opts.check()
+        if not isinstance(folder, (str, os.PathLike)):
+            raise UsageError(f"folder={folder!r}: give the folder for the videos, a str or Path")
+        refuse_empty(folder, what="folder", instead="name the folder for the videos (-o . for the working folder)")
         self.path, self.folder, self.options = str(path), Path(folder), opts
         if not self.folder.is_dir():
-            raise UsageError(f"-o {folder}: not a folder (create it first)")
+            what = "not a folder" if self.folder.exists() else "no such folder (create it first)"
+            raise UsageError(f"-o {folder}: {what}; -o names the folder the videos are written in, as "
+                             "<name>_ep<N>.mp4")
         with open_reader(path) as r:
             self.meta = r.meta
             self.indices = r.named_episodes(opts.episodes) if opts.episodes is not None else [m.index for m in r.episodes]
@@ -130,8 +154,17 @@ class VideoRun:
             have = sorted({k.split("/")[1] for k in self.meta.obs_layout if k.startswith("sensor_data/")})
             raise UsageError(f"{path} holds no rgb observations of camera {opts.camera!r} (cameras: "
                              f"{', '.join(have) or 'none'}); leave --camera out to render the recorded states")
-        for i in self.indices:
-            check_output(video_path(folder, path, i), overwrite=opts.overwrite)
+        self._check_targets()
+
+    def _check_targets(self) -> None:
+        """`UsageError` unless every video can be written: none is a recording read (`check_distinct`: a recording
+        is known by its bytes, whatever its name, so a link named like a video can lead to one), and `check_output`
+        lets each be written (an existing one only with `overwrite`)."""
+        videos = [video_path(self.folder, self.path, i) for i in self.indices]
+        for recording in [self.path] + ([self.options.compare] if self.options.compare is not None else []):
+            check_distinct({"the video": videos}, recording_files(recording), input_label=f"the recording {recording}")
+        for video in videos:
+            check_output(video, overwrite=self.options.overwrite)
 
     @property
     def frames(self) -> int:

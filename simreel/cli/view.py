@@ -167,16 +167,17 @@ def _first_episode(args: argparse.Namespace) -> int:
 
 def _sink(args: argparse.Namespace, episode: int) -> tuple[str, str | None]:
     """("save", the .rrd path) or ("spawn" | "serve", None); an .rrd is checked before any work."""
-    from simreel.formats.targets import check_output
+    from simreel.viewers.session import check_rrd_target
 
-    mode = "save" if args.save else "spawn" if args.spawn else "serve" if args.serve else None
+    mode = "save" if args.save is not None else "spawn" if args.spawn else "serve" if args.serve else None
     save = args.save
     if mode is None:
         mode = "spawn" if viewer_available() else "save"
         if mode == "save":
             save = str(default_output(args.path, episode))
     if mode == "save":
-        check_output(save, overwrite=args.overwrite, option="--save")
+        shown = [args.path] + ([args.compare] if args.compare is not None else [])
+        check_rrd_target(save, overwrite=args.overwrite, shown=shown)
     elif mode == "spawn":
         _check_spawn()
     else:
@@ -205,8 +206,6 @@ def _check_ports(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.block_steps is not None and args.block_steps < 1:
         raise UsageError(f"--block-steps must be ≥ 1, got {args.block_steps}")
-    if args.save is not None and not args.save.lower().endswith(".rrd"):
-        raise UsageError(f"--save {args.save}: the output must end in .rrd")
     episode = _first_episode(args)
     mode, save = _sink(args, episode)
     from simreel.viewers import ViewOptions, build_session

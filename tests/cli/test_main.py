@@ -155,7 +155,7 @@ BAD_INPUT = [
      "(8,)"),
     # view
     ("view-no-episode", ["view", "{rec}", "--episode", "7"], "no episode 7 (episodes: 0, 1)"),
-    ("view-save-suffix", ["view", "{rec}", "--save", "x.png"], "--save x.png: the output must end in .rrd"),
+    ("view-save-suffix", ["view", "{rec}", "--save", "x.png"], "--save x.png: the output must be a file name ending in .rrd"),
     ("view-block-steps", ["view", "{rec}", "--block-steps", "0"], "--block-steps must be ≥ 1, got 0"),
     ("view-loop", ["view", "{tmp}/loop.h5", "--save", "{tmp}/v.rrd"], "{tmp}/loop.h5: " + LOOP),
     ("view-compare-missing", ["view", "{rec}", "--compare", "{tmp}/missing.h5", "--save", "{tmp}/v.rrd"],

@@ -153,3 +153,62 @@ def test_the_divergence_reads_as_a_sentence(pickcube_h5, variant, tmp_path, caps
                      str(tmp_path / f"c{shift_from}.rrd"), "--geometry", "collision"]) == 0
         [line] = [line for line in capsys.readouterr().out.splitlines() if line.startswith("replay ")]
         assert line.startswith(expected), line
+
+
+def _no_env(*args, **kwargs):
+    raise AssertionError("the env was built before the output was checked")
+
+
+@pytest.mark.parametrize("target", ["copy-named-rrd", "link-to-recording", "link-to-compare"])
+def test_save_never_writes_over_a_recording_it_shows(pickcube_h5, tmp_path, monkeypatch, capsys, target):
+    """A recording is read by its bytes, whatever its name: `view r.rrd --save r.rrd --overwrite`, or a --save path
+    that is a link to the recording or to the --compare file, replaced that recording with the .rrd (exit 0). Now:
+    refused before any work, even with --overwrite, every file unchanged."""
+    import shutil
+
+    import simreel.viewers.session as session
+
+    recording, compare = tmp_path / "pick.h5", tmp_path / "replayed.h5"
+    for path in (recording, compare):
+        shutil.copy(pickcube_h5, path)
+    args = ["view", str(recording), "--geometry", "collision", "--overwrite"]
+    if target == "copy-named-rrd":
+        recording = shutil.copy(pickcube_h5, tmp_path / "run.rrd")
+        args[1], out, shown = str(recording), recording, recording
+    else:
+        shown = compare if target == "link-to-compare" else recording
+        out = tmp_path / "session.rrd"
+        out.symlink_to(shown.name)
+        args += ["--compare", str(compare)] if target == "link-to-compare" else []
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if not p.is_symlink()}
+    monkeypatch.setattr(session, "rebuild_env", _no_env)
+    assert main([*args, "--save", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"simreel view: error: --save {out} is the recording {shown}; write it to another file\n"
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if not p.is_symlink()} == before
+
+
+@pytest.mark.parametrize(
+    "args_and_message",
+    [
+        (["{rec}", "--save", ".rrd"], "--save .rrd: the output must be a file name ending in .rrd, such as run.rrd"),
+        (["{rec}", "--save", ""], "--save : the output must be a file name ending in .rrd, such as run.rrd"),
+        (["", "--save", "{tmp}/x.rrd"], "an empty path names no recording (an unset shell variable?); name the "
+                                        "recording to read"),
+        (["{rec}", "--compare", "", "--save", "{tmp}/x.rrd"], "an empty path names no recording"),
+    ],
+    ids=["hidden-name", "empty-save", "empty-path", "empty-compare"],
+)
+def test_empty_and_nameless_paths_are_one_line_before_any_work(pickcube_h5, tmp_path, monkeypatch, capsys,
+                                                               args_and_message):
+    """`--save .rrd` was refused only after the env was built, with "must end in .rrd" (it does); `view ""` and
+    `--compare ""` (an unset shell variable) said ".: a folder, not a recording file"."""
+    import simreel.viewers.session as session
+
+    monkeypatch.setattr(session, "rebuild_env", _no_env)
+    args, message = args_and_message
+    args = [a.format(rec=pickcube_h5, tmp=tmp_path) for a in args]
+    assert main(["view", *args, "--geometry", "collision"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert list(tmp_path.iterdir()) == []

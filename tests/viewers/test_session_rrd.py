@@ -172,3 +172,64 @@ def test_restored_poses_come_from_the_core(pickcube_h5, view_env):
     np.testing.assert_allclose(rows[..., :3], recorded[..., :3], atol=1e-6)
     with pytest.raises(ValueError, match="one entity per name"):
         body_poses_from_states(u, names, ep.env_states, [0], entities=[b.entity for b in bodies[:1]])
+
+
+def test_save_replaces_an_existing_file_only_when_asked(pickcube_h5, view_env, rrd_reader, tmp_path):
+    """`ViewSession.save` replaced an existing .rrd by default (overwrite=True), the one simreel API to do so, and
+    took any truthy value, ``overwrite="no"`` too, for yes. Now it refuses as every writer does, the file kept."""
+    from simreel.errors import UsageError
+
+    out = tmp_path / "kept.rrd"
+    out.write_bytes(b"an earlier session")
+    with build_session(pickcube_h5, env=view_env, geometry="collision") as session:
+        with pytest.raises(UsageError, match=f"^{out} already exists; pass --overwrite to replace it"):
+            session.save(out)
+        with pytest.raises(UsageError, match="^overwrite='no': give True or False$"):
+            session.save(out, overwrite="no")
+        assert out.read_bytes() == b"an earlier session"
+        assert session.save(out, overwrite=True) == out
+    assert rrd_reader(out).recording_ids == ["pickcube.h5#episode-0"]
+
+
+def test_save_never_writes_over_the_recordings_shown(pickcube_h5, view_env, tmp_path):
+    """A link named .rrd that leads to the recording (or the replay) shown: even with overwrite=True it is refused,
+    the recording unchanged."""
+    from simreel.errors import UsageError
+
+    link = tmp_path / "session.rrd"
+    link.symlink_to(pickcube_h5)
+    before = pickcube_h5.read_bytes()
+    with build_session(pickcube_h5, env=view_env, geometry="collision", compare=pickcube_h5) as session:
+        with pytest.raises(UsageError, match=f"^--save {link} is the recording {pickcube_h5}; write it to another"):
+            session.save(link, overwrite=True)
+    assert pickcube_h5.read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"episode": "1"}, "episode='1': give the episode's index, an int (`simreel inspect` lists them)"),
+        ({"episode": True}, "episode=True: give the episode's index, an int"),
+        ({"block_steps": "5"}, "block_steps must be an int ≥ 1, got '5'"),
+        ({"compare": 3}, "3: give a recording's path, a str or Path"),
+        ({"imports": 7}, "imports=7: give the .py files or modules that register the task"),
+    ],
+    ids=["episode-str", "episode-bool", "block_steps-str", "compare-int", "imports-int"],
+)
+def test_options_of_the_wrong_type_are_a_usage_error(pickcube_h5, view_env, options, message):
+    """Before: episode="1" was "no episode 1 (episodes: 0)" of a file that has it, episode=True showed episode 1,
+    block_steps="5" and compare=3 were TypeErrors, imports=7 too once the env was built."""
+    from simreel.errors import UsageError
+
+    with pytest.raises(UsageError) as caught:
+        build_session(pickcube_h5, env=view_env, geometry="collision", **options)
+    assert str(caught.value) == message or str(caught.value).startswith(message)
+
+
+def test_one_import_given_as_a_string_is_one_spec():
+    """imports="my_tasks" was imported letter by letter ("--import m: no module named 'm'")."""
+    from simreel.viewers import ViewOptions
+    from simreel.viewers.video import VideoOptions
+
+    assert ViewOptions(imports="my_tasks").imports == ("my_tasks",)
+    assert VideoOptions(imports="my_tasks.py").imports == ("my_tasks.py",)

@@ -99,7 +99,7 @@ def test_side_by_side_with_a_replay_draws_the_verdict(camera_recording, tmp_path
     [
         (["--size", "81x60"], "width and height must be even numbers"),
         (["--camera", "wrist"], "holds no rgb observations of camera 'wrist' (cameras: cam)"),
-        (["-o", "missing-folder"], "not a folder (create it first)"),
+        (["-o", "missing-folder"], "no such folder (create it first); -o names the folder the videos are written in"),
         (["--episodes", "5"], "no episode 5"),
         (["--size", "100000x100000"], "at most 8192 pixels a side"),
     ],

@@ -49,9 +49,10 @@ def _leftovers(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if p.name.startswith("."))
 
 
-@pytest.mark.parametrize("fps", ["0", "-5", "nan", "inf"])
+@pytest.mark.parametrize("fps", ["0", "-5", "nan", "inf", "1e+308", "1e+10", "1e-05"])
 def test_a_frame_rate_that_is_not_a_positive_number_is_one_line_exit_2(tmp_path, capsys, fps):
-    """Before, -5 and nan failed inside ffmpeg (exit 3) and 0 silently meant the default."""
+    """Before, -5 and nan failed inside ffmpeg (exit 3) and 0 silently meant the default; 1e+308, 1e+10 and 1e-05
+    too (ffmpeg refuses such rates: "Error opening input files: Invalid argument", exit 3)."""
     recording = _camera_recording(tmp_path / "cam.h5")
     assert main(["video", str(recording), "-o", str(tmp_path), "--camera", "cam", "--fps", fps, "-q"]) == 2
     err = capsys.readouterr().err
@@ -239,3 +240,103 @@ def test_a_ctrl_c_python_swallowed_during_a_video_stops_the_next_one(tmp_path, m
     assert std.err.splitlines()[-1] == "simreel video: interrupted"
     assert [line.split(" (")[0] for line in std.out.splitlines()] == [f"episode 0: {video_path(out, recording, 0)}"]
     assert sorted(p.name for p in out.iterdir()) == [video_path(out, recording, 0).name]
+
+
+def test_a_video_never_writes_over_a_recording_it_reads(tmp_path, capsys):
+    """A link in the folder named as a video leads to the recording (or to --compare's): with --overwrite the video
+    was written through it, replacing the recording (exit 0). Now one line, exit 2, before any video; both files
+    unchanged."""
+    recording = _camera_recording(tmp_path / "cam.h5")
+    compare = _camera_recording(tmp_path / "other.h5")
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    (videos / "cam_ep0.mp4").symlink_to(recording)
+    (videos / "cam_ep1.mp4").symlink_to(compare)
+    before = {p: p.read_bytes() for p in (recording, compare)}
+    args = ["video", str(recording), "-o", str(videos), "--camera", "cam", "--overwrite", "-q"]
+    assert main([*args, "--episodes", "0"]) == 2
+    assert capsys.readouterr().err == (f"simreel video: error: the video {videos}/cam_ep0.mp4 is the recording "
+                                       f"{recording}; write it to another file\n")
+    assert main([*args, "--episodes", "1", "--compare", str(compare)]) == 2
+    assert f"the video {videos}/cam_ep1.mp4 is the recording {compare}; " in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in (recording, compare)} == before
+    assert _leftovers(videos) == []
+
+
+def test_an_episode_named_twice_gets_one_video(tmp_path, capsys):
+    """`--episodes 0,0` (or 0-1,1) encoded the video twice and then refused the second copy as "a file appeared
+    there while this one was written (another run?)", exit 2."""
+    recording = _camera_recording(tmp_path / "cam.h5")
+    assert main(["video", str(recording), "-o", str(tmp_path), "--camera", "cam", "--episodes", "0-1,1,0", "-q"]) == 0
+    out = capsys.readouterr().out
+    assert out.splitlines() == [f"episode 0: {tmp_path}/cam_ep0.mp4 (8 frames)",
+                                f"episode 1: {tmp_path}/cam_ep1.mp4 (13 frames)"]
+
+
+@pytest.mark.parametrize(
+    ("output", "message"),
+    [
+        ("", "an empty path names no folder (an unset shell variable?); name the folder for the videos (-o . for "
+             "the working folder)"),
+        ("{tmp}/out.mp4", "-o {tmp}/out.mp4: no such folder (create it first); -o names the folder the videos are "
+                          "written in, as <name>_ep<N>.mp4"),
+        ("{tmp}/cam.h5", "-o {tmp}/cam.h5: not a folder; -o names the folder the videos are written in"),
+    ],
+    ids=["empty", "a-video-name", "a-file"],
+)
+def test_an_output_that_names_no_folder_says_what_o_is(tmp_path, monkeypatch, capsys, output, message):
+    """`-o "$UNSET"` wrote the videos into the working folder, and `-o out.mp4` said "not a folder (create it
+    first)": a folder named out.mp4."""
+    recording = _camera_recording(tmp_path / "cam.h5")
+    monkeypatch.chdir(tmp_path)
+    output = output.format(tmp=tmp_path)
+    assert main(["video", str(recording), "-o", output, "--camera", "cam", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message.format(tmp=tmp_path) in err, err
+    assert not list(tmp_path.rglob("*.mp4"))
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"overwrite": "no"}, "overwrite='no': give True or False"),
+        ({"episodes": 1}, "episodes=1: not a list of indices; give episode indices"),
+        ({"episodes": "1-0"}, "episodes='1-0': range '1-0' runs backwards; give episode indices"),
+        ({"size": 256}, "size=256: give (width, height), two even ints such as (256, 256)"),
+        ({"size": (64.0, 64.0)}, "size=(64.0, 64.0): give (width, height)"),
+        ({"fps": "30"}, "--fps '30': frames per second must be a positive number from 0.001 to 1000"),
+        ({"camera": 3}, "camera=3: give the name of a camera"),
+        ({"compare": 3}, "3: give a recording's path, a str or Path"),
+    ],
+    ids=["overwrite-str", "episodes-int", "episodes-bad-text", "size-int", "size-float", "fps-str", "camera-int",
+         "compare-int"],
+)
+def test_python_options_of_the_wrong_type_are_a_usage_error_and_nothing_is_replaced(tmp_path, options, message):
+    """Before: overwrite="no" replaced the existing video; episodes="0-1" was "no episode 0 (episodes: 0, 1)";
+    the others TypeErrors or ValueErrors from inside, or (sizes of floats) passed the check."""
+    from simreel.errors import UsageError
+
+    recording = _camera_recording(tmp_path / "cam.h5")
+    video = video_path(tmp_path, recording, 0)
+    video.write_bytes(b"an earlier video")
+    with pytest.raises(UsageError) as caught:
+        VideoRun(recording, tmp_path, **{"camera": "cam", **options}).execute()
+    assert str(caught.value).startswith(message), caught.value
+    assert video.read_bytes() == b"an earlier video"
+
+
+def test_a_recording_or_folder_of_the_wrong_type_is_a_usage_error(tmp_path):
+    """Before: TypeError from pathlib ("expected str, bytes or os.PathLike object, not NoneType")."""
+    from simreel.errors import UsageError
+
+    recording = _camera_recording(tmp_path / "cam.h5")
+    with pytest.raises(UsageError, match=r"^None: give a recording's path, a str or Path$"):
+        VideoRun(None, tmp_path)
+    with pytest.raises(UsageError, match=r"^folder=None: give the folder for the videos, a str or Path$"):
+        VideoRun(recording, None)
+
+
+def test_python_episodes_as_text_are_parsed_as_on_the_command_line(tmp_path):
+    """episodes="0-1" named episodes "0", "-" and "1" and failed with "no episode 0 (episodes: 0, 1)"."""
+    recording = _camera_recording(tmp_path / "cam.h5")
+    assert VideoRun(recording, tmp_path, camera="cam", episodes="0-1").indices == [0, 1]
