@@ -174,6 +174,17 @@ def mode_choices() -> list[str]:
     return [m for m in TOLERANCE_MODES if m != "resync"]
 
 
+def refuse_tolerances_without_compare(args: argparse.Namespace) -> None:
+    """`UsageError` for tolerance options (`add_tolerance_options`: --mode, --atol, --tol; those the command has) given
+    without --compare: they judge a --compare file against the recording, so without one they would be ignored."""
+    given = [name for name, value in (("--mode", getattr(args, "mode", None)), ("--atol", getattr(args, "atol", None)),
+                                      ("--tol", getattr(args, "tol", None) or None)) if value is not None]
+    if given and args.compare is None:
+        names = ", ".join(given)
+        raise UsageError(f"{names}: tolerances judge a --compare file against the recording, and none was given; add "
+                         f"--compare OTHER, or leave {names} out")
+
+
 def add_tolerance_options(p: argparse.ArgumentParser, *, mode_help: str, mode_default: str | None = "actions") -> None:
     """`--mode` (a replay mode: whose default tolerances apply; `mode_default` when not given), `--atol X` and
     `--tol GROUP=X` (repeatable)."""

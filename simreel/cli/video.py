@@ -5,7 +5,14 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from simreel.cli.common import add_import_option, mode_choices, parse_index_ranges, parse_size, progress_bar
+from simreel.cli.common import (
+    add_import_option,
+    mode_choices,
+    parse_index_ranges,
+    parse_size,
+    progress_bar,
+    refuse_tolerances_without_compare,
+)
 from simreel.errors import UsageError
 
 __all__ = ["add_parser", "run"]
@@ -43,6 +50,7 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from simreel.viewers.video import VideoOptions, VideoRun
 
+    refuse_tolerances_without_compare(args)
     episodes = None if args.episodes is None else parse_index_ranges(args.episodes)
     if episodes is not None and not episodes:
         raise UsageError(f"--episodes {args.episodes!r} names no episode")

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import add_import_option, add_tolerance_options
+from simreel.cli.common import add_import_option, add_tolerance_options, refuse_tolerances_without_compare
 from simreel.errors import UsageError
 from simreel.formats.durable import raise_if_stopped
 
@@ -41,8 +41,9 @@ def add_parser(sub: Any) -> None:
     sink.add_argument("--spawn", action="store_true", help="open the native Rerun viewer")
     sink.add_argument("--serve", action="store_true",
                       help="serve the episode to the web viewer (for a remote machine) until Ctrl-C or SIGTERM")
-    p.add_argument("--web-port", type=int, default=9090, help="web viewer port for --serve (default 9090)")
-    p.add_argument("--grpc-port", type=int, default=9876, help="gRPC port for --serve/--spawn (default 9876)")
+    p.add_argument("--web-port", type=int, default=None, help=f"web viewer port for --serve (default {_PORTS['web']})")
+    p.add_argument("--grpc-port", type=int, default=None,
+                   help=f"gRPC port for --serve/--spawn (default {_PORTS['grpc']})")
     p.add_argument("--geometry", default="auto", choices=("auto", "visual", "collision"),
                    help="visual meshes (needs a render device), collision shapes, or auto (default)")
     p.add_argument("--block-steps", type=int, default=None, metavar="N",
@@ -165,6 +166,26 @@ def _first_episode(args: argparse.Namespace) -> int:
         return reader.episodes[0].index if reader.episodes else 0
 
 
+_PORTS = {"web": 9090, "grpc": 9876}
+"""The ports --serve (web and gRPC) and --spawn (gRPC) use unless --web-port / --grpc-port say otherwise."""
+
+
+def _refuse_unused(args: argparse.Namespace, mode: str) -> None:
+    """`UsageError` for an option that would be ignored, silently, with the others given: tolerances without
+    --compare (`refuse_tolerances_without_compare`), ports where no server runs (--save; --web-port with --spawn).
+    Then the ports not given are the defaults (`_PORTS`)."""
+    refuse_tolerances_without_compare(args)
+    serverless = {"save": ("--web-port", "--grpc-port"), "spawn": ("--web-port",), "serve": ()}[mode]
+    unused = ", ".join(option for option in serverless if getattr(args, option[2:].replace("-", "_")) is not None)
+    if unused and mode == "spawn":
+        raise UsageError(f"{unused}: the web viewer's port, for --serve; --spawn uses --grpc-port only")
+    if unused:
+        shown = "--save" if args.save else "the default --save (no viewer can open here)"
+        raise UsageError(f"{unused}: ports of --serve and --spawn; with {shown} no server runs, so leave {unused} out")
+    args.web_port = _PORTS["web"] if args.web_port is None else args.web_port
+    args.grpc_port = _PORTS["grpc"] if args.grpc_port is None else args.grpc_port
+
+
 def _sink(args: argparse.Namespace, episode: int) -> tuple[str, str | None]:
     """("save", the .rrd path) or ("spawn" | "serve", None); an .rrd is checked before any work."""
     from simreel.viewers.session import check_rrd_target
@@ -175,6 +196,7 @@ def _sink(args: argparse.Namespace, episode: int) -> tuple[str, str | None]:
         mode = "spawn" if viewer_available() else "save"
         if mode == "save":
             save = str(default_output(args.path, episode))
+    _refuse_unused(args, mode)
     if mode == "save":
         shown = [args.path] + ([args.compare] if args.compare is not None else [])
         check_rrd_target(save, overwrite=args.overwrite, shown=shown)

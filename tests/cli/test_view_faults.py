@@ -212,3 +212,28 @@ def test_empty_and_nameless_paths_are_one_line_before_any_work(pickcube_h5, tmp_
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    ("command", "message"),
+    [
+        (["view", "{rec}", "--save", "{tmp}/x.rrd", "--atol", "0"],
+         "--atol: tolerances judge a --compare file against the recording, and none was given; add --compare OTHER, "
+         "or leave --atol out"),
+        (["view", "{rec}", "--save", "{tmp}/x.rrd", "--mode", "step", "--tol", "pos=1"],
+         "--mode, --tol: tolerances judge a --compare file"),
+        (["view", "{rec}", "--save", "{tmp}/x.rrd", "--web-port", "9000", "--grpc-port", "9001"],
+         "--web-port, --grpc-port: ports of --serve and --spawn; with --save no server runs, so leave --web-port, "
+         "--grpc-port out"),
+        (["video", "{rec}", "-o", "{tmp}", "--mode", "step"], "--mode: tolerances judge a --compare file"),
+    ],
+    ids=["view-atol", "view-mode-tol", "view-ports-with-save", "video-mode"],
+)
+def test_an_option_that_would_be_ignored_is_one_line_before_any_work(pickcube_h5, tmp_path, capsys, command, message):
+    """Before: each was accepted and ignored (exit 0): tolerances judge only a --compare file, and --save runs no
+    server."""
+    command = [a.format(rec=pickcube_h5, tmp=tmp_path) for a in command]
+    assert main(command) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert list(tmp_path.iterdir()) == []
