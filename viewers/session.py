@@ -14,7 +14,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -115,6 +115,9 @@ class ViewOptions:
         steps = self.block_steps
         if steps is not None and not (is_whole_number(steps) and steps >= 1):
             raise UsageError(f"block_steps must be an int ≥ 1, got {steps!r}")
+        if self.tolerances is not None and not isinstance(self.tolerances, Mapping):
+            raise UsageError(f"tolerances={self.tolerances!r}: give a dict of tolerance groups and numbers, e.g. "
+                             "{\"pos\": 1e-4}, or None")
         if self.mode is None and self.atol is None and not self.tolerances:
             return None
         try:
@@ -486,6 +489,9 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
         ViewError: `compare` is of another env or episode.
         EnvBuildError / RenderUnavailableError: the env cannot be rebuilt.
     """
+    if options is not None and not isinstance(options, ViewOptions):
+        raise UsageError(f"options={options!r}: give a ViewOptions, or its fields as keywords, e.g. "
+                         "build_session(path, episode=3)")
     opts = dataclasses.replace(options or ViewOptions(), **overrides)
     asked = opts.check()
     timings: dict[str, float] = {}

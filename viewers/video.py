@@ -128,6 +128,9 @@ class VideoRun:
     """
 
     def __init__(self, path: str | Path, folder: str | Path, options: VideoOptions | None = None, **overrides: Any):
+        if options is not None and not isinstance(options, VideoOptions):
+            raise UsageError(f"options={options!r}: give a VideoOptions, or its fields as keywords, e.g. "
+                             "VideoRun(path, folder, fps=10)")
         opts = dataclasses.replace(options or VideoOptions(), **overrides)
         opts.check()
         if not isinstance(folder, (str, os.PathLike)):

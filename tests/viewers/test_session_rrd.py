@@ -213,12 +213,16 @@ def test_save_never_writes_over_the_recordings_shown(pickcube_h5, view_env, tmp_
         ({"block_steps": "5"}, "block_steps must be an int ≥ 1, got '5'"),
         ({"compare": 3}, "3: give a recording's path, a str or Path"),
         ({"imports": 7}, "imports=7: give the .py files or modules that register the task"),
+        ({"tolerances": [("pos", 1)]}, "tolerances=[('pos', 1)]: give a dict of tolerance groups and numbers"),
+        ({"options": {"episode": 0}}, "options={'episode': 0}: give a ViewOptions, or its fields as keywords"),
     ],
-    ids=["episode-str", "episode-bool", "block_steps-str", "compare-int", "imports-int"],
+    ids=["episode-str", "episode-bool", "block_steps-str", "compare-int", "imports-int", "tolerances-list",
+         "options-dict"],
 )
 def test_options_of_the_wrong_type_are_a_usage_error(pickcube_h5, view_env, options, message):
     """Before: episode="1" was "no episode 1 (episodes: 0)" of a file that has it, episode=True showed episode 1,
-    block_steps="5" and compare=3 were TypeErrors, imports=7 too once the env was built."""
+    block_steps="5" and compare=3 were TypeErrors, imports=7 too once the env was built; tolerances as a list an
+    AttributeError, options as a dict a TypeError from dataclasses.replace."""
     from simreel.errors import UsageError
 
     with pytest.raises(UsageError) as caught:
