@@ -366,9 +366,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _refuse_step(self, fields: dict[str, np.ndarray], error: Exception) -> None:
         """A step whose rows did not fit the buffer (`error`, what storing them raised): where a field changed shape or
-        kind of dtype since the recording began, or is missing or new (`FieldsChanged`), hand every env's steps before it to its sink, stop every running
-        episode there (`_refuse`; one push holds all envs' rows) and raise `EpisodeLayoutError` naming the fields;
-        otherwise `error` is the recorder's own bug and goes on as it is."""
+        kind of dtype since the recording began, or is missing or new (`FieldsChanged`), hand every env's steps before
+        it to its sink, stop every running episode there (`_refuse`; one push holds all envs' rows) and raise
+        `EpisodeLayoutError` naming the fields; otherwise `error` is the recorder's own bug and goes on as it is."""
         changes = self._layout_changes(fields, error)
         if not changes:
             raise error
