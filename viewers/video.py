@@ -153,11 +153,13 @@ class VideoRun:
         """The videos `execute` has written so far."""
         self.notes: list[str] = []
         """What the videos' verdicts were judged with, where that is not plain (`judging_tolerances`)."""
+        have = sorted({k.split("/")[1] for k in self.meta.obs_layout if k.startswith("sensor_data/")})
         if opts.camera is not None and not any(k.startswith(f"sensor_data/{opts.camera}/rgb") for k in self.meta.obs_layout):
-            have = sorted({k.split("/")[1] for k in self.meta.obs_layout if k.startswith("sensor_data/")})
             raise UsageError(f"{path} holds no rgb observations of camera {opts.camera!r} (cameras: "
                              f"{', '.join(have) or 'none'}); leave --camera out to render the recorded states")
         self._check_targets()
+        if opts.camera is None:
+            _check_render_device(path, have)
 
     def _check_targets(self) -> None:
         """`UsageError` unless every video can be written: none is a recording read (`check_distinct`: a recording
@@ -301,6 +303,23 @@ class _FrameSource:
         if self.env is not None:
             self.env.close()
             self.env = None
+
+
+def _check_render_device(path: str | Path, cameras: list[str]) -> None:
+    """`RenderUnavailableError` before any work where the recorded states are to be rendered and nothing here
+    renders, saying how to get a device or, where the recording holds camera images, to take the frames from them
+    (`--camera`): the env's own error would suggest an observation mode, which `video` does not take."""
+    from simreel.errors import RenderUnavailableError
+    from simreel.sim.make import render_fix
+    from simreel.sim.render_device import probe_render_device
+
+    probe = probe_render_device()
+    if probe.backend != "none":
+        return
+    instead = (f"; or take the frames from a recorded camera with --camera NAME ({', '.join(cameras)})" if cameras
+               else " (the recording holds no camera images, which --camera NAME would take instead)")
+    raise RenderUnavailableError(f"{path}: rendering the recorded states needs a render device, and there is none "
+                                 f"({probe.detail}); to render, {render_fix('auto')}{instead}")
 
 
 def _recorded_frames(path: str | Path, index: int, camera: str) -> Iterator[np.ndarray]:

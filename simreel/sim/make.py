@@ -42,6 +42,7 @@ __all__ = [
     "CAMERA_TEXTURES",
     "SIMREEL_TASK_PREFIX",
     "no_render_device_fix",
+    "render_fix",
 ]
 
 CAMERA_TEXTURES = frozenset(
@@ -287,7 +288,7 @@ def _prepare_render(env_id: str, cfg: EnvConfig) -> str:
         if needs is not None:
             raise RenderUnavailableError(
                 f"{env_id}: {needs}, but there is no render device ({why}). To render, "
-                f"{_render_fix(cfg.render_backend)}; or use obs_mode='state' and no render_mode."
+                f"{render_fix(cfg.render_backend)}; or use obs_mode='state' and no render_mode."
             )
         from simreel.sim import norender
 
@@ -323,7 +324,7 @@ def _gym_kwargs(cfg: EnvConfig, backend: str) -> dict[str, Any]:
     return kwargs
 
 
-def _render_fix(asked: str | None) -> str:
+def render_fix(asked: str | None) -> str:
     """How to get the render device an env needs and did not get, as one clause of an error message: ask for one
     (render backend 'none' asks for none), fix the user's own Vulkan setting, or fetch lavapipe."""
     if asked in (None, "none"):

@@ -341,3 +341,21 @@ def test_python_episodes_as_text_are_parsed_as_on_the_command_line(tmp_path):
     """episodes="0-1" named episodes "0", "-" and "1" and failed with "no episode 0 (episodes: 0, 1)"."""
     recording = _camera_recording(tmp_path / "cam.h5")
     assert VideoRun(recording, tmp_path, camera="cam", episodes="0-1").indices == [0, 1]
+
+
+def test_no_render_device_says_to_take_the_frames_from_a_recorded_camera(tmp_path):
+    """Before: the env's own error ended "...or use obs_mode='state' and no render_mode", an option `video` does not
+    take; now the run stops before any work and names the recording's cameras (`--camera`) and the Vulkan setting
+    that gives no device."""
+    import os
+
+    recording = _camera_recording(tmp_path / "cam.h5")
+    env = {**os.environ, "VK_ICD_FILENAMES": str(tmp_path / "no_icd.json")}
+    done = subprocess.run([sys.executable, "-m", "simreel", "video", str(recording), "-o", str(tmp_path), "-q"],
+                          env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr[-2000:]
+    [line] = done.stderr.splitlines()
+    assert line.startswith(f"simreel video: error: {recording}: rendering the recorded states needs a render device")
+    assert f"fix or unset VK_ICD_FILENAMES={tmp_path / 'no_icd.json'}" in line
+    assert line.endswith("; or take the frames from a recorded camera with --camera NAME (cam)")
+    assert not list(tmp_path.glob("*.mp4"))
