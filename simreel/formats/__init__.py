@@ -11,6 +11,7 @@ files it writes beside the recording (`check_writable`, `check_report_writable`,
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -139,4 +140,38 @@ def open_reader(path: str | Path) -> EpisodeReader:
         return McapReader(p)
     if not head:
         raise RecordingFileError(p, "empty file")
-    raise RecordingFileError(p, "neither an HDF5 nor an MCAP file")
+    raise RecordingFileError(p, "neither an HDF5 nor an MCAP file" + _what_it_is(p, head))
+
+
+_RRD_MAGIC = b"RRF2"
+"""The first bytes of a Rerun session file (.rrd), which `simreel view --save` writes."""
+_JSON_READ_LIMIT = 64 * 2**20
+"""The largest JSON file read to say what it is: a replay report of very many episodes is a few tens of MiB."""
+
+
+def _what_it_is(path: Path, head: bytes) -> str:
+    """What a file that is no recording is, where simreel wrote it or reads it beside one, and what to give instead,
+    as the end of the error that refuses it (empty where it is nothing simreel knows): a Rerun session, a replay
+    report, a ManiSkill trajectory's JSON sidecar."""
+    if head.startswith(_RRD_MAGIC):
+        return f": a Rerun session (`simreel view --save` writes them); open it with `rerun {path}`"
+    document = _json_document(path, head)
+    if {"ok", "complete", "episodes", "files"} <= document.keys():
+        judged = [f.get("path") for f in document.get("files") or () if isinstance(f, dict) and f.get("path")]
+        wrote = f", and the replay it wrote: {document['output']}" if document.get("output") else ""
+        return (f": a replay report (`simreel replay --report`); give a recording: the one it judged is "
+                f"{', '.join(map(str, judged)) or 'not named in it'}{wrote}")
+    if {"env_info", "episodes"} <= document.keys():
+        return f": the JSON sidecar of a ManiSkill trajectory; give the .h5 beside it ({path.with_suffix('.h5')})"
+    return ""
+
+
+def _json_document(path: Path, head: bytes) -> dict[str, Any]:
+    """The JSON object `path` holds, where it is one (of up to `_JSON_READ_LIMIT` bytes); else an empty dict."""
+    if not head.lstrip().startswith(b"{") or path.stat().st_size > _JSON_READ_LIMIT:
+        return {}
+    try:
+        document = json.loads(path.read_bytes())
+    except (OSError, ValueError):
+        return {}
+    return document if isinstance(document, dict) else {}

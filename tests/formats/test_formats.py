@@ -102,3 +102,39 @@ def test_a_report_never_replaces_a_recordings_sidecar(tmp_path, files, owner):
                                   f"tools read with it; writing --report {tmp_path}/x.json would replace it: name "
                                   "the output otherwise")
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_a_file_simreel_writes_beside_recordings_is_named_when_given_as_one(tmp_path, capsys):
+    """Before: a replay report, a ManiSkill JSON sidecar or a Rerun session given where a recording goes (`view
+    --compare report.json`, `inspect run.json`) was only "neither an HDF5 nor an MCAP file"; now the refusal says
+    what the file is and what to give: the recordings the report names, the .h5 beside the sidecar, `rerun`."""
+    from support.maniskill_files import record_maniskill
+
+    from simreel.cli.main import main
+    from simreel.errors import RecordingFileError
+    from simreel.formats import open_reader
+
+    recording, report, replayed = tmp_path / "run.h5", tmp_path / "report.json", tmp_path / "replayed.h5"
+    assert main(["record", "PickCube-v1", "-o", str(recording), "-n", "1", "--max-steps", "5", "--render-backend",
+                 "none", "-q"]) == 0
+    assert main(["replay", str(recording), "--report", str(report), "-o", str(replayed), "-q"]) == 0
+    saved = tmp_path / "x.rrd"
+    assert main(["view", str(recording), "--save", str(saved), "--geometry", "collision"]) == 0
+    sidecar = record_maniskill(tmp_path / "ms", "PickCube-v1", episodes=1, steps=3).with_suffix(".json")
+    other = tmp_path / "other.json"
+    other.write_text('{"episodes": []}')
+    expected = {
+        report: f": a replay report (`simreel replay --report`); give a recording: the one it judged is {recording}, "
+                f"and the replay it wrote: {replayed}",
+        sidecar: f": the JSON sidecar of a ManiSkill trajectory; give the .h5 beside it ({sidecar.with_suffix('.h5')})",
+        saved: f": a Rerun session (`simreel view --save` writes them); open it with `rerun {saved}`",
+        other: "",
+    }
+    for path, what in expected.items():
+        with pytest.raises(RecordingFileError) as refused:
+            open_reader(path)
+        assert str(refused.value) == f"{path}: neither an HDF5 nor an MCAP file{what}"
+    capsys.readouterr()
+    assert main(["view", str(recording), "--compare", str(report), "--save", str(tmp_path / "y.rrd")]) == 2
+    assert capsys.readouterr().err.strip() == f"simreel view: error: {report}: neither an HDF5 nor an MCAP file" \
+                                              f"{expected[report]}"
