@@ -561,11 +561,12 @@ class StepBlock:
         return StepBlock(arrays, self.rows)
 
     def conform(self, fields: Iterable[FieldSpec], *, episode: int) -> dict[str, np.ndarray]:
-        """The block's arrays for exactly `fields`, each cast to its dtype (no copy when it has it already); a field
-        still `captured` counts as there, unchecked until it is converted.
+        """The block's arrays for exactly `fields`, each cast to its dtype (no copy when it has it already:
+        `_cast_keeping_values`); a field still `captured` counts as there, unchecked until it is converted.
 
         Raises `EpisodeLayoutError` naming the episode and the field when one is missing, has another row
-        shape, or when the block holds a field the table does not list (it would be dropped silently).
+        shape, holds a value its dtype cannot hold, or when the block holds a field the table does not list (it would
+        be dropped silently).
         """
         captured = {name for source, _, _ in self.captured for name in source.names}
         out: dict[str, np.ndarray] = {}
@@ -581,7 +582,7 @@ class StepBlock:
                 raise EpisodeLayoutError(
                     f"episode {episode}: {f.name} has shape {a.shape}, expected {(self.rows, *f.shape)} from the layout"
                 )
-            out[f.name] = a.astype(f.dtype, copy=False)
+            out[f.name] = _cast_keeping_values(a, np.dtype(f.dtype), f"episode {episode}: {f.name}")
         extra = sorted((set(self.arrays) | captured) - listed)
         if extra:
             raise EpisodeLayoutError(
@@ -589,6 +590,26 @@ class StepBlock:
                 "the RecordingMeta (state_layout, obs_layout, info_layout, contact_channels, pose_bodies)"
             )
         return out
+
+
+def _cast_keeping_values(a: np.ndarray, dtype: np.dtype, what: str) -> np.ndarray:
+    """`a` as `dtype` (no copy when it has it already) where the cast keeps every value: a type that holds all of
+    `a`'s (``can_cast`` "safe"), a float type of the values rounded but none overflowed to infinity, an integer or bool
+    type that holds each value exactly (0 and 1 for bool). Anything else is `EpisodeLayoutError` naming `what`: numpy's
+    cast would store other values than given and say nothing (1e300 as inf, 2**40 as 0 in int32, 0.5 and NaN as True,
+    a complex number's real part, text parsed as numbers)."""
+    if a.dtype == dtype or np.can_cast(a.dtype, dtype, "safe"):
+        return a.astype(dtype, copy=False)
+    if a.dtype.kind not in "biuf":
+        raise EpisodeLayoutError(f"{what} is {a.dtype}, not numbers of the layout's {dtype}; give values of that dtype")
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = a.astype(dtype)
+        changed = (np.isinf(out) & ~np.isinf(a)) if dtype.kind == "f" else ~(out.astype(a.dtype) == a)
+    if changed.any():
+        first = np.argwhere(changed)[0]
+        raise EpisodeLayoutError(f"{what} holds {a[tuple(first)].item()!r} ({a.dtype}), which {dtype} cannot hold (it would be "
+                                 f"stored as {out[tuple(first)].item()!r}); give values of that dtype")
+    return out
 
 
 def join_blocks(fields: Sequence[FieldSpec], reset: StepBlock, steps: Sequence[StepBlock]) -> dict[str, np.ndarray]:

@@ -1,0 +1,91 @@
+"""What `open_writer`'s writers do with what a careless Python caller hands them, in both formats: values a field's
+dtype cannot hold, sinks used out of order, reset rows that are not one row, metadata a reader would refuse. Each is
+one clear error before anything reaches the file, never a file that holds other values or other episodes than given,
+and the writer goes on with the next episode."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from simreel.episode import Episode
+from simreel.errors import EpisodeLayoutError
+from simreel.formats import open_reader, open_writer
+
+SUFFIXES = [".h5", ".mcap"]
+
+
+@pytest.fixture(scope="module")
+def source(record):
+    """A real PickCube-v1 recording's metadata and its first episode (20 steps)."""
+    with open_reader(record("PickCube-v1", 2, 20)) as reader:
+        return reader.meta, reader.read_episode(0)
+
+
+def _changed(episode: Episode, **arrays: np.ndarray) -> Episode:
+    """`episode` with the flat fields `arrays` (``info/elapsed_steps`` as ``info__elapsed_steps``) replaced."""
+    fields = dict(episode.fields())
+    fields.update({name.replace("__", "/"): a for name, a in arrays.items()})
+    return Episode.from_fields(episode.meta, fields)
+
+
+def _read_all(path) -> dict[int, Episode]:
+    with open_reader(path) as reader:
+        return {m.index: reader.read_episode(m.index) for m in reader.episodes}
+
+
+# ---------------------------------------------------------------------------------------------------- values
+@pytest.mark.parametrize("suffix", SUFFIXES)
+@pytest.mark.parametrize(
+    "case",
+    [
+        ("actions", lambda a: a.astype(np.float64) * 1e300,
+         r"actions holds -8.2\d*e\+299 \(float64\), which float32 cannot hold \(it would be stored as -inf\)"),
+        ("info/elapsed_steps", lambda a: np.full(a.shape, 2**40, np.int64),
+         r"info/elapsed_steps holds 1099511627776 \(int64\), which int32 cannot hold \(it would be stored as 0\)"),
+        ("info/elapsed_steps", lambda a: np.full(a.shape, 2.7),
+         r"info/elapsed_steps holds 2.7 \(float64\), which int32 cannot hold \(it would be stored as 2\)"),
+        ("terminated", lambda a: np.full(a.shape, 2, np.uint8),
+         r"terminated holds 2 \(uint8\), which bool cannot hold \(it would be stored as True\)"),
+        ("terminated", lambda a: np.full(a.shape, 0.5), r"terminated holds 0.5 \(float64\), which bool cannot hold \(it would be stored as True\)"),
+        ("terminated", lambda a: np.full(a.shape, np.nan), r"terminated holds nan \(float64\), which bool cannot hold \(it would be stored as True\)"),
+        ("actions", lambda a: a + 1j, r"actions is complex64, not numbers of the layout's float32"),
+        ("actions", lambda a: np.full(a.shape, "1.5"), r"actions is <U3, not numbers of the layout's float32"),
+        ("actions", lambda a: a.astype(object), r"actions is object, not numbers of the layout's float32"),
+    ],
+    ids=["overflow", "int-wraps", "float-to-int", "uint8-to-bool", "half-to-bool", "nan-to-bool", "complex", "text",
+         "object"],
+)
+def test_a_value_the_fields_dtype_cannot_hold_is_refused_not_stored_changed(tmp_path, source, suffix, case):
+    (name, make, message), (meta, episode) = case, source
+    fields = episode.fields()
+    bad = Episode.from_fields(episode.meta, {**fields, name: make(fields[name])})
+    path = tmp_path / f"out{suffix}"
+    with open_writer(path, meta) as writer:
+        with pytest.raises(EpisodeLayoutError, match=f"^episode 0: {message}; give values of that dtype"):
+            writer.write_episode(bad)
+        writer.write_episode(dataclasses.replace(episode, meta=dataclasses.replace(episode.meta, index=1)))
+    assert list(_read_all(path)) == [1]  # the refused episode left nothing; the writer went on
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+def test_values_another_dtype_holds_exactly_or_rounded_are_stored_as_the_layouts_dtype(tmp_path, source, suffix):
+    meta, episode = source
+    given = _changed(
+        episode,
+        actions=episode.actions.astype(np.float64) + 0.1,  # rounded to float32, as a float32 field stores any float
+        rewards=np.arange(episode.length, dtype=np.int64),
+        terminated=episode.terminated.astype(np.uint8),
+        truncated=episode.truncated.astype(np.float64),
+        info__elapsed_steps=np.asarray(episode.info["elapsed_steps"], np.int64),
+        contact_forces=np.asfortranarray(episode.contact_forces.astype(">f4")),
+    )
+    path = tmp_path / f"out{suffix}"
+    with open_writer(path, meta) as writer:
+        writer.write_episode(given)
+    read = _read_all(path)[0]
+    for name, a in given.fields().items():
+        assert read.fields()[name].dtype == episode.fields()[name].dtype, name
+        np.testing.assert_array_equal(read.fields()[name], a.astype(episode.fields()[name].dtype), err_msg=name)
