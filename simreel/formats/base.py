@@ -33,7 +33,7 @@ from simreel.episode import (
     episode_fields,
     join_blocks,
 )
-from simreel.errors import RecordingFileError, StorageError, UsageError
+from simreel.errors import EpisodeLayoutError, RecordingFileError, StorageError, UsageError
 from simreel.formats.durable import is_storage_error, storage_error
 from simreel.formats.lock import being_written
 from simreel.formats.paths import is_symlink_loop, read_problem
@@ -66,7 +66,32 @@ def block_rows(fields: Sequence[FieldSpec], budget: int = BLOCK_BYTES) -> int:
 
 
 class EpisodeSink(ABC):
-    """One episode being written. Use `append` any number of times, then `commit` or `discard`."""
+    """One episode being written. Use `append` any number of times, then `commit` or `discard`; after either it
+    takes nothing more (`check_running`), and a commit must give this episode's metadata (`check_commit`)."""
+
+    index: int
+    """The index of the episode (`EpisodeMeta.index` given to `begin_episode`)."""
+    steps: int = 0
+    """The steps appended so far."""
+    ended = False
+    """Committed or discarded."""
+
+    def check_running(self) -> None:
+        """`UsageError` once the episode was committed or discarded: what a sink took after that would be lost (an
+        append), or written again (a commit)."""
+        if self.ended:
+            raise UsageError(f"episode {self.index} was already committed or discarded; begin_episode another one")
+
+    def check_commit(self, meta: EpisodeMeta) -> None:
+        """`UsageError` unless the episode is running and `meta` is its own: its index (another would file these
+        steps under another episode) and the steps appended as its length (readers go by it)."""
+        self.check_running()
+        if meta.index != self.index:
+            raise UsageError(f"commit of episode {meta.index} on the sink of episode {self.index}; commit each "
+                             "episode with its own EpisodeMeta")
+        if meta.length != self.steps:
+            raise UsageError(f"episode {self.index}: committed with length {meta.length}, but {self.steps} step(s) "
+                             f"were appended; give EpisodeMeta(length={self.steps})")
 
     @abstractmethod
     def append(self, block: StepBlock) -> None:
@@ -131,6 +156,14 @@ class EpisodeWriter(ABC):
     def begin_episode(self, meta: EpisodeMeta, reset: StepBlock) -> EpisodeSink:
         """Start an episode whose state after reset is `reset`: one row of every per-state field
         (`env_states/...`, `obs/...` and `body_poses` as the recording's field table lists them)."""
+
+    def reset_arrays(self, meta: EpisodeMeta, reset: StepBlock) -> dict[str, np.ndarray]:
+        """The arrays of `reset` as episode `meta.index`'s reset row: `EpisodeLayoutError` unless it is one row of
+        every per-state field (`StepBlock.conform`); more rows, or none, would not be the episode's (T + 1) rows."""
+        if reset.rows != 1 and self.reset_fields:
+            raise EpisodeLayoutError(f"episode {meta.index}: the reset block has {reset.rows} rows, expected 1 (the "
+                                     "state right after the reset)")
+        return reset.converted().conform(self.reset_fields, episode=meta.index)
 
     def write_episode(self, episode: Episode) -> None:
         """Write a whole in-memory episode (one a user made or edited; simreel's own copies use `write_rows`)."""

@@ -10,8 +10,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from simreel.episode import Episode
-from simreel.errors import EpisodeLayoutError
+from simreel.episode import Episode, EpisodeMeta, StepBlock
+from simreel.errors import EpisodeLayoutError, UsageError
 from simreel.formats import open_reader, open_writer
 
 SUFFIXES = [".h5", ".mcap"]
@@ -34,6 +34,11 @@ def _changed(episode: Episode, **arrays: np.ndarray) -> Episode:
 def _read_all(path) -> dict[int, Episode]:
     with open_reader(path) as reader:
         return {m.index: reader.read_episode(m.index) for m in reader.episodes}
+
+
+def _assert_same(read: Episode, written: Episode) -> None:
+    for name, a in written.fields().items():
+        np.testing.assert_array_equal(read.fields()[name], a, err_msg=name)
 
 
 # ---------------------------------------------------------------------------------------------------- values
@@ -89,3 +94,112 @@ def test_values_another_dtype_holds_exactly_or_rounded_are_stored_as_the_layouts
     for name, a in given.fields().items():
         assert read.fields()[name].dtype == episode.fields()[name].dtype, name
         np.testing.assert_array_equal(read.fields()[name], a.astype(episode.fields()[name].dtype), err_msg=name)
+
+
+# ---------------------------------------------------------------------------------------------------- sinks
+def _other(episode: Episode, index: int) -> Episode:
+    return dataclasses.replace(episode, meta=dataclasses.replace(episode.meta, index=index))
+
+
+def _misuse_commit_other_index(writer, episode):
+    sink = writer.begin_episode(episode.meta, episode.reset_block())
+    sink.append(episode.steps_block())
+    sink.commit(dataclasses.replace(episode.meta, index=5))
+
+
+def _misuse_commit_twice(writer, episode):
+    sink = writer.begin_episode(episode.meta, episode.reset_block())
+    sink.append(episode.steps_block())
+    sink.commit(episode.meta)
+    sink.commit(episode.meta)
+
+
+def _misuse_append_after_commit(writer, episode):
+    sink = writer.begin_episode(episode.meta, episode.reset_block())
+    sink.append(episode.steps_block())
+    sink.commit(episode.meta)
+    sink.append(episode.steps_block())
+
+
+def _misuse_commit_after_discard(writer, episode):
+    sink = writer.begin_episode(episode.meta, episode.reset_block())
+    sink.append(episode.steps_block())
+    sink.discard()
+    sink.commit(episode.meta)
+
+
+def _misuse_wrong_length(writer, episode):
+    sink = writer.begin_episode(episode.meta, episode.reset_block())
+    sink.append(episode.steps_block())
+    sink.commit(dataclasses.replace(episode.meta, length=99))
+
+
+def _misuse_default_length(writer, episode):
+    """An episode a user built with `EpisodeMeta(index=0)`: length 0, the default, with 20 steps."""
+    writer.write_episode(dataclasses.replace(episode, meta=EpisodeMeta(index=0)))
+
+
+def _misuse_two_row_reset(writer, episode):
+    two = StepBlock.of({n: a[:2] for n, a in episode.fields().items() if n.startswith("env_states/")})
+    writer.begin_episode(episode.meta, two)
+
+
+def _misuse_empty_reset(writer, episode):
+    none = StepBlock.of({n: a[:0] for n, a in episode.fields().items() if n.startswith("env_states/")})
+    writer.begin_episode(episode.meta, none)
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+@pytest.mark.parametrize(
+    "case",
+    [
+        (_misuse_commit_other_index, UsageError, "commit of episode 5 on the sink of episode 0", []),
+        (_misuse_commit_twice, UsageError, "episode 0 was already committed or discarded", [0]),
+        (_misuse_append_after_commit, UsageError, "episode 0 was already committed or discarded", [0]),
+        (_misuse_commit_after_discard, UsageError, "episode 0 was already committed or discarded", []),
+        (_misuse_wrong_length, UsageError,
+         r"episode 0: committed with length 99, but 20 step\(s\) were appended; give EpisodeMeta\(length=20\)", []),
+        (_misuse_default_length, UsageError,
+         r"episode 0: committed with length 0, but 20 step\(s\) were appended; give EpisodeMeta\(length=20\)", []),
+        (_misuse_two_row_reset, EpisodeLayoutError,
+         r"episode 0: the reset block has 2 rows, expected 1 \(the state right after the reset\)", []),
+        (_misuse_empty_reset, EpisodeLayoutError,
+         r"episode 0: the reset block has 0 rows, expected 1 \(the state right after the reset\)", []),
+    ],
+    ids=["commit-other-index", "commit-twice", "append-after-commit", "commit-after-discard", "wrong-length",
+         "default-length", "two-row-reset", "empty-reset"],
+)
+def test_a_sink_used_out_of_order_is_one_error_and_the_file_keeps_exactly_what_was_committed(tmp_path, source, suffix,
+                                                                                            case):
+    (misuse, error, message, kept), (meta, episode) = case, source
+    path = tmp_path / f"out{suffix}"
+    with open_writer(path, meta) as writer:
+        with pytest.raises(error, match=f"^{message}"):
+            misuse(writer, episode)
+        writer.write_episode(_other(episode, 1))  # the writer goes on
+    read = _read_all(path)
+    assert sorted(read) == [*kept, 1]
+    for index in read:
+        _assert_same(read[index], _other(episode, index))
+        assert read[index].meta.length == episode.length
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+@pytest.mark.parametrize("end", ["close", "abort"])
+def test_a_sink_takes_nothing_once_its_writer_is_closed_or_aborted(tmp_path, source, suffix, end):
+    meta, episode = source
+    path = tmp_path / f"out{suffix}"
+    writer = open_writer(path, meta)
+    writer.write_episode(episode)
+    sink = writer.begin_episode(_other(episode, 1).meta, episode.reset_block())
+    getattr(writer, end)()
+    with pytest.raises(UsageError, match=f"^{path} is closed$"):
+        sink.append(episode.steps_block())
+    with pytest.raises(UsageError, match=f"^{path} is closed$"):
+        sink.commit(_other(episode, 1).meta)
+    sink.discard()  # cleaning up after a closed writer is no error
+    if end == "close":
+        assert list(_read_all(path)) == [0]
+    else:
+        assert not path.exists()
+

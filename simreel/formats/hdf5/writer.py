@@ -83,12 +83,12 @@ class _Hdf5Sink(EpisodeSink):
 
     def __init__(self, writer: Hdf5Writer, meta: EpisodeMeta, reset: StepBlock) -> None:
         self._writer = writer
-        self._index = meta.index
+        self.index = meta.index
         self._scratch_path = scratch_path(writer.partial, meta.index)
         self._file: Any = None
         self._pending: dict[str, list[np.ndarray]] = {}
         self._pending_bytes = 0
-        self._hold(reset.converted().conform(writer.reset_fields, episode=meta.index))
+        self._hold(writer.reset_arrays(meta, reset))
         writer.episode_began(meta)
 
     def _hold(self, arrays: dict[str, np.ndarray]) -> None:
@@ -96,7 +96,7 @@ class _Hdf5Sink(EpisodeSink):
             self._pending.setdefault(name, []).append(np.array(rows, copy=True))
             self._pending_bytes += rows.nbytes
         if self._pending_bytes > _SPILL_BYTES:
-            self._writer.guard(self._spill, f"episode {self._index} was not committed")
+            self._writer.guard(self._spill, f"episode {self.index} was not committed")
 
     def _spill(self) -> None:
         import h5py
@@ -117,9 +117,15 @@ class _Hdf5Sink(EpisodeSink):
         self._pending_bytes = 0
 
     def append(self, block: StepBlock) -> None:
-        self._hold(block.converted().conform(self._writer.fields, episode=self._index))
+        self._writer._check_usable()
+        self.check_running()
+        self._hold(block.converted().conform(self._writer.fields, episode=self.index))
+        self.steps += block.rows
 
     def commit(self, meta: EpisodeMeta) -> None:
+        self._writer._check_usable()
+        self.check_commit(meta)
+        self.ended = True
         if self._file is None:
             arrays = {name: np.concatenate(parts) for name, parts in self._pending.items()}
             arrays.update({f.name: np.zeros((0, *f.shape), f.dtype) for f in self._writer.fields if f.name not in arrays})
@@ -132,12 +138,15 @@ class _Hdf5Sink(EpisodeSink):
         self._writer.commit_scratch(meta, self._scratch_path)
 
     def discard(self) -> None:
+        if self.ended:
+            return
+        self.ended = True
         self._pending.clear()
         if self._file is not None:
             self._file.close()
             self._file = None
         self._scratch_path.unlink(missing_ok=True)
-        self._writer.episode_ended(self._index, committed=False)
+        self._writer.episode_ended(self.index, committed=False)
 
 
 class Hdf5Writer(EpisodeWriter):

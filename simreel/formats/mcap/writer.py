@@ -46,24 +46,24 @@ class _McapSink(EpisodeSink):
         self._writer = writer
         self._channels = channels
         self._lane = lane
-        self._open = True
+        self.index = lane.index
 
-    def _check_open(self) -> None:
-        if not self._open:
-            raise UsageError(f"episode {self._lane.index} was already committed or discarded")
+    @property
+    def steps(self) -> int:
+        return self._lane.rows
 
     def append(self, block: StepBlock) -> None:
-        self._check_open()
+        self._writer._check_usable()
+        self.check_running()
+        arrays = block.converted().conform(self._writer.fields, episode=self.index)
         if len(block):
-            arrays = block.converted().conform(self._writer.fields, episode=self._lane.index)
             self._writer.guard(lambda: self._channels.steps(self._lane, arrays, len(block)),
-                               f"episode {self._lane.index} was not committed")
+                               f"episode {self.index} was not committed")
 
     def commit(self, meta: EpisodeMeta) -> None:
-        self._check_open()
-        if meta.index != self._lane.index:
-            raise UsageError(f"commit of episode {meta.index} on the sink of episode {self._lane.index}")
-        self._open = False
+        self._writer._check_usable()
+        self.check_commit(meta)
+        self.ended = True
         with deferred_signals():
             end = self._writer.guard(lambda: self._channels.commit(self._lane, meta),
                                      f"episode {meta.index} was not committed")
@@ -71,8 +71,8 @@ class _McapSink(EpisodeSink):
         self._writer.committed.append(meta)
 
     def discard(self) -> None:
-        if self._open:
-            self._open = False
+        if not self.ended and not self._writer._closed:  # a closed file takes no record: the episode is unfinished
+            self.ended = True
             end = self._writer.guard(lambda: self._channels.discard(self._lane),
                                      f"episode {self._lane.index} was not committed")
             self._writer.lane_ended(self._lane, end)
@@ -144,7 +144,7 @@ class McapWriter(EpisodeWriter):
         self._check_usable()
         if meta.index in self._begun:
             raise UsageError(f"{self.path}: episode {meta.index} was already written; episode indices must be unique")
-        arrays = reset.converted().conform(self.reset_fields, episode=meta.index)
+        arrays = self.reset_arrays(meta, reset)
         lane = EpisodeLane(meta.index, meta.env_idx, self._lane_next.get(meta.env_idx, 0))
         self._begun.add(meta.index)
         self._lane_next[meta.env_idx] = lane.start_ns + self._channels.step_ns  # a lane holds one running episode
