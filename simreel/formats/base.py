@@ -15,6 +15,8 @@ episode together from the same blocks. A reader names what it could not read (`d
 from __future__ import annotations
 
 import errno
+import json
+import math
 import shutil
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -33,7 +35,7 @@ from simreel.episode import (
     episode_fields,
     join_blocks,
 )
-from simreel.errors import EpisodeLayoutError, RecordingFileError, StorageError, UsageError
+from simreel.errors import EpisodeLayoutError, MetadataError, RecordingFileError, StorageError, UsageError
 from simreel.formats.durable import is_storage_error, storage_error
 from simreel.formats.lock import being_written
 from simreel.formats.paths import is_symlink_loop, read_problem
@@ -121,11 +123,27 @@ class EpisodeWriter(ABC):
 
     def __init__(self, path: str | Path, meta: RecordingMeta) -> None:
         self.path = Path(path)
-        self.meta = meta
+        self.meta = self.checked_meta(meta, RecordingMeta)
         self.fields = episode_fields(meta)
         """The field table every episode's blocks are checked against."""
         self.reset_fields = [f for f in self.fields if f.per_state]
         """The fields of an episode's reset row."""
+
+    def checked_meta(self, meta: Any, kind: type) -> Any:
+        """`meta` (a `RecordingMeta` or `EpisodeMeta`, `kind`) as a reader of the file will read it: `UsageError`
+        naming the file and the field where a reader would refuse it (`from_json`: the file or the episode would be
+        written and then never read), before anything is written. Numpy numbers become Python's, as in the file."""
+        try:
+            text = json.dumps(meta.to_json())
+        except (TypeError, ValueError) as e:
+            raise UsageError(f"{self.path}: {_METADATA[kind]} does not convert to JSON: {e}") from None
+        try:
+            checked = kind.from_json(json.loads(text))
+            if kind is RecordingMeta:
+                _check_rates(checked)
+        except MetadataError as e:
+            raise UsageError(f"{self.path}: {e}; give a value of that type") from None
+        return checked
 
     @classmethod
     def side_paths(cls, path: Path) -> list[Path]:
@@ -247,6 +265,18 @@ class EpisodeWriter(ABC):
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+_METADATA = {RecordingMeta: "recording metadata", EpisodeMeta: "episode metadata"}
+
+
+def _check_rates(meta: RecordingMeta) -> None:
+    """`MetadataError` unless the recording's control and sim frequencies are numbers > 0 (or unknown): a time axis
+    (MCAP's log time) and replay's sim time are made of them."""
+    for name in ("control_freq", "sim_freq"):
+        value = getattr(meta, name)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise MetadataError(f"recording metadata: {name} is {value!r}, expected a number > 0 or None")
 
 
 class EpisodeRows(ABC):

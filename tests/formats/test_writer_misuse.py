@@ -203,3 +203,67 @@ def test_a_sink_takes_nothing_once_its_writer_is_closed_or_aborted(tmp_path, sou
     else:
         assert not path.exists()
 
+
+# ---------------------------------------------------------------------------------------------------- metadata
+@pytest.mark.parametrize("suffix", SUFFIXES)
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"env_id": 5}, "recording metadata: env_id is 5, expected str"),
+        ({"num_envs": 0}, "recording metadata: num_envs is 0, expected >= 1"),
+        ({"control_freq": "20"}, "recording metadata: control_freq is '20', expected float | None"),
+        ({"control_freq": float("nan")}, "recording metadata: control_freq is nan, expected a number > 0 or None"),
+        ({"sim_freq": -100.0}, "recording metadata: sim_freq is -100.0, expected a number > 0 or None"),
+        ({"env_kwargs": {(1, 2): "b"}}, "recording metadata does not convert to JSON: keys must be str"),
+    ],
+    ids=["env-id", "num-envs", "freq-text", "freq-nan", "freq-negative", "tuple-key"],
+)
+def test_recording_metadata_a_reader_would_refuse_is_refused_before_the_file_is_made(tmp_path, source, suffix,
+                                                                                     changes, message):
+    meta, _ = source
+    path = tmp_path / f"out{suffix}"
+    with pytest.raises(UsageError, match=f"^{path}: {message}"):
+        open_writer(path, dataclasses.replace(meta, **changes))
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"index": 3.0}, "episode metadata: index is 3.0, expected int"),
+        ({"index": "3"}, "episode metadata: index is '3', expected int"),
+        ({"index": True}, "episode metadata: index is True, expected int"),
+        ({"index": -1}, "episode metadata: index is -1, expected >= 0"),
+        ({"env_idx": -2}, "episode metadata: env_idx is -2, expected >= 0"),
+        ({"chain": {"start": "a"}}, "episode metadata: chain is"),
+        ({"reset_options": {(1, 2): "b"}}, "episode metadata does not convert to JSON: keys must be str"),
+    ],
+    ids=["float-index", "text-index", "bool-index", "negative-index", "negative-env", "chain", "tuple-key"],
+)
+def test_episode_metadata_a_reader_would_refuse_is_refused_before_the_episode_begins(tmp_path, source, suffix,
+                                                                                    changes, message):
+    meta, episode = source
+    path = tmp_path / f"out{suffix}"
+    with open_writer(path, meta) as writer:
+        with pytest.raises(UsageError, match=f"^{path}: {message}"):
+            writer.write_episode(dataclasses.replace(episode, meta=dataclasses.replace(episode.meta, **changes)))
+        writer.write_episode(_other(episode, 1))
+    assert list(_read_all(path)) == [1]
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+def test_numpy_numbers_and_text_that_is_no_utf8_in_metadata_are_written_as_given(tmp_path, source, suffix):
+    meta, episode = source
+    meta = dataclasses.replace(meta, command="simreel record -o caf\udce9.mcap", control_freq=np.float64(20.0))
+    given = dataclasses.replace(episode.meta, index=np.int64(3), seed=np.int32(5), length=np.int64(episode.length),
+                                notes=["bad \udcff text"])
+    path = tmp_path / f"out{suffix}"
+    with open_writer(path, meta) as writer:
+        writer.write_episode(dataclasses.replace(episode, meta=given))
+    with open_reader(path) as reader:
+        assert reader.meta.command == meta.command
+        (read,) = reader.episodes
+        assert (read.index, read.seed, read.length, read.notes) == (3, 5, episode.length, given.notes)
+        assert type(read.index) is int
+

@@ -124,6 +124,7 @@ class _Hdf5Sink(EpisodeSink):
 
     def commit(self, meta: EpisodeMeta) -> None:
         self._writer._check_usable()
+        meta = self._writer.checked_meta(meta, EpisodeMeta)
         self.check_commit(meta)
         self.ended = True
         if self._file is None:
@@ -213,6 +214,7 @@ class Hdf5Writer(EpisodeWriter):
     # ---------------------------------------------------------------- episodes
     def begin_episode(self, meta: EpisodeMeta, reset: StepBlock) -> EpisodeSink:
         self._check_usable()
+        meta = self.checked_meta(meta, EpisodeMeta)
         if meta.index in self._indices:
             raise UsageError(f"{self.path}: episode {meta.index} was already written; episode indices must be unique")
         return _Hdf5Sink(self, meta, reset)

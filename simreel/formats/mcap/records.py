@@ -45,6 +45,12 @@ TOPICS = {"reset": "/simreel/reset", "steps": "/simreel/steps", "tf": "/tf", "pl
 WORLD_FRAME = "world"
 
 
+def _utf8(text: str) -> str:
+    """`text` as UTF-8 can encode it (MCAP's metadata strings are UTF-8): a lone surrogate, which Python makes of a
+    command line argument that is no UTF-8 (a file name), written as its escape; `recording_meta` keeps it exactly."""
+    return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 def step_ns_of(meta: RecordingMeta) -> int:
     """Nanoseconds of log time per env step: the control period (1 s when the recording lacks it)."""
     return int(round(1e9 / meta.control_freq)) if meta.control_freq else 1_000_000_000
@@ -73,10 +79,10 @@ class RecordingRecord:
         return {
             "format_version": str(self.format_version),
             "simreel_version": self.simreel_version,
-            "env_id": m.env_id,
-            "control_mode": str(m.control_mode),
-            "command": m.command,
-            "created_utc": m.created_utc,
+            "env_id": _utf8(m.env_id),
+            "control_mode": _utf8(str(m.control_mode)),
+            "command": _utf8(m.command),
+            "created_utc": _utf8(m.created_utc),
             "step_ns": str(self.step_ns),
             "time": "log_time = episode start + row x step_ns; row 0 is the state after reset",
             "pose_source": "recorded body poses" if m.pose_bodies else "state dict (actors, articulation roots)",

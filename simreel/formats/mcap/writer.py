@@ -62,6 +62,7 @@ class _McapSink(EpisodeSink):
 
     def commit(self, meta: EpisodeMeta) -> None:
         self._writer._check_usable()
+        meta = self._writer.checked_meta(meta, EpisodeMeta)
         self.check_commit(meta)
         self.ended = True
         with deferred_signals():
@@ -142,6 +143,7 @@ class McapWriter(EpisodeWriter):
 
     def begin_episode(self, meta: EpisodeMeta, reset: StepBlock) -> EpisodeSink:
         self._check_usable()
+        meta = self.checked_meta(meta, EpisodeMeta)
         if meta.index in self._begun:
             raise UsageError(f"{self.path}: episode {meta.index} was already written; episode indices must be unique")
         arrays = self.reset_arrays(meta, reset)
