@@ -402,9 +402,17 @@ class EpisodeReader(ABC):
     kind: str = "recording"
     """What the file is, for people: "simreel HDF5 recording (format 1)", "ManiSkill trajectory file", ..."""
 
+    closed = False
+    """Set by `close`: nothing more is read (`check_open`)."""
+
+    def check_open(self) -> None:
+        """`UsageError` once the reader is closed (`closed_reader`)."""
+        if self.closed:
+            raise closed_reader(self.path)
+
     @abstractmethod
     def open_episode(self, index: int) -> EpisodeRows:
-        """The episode whose `EpisodeMeta.index` is `index`, to be read in blocks of rows."""
+        """The episode whose `EpisodeMeta.index` is `index`, to be read in blocks of rows (`check_open` first)."""
 
     def read_episode(self, index: int) -> Episode:
         """The whole episode whose `EpisodeMeta.index` is `index` (its blocks put together: `EpisodeRows.episode`)."""
@@ -458,6 +466,12 @@ class EpisodeReader(ABC):
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+def closed_reader(path: str | Path) -> UsageError:
+    """The error for a read through a closed reader, or an episode it opened: the file may be fine (a failed read of a
+    closed file would otherwise be taken for a damaged one)."""
+    return UsageError(f"{path}: this reader is closed; open_reader the file again")
 
 
 def recover_hint(path: str | Path) -> str:

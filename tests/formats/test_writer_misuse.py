@@ -267,3 +267,20 @@ def test_numpy_numbers_and_text_that_is_no_utf8_in_metadata_are_written_as_given
         assert (read.index, read.seed, read.length, read.notes) == (3, 5, episode.length, given.notes)
         assert type(read.index) is int
 
+
+# ---------------------------------------------------------------------------------------------------- readers
+@pytest.mark.parametrize("suffix", SUFFIXES)
+def test_a_closed_reader_and_the_episodes_it_opened_say_so_instead_of_calling_the_file_corrupt(tmp_path, source,
+                                                                                             suffix):
+    meta, episode = source
+    path = tmp_path / f"out{suffix}"
+    with open_writer(path, meta) as writer:
+        writer.write_episode(episode)
+    reader = open_reader(path)
+    rows = reader.open_episode(0)
+    reader.close()
+    closed = f"^{path}: this reader is closed; open_reader the file again$"
+    for read in (lambda: reader.read_episode(0), lambda: reader.open_episode(0), rows.reset,
+                 lambda: list(rows.blocks(4)), lambda: rows.steps(0, 4)):
+        with pytest.raises(UsageError, match=closed):
+            read()

@@ -32,7 +32,7 @@ import numpy as np
 from simreel import FORMAT_VERSION
 from simreel.episode import EpisodeMeta, FieldSpec, RecordingMeta, StepBlock, episode_fields, json_default
 from simreel.errors import RecordingFileError
-from simreel.formats.base import EpisodeReader, EpisodeRows, not_a_file
+from simreel.formats.base import EpisodeReader, EpisodeRows, closed_reader, not_a_file
 from simreel.formats.durable import errno_of
 from simreel.formats.hdf5.layout import (
     EPISODE_ATTR,
@@ -233,6 +233,7 @@ class Hdf5Reader(EpisodeReader):
     # ---------------------------------------------------------------- data
     def open_episode(self, index: int) -> Hdf5Rows:
         """Episode `index`, its datasets checked against the layout (names, dtypes, shapes, row counts; none read)."""
+        self.check_open()
         meta = self.episode_meta(index)
         group = self._groups[index]
         where = group_name(index)
@@ -268,6 +269,7 @@ class Hdf5Reader(EpisodeReader):
         return ds
 
     def close(self) -> None:
+        self.closed = True
         self._groups.clear()
         self._file.close()
 
@@ -293,6 +295,8 @@ class Hdf5Rows(EpisodeRows):
 
     def _read(self, name: str, start: int, stop: int) -> np.ndarray:
         ds = self.datasets[name]
+        if not ds.id.valid:  # its file was closed by the reader
+            raise closed_reader(self.path)
         try:
             return ds[start:stop]
         except H5PY_ERRORS as e:

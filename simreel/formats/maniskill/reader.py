@@ -184,6 +184,7 @@ class ManiskillReader(EpisodeReader):
     def open_episode(self, index: int) -> Hdf5Rows:
         """Episode `index`: its datasets checked (`_episode_datasets`) and their row counts (T actions, T + 1 states),
         and the file's quirks noted in its metadata (`_note_quirks`: reads state rows 0 and 1 only)."""
+        self.check_open()
         meta = dataclasses.replace(self.episode_meta(index))
         meta.notes = list(meta.notes)
         datasets = self._episode_datasets(index)
@@ -227,6 +228,7 @@ class ManiskillReader(EpisodeReader):
         return unlisted_datasets_problem(group_name(index), held, self._names.values(), why=_UNLISTED_WHY)
 
     def close(self) -> None:
+        self.closed = True
         self._file.close()
 
 

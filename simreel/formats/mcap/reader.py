@@ -396,9 +396,11 @@ class McapReader(EpisodeReader):
 
     def open_episode(self, index: int) -> McapRows:
         """Episode `index`, to be read a block of rows at a time from the chunks of its time span."""
+        self.check_open()
         return McapRows(self, self.episode_meta(index), self._spans[index])
 
     def close(self) -> None:
+        self.closed = True
         self._fh.close()
 
 
@@ -415,6 +417,7 @@ class McapRows(EpisodeRows):
         self._cursor: _RunCursor | None = None
 
     def _messages(self) -> Iterator[tuple[str, int, bytes | None]]:
+        self._reader.check_open()
         span = self._span
         return self._reader._blocks(self.meta.index, span.start_ns, span.end_ns)
 
