@@ -12,7 +12,7 @@ no copy.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -58,11 +58,10 @@ class StepBuffer:
     def full(self) -> bool:
         return self.rows == self.capacity
 
-    def push(self, fields: dict[str, np.ndarray], captures: Iterable[tuple[RowSource, Any]] = ()) -> None:
+    def push(self, fields: dict[str, np.ndarray], captures: Sequence[tuple[RowSource, Any]] = ()) -> None:
         """Store one step: each field has a leading num_envs dimension; each capture becomes its source's fields
         for this row when the rows are taken (a capture must not change after it is pushed). `FieldsChanged`, and the
         step is not stored, where its fields (its arrays' and its sources') are not the first step's."""
-        captures = captures if isinstance(captures, list) else list(captures)
         if self._arrays_brought.get(len(captures)) != len(fields):
             self._check_fields(fields, captures)
         r, arrays = self.rows, self._arrays
@@ -81,7 +80,7 @@ class StepBuffer:
             entry[1].append(capture)
         self.rows = r + 1
 
-    def _check_fields(self, fields: dict[str, np.ndarray], captures: list[tuple[RowSource, Any]]) -> None:
+    def _check_fields(self, fields: dict[str, np.ndarray], captures: Sequence[tuple[RowSource, Any]]) -> None:
         """Check a step's fields against the first step's, in full: run for the first step with each number of
         captures and its count of arrays (a count that matches one checked is the same fields: a new field could
         only keep the count by replacing one, and a field without rows yet is checked before they are made)."""
