@@ -41,6 +41,7 @@ from simreel.formats.lock import being_written
 from simreel.formats.paths import is_symlink_loop, read_problem
 from simreel.formats.staging import refuse_kept_recording
 from simreel.formats.targets import check_output
+from simreel.option_checks import is_whole_number
 
 __all__ = ["EpisodeSink", "EpisodeWriter", "EpisodeReader", "EpisodeRows", "BLOCK_BYTES", "block_rows"]
 
@@ -434,7 +435,10 @@ class EpisodeReader(ABC):
 
     def episode_meta(self, index: int) -> EpisodeMeta:
         """The metadata of episode `index`; `RecordingFileError` naming the episodes there are, and where the file has
-        damaged ones (which it cannot list), those too and how to recover it."""
+        damaged ones (which it cannot list), those too and how to recover it. `UsageError` for an index that is not
+        a whole number: "0" would be "no episode 0" of a file that has it, 0.0 and False would be taken for 0."""
+        if not is_whole_number(index):
+            raise UsageError(f"{self.path}: episode index {index!r}: give an int (`simreel inspect` lists them)")
         for m in self.episodes:
             if m.index == index:
                 return m

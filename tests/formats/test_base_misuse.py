@@ -6,6 +6,7 @@ and the writer goes on with the next episode."""
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -284,3 +285,18 @@ def test_a_closed_reader_and_the_episodes_it_opened_say_so_instead_of_calling_th
                  lambda: list(rows.blocks(4)), lambda: rows.steps(0, 4)):
         with pytest.raises(UsageError, match=closed):
             read()
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+@pytest.mark.parametrize("index", ["0", 0.0, False, None])
+def test_an_episode_index_that_is_no_int_is_one_usage_error(tmp_path, source, suffix, index):
+    """Before: read_episode("0") said "no episode 0 (episodes: 0)" of a file that has it, and 0.0 and False were
+    taken for episode 0."""
+    meta, episode = source
+    path = tmp_path / f"out{suffix}"
+    with open_writer(path, meta) as writer:
+        writer.write_episode(episode)
+    with open_reader(path) as reader:
+        with pytest.raises(UsageError, match=re.escape(f"{path}: episode index {index!r}: give an int")):
+            reader.read_episode(index)
+        assert reader.read_episode(np.int64(0)).length == episode.length
