@@ -702,9 +702,15 @@ class Episode:
         return name == "body_poses" or name.split("/", 1)[0] in ("env_states", "obs")
 
     def check_shapes(self) -> None:
-        """Raise `EpisodeLayoutError` naming the first field whose row count does not fit T or T+1."""
+        """Raise `EpisodeLayoutError` naming the first field that is not a numpy array (a list would be read as some
+        dtype numpy picks) or whose row count does not fit T or T+1."""
+        fields = self.fields()
+        for name, a in fields.items():
+            if not isinstance(a, np.ndarray):
+                raise EpisodeLayoutError(f"episode {self.meta.index}: {name} is a {type(a).__name__}, not a numpy "
+                                         "array; give each field as an array of the layout's dtype")
         T = self.length
-        for name, a in self.fields().items():
+        for name, a in fields.items():
             rows = T + 1 if self._per_state(name) else T
             if a.shape[0] != rows:
                 raise EpisodeLayoutError(f"episode {self.meta.index}: {name} has {a.shape[0]} rows, expected {rows}")

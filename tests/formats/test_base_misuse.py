@@ -300,3 +300,19 @@ def test_an_episode_index_that_is_no_int_is_one_usage_error(tmp_path, source, su
         with pytest.raises(UsageError, match=re.escape(f"{path}: episode index {index!r}: give an int")):
             reader.read_episode(index)
         assert reader.read_episode(np.int64(0)).length == episode.length
+
+
+@pytest.mark.parametrize("suffix", SUFFIXES)
+@pytest.mark.parametrize("name", ["rewards", "actions"])
+def test_an_episode_field_that_is_no_array_is_one_layout_error_and_nothing_is_written(tmp_path, source, suffix, name):
+    """Before: `write_episode` of an Episode holding a Python list raised AttributeError ('list' object has no
+    attribute 'shape') from inside."""
+    meta, episode = source
+    path = tmp_path / f"out{suffix}"
+    bad = dataclasses.replace(episode, **{name: getattr(episode, name).tolist()})
+    with open_writer(path, meta) as writer:
+        with pytest.raises(EpisodeLayoutError, match=f"^episode 0: {name} is a list, not a numpy array; give each "
+                                                      "field as an array of the layout's dtype$"):
+            writer.write_episode(bad)
+        writer.write_episode(episode)
+    assert list(_read_all(path)) == [0]
