@@ -67,8 +67,9 @@ class StepBuffer:
         r, arrays = self.rows, self._arrays
         for name, value in fields.items():
             buf = arrays.get(name)
-            if buf is None:  # the first step, or a field it did not bring
-                self._check_fields(fields, captures)
+            if buf is None:  # the first step, or a field it did not bring (then not one of `_names`: refused)
+                if name not in self._names:
+                    self._check_fields(fields, captures)
                 buf = self._row_buffer(name, value)
             buf[r] = value
         captured = self._captured

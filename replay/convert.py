@@ -46,7 +46,7 @@ from simreel.formats import EpisodeReader, check_writable, format_of, open_reade
 from simreel.formats.dataset import FieldHashes, field_digests
 from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct
-from simreel.option_checks import check_flag, check_text, is_whole_number, whole_number
+from simreel.option_checks import check_flag, check_text, whole_number, whole_number_pair
 from simreel.replay.control import check_pair
 from simreel.replay.engine import GPU_SIM_BACKENDS, BlockSink, Collected, EpisodeReplayer, ReplayerOptions
 from simreel.replay.output import (
@@ -141,7 +141,7 @@ class ConvertOptions:
         object.__setattr__(self, "imports", import_specs(self.imports))
         object.__setattr__(self, "keep", _keep(self.keep))
         if self.camera_size is not None:
-            object.__setattr__(self, "camera_size", _camera_size(self.camera_size))
+            object.__setattr__(self, "camera_size", whole_number_pair("camera_size", self.camera_size, _CAMERA_SIZE))
         if not isinstance(self.group_tolerances, Mapping):
             raise UsageError(f"group_tolerances={self.group_tolerances!r}: give a dict of tracking tolerance groups "
                              "and numbers, e.g. {\"ee_pos\": 1e-3}")
@@ -182,6 +182,8 @@ _TEXT_OPTIONS = {
     "command": "the command line as a string (kept in the output's metadata)",
 }
 """`ConvertOptions`' options that are strings (all but `command` may be None), and what each means."""
+_CAMERA_SIZE = "(width, height) of the cameras in pixels, two ints >= 1, e.g. (128, 128), or None (the task's)"
+"""What `ConvertOptions.camera_size` takes (its values >= 1 are `ConvertOptions.check`'s)."""
 _COUNT_OPTIONS = {
     "count": "the number of episodes to convert, an int >= 1, or None (all of them)",
     "workers": "the number of processes converting episodes, an int >= 1",
@@ -198,16 +200,6 @@ def _keep(keep: Any) -> tuple[str, ...]:
         raise UsageError(f"keep={keep!r}: give the episodes to write as a tuple of any of {', '.join(KEEP)}, e.g. "
                          "(\"verified\",)")
     return names
-
-
-def _camera_size(size: Any) -> tuple[int, int]:
-    """The `camera_size` option as (width, height), two whole numbers (>= 1: `ConvertOptions.check`); `UsageError`
-    for anything else."""
-    what = "(width, height) of the cameras in pixels, two ints >= 1, e.g. (128, 128), or None (the task's)"
-    pair = tuple(size) if isinstance(size, (list, tuple)) else ()
-    if len(pair) != 2 or not all(map(is_whole_number, pair)):
-        raise UsageError(f"camera_size={size!r}: give {what}")
-    return int(pair[0]), int(pair[1])
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,8 @@ import numpy as np
 
 from simreel.errors import UsageError
 
-__all__ = ["check_flag", "check_text", "is_whole_number", "whole_number", "is_path", "path_text"]
+__all__ = ["check_flag", "check_text", "is_whole_number", "whole_number", "whole_number_pair", "is_path",
+           "path_text"]
 
 
 def _refused(name: str, value: Any, what: str) -> UsageError:
@@ -51,6 +52,15 @@ def whole_number(name: str, value: Any, what: str, *, minimum: int | None = None
     if not is_whole_number(value) or (minimum is not None and value < minimum):
         raise _refused(name, value, what)
     return int(value)
+
+
+def whole_number_pair(name: str, value: Any, what: str) -> tuple[int, int]:
+    """`value`, a list or tuple of two whole numbers (a size: width, height), as a tuple of ints; `UsageError` saying
+    to give `what` for anything else (text such as "128x128" is no pair: the CLI parses it)."""
+    pair = tuple(value) if isinstance(value, (list, tuple)) else ()
+    if len(pair) != 2 or not all(map(is_whole_number, pair)):
+        raise _refused(name, value, what)
+    return int(pair[0]), int(pair[1])
 
 
 def is_path(value: Any) -> bool:

@@ -32,7 +32,7 @@ from simreel.formats.base import recover_hint
 from simreel.formats.durable import STORAGE_ERRNOS, raise_if_stopped, storage_error
 from simreel.formats.paths import refuse_empty
 from simreel.formats.targets import check_distinct, check_output, staged_output
-from simreel.option_checks import check_flag, is_whole_number
+from simreel.option_checks import check_flag, whole_number_pair
 from simreel.sim.user_code import import_specs
 from simreel.viewers.compare import compare_for_view, judging_tolerances, made_from
 from simreel.viewers.session import states_by_stepping
@@ -84,8 +84,7 @@ class VideoOptions:
     def check(self) -> None:
         """`UsageError` for options no recording could make work: a size, rate, mode or flag of the wrong kind."""
         check_flag("overwrite", self.overwrite)
-        if not (isinstance(self.size, (tuple, list)) and len(self.size) == 2 and all(map(is_whole_number, self.size))):
-            raise UsageError(f"size={self.size!r}: give (width, height), two even ints such as (256, 256)")
+        whole_number_pair("size", self.size, "(width, height), two even ints such as (256, 256)")
         if self.camera is not None and not isinstance(self.camera, str):
             raise UsageError(f"camera={self.camera!r}: give the name of a camera whose rgb images the recording holds")
         width, height = self.size

@@ -20,7 +20,7 @@ from typing import Any
 from simreel.episode import RecordingMeta, StepBlock
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats.base import EpisodeReader, EpisodeSink, EpisodeWriter
-from simreel.formats.maniskill.layout import refuse_replacing_sidecar
+from simreel.formats.maniskill.layout import refuse_replacing_sidecar, sidecar_owners
 from simreel.formats.targets import check_output
 
 __all__ = [
@@ -162,7 +162,8 @@ def _what_it_is(path: Path, head: bytes) -> str:
         return (f": a replay report (`simreel replay --report`); give a recording: the one it judged is "
                 f"{', '.join(map(str, judged)) or 'not named in it'}{wrote}")
     if {"env_info", "episodes"} <= document.keys():
-        return f": the JSON sidecar of a ManiSkill trajectory; give the .h5 beside it ({path.with_suffix('.h5')})"
+        owner = next(iter(sidecar_owners(path)), path.with_suffix(".h5"))
+        return f": the JSON sidecar of a ManiSkill trajectory; give the .h5 beside it ({owner})"
     return ""
 
 

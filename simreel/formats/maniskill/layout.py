@@ -24,7 +24,7 @@ from pathlib import Path
 from simreel.episode import RecordingMeta
 from simreel.errors import UsageError
 
-__all__ = ["group_name", "group_index", "sidecar_path", "refuse_replacing_sidecar", "obs_is_array", "dataset_name",
+__all__ = ["group_name", "group_index", "sidecar_path", "refuse_replacing_sidecar", "sidecar_owners", "obs_is_array", "dataset_name",
            "field_name", "maniskill_tools", "OBS"]
 
 OBS = "obs"
@@ -53,17 +53,22 @@ def refuse_replacing_sidecar(file: Path, *, writing: str | Path, own: Path | Non
     than `own` (`x.json` is the sidecar of `x.h5` and of `x.hdf5`), `--overwrite` or not: ManiSkill's tools read a
     recording with its sidecar, so another recording sharing its name, or a report (`--report`, `--json`), that
     replaced it would leave the recording unreadable to them. Only a sidecar that is there is guarded."""
-    from simreel.formats import HDF5_SUFFIXES
-
     file = Path(file)
     if file.suffix != ".json" or not (file.exists() or file.is_symlink()):
         return
-    for other in sorted(file.parent.glob(glob.escape(file.stem) + ".*")):
-        if other.stem != file.stem or other.suffix.lower() not in HDF5_SUFFIXES or not other.is_file():
-            continue
+    for other in sidecar_owners(file):
         if own is None or other.name != Path(own).name:
             raise UsageError(f"{file} is the JSON sidecar of {other}, which ManiSkill's tools read with it; writing "
                              f"{writing} would replace it: name the output otherwise")
+
+
+def sidecar_owners(file: Path) -> list[Path]:
+    """The HDF5 files beside `file` whose JSON sidecar it is (`x.json` is the sidecar of `x.h5` and of `x.hdf5`)."""
+    from simreel.formats import HDF5_SUFFIXES
+
+    file = Path(file)
+    return [other for other in sorted(file.parent.glob(glob.escape(file.stem) + ".*"))
+            if other.stem == file.stem and other.suffix.lower() in HDF5_SUFFIXES and other.is_file()]
 
 
 def obs_is_array(meta: RecordingMeta) -> bool:
