@@ -43,6 +43,7 @@ __all__ = [
     "TOLERANCE_MODES",
     "DEFAULT_TOLERANCES",
     "Tolerances",
+    "tolerance",
     "Component",
     "components_of",
     "component_error",
@@ -103,12 +104,12 @@ DEFAULT_TOLERANCES["resync"] = dict(DEFAULT_TOLERANCES["step"])
 @dataclass(frozen=True)
 class Tolerances:
     """Absolute tolerance per group (see `GROUPS`). Build with `Tolerances.for_mode(mode, ...)`. Every value is a
-    finite number >= 0 (`_tolerance`, `ValueError` otherwise), however the tolerances were built."""
+    finite number >= 0 (`tolerance`, `ValueError` otherwise), however the tolerances were built."""
 
     values: Mapping[str, float]
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "values", {g: _tolerance(v, f"tolerance {g}") for g, v in self.values.items()})
+        object.__setattr__(self, "values", {g: tolerance(v, f"tolerance {g}") for g, v in self.values.items()})
 
     @classmethod
     def for_mode(
@@ -119,11 +120,11 @@ class Tolerances:
             raise ValueError(f"unknown mode {mode!r}; expected one of {', '.join(DEFAULT_TOLERANCES)}")
         values = dict(DEFAULT_TOLERANCES[mode])
         if atol is not None:
-            values = {g: (0.0 if g == "flag" else _tolerance(atol, "atol")) for g in values}
+            values = {g: (0.0 if g == "flag" else tolerance(atol, "atol")) for g in values}
         for group, tol in (groups or {}).items():
             if group not in values:
                 raise ValueError(f"unknown tolerance group {group!r}; expected one of {', '.join(GROUPS)}")
-            values[group] = _tolerance(tol, f"tolerance {group}")
+            values[group] = tolerance(tol, f"tolerance {group}")
         return cls(values)
 
     def __getitem__(self, group: str) -> float:
@@ -139,8 +140,9 @@ class Tolerances:
         return ", ".join(f"{g} {format_number(v)}" for g, v in self.values.items() if defaults.get(g) != v)
 
 
-def _tolerance(value: Any, what: str) -> float:
-    """`value` as a tolerance: a finite number >= 0, else `ValueError`. NaN would pass every comparison (a replay
+def tolerance(value: Any, what: str) -> float:
+    """`value` (a number, or its text as ``--atol`` gives it) as a tolerance: a finite number >= 0, else `ValueError`
+    whose message begins with `what`. NaN would pass every comparison (a replay
     that diverged would be called within tolerance) and a negative one fail an exact match; a bool is no number
     (True would be a tolerance of 1)."""
     try:

@@ -136,13 +136,17 @@ def parse_size(text: str) -> tuple[int, int]:
 
 def parse_tolerance(text: str) -> float:
     """`--atol X`: a finite number >= 0."""
+    return _tolerance_option(text, "")
+
+
+def _tolerance_option(text: str, what: str) -> float:
+    """`text` as a tolerance option's number, by the rule every tolerance keeps (`simreel.compare.tolerance`)."""
+    from simreel.compare import tolerance
+
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0 <= value < float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
+        return tolerance(text, what)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e).lstrip()) from None
 
 
 def _tolerance_groups() -> list[str]:
@@ -158,13 +162,7 @@ def parse_group_tolerance(text: str, groups: list[str] | tuple[str, ...] | None 
     group, sep, value = text.partition("=")
     if not sep or group not in groups:
         raise argparse.ArgumentTypeError(f"expected GROUP=NUMBER with GROUP one of {', '.join(groups)}, got {text!r}")
-    try:
-        number = float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number") from None
-    if not 0 <= number < float("inf"):
-        raise argparse.ArgumentTypeError(f"{text!r}: a tolerance must be a finite number >= 0")
-    return group, number
+    return group, _tolerance_option(value, f"{text!r}:")
 
 
 def mode_choices() -> list[str]:

@@ -38,7 +38,7 @@ def test_tolerance_parsing():
         with pytest.raises(argparse.ArgumentTypeError, match=message):
             parse_group_tolerance(bad)
     assert parse_tolerance("1e-3") == 1e-3
-    with pytest.raises(argparse.ArgumentTypeError, match="must be a finite number >= 0, got inf"):
+    with pytest.raises(argparse.ArgumentTypeError, match="'inf': a tolerance must be a finite number >= 0"):
         parse_tolerance("inf")
 
 
