@@ -22,7 +22,7 @@ import dataclasses
 import datetime
 import functools
 import os
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,7 +35,7 @@ from simreel.formats import check_report_writable, check_writable, format_of, re
 from simreel.formats.durable import is_storage_error, raise_if_stopped, storage_error
 from simreel.formats.inputs import file_identity
 from simreel.formats.targets import check_distinct
-from simreel.option_checks import check_flag, check_text, is_path, path_text, whole_number
+from simreel.option_checks import check_flag, check_text, path_list, path_text, whole_number
 from simreel.replay.engine import MODES
 from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchFolder, published
 from simreel.replay.report import EpisodeReport, recording_limits
@@ -514,11 +514,8 @@ def _few_chains_note(asked: int, chains: int, episodes: int) -> str:
 def _input_paths(inputs: Any) -> list[str]:
     """`ReplayRun`'s inputs as a list of strings: one path (a str or `pathlib.Path`) or several; `UsageError` for
     anything else, which would be taken for a file name (a number) or fail as a raw TypeError."""
-    paths = [inputs] if is_path(inputs) else list(inputs) if isinstance(inputs, Iterable) else None
-    if paths is None or not all(is_path(p) for p in paths):
-        raise UsageError(f"inputs={inputs!r}: give the recordings to replay (files, folders or glob patterns) as a "
-                         "str or pathlib.Path, or a list of them")
-    return [os.fspath(p) for p in paths]
+    return path_list("inputs", inputs, "the recordings to replay (files, folders or glob patterns) as a str or "
+                                       "pathlib.Path, or a list of them")
 
 
 def _file_tally(f: RecordingInfo) -> FileTally:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numbers
 import os
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -18,7 +19,7 @@ import numpy as np
 from simreel.errors import UsageError
 
 __all__ = ["check_flag", "check_text", "is_whole_number", "whole_number", "whole_number_pair", "is_path",
-           "path_text"]
+           "path_text", "path_list"]
 
 
 def _refused(name: str, value: Any, what: str) -> UsageError:
@@ -74,3 +75,13 @@ def path_text(name: str, value: Any, what: str) -> str:
     if not is_path(value):
         raise _refused(name, value, what)
     return os.fspath(value)
+
+
+def path_list(name: str, value: Any, what: str) -> list[str]:
+    """`value`, one path (`is_path`) or an iterable of them (a list, a generator), as a list of strs; `UsageError`
+    saying to give `what` for anything else. One path is one file, never iterated: ``"a.h5"`` read as a list would
+    be the files ``a``, ``.``, ``h``, ``5``."""
+    paths = [value] if is_path(value) else list(value) if isinstance(value, Iterable) else None
+    if paths is None or not all(map(is_path, paths)):
+        raise _refused(name, value, what)
+    return [os.fspath(p) for p in paths]

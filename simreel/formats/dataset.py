@@ -32,7 +32,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.compare import Tolerances
+from simreel.compare import VERDICTS, Tolerances
 from simreel.episode import Episode, EpisodeMeta, EpisodeSelection, RecordingMeta, StepBlock, new_recording_id
 from simreel.errors import OutputCheckError, RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
@@ -40,10 +40,11 @@ from simreel.formats.base import EpisodeRows, PassedRows, not_a_file
 from simreel.formats.copy import Target, write_episodes
 from simreel.formats.durable import deferred_signals, raise_if_stopped
 from simreel.formats.inputs import file_identity, shown_path
-from simreel.formats.paths import real_path
+from simreel.formats.paths import real_path, refuse_empty
 from simreel.formats.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.staging import staging_path, stale_staging
 from simreel.formats.targets import OVERWRITE_HINT, check_distinct, move_into_place
+from simreel.option_checks import check_flag, check_text, is_whole_number, path_list, path_text, whole_number
 from simreel.scene_history import SceneChains
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
@@ -54,6 +55,8 @@ VERIFIED = ("exact", "within_tolerance")
 """The verdicts `filter --verified` keeps: the episodes a replay verified."""
 DIVERGED = ("diverged",)
 """The verdict `filter --diverged` keeps (an episode that could not be replayed, ``error``, is neither)."""
+REPORT_VERDICTS = (*VERDICTS, "error")
+"""Every verdict a replay report gives an episode: judged, or ``error`` (it could not be replayed)."""
 
 _T = TypeVar("_T")
 Progress = Callable[[Sequence[_T], str], Iterable[_T]]
@@ -77,6 +80,16 @@ class DatasetOptions:
     overwrite: bool = False
     command: str = ""
     progress: Progress = _no_bar
+
+    def __post_init__(self) -> None:
+        """`UsageError` for an option of the wrong type, naming it and what to give, before any file is read or
+        written: ``overwrite="no"`` would count as yes and replace OUT, a command that is no string fail only
+        once the output is being written."""
+        check_flag("overwrite", self.overwrite)
+        check_text("command", self.command, "the command line as a string (stored in the outputs' metadata)")
+        if not callable(self.progress):
+            raise UsageError(f"progress={self.progress!r}: give a function called as progress(items, what) that "
+                             "returns the items (a progress bar), or leave it out")
 
 
 @dataclass(frozen=True)
@@ -103,13 +116,49 @@ class EpisodeCriteria:
     report: str = ""
 
     def __post_init__(self) -> None:
+        """Check every criterion, so that one of the wrong type is a `UsageError` here, naming it and what to give,
+        not a raw error once the file is read nor one taken for another (``success="no"`` or ``success=0``, which
+        no final success ``is``, keeping nothing; ``min_steps=True`` as 1; ``keep_verdicts`` without `verdicts`
+        ignored); put them in one form: episodes as an `EpisodeSelection`, counts as ints, verdicts as a dict and
+        the verdicts to keep as a tuple."""
         object.__setattr__(self, "episodes", EpisodeSelection.of(self.episodes))  # ranges, whatever the numbers
+        if self.success is not None:
+            check_flag("success", self.success)
+            object.__setattr__(self, "success", bool(self.success))  # compared with `is`: np.False_ is not False
         for name in ("min_steps", "max_steps"):
             value = getattr(self, name)
-            if value is not None and value < 0:
-                raise UsageError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
+            if value is not None:
+                value = whole_number(name, value, "a number of steps, an int >= 0, or None (no bound)")
+                if value < 0:
+                    raise UsageError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
+                object.__setattr__(self, name, value)
         if self.min_steps is not None and self.max_steps is not None and self.min_steps > self.max_steps:
             raise UsageError(f"--min-steps {self.min_steps} is above --max-steps {self.max_steps}: no episode fits")
+        self._check_verdicts()
+
+    def _check_verdicts(self) -> None:
+        """The verdict criterion: `verdicts` a mapping of episode indices to verdicts, `keep_verdicts` one or more of
+        `REPORT_VERDICTS` (one string is one verdict, not its characters), each given with the other, `report`
+        a string."""
+        keep = (self.keep_verdicts,) if isinstance(self.keep_verdicts, str) else self.keep_verdicts
+        names = ", ".join(REPORT_VERDICTS)
+        if not isinstance(keep, (list, tuple)) or not all(v in REPORT_VERDICTS for v in keep):
+            raise UsageError(f"keep_verdicts={self.keep_verdicts!r}: give the verdicts to keep as a tuple of any of "
+                             f"{names}, e.g. (\"exact\", \"within_tolerance\")")
+        object.__setattr__(self, "keep_verdicts", tuple(keep))
+        verdicts = self.verdicts
+        if verdicts is not None:
+            if not isinstance(verdicts, Mapping) or not all(is_whole_number(i) and isinstance(v, str)
+                                                            for i, v in verdicts.items()):
+                raise UsageError(f"verdicts={verdicts!r}: give a replay's verdict of each episode as a dict of "
+                                 f"episode indices and verdicts ({names}), e.g. {{0: \"exact\"}} "
+                                 "(simreel.formats.dataset.report_verdicts reads them from a replay report)")
+            object.__setattr__(self, "verdicts", {int(i): v for i, v in verdicts.items()})
+        if (verdicts is None) != (not self.keep_verdicts):
+            given, missing = ("verdicts", "keep_verdicts") if verdicts is not None else ("keep_verdicts", "verdicts")
+            raise UsageError(f"{given} without {missing}: give both (the verdicts of the file's episodes, and those to "
+                             "keep), or neither")
+        check_text("report", self.report, "where the verdicts came from as a string (the replay report's path)")
 
     def given(self) -> bool:
         return any(v is not None for v in (self.episodes, self.success, self.min_steps, self.max_steps,
@@ -653,15 +702,35 @@ def _difference(got: Episode, item: _Item, sources: Sequence[_Source]) -> str:
 
 
 # ---------------------------------------------------------------------------------------------------- operations
-def _options(options: DatasetOptions | None, overrides: dict[str, Any]) -> DatasetOptions:
+def _options(options: DatasetOptions | None, overrides: dict[str, Any], call: str) -> DatasetOptions:
+    """`options` with `overrides` (`DatasetOptions` fields); `UsageError` for options that are no `DatasetOptions`
+    (a dict would fail as a raw TypeError), saying how `call` takes them."""
+    if options is not None and not isinstance(options, DatasetOptions):
+        raise UsageError(f"options={options!r}: give a DatasetOptions, or its fields as keywords, e.g. "
+                         f"{call}(..., overwrite=True)")
     return dataclasses.replace(options or DatasetOptions(), **overrides)
 
 
-def merge(inputs: Sequence[str | Path], output: str | Path, options: DatasetOptions | None = None,
+def _output_path(name: str, value: Any) -> str:
+    """The output `value` (option `name`) as a str; `UsageError` for a value that is no path (a number would be taken
+    for a file name, None fail as a raw TypeError) or an empty one."""
+    path = path_text(name, value, "the recording to write, a str or pathlib.Path ending in .h5 or .mcap")
+    refuse_empty(path, what="recording", instead=f"name the recording to write ({name})")
+    return path
+
+
+def _input_path(value: Any) -> str:
+    """The input `value` of `filter_recording` as a str; `UsageError` for a value that is no path."""
+    return path_text("path", value, "the recording to read, a str or pathlib.Path")
+
+
+def merge(inputs: str | Path | Iterable[str | Path], output: str | Path, options: DatasetOptions | None = None,
           **overrides: Any) -> DatasetReport:
-    """Copy every episode of `inputs` (recordings of one env, any format) into a new recording `output`, numbered
-    0..N-1 in input order. `overrides` replace fields of `options` (`DatasetOptions`)."""
-    opts = _options(options, overrides)
+    """Copy every episode of `inputs` (recordings of one env, any format: a list of paths, or one) into a new
+    recording `output`, numbered 0..N-1 in input order. `overrides` replace fields of `options` (`DatasetOptions`)."""
+    opts = _options(options, overrides, "merge")
+    inputs = path_list("inputs", inputs, "the recordings to merge, a list of str or pathlib.Path (or one)")
+    output = _output_path("output", output)
     if not inputs:
         raise UsageError("no input to merge")
     resolved = [real_path(p) for p in inputs]
@@ -685,7 +754,11 @@ def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCrit
     """Copy the episodes of `path` that meet `criteria` into a new recording `output` (numbered 0..N-1), and with
     `rest` the others into a second one: a split, every episode in exactly one of them. `overrides` replace
     fields of `options` (`DatasetOptions`)."""
-    opts = _options(options, overrides)
+    opts = _options(options, overrides, "filter_recording")
+    if not isinstance(criteria, EpisodeCriteria):
+        raise UsageError(f"criteria={criteria!r}: give an EpisodeCriteria, e.g. EpisodeCriteria(success=True)")
+    path, output = _input_path(path), _output_path("output", output)
+    rest = None if rest is None else _output_path("rest", rest)
     if not criteria.given():
         raise UsageError("no criterion: give --episodes, --success/--no-success, --min-steps, --max-steps, "
                          "--verified or --diverged (to copy every episode, use `simreel convert`)")
