@@ -18,9 +18,10 @@ from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, open_writer, recording_files
 from simreel.formats.base import EpisodeReader, EpisodeRows, EpisodeWriter
 from simreel.formats.durable import raise_if_stopped
-from simreel.formats.paths import real_path
+from simreel.formats.paths import real_path, refuse_empty
 from simreel.formats.staging import replacement_note
 from simreel.formats.targets import check_distinct
+from simreel.option_checks import check_flag, path_text
 
 __all__ = ["EpisodeTransform", "CopyReport", "RecoveryReport", "convert", "recover"]
 
@@ -222,6 +223,12 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
     is replaced only once the new file is complete) and report what was lost: episodes that never finished,
     damaged ones, damaged records and bytes. A recording with nothing to repair (read through: every episode's data
     intact) is left as it is."""
+    path = path_text("path", path, "the recording to recover, a str or pathlib.Path")
+    refuse_empty(path, what="recording", instead="name the recording to recover")
+    if output is not None:
+        output = path_text("output", output, "the file to write, a str or pathlib.Path, or None (replace `path`)")
+        refuse_empty(output, what="recording", instead="name the file to write, or give None to recover in place")
+    check_flag("overwrite", overwrite)
     src = Path(path)
     format_of(src)
     in_place = output is None or real_path(output) == real_path(src)

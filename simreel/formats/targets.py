@@ -23,6 +23,7 @@ from typing import IO
 
 from simreel.errors import UsageError
 from simreel.formats.paths import SYMLINK_LOOP, is_symlink_loop, real_path
+from simreel.option_checks import check_flag
 
 __all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output",
            "move_into_place", "process_alive", "process_tag", "made_by_gone_process", "short_name", "OVERWRITE_HINT",
@@ -42,8 +43,9 @@ def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path
     `path` is a folder or runs into a symbolic link loop (even with `overwrite`: nothing can be written through one);
     its folder does not exist, is not a folder or is not writable; and, without `overwrite`, `path` or one of
     `side_paths` already exists. `option` names the CLI option in messages (``--report``). Returns `path` as a
-    `Path`.
+    `Path`. `overwrite` must be a bool: ``overwrite="no"`` would count as yes and replace the file.
     """
+    check_flag("overwrite", overwrite)
     p = Path(path)
     label = f"{option} {p}" if option else str(p)
     side_paths = list(side_paths)

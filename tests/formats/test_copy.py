@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from support.mcap_samples import assert_same_episode, long_sample, synthetic_episode, synthetic_meta, write
 
+from simreel.errors import UsageError
 from simreel.formats import open_reader
 from simreel.formats.copy import recover
 from simreel.formats.mcap.blocks import HEADER
@@ -93,3 +94,32 @@ def test_recover_finds_damage_in_a_late_block_before_writing_any_of_that_episode
         for i in (0, 2):
             assert_same_episode(r.read_episode(i), episodes[i])
     assert out.stat().st_size < 50_000  # episode 1's 9000 rows would be several MB
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        # was: accepted as yes, and OUT was replaced
+        (lambda src, out: recover(src, out, overwrite="no"), "overwrite='no': give True or False"),
+        # was: TypeError expected str, bytes or os.PathLike object, not int
+        (lambda src, out: recover(5), "path=5: give the recording to recover, a str or pathlib.Path"),
+        (lambda src, out: recover(src, 5), "output=5: give the file to write, a str or pathlib.Path, or None (replace "
+                                           "`path`)"),
+        # was: ".: unknown recording suffix ''" (the working folder)
+        (lambda src, out: recover(""), "an empty path names no recording (an unset shell variable?); name the "
+                                       "recording to recover"),
+        (lambda src, out: recover(src, ""), "an empty path names no recording (an unset shell variable?); name the "
+                                            "file to write, or give None to recover in place"),
+    ],
+    ids=["overwrite-str", "path-int", "output-int", "path-empty", "output-empty"],
+)
+def test_recover_refuses_a_wrong_argument_before_writing_anything(record, tmp_path, call, message):
+    src = record("PickCube-v1", 2, 5)
+    before = src.read_bytes()
+    out = tmp_path / "out.h5"
+    out.write_text("an older file, to be kept")
+    with pytest.raises(UsageError) as refused:
+        call(src, out)
+    assert str(refused.value) == message
+    assert out.read_text() == "an older file, to be kept" and src.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.h5"]
