@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import inspect
 import json
 import numbers
 import warnings
@@ -27,7 +26,7 @@ import numpy as np
 
 from simreel.episode import EpisodeMeta, StepBlock, episode_fields, json_default
 from simreel.errors import EpisodeLayoutError, SimreelError, StateLayoutError, Terminated, UsageError
-from simreel.formats import format_of, open_writer, records_poses_by_default
+from simreel.formats import check_writer_options, open_writer, records_poses_by_default
 from simreel.formats.durable import deferred_signals
 from simreel.formats.writer_process import ProcessWriter
 from simreel.option_checks import check_flag, check_text, path_text, whole_number
@@ -118,7 +117,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.utils.RecordConstructorArgs.__init__(self, path=str(path), **_constructor_options(opts))
         gym.Wrapper.__init__(self, env)
         _refuse_reshaping_wrappers(env, opts.record_obs)
-        _check_writer_options(path, opts.writer_options)
+        check_writer_options(path, opts.writer_options)
         self.options = opts
         starting = ProcessWriter(path) if opts.writer_process else None  # its imports run while the env is described
         try:
@@ -726,28 +725,6 @@ def _refuse_unknown_options(overrides: Mapping[str, Any]) -> None:
     if unknown:
         raise TypeError(f"RecordWrapper() got an unexpected keyword argument {unknown[0]!r}; its options are the "
                         f"fields of RecordOptions: {', '.join(fields)}")
-
-
-def _check_writer_options(path: str | Path, options: Mapping[str, Any]) -> None:
-    """Refuse writer options the format's writer does not take, naming those it takes, before anything is started."""
-    if not options:
-        return
-    takes = _writer_option_names(path)
-    unknown = sorted(set(options) - set(takes))
-    if unknown:
-        raise UsageError(f"writer_options {', '.join(unknown)}: not an option of the {format_of(path).upper()} "
-                         f"writer, which takes {', '.join(takes)}")
-
-
-def _writer_option_names(path: str | Path) -> list[str]:
-    """The keyword options the writer of `path`'s format takes, read from their signature: HDF5's writer takes them
-    itself, MCAP's through `McapOptions`."""
-    if format_of(path) == "hdf5":
-        from simreel.formats.hdf5.writer import Hdf5Writer as takes_options
-    else:
-        from simreel.formats.mcap.writer import McapOptions as takes_options
-    parameters = inspect.signature(takes_options).parameters.values()
-    return [p.name for p in parameters if p.default is not p.empty and p.name != "overwrite"]
 
 
 def _refuse_reshaping_wrappers(env: gym.Env, record_obs: bool) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +22,11 @@ from simreel.errors import RecordingFileError, UsageError
 from simreel.formats.base import EpisodeReader, EpisodeSink, EpisodeWriter
 from simreel.formats.maniskill.layout import refuse_replacing_sidecar, sidecar_owners
 from simreel.formats.targets import check_output
+from simreel.option_checks import path_text
 
 __all__ = [
     "open_writer",
+    "check_writer_options",
     "open_reader",
     "format_of",
     "check_writable",
@@ -64,8 +66,24 @@ def _writer_class(path: str | Path) -> type[EpisodeWriter]:
 
 
 def open_writer(path: str | Path, meta: RecordingMeta, **options: Any) -> EpisodeWriter:
-    """A writer for `path`, chosen by its suffix (.h5/.hdf5 or .mcap)."""
+    """A writer for `path`, chosen by its suffix (.h5/.hdf5 or .mcap); `options` are `overwrite` and the format's
+    own (`check_writer_options`)."""
+    path = path_text("path", path, "the recording to write, a str or pathlib.Path ending in .h5 or .mcap")
+    check_writer_options(path, {k: v for k, v in options.items() if k != "overwrite"})
     return _writer_class(path)(path, meta, **options)
+
+
+def check_writer_options(path: str | Path, options: Mapping[str, Any]) -> None:
+    """`UsageError` for an option the writer of `path`'s format does not take (naming those it takes: HDF5's
+    `compression`, MCAP's `simreel.formats.mcap.writer.McapOptions`), or a value it refuses; touches nothing, so a
+    recorder checks its writer options before it starts anything."""
+    writer = _writer_class(path)
+    takes = writer.option_names()
+    unknown = sorted(set(options) - set(takes))
+    if unknown:
+        raise UsageError(f"writer_options {', '.join(unknown)}: not an option of the {format_of(path).upper()} "
+                         f"writer, which takes {', '.join(takes)}")
+    writer.check_options(**options)
 
 
 def check_writable(path: str | Path, *, overwrite: bool = False) -> None:

@@ -15,6 +15,7 @@ episode together from the same blocks. A reader names what it could not read (`d
 from __future__ import annotations
 
 import errno
+import inspect
 import json
 import math
 import shutil
@@ -150,6 +151,19 @@ class EpisodeWriter(ABC):
     def side_paths(cls, path: Path) -> list[Path]:
         """Files and folders this format writes beside the recording `path` (none unless a format has some)."""
         return []
+
+    @classmethod
+    def option_names(cls) -> list[str]:
+        """The keyword options this writer takes besides `overwrite` (`open_writer`'s ``**options``), read from its
+        signature."""
+        parameters = inspect.signature(cls.__init__).parameters.values()
+        return [p.name for p in parameters if p.kind is p.KEYWORD_ONLY and p.name != "overwrite"]
+
+    @classmethod
+    @abstractmethod
+    def check_options(cls, **options: Any) -> None:
+        """`UsageError` for a value of an option (`option_names`) this writer refuses, touching nothing: the
+        writer's own rule, asked before anything is created or started (`simreel.formats.check_writer_options`)."""
 
     @classmethod
     def check_target(cls, path: Path, *, overwrite: bool) -> None:

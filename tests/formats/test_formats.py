@@ -138,3 +138,38 @@ def test_a_file_simreel_writes_beside_recordings_is_named_when_given_as_one(tmp_
     assert main(["view", str(recording), "--compare", str(report), "--save", str(tmp_path / "y.rrd")]) == 2
     assert capsys.readouterr().err.strip() == f"simreel view: error: {report}: neither an HDF5 nor an MCAP file" \
                                               f"{expected[report]}"
+
+
+CHUNK = "the bytes of messages per chunk, an int >= 1 (default 1 MiB)"
+
+
+@pytest.mark.parametrize(
+    ("name", "options", "message"),
+    [
+        # was: accepted as yes, and the file there was replaced
+        ("out.h5", {"overwrite": "no"}, "overwrite='no': give True or False"),
+        ("out.mcap", {"overwrite": "no"}, "overwrite='no': give True or False"),
+        # was: TypeError McapOptions.__init__() got an unexpected keyword argument 'level'
+        ("out.mcap", {"level": 3}, "writer_options level: not an option of the MCAP writer, which takes compression, "
+                                   "chunk_size, fsync"),
+        ("out.h5", {"level": 3}, "writer_options level: not an option of the HDF5 writer, which takes compression"),
+        # was: TypeError '>' not supported between instances of 'int' and 'str', inside mcap's writer
+        ("out.mcap", {"chunk_size": "1M"}, f"chunk_size='1M': give {CHUNK}"),
+        ("out.mcap", {"chunk_size": 0}, f"chunk_size=0: give {CHUNK}"),  # was: one chunk per message
+        ("out.mcap", {"chunk_size": True}, f"chunk_size=True: give {CHUNK}"),  # was: taken as 1
+        ("out.mcap", {"fsync": "no"}, "fsync='no': give True or False"),  # was: accepted as yes
+        ("out.h5", {"compression": "zstd"}, "unknown HDF5 compression 'zstd'; use one of gzip, lzf, None"),  # as before
+    ],
+    ids=["h5-overwrite-str", "mcap-overwrite-str", "mcap-unknown", "h5-unknown", "chunk_size-str", "chunk_size-0",
+         "chunk_size-bool", "fsync-str", "h5-compression"],
+)
+def test_open_writer_refuses_an_option_it_cannot_take_and_touches_nothing(record, tmp_path, name, options, message):
+    from simreel.formats import open_reader, open_writer
+
+    with open_reader(record("PickCube-v1", 2, 5)) as reader:
+        meta = reader.meta
+    (tmp_path / name).write_text("an older file, to be kept")
+    with pytest.raises(UsageError) as refused:
+        open_writer(tmp_path / name, meta, **options)
+    assert str(refused.value) == message
+    assert [p.name for p in tmp_path.iterdir()] == [name] and (tmp_path / name).read_text() == "an older file, to be kept"

@@ -187,6 +187,23 @@ def test_an_unknown_writer_option_for_mcap_names_the_mcap_options(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("writer_process", [True, False], ids=["writer-process", "in-process"])
+def test_an_mcap_writer_option_of_the_wrong_value_is_refused_before_the_writer_starts(tmp_path, writer_process):
+    """Regression: chunk_size="1M" was a raw TypeError inside mcap's writer, after the writer process had started;
+    chunk_size=0 wrote one chunk per message, fsync="no" counted as yes."""
+    before = set(child_pids(os.getpid()))
+    env = make_env("PushCube-v1")
+    for options, message in [({"chunk_size": "1M"}, "chunk_size='1M': give the bytes of messages per chunk, an int "
+                                                     ">= 1 (default 1 MiB)"),
+                             ({"fsync": "no"}, "fsync='no': give True or False")]:
+        with pytest.raises(UsageError) as refused:
+            RecordWrapper(env, tmp_path / "r.mcap", writer_options=options, writer_process=writer_process)
+        assert str(refused.value) == message
+    env.close()
+    assert [pid for pid in child_pids(os.getpid()) if pid not in before] == []
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_unknown_keyword_names_the_options(tmp_path):
     env = make_env("PushCube-v1")
     with pytest.raises(TypeError, match="^RecordWrapper\\(\\) got an unexpected keyword argument 'foo'; its options "

@@ -16,7 +16,7 @@ import numpy as np
 
 from simreel.errors import UsageError
 
-__all__ = ["DatasetWriter", "COMPRESSIONS", "CHUNK_BYTES", "chunk_rows", "image_storage"]
+__all__ = ["DatasetWriter", "COMPRESSIONS", "check_compression", "CHUNK_BYTES", "chunk_rows", "image_storage"]
 
 COMPRESSIONS = ("gzip", "lzf", None)
 CHUNK_BYTES = 1 << 20
@@ -70,14 +70,19 @@ class _Plan(NamedTuple):
     memory_type: Any
 
 
+def check_compression(compression: Any) -> None:
+    """`UsageError` for a compression that is none of `COMPRESSIONS`, naming them."""
+    if compression not in COMPRESSIONS:
+        raise UsageError(f"unknown HDF5 compression {compression!r}; use one of {', '.join(map(str, COMPRESSIONS))}")
+
+
 class DatasetWriter:
     """Creates datasets in an open file with one compression; its property lists are built once and reused."""
 
     def __init__(self, compression: str | None) -> None:
         from h5py import h5d, h5g, h5p, h5s
 
-        if compression not in COMPRESSIONS:
-            raise UsageError(f"unknown HDF5 compression {compression!r}; use one of {', '.join(map(str, COMPRESSIONS))}")
+        check_compression(compression)
         self.compression = compression
         self._lcpl = h5p.create(h5p.LINK_CREATE)
         self._lcpl.set_create_intermediate_group(True)

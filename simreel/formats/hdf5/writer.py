@@ -42,7 +42,7 @@ from simreel.formats.durable import (
     reserve_space,
     storage_error,
 )
-from simreel.formats.hdf5.datasets import DatasetWriter, image_storage
+from simreel.formats.hdf5.datasets import DatasetWriter, check_compression, image_storage
 from simreel.formats.hdf5.layout import (
     EPISODE_ATTR,
     LIBVER,
@@ -199,6 +199,10 @@ class Hdf5Writer(EpisodeWriter):
     @classmethod
     def side_paths(cls, path: Path) -> list[Path]:
         return [sidecar_path(path), partial_dir(path)]
+
+    @classmethod
+    def check_options(cls, *, compression: str | None = "gzip") -> None:
+        check_compression(compression)
 
     @classmethod
     def check_target(cls, path: Path, *, overwrite: bool) -> None:

@@ -3,7 +3,7 @@ safety: `simreel.formats.mcap`). The messages themselves are `simreel.formats.mc
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import IO, Any
 
@@ -15,6 +15,7 @@ from simreel.formats.durable import deferred_signals, is_storage_error, storage_
 from simreel.formats.mcap.channels import EpisodeLane, McapChannels
 from simreel.formats.mcap.records import COMPRESSIONS
 from simreel.formats.staging import RecordingTarget, side_folder
+from simreel.option_checks import check_flag, whole_number
 
 __all__ = ["McapWriter", "McapOptions"]
 
@@ -35,8 +36,14 @@ class McapOptions:
     fsync: bool = False
 
     def __post_init__(self) -> None:
+        """`UsageError` for an option the writer cannot take, before any file is created: ``chunk_size="1M"`` failed
+        as a raw TypeError inside mcap's writer, 0 or a negative size wrote one chunk per message, ``fsync="no"``
+        counted as yes."""
         if self.compression not in COMPRESSIONS:
             raise UsageError(f"unknown MCAP compression {self.compression!r}; use one of {', '.join(COMPRESSIONS)}")
+        object.__setattr__(self, "chunk_size", whole_number(
+            "chunk_size", self.chunk_size, "the bytes of messages per chunk, an int >= 1 (default 1 MiB)", minimum=1))
+        check_flag("fsync", self.fsync)
 
 
 class _McapSink(EpisodeSink):
@@ -128,6 +135,14 @@ class McapWriter(EpisodeWriter):
     @classmethod
     def side_paths(cls, path: Path) -> list[Path]:
         return [side_folder(path)]
+
+    @classmethod
+    def option_names(cls) -> list[str]:
+        return [f.name for f in fields(McapOptions)]
+
+    @classmethod
+    def check_options(cls, **options: Any) -> None:
+        McapOptions(**options)
 
     def _start(self, writer_class: Any) -> Any:
         from mcap.writer import CompressionType, IndexType
