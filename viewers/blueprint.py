@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import rerun.blueprint as rrb
 
-from simreel.viewers.paths import CAMERAS, CONTACTS, EVENTS, PLOTS, REPLAYED, STEP, WORLD
+from simreel.viewers.paths import CAMERAS, COMPARED, CONTACTS, EVENTS, PLOTS, STEP, WORLD
 
 __all__ = ["Layout", "session_blueprint"]
 
@@ -37,7 +37,7 @@ def session_blueprint(layout: Layout) -> rrb.Blueprint:
     """A pure function of `layout`: 3D view left, plot tabs + events right, camera images under the 3D view."""
     contents = [f"{WORLD}/**", f"{CONTACTS}/**"]
     if layout.compare:
-        contents.append(f"{REPLAYED}/**")
+        contents.append(f"{COMPARED}/**")
     eye = None
     if layout.eye is not None:
         eye = rrb.EyeControls3D(position=layout.eye, look_target=layout.look_target, eye_up=(0.0, 0.0, 1.0))

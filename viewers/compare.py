@@ -1,7 +1,8 @@
-"""Recorded vs replayed for the viewer: the core's comparison (`simreel.compare`, the same numbers
+"""Recorded vs compared for the viewer (``--compare OTHER``): what OTHER is to the recording (`compared_role`: its
+replay, its conversion, or another recording of the task), the core's comparison (`simreel.compare`, the same numbers
 `simreel replay` reports) placed on state rows, so the viewer can plot errors and mark the divergence, and the
 explanation of that divergence (`simreel.divergence`: events, error growth, and the cause `simreel replay -o`
-classified and stored with the replayed episode).
+classified and stored with the replayed episode, when OTHER is that replay).
 
 The core reports a divergence by step (the outcome of step k is state row k + 1; ``at="reset"`` is row 0);
 `divergence_row` converts. Episodes of different lengths are compared over the shorter one, a block of rows at a
@@ -23,11 +24,14 @@ from simreel.episode import ContactChannel, Episode, RecordingMeta, StepBlock
 from simreel.formats.base import EpisodeRows, block_rows
 from simreel.formats.dataset import provenance_tolerances
 
-__all__ = ["ViewComparison", "compare_for_view", "divergence_row", "explain_for_view", "judging_tolerances",
-           "made_from", "DEFAULT_MODE"]
+__all__ = ["ViewComparison", "compare_for_view", "compared_role", "divergence_row", "explain_for_view",
+           "judging_tolerances", "made_from", "DEFAULT_MODE"]
 
 DEFAULT_MODE = "actions"
 """Whose default tolerances apply: `simreel replay --mode` (actions, states or step); actions is its default."""
+
+_ROLES = {"replay": "replay", "convert": "conversion"}
+"""`RecordingMeta.provenance` operation → what a file it made from the recording is to that recording."""
 
 
 def divergence_row(d: Divergence) -> int:
@@ -100,13 +104,12 @@ def judging_tolerances(asked: Tolerances | None, compared: RecordingMeta, record
     if asked is not None:
         return asked, ""
     made = compared.provenance or {}
-    operation = made.get("operation")
     defaults = Tolerances.for_mode(DEFAULT_MODE)
-    if operation not in ("replay", "convert") or not made.get("source"):
-        return defaults, ""
-    if not made_from(made, recording, path):
-        return defaults, (f"the compared file is a {operation} of another recording ({made['source']}): judged with "
-                          f"the default tolerances (--mode {DEFAULT_MODE})")
+    if not compared_role(compared, recording, path):
+        if made.get("operation") not in _ROLES or not made.get("source"):
+            return defaults, ""
+        return defaults, (f"the compared file is a {made['operation']} of another recording ({made['source']}): "
+                          f"judged with the default tolerances (--mode {DEFAULT_MODE})")
     stored = provenance_tolerances(made)
     if stored is None:
         return defaults, ""
@@ -116,6 +119,16 @@ def judging_tolerances(asked: Tolerances | None, compared: RecordingMeta, record
     changed = tolerances.overrides(base)
     return tolerances, (f"judged with the tolerances `{run}` judged it with when it wrote it"
                         + (f" ({changed} instead of its defaults)" if changed else ""))
+
+
+def compared_role(compared: RecordingMeta, recording: RecordingMeta, path: str | Path) -> str:
+    """What the file `compared` (its metadata) is to the recording `recording` at `path`: ``"replay"`` where
+    ``simreel replay -o`` wrote it from this very recording (`made_from`), ``"conversion"`` where ``simreel convert``
+    did, else ``""``: another recording of the task (a second ``simreel record`` run, a ManiSkill RecordEpisode file,
+    a replay or conversion of another recording), which the viewer names by its file, never as a replay."""
+    made = compared.provenance or {}
+    role = _ROLES.get(made.get("operation"), "")
+    return role if role and made.get("source") and made_from(made, recording, path) else ""
 
 
 def made_from(made: Mapping[str, Any], recording: RecordingMeta, path: str | Path) -> bool:
@@ -129,7 +142,7 @@ def made_from(made: Mapping[str, Any], recording: RecordingMeta, path: str | Pat
 
 def compare_for_view(
     recorded: Episode | EpisodeRows,
-    replayed: Episode | EpisodeRows,
+    compared: Episode | EpisodeRows,
     *,
     channels: Sequence[ContactChannel] = (),
     tolerances: Tolerances | None = None,
@@ -140,17 +153,18 @@ def compare_for_view(
     `simreel.formats.base.block_rows` of the recording): only a block of each and the per-row error curves are held.
     Both are read front to back once, block beside block (an MCAP episode read by `steps` is scanned from its
     start for every block)."""
-    recorded, replayed = _rows(recorded), _rows(replayed)
-    steps = min(recorded.length, replayed.length)
+    recorded, compared = _rows(recorded), _rows(compared)
+    steps = min(recorded.length, compared.length)
     note = ""
-    if recorded.length != replayed.length:
-        note = f"the replay has {replayed.length} steps, the recording {recorded.length}: compared the first {steps}"
+    if recorded.length != compared.length:
+        note = (f"the compared episode has {compared.length} steps, the recording {recorded.length}: compared the "
+                f"first {steps}")
     blocks = BlockComparison(tolerances or Tolerances.for_mode(DEFAULT_MODE), channels=channels)
-    blocks.reset(recorded.reset(), replayed.reset())
+    blocks.reset(recorded.reset(), compared.reset())
     if steps == 0:  # an episode of no steps still compares its (empty) per-step keys
-        blocks.steps(recorded.steps(0, 0), replayed.steps(0, 0))
+        blocks.steps(recorded.steps(0, 0), compared.steps(0, 0))
     rows = rows or block_rows(recorded.fields)
-    for (start, ours), (_, theirs) in zip(recorded.blocks(rows), replayed.blocks(rows), strict=False):  # to the shorter
+    for (start, ours), (_, theirs) in zip(recorded.blocks(rows), compared.blocks(rows), strict=False):  # to the shorter
         blocks.steps(_first_rows(ours, steps - start), _first_rows(theirs, steps - start))
     return ViewComparison(blocks.comparison(), steps, note, recorded.length)
 
@@ -160,23 +174,29 @@ def _first_rows(block: StepBlock, n: int) -> StepBlock:
     return block if block.rows <= n else StepBlock.of({k: a[:n] for k, a in block.arrays.items()})
 
 
-def explain_for_view(recorded: Episode, replayed: Episode, comparison: ViewComparison,
-                     channels: Sequence[ContactChannel] = ()) -> Explanation | None:
+def explain_for_view(recorded: Episode, compared: Episode, comparison: ViewComparison,
+                     channels: Sequence[ContactChannel] = (), *, role: str = "") -> Explanation | None:
     """The explanation of the viewer's first divergence: its events and error growth from the two episodes, and the
     cause that ``simreel replay -o`` classified and kept with the replayed episode (`EpisodeMeta.verification`) when
-    it explains the same divergence (same step and key); None when nothing diverged."""
+    `compared` is that replay of this recording (`role`: `compared_role`'s ``replay``) and its cause explains the
+    same divergence (same step and key); None when nothing diverged. A replay of another recording explained that
+    recording's divergence, not this one's."""
     explanation = describe_divergence(recorded, comparison.comparison, channels)
     if explanation is None:
         return None
-    stored = replayed.meta.verification.get("explanation")
+    if role != "replay":
+        explanation.checked.append("cause not classified: the compared file is no replay of this recording "
+                                   "(`simreel replay -o` classifies the cause of its replays' divergences)")
+        return explanation
+    stored = compared.meta.verification.get("explanation")
     if not stored:
-        explanation.checked.append("cause not classified: the replayed file holds no explanation "
-                                   "(it was not written by `simreel replay -o`, or that replay did not diverge)")
+        explanation.checked.append("cause not classified: the replay holds no explanation (that replay did not "
+                                   "diverge, or its file was rewritten without it)")
         return explanation
     try:
         replay = Explanation.from_json(stored)
     except (KeyError, TypeError, ValueError) as e:
-        explanation.checked.append(f"cause not shown: the replayed file's explanation is malformed ({e!r})")
+        explanation.checked.append(f"cause not shown: the replay's explanation is malformed ({e!r})")
         return explanation
     d, r = explanation.divergence, replay.divergence
     if (r.step, r.at, r.key) == (d.step, d.at, d.key):

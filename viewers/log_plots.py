@@ -117,7 +117,7 @@ def log_contact_magnitudes(rec: rr.RecordingStream, channels: ActiveChannels, fo
 
 
 def log_errors(rec: rr.RecordingStream, comparison: ViewComparison, period: float | None) -> None:
-    """``plots/error/<key>``: the replay's error per compared key (as `simreel replay` computes it) beside its
+    """``plots/error/<key>``: the compared episode's error per key (as `simreel replay` computes it) beside its
     tolerance, a flat line. The keys plotted are `ViewComparison.plotted_keys`: those ever off, else the state keys."""
     rows_by_key = comparison.error_rows()
     first = comparison.divergence.key if comparison.divergence is not None else None
@@ -175,23 +175,24 @@ def episode_events(
     *,
     channels: Sequence[ContactChannel] = (),
     comparison: ViewComparison | None = None,
-    compare_label: str | None = None,
+    compared: tuple[str, str] | None = None,
     explanation: Explanation | None = None,
 ) -> list[Event]:
     """Start, the episode's events (`simreel.divergence.episode_events`: contacts with their force, grasps, success,
-    controller jumps, termination), the first divergence and its explanation."""
+    controller jumps, termination), the first divergence and its explanation. `compared`: the compared episode's
+    label and subject (`simreel.viewers.sources.EpisodeRun`), what the comparison's lines call it."""
     m = episode.meta
     start = f"episode {m.index} starts (seed {m.seed}, env {m.env_idx}, {episode.length} steps)"
     events = [Event(0, "INFO", start), *(Event(0, "WARN", note) for note in m.notes)]
     events += [_episode_event(e) for e in core_episode_events(episode, channels)]
     if comparison is not None:
-        label = compare_label or "the replay"
+        label, subject = compared or ("the compared episode", "compared episode")
         events.append(Event(0, "INFO", f"compared with {label}: {comparison.verdict()}"))
         if comparison.note:
             events.append(Event(0, "WARN", comparison.note))
         d = comparison.divergence
         if d is not None:
-            events.append(Event(divergence_row(d), "ERROR", d.sentence("replay diverges")))
+            events.append(Event(divergence_row(d), "ERROR", d.sentence(f"{subject} diverges")))
     if explanation is not None:
         events += _explanation_events(explanation)
     order = {"ERROR": 0, "WARN": 1}

@@ -24,7 +24,7 @@ from simreel.viewers.log_plots import (
     time_indexes,
 )
 from simreel.viewers.log_scene import log_geometry, log_pose_block, log_static_poses
-from simreel.viewers.paths import REPLAYED, WORLD
+from simreel.viewers.paths import COMPARED, WORLD
 from simreel.viewers.poses import PoseSource
 
 if TYPE_CHECKING:
@@ -69,8 +69,8 @@ class _SessionLogger:
         rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         markers = [b.name for b in session.bodies if b.group == "actor"]
         log_geometry(rec, WORLD, session.geometry, markers=markers)
-        if session.replayed is not None:
-            log_geometry(rec, REPLAYED, session.geometry, ghost=True)
+        if session.compared is not None:
+            log_geometry(rec, COMPARED, session.geometry, ghost=True)
         log_contact_styles(rec, self.active_list)
         log_camera_formats(rec, self.streams)
 
@@ -117,8 +117,9 @@ class _SessionLogger:
         rec, session, ep, period = self.rec, self.session, self.episode, self.period
         if session.comparison is not None:
             log_errors(rec, session.comparison, period)
-        label = session.replayed.label if session.replayed is not None else None
-        events = episode_events(ep, channels=self.channels, comparison=session.comparison, compare_label=label,
+        compared = session.compared
+        events = episode_events(ep, channels=self.channels, comparison=session.comparison,
+                                compared=None if compared is None else (compared.label, compared.subject),
                                 explanation=session.explanation)
         log_events(rec, events, period)
 
@@ -129,8 +130,8 @@ def log_session(rec: rr.RecordingStream, session: ViewSession) -> None:
     logger = _SessionLogger(rec, session)
     logger.static()
     from_recording = logger.timeline(WORLD, session.recording)
-    if session.replayed is not None:
-        logger.timeline(REPLAYED, session.replayed)
+    if session.compared is not None:
+        logger.timeline(COMPARED, session.compared)
     session.pose_source = "recorded" if from_recording else "restored"
     logger.plots()
     session.timings["log_s"] = time.perf_counter() - t0

@@ -1,7 +1,8 @@
 """Entity paths and timelines of a simreel Rerun session, in one place.
 
 - ``world/<actor>``, ``world/<articulation>/<link>``: the recorded scene; geometry static, poses on the timelines
-- ``replayed/<actor>``, ``replayed/<articulation>/<link>``: the replay's ghost (``--compare``)
+- ``compared/<actor>``, ``compared/<articulation>/<link>``: the ghost of the episode compared (``--compare``), under
+  this one name whatever that file is (a replay, a conversion, another recording); the text says which
 - ``contacts/net/<body>``, ``contacts/pair/<body a>/<body b>``: contact-force arrows, only where non-zero
 - ``plots/...``: reward, success, info, qpos per articulation, contact magnitudes, verification error
 - ``cameras/<camera>/rgb|depth``: recorded camera observations
@@ -21,7 +22,7 @@ __all__ = [
     "step_of_row",
     "SIM_TIME",
     "WORLD",
-    "REPLAYED",
+    "COMPARED",
     "CONTACTS",
     "PLOTS",
     "CAMERAS",
@@ -36,7 +37,7 @@ RESET_STEP = -1
 """The `step` of the state right after the reset (state row 0)."""
 SIM_TIME = "sim_time"
 WORLD = "world"
-REPLAYED = "replayed"
+COMPARED = "compared"
 CONTACTS = "contacts"
 PLOTS = "plots"
 CAMERAS = "cameras"

@@ -1,7 +1,7 @@
 """A Rerun session of one recorded episode: `build_session` prepares it, `ViewSession` logs it to a sink.
 
 Preparing reads a summary of the episode (`simreel.viewers.sources`: its per-step values and controller states) and,
-for ``compare``, compares it with the replayed one a block of rows at a time; it rebuilds the recorded env on the
+for ``compare``, compares it with the other file's episode a block of rows at a time; it rebuilds the recorded env on the
 CPU with one sub-scene, resets it to the episode's scene and reads the scene's geometry. Logging then sends the
 geometry once (static) and reads and sends everything per step in blocks of `block_steps` rows through
 `send_columns` (poses, camera frames, plots, contacts), so memory for an episode's states, frames and derived data
@@ -77,9 +77,10 @@ class ViewOptions:
 
     Attributes:
         episode: the episode's index (default: the first episode in the file).
-        compare: a replay of the same episode (a file written by ``simreel replay -o``, or any recording of
-            the same env): drawn as a translucent ghost, with the per-key state error and its first
-            divergence. The episode with the same index is used (never another).
+        compare: another recording of the same env (a replay written by ``simreel replay -o``, a conversion, a
+            second recording): its episode drawn as a translucent ghost under ``compared/``, with the per-key state
+            error and its first divergence, named as what it is (`simreel.viewers.sources.EpisodeRun.subject`). The
+            episode with the same index is used (never another).
         geometry: ``"auto"`` (visual shapes when a render device exists, else collision shapes),
             ``"visual"`` or ``"collision"``.
         mode, atol, tolerances: the comparison's tolerances, as for ``simreel replay --mode/--atol/--tol``: the
@@ -305,14 +306,15 @@ class ViewSession:
     """A prepared session: log it with `save`, `spawn`, `serve` or `log_to`. Close it to free the env."""
 
     recording: EpisodeRun
-    replayed: EpisodeRun | None
+    compared: EpisodeRun | None
+    """The episode of ``compare`` drawn beside the recording, if any."""
     env: Any
     bodies: list[SceneBody]
     geometry: list[BodyGeometry]
     geometry_source: str
     comparison: ViewComparison | None = None
     explanation: Explanation | None = None
-    """Why the replay diverged (`simreel.viewers.compare.explain_for_view`), when it did."""
+    """Why the compared episode diverged (`simreel.viewers.compare.explain_for_view`), when it did."""
     block_steps: int | None = None
     joint_names: dict[str, list[str]] = field(default_factory=dict)
     eye: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
@@ -338,7 +340,7 @@ class ViewSession:
 
     @property
     def divergence(self) -> Any:
-        """The replay's first divergence (`simreel.compare.Divergence`), or None."""
+        """The compared episode's first divergence (`simreel.compare.Divergence`), or None."""
         return None if self.comparison is None else self.comparison.divergence
 
     @property
@@ -362,7 +364,7 @@ class ViewSession:
             focus = (max(-1, s - 10), min(self.episode.length - 1, s + 10))
         eye, target = self.eye if self.eye is not None else (None, None)
         return Layout(
-            compare=self.replayed is not None,
+            compare=self.compared is not None,
             cameras=tuple(camera_streams(self.recording.rows.fields)),
             plot_groups=tuple(groups),
             eye=eye,
@@ -390,7 +392,7 @@ class ViewSession:
         (`staged_output`): an existing one is replaced only once the new one is complete, and a file another run
         wrote meanwhile is kept without `overwrite` (`UsageError`); a full disk is a `StorageError`, never a wait.
         """
-        shown = [run.path for run in (self.recording, self.replayed) if run is not None]
+        shown = [run.path for run in (self.recording, self.compared) if run is not None]
         path = check_rrd_target(path, overwrite=overwrite, shown=shown, make_folder=True)
         with staged_output(path, overwrite=overwrite, option="--save") as partial:
             write_rrd(self.new_stream(), partial, path, self.blueprint(), self.log_to)
@@ -449,8 +451,8 @@ class ViewSession:
     def close(self) -> None:
         """Stop serving (`serve`), close the files the session opened and the env if the session built it."""
         self.recording.close()
-        if self.replayed is not None:
-            self.replayed.close()
+        if self.compared is not None:
+            self.compared.close()
         if self.served is not None:
             self.served.disconnect()
             self.served = None
@@ -506,15 +508,16 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
         for run in runs:
             run.close()
         raise
-    rec_run, rep_run = session.recording, session.replayed
-    if rep_run is not None:
+    rec_run, cmp_run = session.recording, session.compared
+    if cmp_run is not None:
         with session.closed_on_error():
             channels = rec_run.meta.contact_channels
-            tolerances, judged_with = judging_tolerances(asked, rep_run.meta, rec_run.meta, _source_path(source))
-            session.comparison = compare_for_view(rec_run.rows, rep_run.rows, channels=channels,
+            tolerances, judged_with = judging_tolerances(asked, cmp_run.meta, rec_run.meta, _source_path(source))
+            session.comparison = compare_for_view(rec_run.rows, cmp_run.rows, channels=channels,
                                                   tolerances=tolerances, rows=opts.block_steps)
             session.comparison.judged_with = judged_with
-            session.explanation = explain_for_view(rec_run.episode, rep_run.episode, session.comparison, channels)
+            session.explanation = explain_for_view(rec_run.episode, cmp_run.episode, session.comparison, channels,
+                                                   role=cmp_run.role)
     return session
 
 
@@ -555,7 +558,7 @@ def states_by_stepping(unwrapped: Any, episode: Episode) -> None:
 def _prepare(env: Any, owns: bool, opts: ViewOptions, runs: tuple[EpisodeRun, EpisodeRun | None],
              timings: dict[str, float]) -> ViewSession:
     """Reset `env` to the recorded episode's scene and read its bodies and geometry."""
-    rec_run, rep_run = runs
+    rec_run, cmp_run = runs
     u = env.unwrapped
     if int(u.num_envs) != 1 or u.scene.gpu_sim_enabled:
         raise UsageError("build_session(env=...) needs an env with num_envs=1 on the CPU sim (see rebuild_env)")
@@ -569,6 +572,6 @@ def _prepare(env: Any, owns: bool, opts: ViewOptions, runs: tuple[EpisodeRun, Ep
     bodies = scene_bodies(u)
     used, geo = scene_geometry(u, bodies, source=opts.geometry)
     timings["scene_s"] = time.perf_counter() - t2
-    return ViewSession(recording=rec_run, replayed=rep_run, env=env, bodies=bodies, geometry=geo,
+    return ViewSession(recording=rec_run, compared=cmp_run, env=env, bodies=bodies, geometry=geo,
                        geometry_source=used, block_steps=opts.block_steps,
                        joint_names=_joint_names(u), eye=_eye(u), owns_env=owns, timings=timings)

@@ -1,4 +1,5 @@
-"""The episodes a session draws: the recorded one and, with ``--compare``, its replay, read from their files.
+"""The episodes a session draws: the recorded one and, with ``--compare``, the one compared with it (its replay, its
+conversion or another recording of the task), read from their files.
 
 An `EpisodeRun` keeps its file open and holds a summary of the episode: its per-step fields (actions, rewards,
 flags, info, contact forces) and its controller states, what the events of a whole episode (`simreel.divergence`:
@@ -19,6 +20,7 @@ from simreel.episode import Episode, FieldSpec, RecordingMeta, StepBlock, join_b
 from simreel.errors import RecordingFileError, StorageError, ViewError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows, block_rows, recover_hint
+from simreel.viewers.compare import compared_role
 
 __all__ = ["EpisodeRun", "read_run", "read_compare", "Source"]
 
@@ -28,9 +30,10 @@ Source = str | Path | EpisodeReader
 
 @dataclass
 class EpisodeRun:
-    """One episode to draw: the recorded one or the replayed one."""
+    """One episode to draw: the recorded one or the one compared with it."""
 
     label: str
+    """``<file name> episode <index>``, with its `role` in brackets when it has one: ``replayed.h5 episode 0 (replay)``."""
     meta: RecordingMeta
     episode: Episode
     """The episode's summary (`summary`): per-step fields and controller states; no observations, body poses or other
@@ -42,6 +45,15 @@ class EpisodeRun:
     """The file the episode is read from."""
     reader: EpisodeReader | None = None
     """The reader this run opened (closed by `close`); None when the caller's."""
+    role: str = ""
+    """What a compared run is to the recording (`simreel.viewers.compare.compared_role`): ``replay``,
+    ``conversion``, or "" (the recording itself, or another recording of the task)."""
+
+    @property
+    def subject(self) -> str:
+        """What the output calls a compared run: its `role`, else its file name (``second.h5 diverges at step 3``),
+        so a second recording of the task is never called a replay."""
+        return self.role or self.file_name
 
     @property
     def state_keys(self) -> set[str]:
@@ -71,7 +83,7 @@ def _open(source: Source) -> tuple[EpisodeReader, bool]:
 
 
 def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun:
-    """Episode `index` of `source` (None: its first episode); `role` is added to the label (``replayed``).
+    """Episode `index` of `source` (None: its first episode); `role` (`EpisodeRun.role`) is added to the label.
     The run keeps a reader it opened until `EpisodeRun.close`."""
     reader, owned = _open(source)
     try:
@@ -93,13 +105,14 @@ def read_run(source: Source, index: int | None, *, role: str = "") -> EpisodeRun
         raise
     name = Path(reader.path).name
     label = f"{name} episode {index}" + (f" ({role})" if role else "")
-    return EpisodeRun(label, reader.meta, episode, name, rows, Path(reader.path), reader if owned else None)
+    return EpisodeRun(label, reader.meta, episode, name, rows, Path(reader.path), reader if owned else None, role)
 
 
 def read_compare(compare: Source, recorded: EpisodeRun, *, option: str = "--episode") -> EpisodeRun:
-    """The replay of `recorded` in `compare`: its episode of the same index (``simreel replay -o`` and ``simreel
-    convert`` keep the recording's indices), never another: a different episode's replay would be judged as this
-    one's. `option` is the one that picks episodes, named in the error when `compare` lacks this index."""
+    """The episode of `compare` to draw beside `recorded`: its episode of the same index (``simreel replay -o`` and
+    ``simreel convert`` keep the recording's indices), never another: a different episode's replay would be judged as
+    this one's. `option` is the one that picks episodes, named in the error when `compare` lacks this index. Its
+    `EpisodeRun.role` says whether `compare` is a replay or a conversion of the recording."""
     reader, owned = _open(compare)
     try:
         index = recorded.episode.meta.index
@@ -110,7 +123,7 @@ def read_compare(compare: Source, recorded: EpisodeRun, *, option: str = "--epis
                 f"{recorded.file_name} (it has {', '.join(map(str, have)) or 'none'}); pick an episode it has with "
                 f"{option}, or replay episode {index} with `simreel replay -o`"
             )
-        run = read_run(reader, index, role="replayed")
+        run = read_run(reader, index, role=compared_role(reader.meta, recorded.meta, recorded.path))
     except BaseException:
         if owned:
             reader.close()
@@ -141,13 +154,13 @@ def summary(rows: EpisodeRows) -> Episode:
 
 
 def _check_comparable(run: EpisodeRun, recorded: EpisodeRun) -> None:
-    """`ViewError` unless `run` can be drawn as the replay of `recorded` (``view --compare``, ``video --compare``):
+    """`ViewError` unless `run` can be drawn beside `recorded` (``view --compare``, ``video --compare``):
     a recording of the same env, with states in common (restored into the recording's env, another env's states
     would be drawn as if they were its own)."""
     if run.meta.env_id != recorded.meta.env_id:
         raise ViewError(
             f"--compare {run.label}: it is a recording of {run.meta.env_id}, not of {recorded.meta.env_id}; "
-            "compare a replay of the same recording"
+            f"compare a replay or another recording of {recorded.meta.env_id}"
         )
     if not run.state_keys & recorded.state_keys:
         raise ViewError(f"--compare {run.label}: no state key in common with {recorded.label}")

@@ -8,7 +8,9 @@ ManiSkill's render camera (``render_mode="rgb_array"``) after restoring each rec
 from the reset first, as ``simreel view`` does. With ``compare``, the other recording's episode of the same index
 is drawn on the right, and the verdict is that of its conversion (`EpisodeMeta.provenance`, written by
 ``simreel convert``, used only when that file converted this very recording and episode) or, for a replay (or any
-other file), of comparing the two (`simreel.compare`, ``simreel replay``'s rules; a shorter replay is incomplete).
+other file), of comparing the two (`simreel.compare`, ``simreel replay``'s rules; a shorter replay is incomplete),
+said of what the other file is (`simreel.viewers.sources.EpisodeRun.subject`: ``replay diverged``, ``second.h5
+diverged``).
 Encoding: H.264 (yuv420p) by ffmpeg (imageio's binary), through a temporary file renamed when the video is whole.
 """
 
@@ -25,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from simreel.compare import DEFAULT_TOLERANCES, Tolerances
-from simreel.episode import Episode, EpisodeSelection, RecordingMeta
+from simreel.episode import ContactChannel, Episode, EpisodeSelection, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader, recording_files
 from simreel.formats.base import recover_hint
@@ -34,7 +36,7 @@ from simreel.formats.paths import refuse_empty
 from simreel.formats.targets import check_distinct, check_output, staged_output
 from simreel.option_checks import check_flag, whole_number_pair
 from simreel.sim.user_code import import_specs
-from simreel.viewers.compare import compare_for_view, judging_tolerances, made_from
+from simreel.viewers.compare import compare_for_view, compared_role, judging_tolerances
 from simreel.viewers.session import states_by_stepping
 from simreel.viewers.sources import read_compare, read_run
 
@@ -54,7 +56,7 @@ class VideoOptions:
 
     Attributes:
         episodes: episode indices, an `EpisodeSelection` (``--episodes 0,3-7``) or indices (None: all).
-        compare: another recording of the same task (a replay, a conversion) shown on the right.
+        compare: another recording of the same task (a replay, a conversion, a second recording) shown on the right.
         size: (width, height) of the video frame (both even: H.264 in yuv420p); side by side, each half is one
             recording.
         camera: a camera whose ``rgb`` observations the recording holds (None: render each restored state).
@@ -146,8 +148,12 @@ class VideoRun:
             self.lengths = {i: r.episode_meta(i).length for i in self.indices}
             self.damaged: list[str] = list(r.damaged) if opts.episodes is None else []
             """What is wrong with each episode that got no video because it is damaged."""
-        self.compared = _compared_indices(path, opts.compare, self.indices) if opts.compare is not None else {}
+        self.compared: dict[int, int] = {}
         """Episode index → the index of the episode of `options.compare` drawn beside it."""
+        self.compared_as = ""
+        """What the verdicts call `options.compare` (`EpisodeRun.subject`): ``replay``, ``conversion``, its file name."""
+        if opts.compare is not None:
+            self.compared, self.compared_as = _compared_indices(path, opts.compare, self.indices)
         self.written: list[EpisodeVideo] = []
         """The videos `execute` has written so far."""
         self.notes: list[str] = []
@@ -216,7 +222,7 @@ class VideoRun:
                 tolerances, note = judging_tolerances(asked, other.meta, self.meta, self.path)
                 if note and note not in self.notes:
                     self.notes.append(note)
-        labels = _labels(left, right, self.meta, tolerances, conversion)
+        labels = _labels(left, right, (self.meta.contact_channels, tolerances), conversion, subject=self.compared_as)
         out = video_path(self.folder, self.path, index)
         count = _encode(out, self._frames(frames, left, right, labels, progress), self._fps(),
                         overwrite=self.options.overwrite)
@@ -241,17 +247,19 @@ class VideoRun:
         return float(self.options.fps if self.options.fps is not None else self.meta.control_freq or 20.0)
 
 
-def _compared_indices(path: str | Path, compare: str, indices: list[int]) -> dict[int, int]:
+def _compared_indices(path: str | Path, compare: str, indices: list[int]) -> tuple[dict[int, int], str]:
     """For each episode of `indices`, the episode of `compare` drawn beside it, chosen and checked as ``view
     --compare`` does (`simreel.viewers.sources.read_compare`: the same index, of the same env, with states in
     common): another env's states restored into this one's would draw nonsense. An episode `compare` lacks is
-    refused (naming the episodes it has), never shown beside another episode's replay or silently alone."""
-    found = {}
+    refused (naming the episodes it has), never shown beside another episode's replay or silently alone. Also
+    what `compare` is called (`EpisodeRun.subject`)."""
+    found, subject = {}, ""
     with open_reader(path) as r, open_reader(compare) as other:
         for i in indices:
             recorded = read_run(r, i)
-            found[i] = read_compare(other, recorded, option="--episodes").episode.meta.index
-    return found
+            run = read_compare(other, recorded, option="--episodes")
+            found[i], subject = run.episode.meta.index, run.subject
+    return found, subject
 
 
 # ------------------------------------------------------------------------------------------------ frames
@@ -385,19 +393,17 @@ def _stored_conversion(compare_meta: RecordingMeta, right: Episode, meta: Record
     episode `index`. None otherwise: a conversion of another recording or episode says nothing of this one, which is
     then compared as any other file is."""
     judged = right.meta.provenance or {}
-    made = compare_meta.provenance or {}
-    if not judged.get("verdict") or made.get("operation") != "convert" or not made.get("source"):
+    if not judged.get("verdict") or compared_role(compare_meta, meta, path) != "conversion":
         return None
-    if not made_from(made, meta, path) or judged.get("source_episode") != index:
-        return None
-    return judged
+    return judged if judged.get("source_episode") == index else None
 
 
-def _labels(left: Episode, right: Episode | None, meta: RecordingMeta, tolerances: Tolerances | None,
-            conversion: dict | None = None) -> _Labels:
+def _labels(left: Episode, right: Episode | None, judge: tuple[Sequence[ContactChannel], Tolerances | None],
+            conversion: dict | None = None, *, subject: str = "") -> _Labels:
     """The labels of a video of `left`, beside `right` when given: the verdict of `conversion` (the stored one of
-    `_stored_conversion`), else that of comparing the two with `tolerances` (`ViewComparison.verdict`: a shorter
-    `right` is ``incomplete``, its frames past its end say they were not checked)."""
+    `_stored_conversion`), else that of comparing the two, `judge` being the recording's contact channels and the
+    tolerances (`ViewComparison.verdict`: a shorter `right` is ``incomplete``, its frames past its end say they were
+    not checked), said of `subject` (what `right` is: `EpisodeRun.subject`)."""
     labels = _Labels(left.length, success=left.success)
     if right is None:
         return labels
@@ -408,8 +414,9 @@ def _labels(left: Episode, right: Episode | None, meta: RecordingMeta, tolerance
             labels.out_at = int(first["step"]) + (0 if first.get("at") == "reset" else 1)
             labels.detail = f"{first['key']} off by {first['error']:.3g} at step {first['step']}"
         return labels
-    cmp = compare_for_view(left, right, channels=meta.contact_channels, tolerances=tolerances)
-    labels.verdict = f"replay {cmp.verdict()}"
+    channels, tolerances = judge
+    cmp = compare_for_view(left, right, channels=channels, tolerances=tolerances)
+    labels.verdict = f"{subject or 'compared episode'} {cmp.verdict()}"
     if cmp.divergence is not None:
         d = cmp.divergence
         labels.out_at = 0 if d.at == "reset" else d.step + 1

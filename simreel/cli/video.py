@@ -21,24 +21,26 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "video",
-        help="write an mp4 per episode (optionally beside its replay or conversion)",
+        help="write an mp4 per episode (optionally beside its replay, its conversion or another recording)",
         description="Write FOLDER/<name>_ep<N>.mp4 for each episode: one frame per state (steps + 1 frames), the "
         "step drawn in. Frames are rendered from the recorded states (a render device is needed: a GPU or the "
         "software Vulkan `make setup` fetches), or taken from a recorded camera (--camera). With --compare, the "
-        "other recording's episode is drawn on the right with the verdict of its conversion or replay.",
+        "other recording's episode is drawn on the right with the verdict of its conversion or of comparing the "
+        "two, said of what it is: `replay` (simreel replay -o of PATH), `conversion`, else its file name.",
     )
     p.add_argument("path", metavar="PATH", help="a recording (.h5 or .mcap; simreel's or ManiSkill's)")
     p.add_argument("-o", "--output", default=".", metavar="FOLDER", help="folder for the videos (default: here)")
     p.add_argument("--episodes", default=None, metavar="LIST", help="episodes, e.g. 0,3-7 (default: all)")
     p.add_argument("--compare", default=None, metavar="OTHER",
-                   help="a replay (simreel replay -o) or conversion (simreel convert) of PATH, drawn on the right")
+                   help="another recording of the task, drawn on the right: a replay (simreel replay -o) or "
+                        "conversion (simreel convert) of PATH, or a second recording")
     p.add_argument("--size", type=parse_size, default=None, metavar="WxH",
                    help="frame size, even numbers (default 256x256, 512x256 side by side)")
     p.add_argument("--camera", default=None, metavar="NAME", help="use the recorded rgb images of this camera")
     p.add_argument("--fps", type=float, default=None,
                    help="frames per second, a positive number (default: the control frequency)")
     p.add_argument("--mode", choices=mode_choices(), default=None,
-                   help="whose default tolerances judge a replay given with --compare (as simreel replay --mode); "
+                   help="whose default tolerances judge the file given with --compare (as simreel replay --mode); "
                         "default: a replay or conversion of PATH is judged with the tolerances that judged it when "
                         "it was written, any other file with actions'")
     p.add_argument("--overwrite", action="store_true", help="replace existing videos")

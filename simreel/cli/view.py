@@ -19,18 +19,21 @@ __all__ = ["add_parser", "run", "default_output", "has_display", "open_command",
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "view",
-        help="view an episode in Rerun (3D scene, contacts, plots, replay overlay)",
+        help="view an episode in Rerun (3D scene, contacts, plots, overlay of a replay or another recording)",
         description=(
             "Turn one episode of a recording (.h5 or .mcap) into a Rerun session: the scene in 3D over the "
             "`step` and `sim_time` timelines, contact-force arrows, plots of reward/success/qpos/contacts, camera "
-            "images, and with --compare the replay as a translucent ghost with its error per state key."
+            "images, and with --compare another recording's episode (a replay, a conversion, a second recording) "
+            "as a translucent ghost under compared/ with its error per state key, named as what it is: `replay` "
+            "(simreel replay -o of PATH), `conversion` (simreel convert of PATH), else its file name."
         ),
     )
     p.add_argument("path", metavar="PATH", help="recording (.h5 or .mcap)")
     p.add_argument("--episode", type=int, default=None, metavar="I",
                    help="episode index (default: the first in the file); see `simreel inspect PATH`")
     p.add_argument("--compare", default=None, metavar="OTHER",
-                   help="a replay of the recording (`simreel replay -o OTHER`): ghost overlay + first divergence")
+                   help="another recording of the task: a replay (`simreel replay -o OTHER`), a conversion or a "
+                        "second recording; ghost overlay + first divergence")
     add_tolerance_options(p, mode_default=None,
                           mode_help="whose default tolerances judge --compare (as `simreel replay --mode`). Default, "
                                     "with no --atol/--tol either: a replay or conversion of PATH is judged with the "
@@ -256,7 +259,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)")
         for note in session.episode.meta.notes:
             print(f"note: {note}")
-        _print_comparison(session.comparison, session.explanation)
+        _print_comparison(session.comparison, session.explanation, session.compared)
         if mode == "save":
             print(f"open it with: {open_command(out)}")
         elif mode == "serve":
@@ -288,20 +291,22 @@ def _wait_for_stop() -> str:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _print_comparison(c: Any, explanation: Any) -> None:
+def _print_comparison(c: Any, explanation: Any, compared: Any) -> None:
+    """The comparison's lines, said of `compared` (`EpisodeRun.subject`: ``replay exact``, ``second.h5 diverges``)."""
     if c is None:
         return
+    subject = compared.subject
     if c.note:
         print(f"note: {c.note}")
     if c.judged_with:
         print(f"note: {c.judged_with}")
     d = c.divergence
     if d is not None:
-        print(d.sentence("replay diverges"))
+        print(d.sentence(f"{subject} diverges"))
     elif c.unchecked_steps and c.steps:
-        print(f"replay {c.verdict()}; steps {c.steps} to {c.steps + c.unchecked_steps - 1} were not checked")
+        print(f"{subject} {c.verdict()}; steps {c.steps} to {c.steps + c.unchecked_steps - 1} were not checked")
     else:
-        print(f"replay {c.verdict()}" + ("" if c.unchecked_steps else ": no value leaves its tolerance"))
+        print(f"{subject} {c.verdict()}" + ("" if c.unchecked_steps else ": no value leaves its tolerance"))
     if explanation is not None and explanation.cause is not None:
         print(f"why: {explanation.cause.summary} (the events log shows the evidence)")
 

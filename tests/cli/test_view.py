@@ -439,8 +439,8 @@ def test_compare_never_pairs_an_episode_with_another_episodes_replay(pickcube_h5
 
 
 @pytest.mark.parametrize(("steps", "verdict"), [
-    (20, f"replay incomplete: exact for the first 20 of {STEPS} steps; steps 20 to {STEPS - 1} were not checked"),
-    (0, f"replay incomplete: exact at the reset, none of the {STEPS} steps compared"),
+    (20, f"cut.h5 incomplete: exact for the first 20 of {STEPS} steps; steps 20 to {STEPS - 1} were not checked"),
+    (0, f"cut.h5 incomplete: exact at the reset, none of the {STEPS} steps compared"),
 ], ids=["20-steps", "no-step"])
 def test_a_shorter_replay_is_incomplete_never_exact(pickcube_h5, tmp_path, capsys, steps, verdict):
     cut = _write_replay(pickcube_h5, tmp_path / "cut.h5", steps=steps)

@@ -146,12 +146,12 @@ def test_an_episode_whose_data_fails_its_checksum_is_said_to_be_damaged(pickcube
 
 def test_the_divergence_reads_as_a_sentence(pickcube_h5, variant, tmp_path, capsys):
     """Before: "replay diverges at after reset: ..." for a replay out of tolerance from its first state."""
-    for shift_from, expected in ((0, "replay diverges after reset: env_states/actors/cube[p] off by 0.05 "),
-                                 (12, "replay diverges at step 11: env_states/actors/cube[p] off by 0.05 ")):
+    for shift_from, expected in ((0, "replayed0.h5 diverges after reset: env_states/actors/cube[p] off by 0.05 "),
+                                 (12, "replayed12.h5 diverges at step 11: env_states/actors/cube[p] off by 0.05 ")):
         replayed = variant(pickcube_h5, tmp_path / f"replayed{shift_from}.h5", shift_from=shift_from)
         assert main(["view", str(pickcube_h5), "--compare", str(replayed), "--save",
                      str(tmp_path / f"c{shift_from}.rrd"), "--geometry", "collision"]) == 0
-        [line] = [line for line in capsys.readouterr().out.splitlines() if line.startswith("replay ")]
+        [line] = [line for line in capsys.readouterr().out.splitlines() if line.startswith("replayed")]
         assert line.startswith(expected), line
 
 

@@ -52,7 +52,7 @@ def test_compare_in_small_blocks_matches_one_block(pickcube_h5, variant, saved, 
     assert small.divergence == one.divergence and small.divergence.step == DIVERGE_AT - 1
     assert small.comparison.comparison.max_abs_error == one.comparison.comparison.max_abs_error
     assert "obs/sensor_data/base_camera/rgb" in small.comparison.comparison.errors  # frames compared, block by block
-    assert any(e.startswith("/plots/error/") for e in whole) and "/replayed/cube" in whole
+    assert any(e.startswith("/plots/error/") for e in whole) and "/compared/cube" in whole
     assert set(blocks) == set(whole)
     for entity in whole:
         assert blocks[entity] == whole[entity], entity

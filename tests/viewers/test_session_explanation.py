@@ -61,5 +61,28 @@ def test_without_a_stored_cause_the_events_and_growth_still_show(diverged, rrd_r
         session.save(out)
     assert session.explanation.cause is None
     texts = [text[0] for _, text in rrd_reader(out).data["/events"]["TextLog:text"]]
-    assert any(t.startswith("why: cause not classified: the replayed file holds no explanation") for t in texts)
+    assert any(t.startswith("why: cause not classified: the replay holds no explanation") for t in texts)
     assert any(t.startswith("error: env_states/actors/cube[") for t in texts)
+
+
+def test_a_replay_of_another_recording_lends_this_one_no_cause(diverged, rrd_reader, tmp_path):
+    """The same episode under another recording's id (another run that stepped it): the replay explained its own
+    recording's divergence, not this one's. Before: its stored cause was shown as this recording's, and the ghost was
+    called the replay."""
+    import dataclasses
+
+    from simreel.episode import new_recording_id
+    from simreel.formats import open_reader, open_writer
+
+    path, replayed, _ = diverged
+    other = tmp_path / "other.h5"
+    with open_reader(path) as r, open_writer(other, dataclasses.replace(r.meta, recording_id=new_recording_id())) as w:
+        w.write_episode(r.read_episode(0))
+    out = tmp_path / "other.rrd"
+    with build_session(other, compare=replayed, geometry="collision") as session:
+        session.save(out)
+    assert session.divergence is not None and session.explanation.cause is None
+    texts = [text[0] for _, text in rrd_reader(out).data["/events"]["TextLog:text"]]
+    assert ("why: cause not classified: the compared file is no replay of this recording (`simreel replay -o` "
+            "classifies the cause of its replays' divergences)") in texts
+    assert "compared with replayed.h5 episode 0: diverged" in texts

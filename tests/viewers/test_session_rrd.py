@@ -34,7 +34,7 @@ def test_entity_paths_and_timelines(saved):
     for path in ("/plots/reward", "/plots/success", "/plots/qpos/panda", "/events", "/plots/info/is_grasped"):
         assert path in entities
     assert any(e.startswith("/contacts/net/") for e in entities)
-    assert not any(e.startswith("/replayed") for e in entities)
+    assert not any(e.startswith("/compared") for e in entities)
     assert rrd.recording_ids == ["pickcube.h5#episode-0"]
     # every step, on both timelines, for a moving body; the static ground has one static pose
     assert rrd.steps("/world/cube", T_) == list(range(-1, STEPS))  # step -1: the state after reset
@@ -115,19 +115,19 @@ def test_compare_ghost_and_first_divergence(pickcube_h5, view_env, variant, rrd_
     assert (d.step, d.at, d.key) == (DIVERGE_AT - 1, "step", "env_states/actors/cube[p]")
     assert d.error == pytest.approx(0.05, abs=1e-6)
     rrd = rrd_reader(out)
-    assert "/replayed/cube" in rrd.data and "/replayed/panda/panda_hand" in rrd.data
-    ghost = rrd.at("/replayed/cube", "Boxes3D:colors", None)
+    assert "/compared/cube" in rrd.data and "/compared/panda/panda_hand" in rrd.data
+    ghost = rrd.at("/compared/cube", "Boxes3D:colors", None)
     assert all((c & 0xFF) < 255 for c in ghost)  # translucent (RGBA packed as 0xRRGGBBAA)
     # the ghost's poses come from the replay's states (restored: the copy holds no body poses)
     later, before = DIVERGE_AT + 2, DIVERGE_AT - 2  # timeline steps
     recorded = rrd.at("/world/cube", T_, later)[0]
-    np.testing.assert_allclose(rrd.at("/replayed/cube", T_, later)[0], np.add(recorded, [0, 0.05, 0]), atol=1e-6)
-    np.testing.assert_allclose(rrd.at("/replayed/cube", T_, before)[0], rrd.at("/world/cube", T_, before)[0], atol=1e-6)
+    np.testing.assert_allclose(rrd.at("/compared/cube", T_, later)[0], np.add(recorded, [0, 0.05, 0]), atol=1e-6)
+    np.testing.assert_allclose(rrd.at("/compared/cube", T_, before)[0], rrd.at("/world/cube", T_, before)[0], atol=1e-6)
     err = dict(rrd.data[r"/plots/error/env_states/actors/cube\[p\]"]["Scalars:scalars"])
     assert err[d.step - 1][0] == 0.0 and err[d.step][0] == pytest.approx(0.05, abs=1e-6)
     assert err[d.step][1] == pytest.approx(1e-5)  # the tolerance line (actions mode: pos 1e-5)
     events = [(step, v[0]) for step, v in rrd.data["/events"]["TextLog:text"]]
-    assert (d.step, f"replay diverges at {d.describe()}") in events  # marked where the ghost parts
+    assert (d.step, f"replayed.h5 diverges at {d.describe()}") in events  # marked where the ghost parts (a copy, no replay)
     assert d.describe().startswith(f"step {DIVERGE_AT - 1}: env_states/actors/cube[p] off by 0.05")
     assert "TimeSeries" in rrd.blueprint_views
 

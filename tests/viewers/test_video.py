@@ -88,7 +88,7 @@ def test_side_by_side_with_a_replay_draws_the_verdict(camera_recording, tmp_path
     folder.mkdir()
     [video] = VideoRun(camera_recording, folder, camera="cam", size=(160, 60), compare=str(camera_recording),
                        episodes=(1,)).execute()
-    assert video.verdict == "replay exact" and video.frames == 13
+    assert video.verdict == "cam.h5 exact" and video.frames == 13  # itself: no replay of itself
     frames, size, first = _read(video.path)
     assert (frames, size) == (13, (160, 60))
     assert first[20:50, :80].mean() > 5 and first[20:50, 80:].mean() > 5  # both halves show the camera
@@ -164,7 +164,7 @@ def test_a_shorter_replay_is_incomplete_never_exact(camera_recording, tmp_path):
     cut = _write_episodes(camera_recording, tmp_path / "cut.h5", [0, 1], steps=5)
     [video] = VideoRun(camera_recording, tmp_path, camera="cam", size=(160, 60), compare=str(cut),
                        episodes=(1,)).execute()
-    assert video.verdict == "replay incomplete: exact for the first 5 of 12 steps" and video.frames == 13
+    assert video.verdict == "cut.h5 incomplete: exact for the first 5 of 12 steps" and video.frames == 13
 
 
 @pytest.mark.parametrize("own", [True, False], ids=["its-recording", "another-recording"])
@@ -185,4 +185,4 @@ def test_a_stored_conversion_verdict_is_used_only_for_the_recording_it_converted
                                 provenance={"operation": "convert", "source": str(camera_recording)})
     [video] = VideoRun(recording, tmp_path, camera="cam", size=(160, 60), compare=str(converted),
                        episodes=(1,)).execute()
-    assert video.verdict == ("conversion within_tolerance" if own else "replay diverged")
+    assert video.verdict == ("conversion within_tolerance" if own else "conv.h5 diverged")

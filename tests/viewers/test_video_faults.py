@@ -69,7 +69,7 @@ def test_a_compared_recording_of_another_env_is_refused_as_view_refuses_it(tmp_p
                  "--size", "64x32", "-q"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1, err
-    assert "--compare other.h5 episode 0 (replayed): it is a recording of OtherTask-v1, not of Synthetic-v0" in err
+    assert "--compare other.h5 episode 0: it is a recording of OtherTask-v1, not of Synthetic-v0" in err
     assert not list(tmp_path.glob("*.mp4"))
 
 
