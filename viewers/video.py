@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from simreel.compare import DEFAULT_TOLERANCES, Tolerances
-from simreel.episode import ContactChannel, Episode, EpisodeSelection, RecordingMeta
+from simreel.episode import Episode, EpisodeSelection, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader, recording_files
 from simreel.formats.base import recover_hint
@@ -36,7 +36,7 @@ from simreel.formats.paths import refuse_empty
 from simreel.formats.targets import check_distinct, check_output, staged_output
 from simreel.option_checks import check_flag, whole_number_pair
 from simreel.sim.user_code import import_specs
-from simreel.viewers.compare import compare_for_view, compared_role, judging_tolerances
+from simreel.viewers.compare import ViewComparison, compare_for_view, compared_role, judging_tolerances
 from simreel.viewers.session import states_by_stepping
 from simreel.viewers.sources import read_compare, read_run
 
@@ -213,20 +213,28 @@ class VideoRun:
         at a time as they are encoded."""
         with open_reader(self.path) as r:
             left = r.open_episode(index).episode(obs=False)
-        right, conversion, tolerances = None, None, None
+        right, labels = None, _Labels(left.length, success=left.success)
         if self.options.compare is not None:
-            with open_reader(self.options.compare) as other:
-                right = other.open_episode(self.compared[index]).episode(obs=False)
-                conversion = _stored_conversion(other.meta, right, self.meta, self.path, index)
-                asked = None if self.options.mode is None else Tolerances.for_mode(self.options.mode)
-                tolerances, note = judging_tolerances(asked, other.meta, self.meta, self.path)
-                if note and note not in self.notes:
-                    self.notes.append(note)
-        labels = _labels(left, right, (self.meta.contact_channels, tolerances), conversion, subject=self.compared_as)
+            right, labels = self._compared(left, index)
         out = video_path(self.folder, self.path, index)
         count = _encode(out, self._frames(frames, left, right, labels, progress), self._fps(),
                         overwrite=self.options.overwrite)
         return EpisodeVideo(index, str(out), count, labels.verdict)
+
+    def _compared(self, left: Episode, index: int) -> tuple[Episode, _Labels]:
+        """The episode of `options.compare` drawn beside episode `index` (`left`), and the labels that say its
+        verdict: the one its conversion stored (`_stored_conversion`), else that of comparing the two."""
+        with open_reader(self.options.compare) as other:
+            right = other.open_episode(self.compared[index]).episode(obs=False)
+            conversion = _stored_conversion(other.meta, right, self.meta, self.path, index)
+            asked = None if self.options.mode is None else Tolerances.for_mode(self.options.mode)
+            tolerances, note = judging_tolerances(asked, other.meta, self.meta, self.path)
+        if note and note not in self.notes:
+            self.notes.append(note)
+        if conversion is not None:
+            return right, _conversion_labels(left, conversion)
+        cmp = compare_for_view(left, right, channels=self.meta.contact_channels, tolerances=tolerances)
+        return right, _compared_labels(left, cmp, self.compared_as)
 
     def _frames(self, frames: _FrameSource, left: Episode, right: Episode | None, labels: _Labels,
                 progress: Callable[[int], None] | None) -> Iterator[np.ndarray]:
@@ -398,25 +406,22 @@ def _stored_conversion(compare_meta: RecordingMeta, right: Episode, meta: Record
     return judged if judged.get("source_episode") == index else None
 
 
-def _labels(left: Episode, right: Episode | None, judge: tuple[Sequence[ContactChannel], Tolerances | None],
-            conversion: dict | None = None, *, subject: str = "") -> _Labels:
-    """The labels of a video of `left`, beside `right` when given: the verdict of `conversion` (the stored one of
-    `_stored_conversion`), else that of comparing the two, `judge` being the recording's contact channels and the
-    tolerances (`ViewComparison.verdict`: a shorter `right` is ``incomplete``, its frames past its end say they were
-    not checked), said of `subject` (what `right` is: `EpisodeRun.subject`)."""
-    labels = _Labels(left.length, success=left.success)
-    if right is None:
-        return labels
-    if conversion is not None:  # a conversion of this episode: its own per-step verdict
-        first = conversion.get("first_exceeded")
-        labels.verdict = f"conversion {conversion['verdict']}"
-        if first:
-            labels.out_at = int(first["step"]) + (0 if first.get("at") == "reset" else 1)
-            labels.detail = f"{first['key']} off by {first['error']:.3g} at step {first['step']}"
-        return labels
-    channels, tolerances = judge
-    cmp = compare_for_view(left, right, channels=channels, tolerances=tolerances)
-    labels.verdict = f"{subject or 'compared episode'} {cmp.verdict()}"
+def _conversion_labels(left: Episode, conversion: dict) -> _Labels:
+    """The labels of a video of `left` beside its conversion, with the verdict that conversion stored for this
+    episode (`_stored_conversion`), in the words `ViewComparison.verdict` uses (``within tolerance``)."""
+    labels = _Labels(left.length, success=left.success, verdict=f"conversion {conversion['verdict'].replace('_', ' ')}")
+    first = conversion.get("first_exceeded")
+    if first:
+        labels.out_at = int(first["step"]) + (0 if first.get("at") == "reset" else 1)
+        labels.detail = f"{first['key']} off by {first['error']:.3g} at step {first['step']}"
+    return labels
+
+
+def _compared_labels(left: Episode, cmp: ViewComparison, subject: str) -> _Labels:
+    """The labels of a video of `left` beside an episode compared with it (`cmp`), the verdict said of `subject`
+    (what that episode is: `EpisodeRun.subject`); a shorter compared episode is ``incomplete``, and its frames past
+    its end say they were not checked."""
+    labels = _Labels(left.length, success=left.success, verdict=f"{subject} {cmp.verdict()}")
     if cmp.divergence is not None:
         d = cmp.divergence
         labels.out_at = 0 if d.at == "reset" else d.step + 1

@@ -185,4 +185,4 @@ def test_a_stored_conversion_verdict_is_used_only_for_the_recording_it_converted
                                 provenance={"operation": "convert", "source": str(camera_recording)})
     [video] = VideoRun(recording, tmp_path, camera="cam", size=(160, 60), compare=str(converted),
                        episodes=(1,)).execute()
-    assert video.verdict == ("conversion within_tolerance" if own else "conv.h5 diverged")
+    assert video.verdict == ("conversion within tolerance" if own else "conv.h5 diverged")
