@@ -287,6 +287,35 @@ def test_a_closed_reader_and_the_episodes_it_opened_say_so_instead_of_calling_th
             read()
 
 
+@pytest.mark.parametrize(("suffix", "chunk_size"), [(".h5", None), (".mcap", None), (".mcap", 1)],
+                         ids=["h5", "mcap-one-chunk", "mcap-chunk-per-message"])
+def test_reading_on_after_close_is_refused_as_closed_not_taken_for_a_corrupt_chunk(tmp_path, source, suffix,
+                                                                                   chunk_size):
+    """An episode's blocks, and its steps read in order, begun before `close()` and read on after it. Before, MCAP
+    read on from rows it held in memory (one chunk) or called the next chunk of a sound file corrupt ("seek of closed
+    file"); HDF5 already refused."""
+    meta, episode = source
+    path = tmp_path / f"out{suffix}"
+    options = {"chunk_size": chunk_size} if chunk_size else {}
+    with open_writer(path, meta, **options) as writer:  # five messages of 4 steps: with chunk_size=1, five chunks
+        sink = writer.begin_episode(episode.meta, episode.reset_block())
+        steps = episode.steps_block()
+        for start in range(0, episode.length, 4):
+            sink.append(StepBlock.of({name: a[start:start + 4] for name, a in steps.arrays.items()}))
+        sink.commit(episode.meta)
+    closed = f"^{path}: this reader is closed; open_reader the file again$"
+    reader = open_reader(path)
+    rows = reader.open_episode(0)
+    blocks = rows.blocks(4)  # the next block: in memory (one chunk), or in the next chunk
+    assert next(blocks)[0] == 0
+    assert rows.steps(0, 2).rows == 2
+    reader.close()
+    with pytest.raises(UsageError, match=closed):
+        next(blocks)
+    with pytest.raises(UsageError, match=closed):
+        rows.steps(2, 4)
+
+
 @pytest.mark.parametrize("suffix", SUFFIXES)
 @pytest.mark.parametrize("index", ["0", 0.0, False, None])
 def test_an_episode_index_that_is_no_int_is_one_usage_error(tmp_path, source, suffix, index):

@@ -384,6 +384,7 @@ class McapReader(EpisodeReader):
         for ref in self._chunks:
             if ref.end_ns < start_ns or (end_ns is not None and ref.start_ns > end_ns):
                 continue
+            self.check_open()  # closed while its episode was being read: a read of the closed file is no corrupt chunk
             try:
                 records = breakup_chunk(_read_chunk(self._fh, ref.offset), validate_crc=True)
             except Exception as e:  # noqa: BLE001 - zstd/lz4/CRC/struct errors: any of them means a damaged chunk
@@ -455,6 +456,8 @@ class McapRows(EpisodeRows):
             raise self._error(e) from None
 
     def blocks(self, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
+        """As `EpisodeRows.blocks`; each block is checked to come from an open reader, also one cut from rows read
+        before the reader was closed (an iterator continued after `close` is refused however its rows lie)."""
         rows = rows or block_rows(self.fields)
         pending: list[dict[str, np.ndarray]] = []
         held = start = 0
@@ -462,16 +465,19 @@ class McapRows(EpisodeRows):
             pending.append(arrays)
             held += n
             while held >= rows:
+                self._reader.check_open()
                 block, pending = _cut(pending, rows)
                 yield start, block
                 start, held = start + rows, held - rows
         if held:
+            self._reader.check_open()
             yield start, _cut(pending, held)[0]
 
     def steps(self, start: int, stop: int) -> StepBlock:
         """Steps `start`..`stop - 1`. A call that starts where the one before stopped, or later, reads on from
         there (each message once however the steps are asked for in order); one that starts before reads the
-        episode from its start again."""
+        episode from its start again. Refused once the reader is closed, also where the rows were read before."""
+        self._reader.check_open()
         if self._cursor is None or start < self._cursor.row:
             self._cursor = _RunCursor(self._runs())
         block, _ = _cut(self._cursor.take(start, stop), stop - start)
