@@ -46,7 +46,16 @@ from simreel.formats import EpisodeReader, check_writable, format_of, open_reade
 from simreel.formats.dataset import FieldHashes, field_digests
 from simreel.formats.durable import raise_if_stopped
 from simreel.formats.targets import check_distinct
-from simreel.option_checks import check_flag, check_text, whole_number, whole_number_pair
+from simreel.option_checks import (
+    check_callable,
+    check_flag,
+    check_mapping,
+    check_text,
+    options_with,
+    text_tuple,
+    whole_number,
+    whole_number_pair,
+)
 from simreel.replay.control import check_pair
 from simreel.replay.engine import GPU_SIM_BACKENDS, BlockSink, Collected, EpisodeReplayer, ReplayerOptions
 from simreel.replay.output import (
@@ -142,12 +151,10 @@ class ConvertOptions:
         object.__setattr__(self, "keep", _keep(self.keep))
         if self.camera_size is not None:
             object.__setattr__(self, "camera_size", whole_number_pair("camera_size", self.camera_size, _CAMERA_SIZE))
-        if not isinstance(self.group_tolerances, Mapping):
-            raise UsageError(f"group_tolerances={self.group_tolerances!r}: give a dict of tracking tolerance groups "
-                             "and numbers, e.g. {\"ee_pos\": 1e-3}")
-        if self.converter is not None and not callable(self.converter):
-            raise UsageError(f"converter={self.converter!r}: give a factory called as "
-                             "simreel.replay.control.converter_for is, or None")
+        check_mapping("group_tolerances", self.group_tolerances, 'a dict of tracking tolerance groups and numbers, '
+                      'e.g. {"ee_pos": 1e-3}')
+        check_callable("converter", self.converter, "a factory called as simreel.replay.control.converter_for is, "
+                       "or None")
 
     def check(self) -> None:
         """`UsageError` for options that cannot work whatever the file: nothing to convert, bad numbers."""
@@ -195,11 +202,8 @@ _COUNT_OPTIONS = {
 def _keep(keep: Any) -> tuple[str, ...]:
     """The `keep` option as a tuple of `KEEP` names: one string is one name (not one per character); anything but
     strings is `UsageError` (names it does not know are `ConvertOptions.check`'s)."""
-    names = (keep,) if isinstance(keep, str) else tuple(keep) if isinstance(keep, (list, tuple, set, frozenset)) else None
-    if names is None or not all(isinstance(name, str) for name in names):
-        raise UsageError(f"keep={keep!r}: give the episodes to write as a tuple of any of {', '.join(KEEP)}, e.g. "
-                         "(\"verified\",)")
-    return names
+    return text_tuple("keep", keep, f"the episodes to write as a tuple of any of {', '.join(KEEP)}, e.g. "
+                                    '("verified",)')
 
 
 @dataclass(frozen=True)
@@ -629,7 +633,7 @@ class ConversionRun:
     """One conversion: checked and ready when built (options, output, input, episodes), done by `execute`."""
 
     def __init__(self, src: str | Path, dst: str | Path, options: ConvertOptions | None = None, **overrides: Any) -> None:
-        opts = dataclasses.replace(options or ConvertOptions(), **overrides)
+        opts = options_with(ConvertOptions, options, overrides, 'ConversionRun(src, dst, obs_mode="rgb")')
         opts.check()
         self.path, self.output, self.options = str(src), str(dst), opts
         format_of(dst)

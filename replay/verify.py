@@ -18,7 +18,6 @@ A dataset run (several files, a folder, a pattern) reports such errors per file 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import datetime
 import functools
 import os
@@ -35,7 +34,15 @@ from simreel.formats import check_report_writable, check_writable, format_of, re
 from simreel.formats.durable import is_storage_error, raise_if_stopped, storage_error
 from simreel.formats.inputs import file_identity
 from simreel.formats.targets import check_distinct
-from simreel.option_checks import check_flag, check_text, path_list, path_text, whole_number
+from simreel.option_checks import (
+    check_flag,
+    check_mapping,
+    check_text,
+    options_with,
+    path_list,
+    path_text,
+    whole_number,
+)
 from simreel.replay.engine import MODES
 from simreel.replay.output import ReplayedWriter, ReplayOutput, ScratchFolder, published
 from simreel.replay.report import EpisodeReport, recording_limits
@@ -148,9 +155,8 @@ class ReplayOptions:
         check_text("ray", self.ray, '"local", "auto" or a cluster address ("ray://host:10001", "host:6379") as a '
                    "string, or None (no Ray)", optional=True)
         check_text("command", self.command, "the command line as a string (kept in the output's metadata)")
-        if not isinstance(self.group_tolerances, Mapping):
-            raise UsageError(f"group_tolerances={self.group_tolerances!r}: give a dict of tolerance groups and "
-                             "numbers, e.g. {\"contact\": 5.0}")
+        check_mapping("group_tolerances", self.group_tolerances, 'a dict of tolerance groups and numbers, e.g. '
+                      '{"contact": 5.0}')
 
     def tolerances(self) -> Tolerances:
         """The tolerances these options ask for; `UsageError` for a bad mode, resync, worker count or tolerance."""
@@ -209,10 +215,7 @@ class ReplayRun:
 
     def __init__(self, inputs: str | Path | Sequence[str | Path], options: ReplayOptions | None = None,
                  **overrides: Any) -> None:
-        if options is not None and not isinstance(options, ReplayOptions):
-            raise UsageError(f"options={options!r}: give a ReplayOptions, or its fields as keywords, e.g. "
-                             "ReplayRun(paths, mode=\"step\")")
-        opts = dataclasses.replace(options or ReplayOptions(), **overrides)
+        opts = options_with(ReplayOptions, options, overrides, 'ReplayRun(paths, mode="step")')
         self.options = opts
         self.tolerances = opts.tolerances()
         self.inputs = _input_paths(inputs)

@@ -1,5 +1,5 @@
 """Checks of the options the rooms take from Python (`RecordOptions` and `RecordWrapper`, `ReplayOptions` and
-`ReplayRun`): a value of the wrong type is a `UsageError` that names the option and says what to give, raised when
+`ReplayRun`, `AuditOptions` and `audit_task`, `ReplayerOptions` and `EpisodeReplayer`, ...): a value of the wrong type is a `UsageError` that names the option and says what to give, raised when
 the options are built, before anything starts. Unchecked, it fails later as a raw Python error, or is silently taken
 for another value: ``overwrite="no"`` counts as yes, ``resync=1.5`` restores at fractional steps, ``True`` counts
 as 1, a number is taken for a file name.
@@ -9,17 +9,20 @@ Each rule is here once; the message is always ``name=value: give what``, `what` 
 
 from __future__ import annotations
 
+import dataclasses
 import numbers
 import os
-from collections.abc import Iterable
-from typing import Any
+from collections.abc import Iterable, Mapping
+from typing import Any, TypeVar
 
 import numpy as np
 
 from simreel.errors import UsageError
 
-__all__ = ["check_flag", "check_text", "is_whole_number", "whole_number", "whole_number_pair", "is_path",
-           "path_text", "path_list"]
+__all__ = ["check_flag", "check_text", "check_mapping", "check_callable", "text_tuple", "is_whole_number",
+           "whole_number", "whole_number_pair", "is_path", "path_text", "path_list", "options_with"]
+
+Options = TypeVar("Options")
 
 
 def _refused(name: str, value: Any, what: str) -> UsageError:
@@ -39,6 +42,30 @@ def check_text(name: str, value: Any, what: str, *, optional: bool = False) -> N
     file could not be read back."""
     if not isinstance(value, str) and not (optional and value is None):
         raise _refused(name, value, what)
+
+
+def check_mapping(name: str, value: Any, what: str) -> None:
+    """`UsageError` saying to give `what` for an option that is not a dict (or another mapping): a list would fail
+    later as a raw TypeError where it is read as one (``dict(value)``, ``value.items()``)."""
+    if not isinstance(value, Mapping):
+        raise _refused(name, value, what)
+
+
+def check_callable(name: str, value: Any, what: str) -> None:
+    """`UsageError` saying to give `what` for an option that is neither a callable nor None: it would fail as a raw
+    TypeError only when first called, after the work before it."""
+    if value is not None and not callable(value):
+        raise _refused(name, value, what)
+
+
+def text_tuple(name: str, value: Any, what: str) -> tuple[str, ...]:
+    """`value`, one string or an iterable of strings, as a tuple of strings; `UsageError` saying to give `what` for
+    anything else. One string is one name: taken as an iterable it would be one name per character (``"x.py"`` as
+    the modules x, ., p, y)."""
+    names = (value,) if isinstance(value, str) else tuple(value) if isinstance(value, Iterable) else None
+    if names is None or not all(isinstance(n, str) for n in names):
+        raise _refused(name, value, what)
+    return names
 
 
 def is_whole_number(value: Any) -> bool:
@@ -85,3 +112,19 @@ def path_list(name: str, value: Any, what: str) -> list[str]:
     if paths is None or not all(map(is_path, paths)):
         raise _refused(name, value, what)
     return [os.fspath(p) for p in paths]
+
+
+def options_with(options_type: type[Options], options: Any, overrides: Mapping[str, Any], example: str) -> Options:
+    """`options` (None: the defaults) with `overrides`, fields of `options_type` given as keywords, as a call that takes
+    an options object or its fields (``ReplayRun(paths, mode="step")``) reads them; `UsageError` for options of
+    another type (a dict would fail inside `dataclasses.replace`) or a keyword that is no option (Python's TypeError
+    would name the options' ``__init__``, not the call, nor the options there are). `example`: such a call."""
+    if options is not None and not isinstance(options, options_type):
+        kind = options_type.__name__
+        raise _refused("options", options, f"{'an' if kind[0] in 'AEIOU' else 'a'} {kind}, or its fields as keywords, "
+                                           f"e.g. {example}")
+    fields = [f.name for f in dataclasses.fields(options_type) if f.init]  # type: ignore[arg-type]
+    for name, value in overrides.items():
+        if name not in fields:
+            raise _refused(name, value, f"only options {options_type.__name__} has: {', '.join(fields)}")
+    return dataclasses.replace(options or options_type(), **overrides)  # type: ignore[type-var]

@@ -27,7 +27,7 @@ from simreel.episode import Episode, RecordingMeta
 from simreel.errors import UsageError, ViewError
 from simreel.formats import EpisodeReader
 from simreel.formats.targets import staged_output
-from simreel.option_checks import is_whole_number
+from simreel.option_checks import is_whole_number, options_with
 from simreel.sim.rebuild import GYM_MAKE_SEED, reset_to_episode
 from simreel.sim.state import check_rebuilt_layout, read_state
 from simreel.sim.user_code import import_specs
@@ -491,10 +491,7 @@ def build_session(source: Source, options: ViewOptions | None = None, env: Any =
         ViewError: `compare` is of another env or episode.
         EnvBuildError / RenderUnavailableError: the env cannot be rebuilt.
     """
-    if options is not None and not isinstance(options, ViewOptions):
-        raise UsageError(f"options={options!r}: give a ViewOptions, or its fields as keywords, e.g. "
-                         "build_session(path, episode=3)")
-    opts = dataclasses.replace(options or ViewOptions(), **overrides)
+    opts = options_with(ViewOptions, options, overrides, "build_session(path, episode=3)")
     asked = opts.check()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()

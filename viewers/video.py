@@ -34,7 +34,7 @@ from simreel.formats.base import recover_hint
 from simreel.formats.durable import STORAGE_ERRNOS, raise_if_stopped, storage_error
 from simreel.formats.paths import refuse_empty
 from simreel.formats.targets import check_distinct, check_output, staged_output
-from simreel.option_checks import check_flag, whole_number_pair
+from simreel.option_checks import check_flag, options_with, whole_number_pair
 from simreel.sim.user_code import import_specs
 from simreel.viewers.compare import ViewComparison, compare_for_view, compared_role, judging_tolerances
 from simreel.viewers.session import states_by_stepping
@@ -129,10 +129,7 @@ class VideoRun:
     """
 
     def __init__(self, path: str | Path, folder: str | Path, options: VideoOptions | None = None, **overrides: Any):
-        if options is not None and not isinstance(options, VideoOptions):
-            raise UsageError(f"options={options!r}: give a VideoOptions, or its fields as keywords, e.g. "
-                             "VideoRun(path, folder, fps=10)")
-        opts = dataclasses.replace(options or VideoOptions(), **overrides)
+        opts = options_with(VideoOptions, options, overrides, "VideoRun(path, folder, fps=10)")
         opts.check()
         if not isinstance(folder, (str, os.PathLike)):
             raise UsageError(f"folder={folder!r}: give the folder for the videos, a str or Path")

@@ -18,7 +18,7 @@ import os
 import sys
 import traceback
 import warnings
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -26,6 +26,7 @@ from typing import Any
 from simreel.errors import EnvBuildError, TaskCodeError, UsageError
 from simreel.formats.durable import deferred_signals
 from simreel.formats.paths import SYMLINK_LOOP, is_symlink_loop, real_path
+from simreel.option_checks import text_tuple
 from simreel.sim.render_device import configure_vulkan
 
 __all__ = ["import_specs", "found_spec", "import_user_code", "imported_user_code", "import_mani_skill", "native_import",
@@ -104,11 +105,8 @@ def _user_files() -> set[str]:
 def import_specs(imports: Any) -> tuple[str, ...]:
     """The `imports` option of the recorder or of replay as a tuple of ``--import`` specs: one string is one spec (not
     one spec per character); anything but strings is `UsageError`."""
-    specs = (imports,) if isinstance(imports, str) else tuple(imports) if isinstance(imports, Iterable) else None
-    if specs is None or not all(isinstance(spec, str) for spec in specs):
-        raise UsageError(f"imports={imports!r}: give the .py files or modules that register the task, as a tuple of "
-                         "strings, e.g. (\"my_tasks.py\",)")
-    return specs
+    return text_tuple("imports", imports, 'the .py files or modules that register the task, as a tuple of strings, '
+                      'e.g. ("my_tasks.py",)')
 
 
 def recorded_spec(spec: str, *, base: str | Path | None = None) -> str:

@@ -50,6 +50,28 @@ def test_an_option_of_the_wrong_type_is_one_usage_error_when_the_options_are_bui
     assert str(refused.value) == message
 
 
+@pytest.mark.parametrize(
+    ("options", "overrides", "message"),
+    [
+        ({"obs_mode": "rgb"}, {}, "options={'obs_mode': 'rgb'}: give a ConvertOptions, or its fields as keywords, "
+                                  'e.g. ConversionRun(src, dst, obs_mode="rgb")'),  # was: TypeError from replace()
+        (None, {"obs_mode": "rgb", "camera": 5}, "camera=5: give only options ConvertOptions has: obs_mode, "
+                                                 "control_mode, camera_size, shader, episodes, count, keep, "
+                                                 "group_tolerances, workers, imports, sim_backend, overwrite, command, "
+                                                 "converter, block_rows"),  # was: TypeError naming its __init__
+    ],
+    ids=["options-dict", "unknown"],
+)
+def test_a_conversion_of_options_of_the_wrong_type_or_no_option_is_one_usage_error(tmp_path, options, overrides,
+                                                                                    message):
+    from simreel.replay.convert import ConversionRun
+
+    with pytest.raises(UsageError) as refused:
+        ConversionRun(tmp_path / "in.h5", tmp_path / "out.h5", options, **overrides)
+    assert str(refused.value) == message
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_the_forms_the_cli_and_python_use_stay_valid_and_one_string_is_one_name():
     """Regression: `imports="tasks.py"` and `keep="success"` became one spec (name) per character."""
     import numpy as np

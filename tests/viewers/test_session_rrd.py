@@ -215,9 +215,10 @@ def test_save_never_writes_over_the_recordings_shown(pickcube_h5, view_env, tmp_
         ({"imports": 7}, "imports=7: give the .py files or modules that register the task"),
         ({"tolerances": [("pos", 1)]}, "tolerances=[('pos', 1)]: give a dict of tolerance groups and numbers"),
         ({"options": {"episode": 0}}, "options={'episode': 0}: give a ViewOptions, or its fields as keywords"),
+        ({"bogus": 1}, "bogus=1: give only options ViewOptions has: "),  # was: TypeError naming its __init__
     ],
     ids=["episode-str", "episode-bool", "block_steps-str", "compare-int", "imports-int", "tolerances-list",
-         "options-dict"],
+         "options-dict", "unknown"],
 )
 def test_options_of_the_wrong_type_are_a_usage_error(pickcube_h5, view_env, options, message):
     """Before: episode="1" was "no episode 1 (episodes: 0)" of a file that has it, episode=True showed episode 1,
