@@ -22,7 +22,6 @@ The comparisons themselves are `simreel.replay.audit_checks`.
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -33,6 +32,14 @@ import numpy as np
 from simreel.compare import Tolerances
 from simreel.episode import EpisodeSelection
 from simreel.errors import EnvBuildError, UsageError
+from simreel.option_checks import (
+    check_callable,
+    check_mapping,
+    check_text,
+    options_with,
+    path_text,
+    whole_number,
+)
 from simreel.replay.audit_checks import (
     DECLARE,
     AuditFinding,
@@ -47,6 +54,7 @@ from simreel.replay.audit_checks import (
 )
 from simreel.sim.rebuild import build_with_render_fallback
 from simreel.sim.state import read_state, restore_state
+from simreel.sim.user_code import import_specs
 from simreel.state_tree import describe_leaf, layout_of, to_numpy
 
 __all__ = ["AuditFinding", "AuditReport", "AuditOptions", "audit_task", "FOLLOW_STEPS"]
@@ -86,6 +94,60 @@ class AuditOptions:
     episodes: int = 1
     every: int = 1
     """Along a trajectory, restore into the second instance after every `every`-th step (and after the first)."""
+
+    def __post_init__(self) -> None:
+        """Check every option, so that a wrong one is a `UsageError` here, naming it and what to give, before any
+        env is built: not a raw error inside the audit (``steps="3"``), the env's own error once built
+        (``seed=-1``), nor a value taken for another (``imports="x.py"`` as the modules x, ., p, y; ``steps=True``
+        as 1) or ignored (``every=3`` with nothing to audit along). Put them in one form: imports as a tuple,
+        counts as ints, the trajectory as a str and its episodes as an `EpisodeSelection`."""
+        object.__setattr__(self, "imports", import_specs(self.imports))
+        for name, what in _COUNT_OPTIONS.items():
+            object.__setattr__(self, name, whole_number(name, getattr(self, name), what))
+        for name, what in _TEXT_OPTIONS.items():
+            check_text(name, getattr(self, name), what, optional=name != "policy_name")
+        check_mapping("env_kwargs", self.env_kwargs, 'the gym.make arguments as a dict, e.g. {"robot_uids": "panda"}')
+        if self.trajectory is not None:
+            object.__setattr__(self, "trajectory", path_text("trajectory", self.trajectory, "the recording to audit "
+                                                             "along, a str or pathlib.Path, or None"))
+        object.__setattr__(self, "trajectory_episodes",
+                           EpisodeSelection.of(self.trajectory_episodes, name="trajectory_episodes"))
+        check_callable("policy", self.policy, "a callable policy(env, obs) -> action, or None")
+        self.check()
+
+    def check(self) -> None:
+        """`UsageError` for values that cannot work, or options that would be ignored, whatever the task."""
+        if self.steps < 1:
+            raise UsageError(f"--steps must be >= 1, got {self.steps}")
+        if self.seed < 0:
+            raise UsageError(f"--seed must be >= 0, got {self.seed}")
+        if self.every < 1 or self.episodes < 1:
+            raise UsageError(f"--every and --episodes must be >= 1, got {self.every} and {self.episodes}")
+        if self.trajectory is not None and self.policy is not None:
+            raise UsageError("audit along a recording (--trajectory) or along a policy (--policy), not both")
+        if self.trajectory_episodes is not None and self.trajectory is None:
+            raise UsageError("trajectory_episodes picks episodes of the trajectory: give the recording (--trajectory)")
+        if self.episodes != 1 and self.policy is None:
+            raise UsageError(f"--episodes {self.episodes} is the number of episodes of a policy: give the policy "
+                             "(--policy)")
+        if self.every != 1 and self.trajectory is None and self.policy is None:
+            raise UsageError(f"--every {self.every} restores along a trajectory: give one (--trajectory or --policy)")
+
+
+_COUNT_OPTIONS = {
+    "steps": "the number of random steps before the restore, an int >= 1",
+    "seed": "the seed of the first instance, an int >= 0",
+    "episodes": "the number of the policy's episodes, an int >= 1",
+    "every": "the number of steps between two restores along a trajectory, an int >= 1",
+}
+"""`AuditOptions`' whole numbers, and what each means (their ranges are `AuditOptions.check`'s)."""
+_TEXT_OPTIONS = {
+    "control_mode": 'a control mode as a string, e.g. "pd_ee_delta_pos", or None (the task\'s)',
+    "obs_mode": 'an observation mode as a string, e.g. "state", or None (the task\'s)',
+    "reward_mode": 'a reward mode as a string, e.g. "dense", or None (the task\'s)',
+    "policy_name": 'what the policy is called in findings, a string, e.g. "--policy scripted"',
+}
+"""`AuditOptions`' options that are strings (all but `policy_name` may be None), and what each means."""
 
 
 def _state(u: Any) -> dict[str, np.ndarray]:
@@ -317,15 +379,6 @@ def _nested_torch(flat: Mapping[str, np.ndarray], device: Any) -> dict[str, Any]
     return unflatten({k: torch.as_tensor(np.array(v), device=device) for k, v in flat.items()})
 
 
-def _check(opts: AuditOptions) -> None:
-    if opts.steps < 1:
-        raise UsageError(f"--steps must be >= 1, got {opts.steps}")
-    if opts.every < 1 or opts.episodes < 1:
-        raise UsageError(f"--every and --episodes must be >= 1, got {opts.every} and {opts.episodes}")
-    if opts.trajectory is not None and opts.policy is not None:
-        raise UsageError("audit along a recording (--trajectory) or along a policy (--policy), not both")
-
-
 def _config(env_id: str | None, opts: AuditOptions) -> tuple[str, Any]:
     """The env id and `EnvConfig` to audit: the recording's with --trajectory (its imports imported), else the options'."""
     from simreel.sim.make import EnvConfig
@@ -373,10 +426,11 @@ def audit_task(env_id: str | None, options: AuditOptions | None = None, **overri
     (`simreel.replay.audit_trajectory`).
 
     `overrides` are `AuditOptions` fields (``audit_task("PickCube-v1", steps=10)``). Raises `UsageError` for bad
-    arguments and `EnvBuildError` when the env cannot be built.
+    arguments, before any env is built, and `EnvBuildError` when the env cannot be built.
     """
-    opts = dataclasses.replace(options or AuditOptions(), **overrides)
-    _check(opts)
+    check_text("env_id", env_id, 'the task\'s env id as a string, e.g. "PickCube-v1", or None (with trajectory: the '
+               "recording's)", optional=True)
+    opts = options_with(AuditOptions, options, overrides, 'audit_task(env_id, steps=10)')
     from simreel.sim.make import camera_use, make_env
 
     env_id, config = _config(env_id, opts)

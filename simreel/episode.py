@@ -372,10 +372,12 @@ class EpisodeSelection:
         return cls(tuple(ranges))
 
     @classmethod
-    def of(cls, value: EpisodeSelection | str | Iterable[int] | None) -> EpisodeSelection | None:
+    def of(cls, value: EpisodeSelection | str | Iterable[int] | None, *,
+           name: str = "episodes") -> EpisodeSelection | None:
         """`value` as a selection: None stays None, text is parsed, indices (a library caller's list, a report's)
         are one range each, in their order. Anything else is `UsageError` saying what to give: a number alone, a
-        bool, a float, a negative index (the text takes none either), text that `parse` refuses."""
+        bool, a float, a negative index (the text takes none either), text that `parse` refuses. `name`: the option
+        it was given as, for the message."""
         if value is None or isinstance(value, EpisodeSelection):
             return value
         try:
@@ -385,7 +387,7 @@ class EpisodeSelection:
                 raise ValueError("not a list of indices")
             return cls(tuple((i, i) for i in map(_episode_index, value)))
         except ValueError as e:
-            raise UsageError(f"episodes={value!r}: {e}; give episode indices, ints >= 0 (e.g. [0, 3]), their text as "
+            raise UsageError(f"{name}={value!r}: {e}; give episode indices, ints >= 0 (e.g. [0, 3]), their text as "
                              "--episodes takes it (\"0,3-7\"), or None (all)") from None
 
     def __iter__(self) -> Iterator[int]:
