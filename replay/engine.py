@@ -32,8 +32,9 @@ from typing import Any
 import numpy as np
 
 from simreel.episode import FLAG_FIELDS, Episode, EpisodeMeta, RecordingMeta, StepBlock
-from simreel.errors import EnvBuildError, RecordingFileError, ReplayError, SimreelError
+from simreel.errors import EnvBuildError, RecordingFileError, ReplayError, SimreelError, UsageError
 from simreel.formats.base import EpisodeRows
+from simreel.option_checks import check_flag, check_mapping, check_text, options_with, text_tuple
 from simreel.sim.fingerprint import SceneDifference
 from simreel.sim.rebuild import (
     GYM_MAKE_SEED,
@@ -83,6 +84,31 @@ class ReplayerOptions:
     sim_backend: str | None = None
     control_mode: str | None = None
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """Check every option's type, so that a wrong one is a `UsageError` here, naming it and what to give, before
+        the env is built: not a raw error inside ManiSkill, nor a value taken for another (``need_obs="no"`` as yes,
+        ``pose_bodies="cube"`` as four bodies of one letter each). Put them in one form: the bodies as a tuple,
+        the env's arguments as a dict."""
+        for name in ("need_obs", "need_rewards"):
+            check_flag(name, getattr(self, name))
+        for name, what in _TEXT_OPTIONS.items():
+            check_text(name, getattr(self, name), what, optional=True)
+        object.__setattr__(self, "pose_bodies", text_tuple("pose_bodies", self.pose_bodies, "the names of the bodies "
+                                                           'whose poses to sample, as a tuple of strings, e.g. ("cube", '
+                                                           '"panda/panda_hand")'))
+        check_mapping("env_kwargs", self.env_kwargs, 'the gym.make arguments to add as a dict, e.g. '
+                      '{"shader_dir": "rt"}')
+        object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
+
+
+_TEXT_OPTIONS = {
+    "obs_mode": 'an observation mode as a string, e.g. "rgb", or None (the recorded one when needed)',
+    "render_backend": 'a render backend as a string, e.g. "cpu", or None (the one the observation mode needs)',
+    "sim_backend": 'a sim backend as a string, e.g. "physx_cpu", or None (the recorded one)',
+    "control_mode": 'a control mode as a string, e.g. "pd_ee_delta_pose", or None (the recorded one)',
+}
+"""`ReplayerOptions`' options that are strings or None, and what each means."""
 
 
 @dataclass(frozen=True)
@@ -160,7 +186,9 @@ class EpisodeReplayer:
     """
 
     def __init__(self, meta: RecordingMeta, options: ReplayerOptions | None = None, **overrides: Any) -> None:
-        opts = dataclasses.replace(options or ReplayerOptions(), **overrides)
+        if not isinstance(meta, RecordingMeta):  # a path would fail deep in the env's build as an AttributeError
+            raise UsageError(f"meta={meta!r}: give the recording's RecordingMeta, e.g. open_reader(path).meta")
+        opts = options_with(ReplayerOptions, options, overrides, "EpisodeReplayer(meta, need_obs=True)")
         self.meta = meta
         self.need_obs = opts.need_obs or opts.obs_mode is not None
         self.pose_bodies = list(opts.pose_bodies)
