@@ -170,6 +170,8 @@ class ReplayOptions:
             raise UsageError(f"--workers must be >= 1, got {self.workers}")
         if self.resume and self.report is None:
             raise UsageError("resume needs the report to continue (--resume REPORT.json)")
+        if self.ship and self.ray is None:  # it only tells Ray actors what to read
+            raise UsageError("--ship works with --ray only: it sends the episodes to the Ray actors")
         try:  # the tolerances' own rule (`simreel.compare`): finite numbers >= 0, groups it knows
             return Tolerances.for_mode("resync" if self.resync else self.mode, atol=self.atol,
                                        groups=self.group_tolerances)

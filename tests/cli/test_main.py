@@ -118,6 +118,7 @@ BAD_INPUT = [
      "--resync works with --mode actions only"),
     ("replay-resync-0", ["replay", "{rec}", "--resync", "0"], "--resync must be >= 1, got 0"),
     ("replay-workers-0", ["replay", "{rec}", "--workers", "0"], "--workers must be >= 1, got 0"),
+    ("replay-ship-no-ray", ["replay", "{rec}", "--ship"], "--ship works with --ray only"),  # was: ignored, exit 0
     ("replay-atol", ["replay", "{rec}", "--atol", "-1"], "argument --atol: '-1': a tolerance must be a finite number >= 0"),
     ("replay-tol", ["replay", "{rec}", "--tol", "speed=1"], "expected GROUP=NUMBER with GROUP one of pos"),
     ("replay-mode", ["replay", "{rec}", "--mode", "sideways"], "argument --mode: invalid choice: 'sideways'"),

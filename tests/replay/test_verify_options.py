@@ -39,6 +39,7 @@ WORKERS = "give the number of processes (Ray actors with ray) replaying episodes
         ({"overwrite": "no"}, "overwrite='no': give True or False"),  # was: accepted, as yes
         ({"resume": 1}, "resume=1: give True or False"),
         ({"ship": "no"}, "ship='no': give True or False"),  # was: accepted, as yes
+        ({"ship": True}, "--ship works with --ray only: it sends the episodes to the Ray actors"),  # was: ignored
         ({"output": 5}, "output=5: give the file to write the replayed episodes to, a str or pathlib.Path ending in "
                         ".h5 or .mcap, or None"),  # was: accepted as a file named 5
         ({"report": 5}, "report=5: give the report to write, a str or pathlib.Path (REPORT.json), or None"),
@@ -52,8 +53,8 @@ WORKERS = "give the number of processes (Ray actors with ray) replaying episodes
     ],
     ids=["resync-str", "resync-bool", "resync-float", "workers-str", "workers-float", "atol-str", "atol-bool",
          "group_tolerances-list", "episodes-int", "episodes-bad-text", "episodes-float", "episodes-negative",
-         "imports-int", "overwrite-str", "resume-int", "ship-str", "output-int", "report-int", "obs_mode-int",
-         "sim_backend-int", "ray-int", "command-int"],
+         "imports-int", "overwrite-str", "resume-int", "ship-str", "ship-without-ray", "output-int", "report-int",
+         "obs_mode-int", "sim_backend-int", "ray-int", "command-int"],
 )
 def test_an_option_of_the_wrong_type_is_one_usage_error_when_the_options_are_built(tmp_path, monkeypatch, options,
                                                                                     message):
