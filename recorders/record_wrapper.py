@@ -29,7 +29,7 @@ from simreel.errors import EpisodeLayoutError, SimreelError, StateLayoutError, T
 from simreel.formats import check_writer_options, open_writer, records_poses_by_default
 from simreel.formats.durable import deferred_signals
 from simreel.formats.writer_process import ProcessWriter
-from simreel.option_checks import check_flag, check_text, path_text, whole_number
+from simreel.option_checks import check_flag, check_text, options_with, path_text, whole_number
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.recorders.step_scalars import StepScalars, scalar_info
 from simreel.sim.actions import ActionCheck
@@ -109,11 +109,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def __init__(self, env: gym.Env, path: str | Path, options: RecordOptions | None = None, **overrides: Any) -> None:
         path = path_text("path", path, "the file to record to, a str or pathlib.Path ending in .h5 or .mcap")
-        _refuse_unknown_options(overrides)
-        if options is not None and not isinstance(options, RecordOptions):
-            raise UsageError(f"options={options!r}: give a RecordOptions, or its fields as keywords, e.g. "
-                             "RecordWrapper(env, path, contacts=\"none\")")
-        opts = dataclasses.replace(options or RecordOptions(), **overrides)
+        opts = options_with(RecordOptions, options, overrides, 'RecordWrapper(env, path, contacts="none")')
         gym.utils.RecordConstructorArgs.__init__(self, path=str(path), **_constructor_options(opts))
         gym.Wrapper.__init__(self, env)
         _refuse_reshaping_wrappers(env, opts.record_obs)
@@ -716,15 +712,6 @@ _GYMNASIUM_STEP_CHANGERS = {
 }
 """gymnasium 1.x's plain `gym.Wrapper`s that change what a step or a reset does (those of other versions that lack one
 are skipped), and what they do."""
-
-
-def _refuse_unknown_options(overrides: Mapping[str, Any]) -> None:
-    """A keyword `RecordOptions` has no field for is a TypeError, as Python's own for a call, but one that names them."""
-    fields = [f.name for f in dataclasses.fields(RecordOptions)]
-    unknown = [name for name in overrides if name not in fields]
-    if unknown:
-        raise TypeError(f"RecordWrapper() got an unexpected keyword argument {unknown[0]!r}; its options are the "
-                        f"fields of RecordOptions: {', '.join(fields)}")
 
 
 def _refuse_reshaping_wrappers(env: gym.Env, record_obs: bool) -> None:

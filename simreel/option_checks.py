@@ -126,5 +126,5 @@ def options_with(options_type: type[Options], options: Any, overrides: Mapping[s
     fields = [f.name for f in dataclasses.fields(options_type) if f.init]  # type: ignore[arg-type]
     for name, value in overrides.items():
         if name not in fields:
-            raise _refused(name, value, f"only options {options_type.__name__} has: {', '.join(fields)}")
+            raise _refused(name, value, f"only the options {options_type.__name__} has: {', '.join(fields)}")
     return dataclasses.replace(options or options_type(), **overrides)  # type: ignore[type-var]

@@ -44,7 +44,15 @@ from simreel.formats.paths import real_path, refuse_empty
 from simreel.formats.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.formats.staging import staging_path, stale_staging
 from simreel.formats.targets import OVERWRITE_HINT, check_distinct, move_into_place
-from simreel.option_checks import check_flag, check_text, is_whole_number, path_list, path_text, whole_number
+from simreel.option_checks import (
+    check_flag,
+    check_text,
+    is_whole_number,
+    options_with,
+    path_list,
+    path_text,
+    whole_number,
+)
 from simreel.scene_history import SceneChains
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
@@ -702,15 +710,6 @@ def _difference(got: Episode, item: _Item, sources: Sequence[_Source]) -> str:
 
 
 # ---------------------------------------------------------------------------------------------------- operations
-def _options(options: DatasetOptions | None, overrides: dict[str, Any], call: str) -> DatasetOptions:
-    """`options` with `overrides` (`DatasetOptions` fields); `UsageError` for options that are no `DatasetOptions`
-    (a dict would fail as a raw TypeError), saying how `call` takes them."""
-    if options is not None and not isinstance(options, DatasetOptions):
-        raise UsageError(f"options={options!r}: give a DatasetOptions, or its fields as keywords, e.g. "
-                         f"{call}(..., overwrite=True)")
-    return dataclasses.replace(options or DatasetOptions(), **overrides)
-
-
 def _output_path(name: str, value: Any) -> str:
     """The output `value` (option `name`) as a str; `UsageError` for a value that is no path (a number would be taken
     for a file name, None fail as a raw TypeError) or an empty one."""
@@ -728,7 +727,7 @@ def merge(inputs: str | Path | Iterable[str | Path], output: str | Path, options
           **overrides: Any) -> DatasetReport:
     """Copy every episode of `inputs` (recordings of one env, any format: a list of paths, or one) into a new
     recording `output`, numbered 0..N-1 in input order. `overrides` replace fields of `options` (`DatasetOptions`)."""
-    opts = _options(options, overrides, "merge")
+    opts = options_with(DatasetOptions, options, overrides, "merge(inputs, output, overwrite=True)")
     inputs = path_list("inputs", inputs, "the recordings to merge, a list of str or pathlib.Path (or one)")
     output = _output_path("output", output)
     if not inputs:
@@ -754,7 +753,7 @@ def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCrit
     """Copy the episodes of `path` that meet `criteria` into a new recording `output` (numbered 0..N-1), and with
     `rest` the others into a second one: a split, every episode in exactly one of them. `overrides` replace
     fields of `options` (`DatasetOptions`)."""
-    opts = _options(options, overrides, "filter_recording")
+    opts = options_with(DatasetOptions, options, overrides, "filter_recording(path, output, criteria, overwrite=True)")
     if not isinstance(criteria, EpisodeCriteria):
         raise UsageError(f"criteria={criteria!r}: give an EpisodeCriteria, e.g. EpisodeCriteria(success=True)")
     path, output = _input_path(path), _output_path("output", output)

@@ -46,7 +46,10 @@ def _existing(tmp_path: Path) -> Path:
                                                        "that returns the items (a progress bar), or leave it out"),
         # was: TypeError replace() should be called on dataclass instances
         (lambda a, out: merge([a], out, {"overwrite": True}), "options={'overwrite': True}: give a DatasetOptions, "
-                                                               "or its fields as keywords, e.g. merge(..., overwrite=True)"),
+                                                               "or its fields as keywords, e.g. merge(inputs, output, "
+                                                               "overwrite=True)"),
+        # was: TypeError DatasetOptions.__init__() got an unexpected keyword argument 'bogus'
+        (lambda a, out: merge([a], out, bogus=1), "bogus=1: give only the options DatasetOptions has: overwrite, command, progress"),
         # was: TypeError expected str, bytes or os.PathLike object, not int
         (lambda a, out: merge([a, 5], out), "inputs=[PosixPath('{a}'), 5]: give the recordings to merge, a list of "
                                             "str or pathlib.Path (or one)"),
@@ -62,7 +65,7 @@ def _existing(tmp_path: Path) -> Path:
          "criteria={'success': True}: give an EpisodeCriteria, e.g. EpisodeCriteria(success=True)"),
     ],
     ids=["overwrite-str", "overwrite-int", "filter-overwrite-str", "command-none", "progress-int", "options-dict",
-         "inputs-int", "output-none", "filter-path-int", "rest-int", "output-empty", "criteria-dict"],
+         "unknown", "inputs-int", "output-none", "filter-path-int", "rest-int", "output-empty", "criteria-dict"],
 )
 def test_a_wrong_argument_is_one_usage_error_and_nothing_is_written(pickcube, tmp_path, call, message):
     out = _existing(tmp_path)

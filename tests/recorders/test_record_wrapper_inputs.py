@@ -206,8 +206,8 @@ def test_an_mcap_writer_option_of_the_wrong_value_is_refused_before_the_writer_s
 
 def test_an_unknown_keyword_names_the_options(tmp_path):
     env = make_env("PushCube-v1")
-    with pytest.raises(TypeError, match="^RecordWrapper\\(\\) got an unexpected keyword argument 'foo'; its options "
-                                        "are the fields of RecordOptions: contacts, record_obs, poses, overwrite, "):
+    with pytest.raises(UsageError, match="^foo=1: give only the options RecordOptions has: contacts, record_obs, poses, "
+                                         "overwrite, "):
         RecordWrapper(env, tmp_path / "r.h5", foo=1)
     env.close()
     assert list(tmp_path.iterdir()) == []

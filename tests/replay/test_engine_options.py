@@ -36,7 +36,7 @@ def recording(record):
                                'strings, e.g. ("cube", "panda/panda_hand")'),  # was: TypeError at the first reset
         ({"env_kwargs": [1]}, 'env_kwargs=[1]: give the gym.make arguments to add as a dict, e.g. {"shader_dir": '
                               '"rt"}'),  # was: TypeError cannot convert dictionary update sequence element
-        ({"bogus": 1}, "bogus=1: give only options ReplayerOptions has: obs_mode, need_obs, need_rewards, pose_bodies, "
+        ({"bogus": 1}, "bogus=1: give only the options ReplayerOptions has: obs_mode, need_obs, need_rewards, pose_bodies, "
                        "render_backend, sim_backend, control_mode, env_kwargs"),  # was: TypeError
         # ReplayerOptions.__init__() got an unexpected keyword argument 'bogus'
     ],

@@ -215,7 +215,7 @@ def test_save_never_writes_over_the_recordings_shown(pickcube_h5, view_env, tmp_
         ({"imports": 7}, "imports=7: give the .py files or modules that register the task"),
         ({"tolerances": [("pos", 1)]}, "tolerances=[('pos', 1)]: give a dict of tolerance groups and numbers"),
         ({"options": {"episode": 0}}, "options={'episode': 0}: give a ViewOptions, or its fields as keywords"),
-        ({"bogus": 1}, "bogus=1: give only options ViewOptions has: "),  # was: TypeError naming its __init__
+        ({"bogus": 1}, "bogus=1: give only the options ViewOptions has: "),  # was: TypeError naming its __init__
     ],
     ids=["episode-str", "episode-bool", "block_steps-str", "compare-int", "imports-int", "tolerances-list",
          "options-dict", "unknown"],

@@ -308,7 +308,7 @@ def test_an_output_that_names_no_folder_says_what_o_is(tmp_path, monkeypatch, ca
         ({"camera": 3}, "camera=3: give the name of a camera"),
         ({"compare": 3}, "3: give a recording's path, a str or Path"),
         ({"options": {"fps": 3}}, "options={'fps': 3}: give a VideoOptions, or its fields as keywords"),
-        ({"bogus": 1}, "bogus=1: give only options VideoOptions has: "),  # was: TypeError naming its __init__
+        ({"bogus": 1}, "bogus=1: give only the options VideoOptions has: "),  # was: TypeError naming its __init__
     ],
     ids=["overwrite-str", "episodes-int", "episodes-bad-text", "size-int", "size-float", "fps-str", "camera-int",
          "compare-int", "options-dict", "unknown"],
