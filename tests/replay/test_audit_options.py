@@ -17,6 +17,7 @@ from simreel.replay import AuditOptions, audit_task
 
 STEPS = "give the number of random steps before the restore, an int >= 1"
 SEED = "give the seed of the first instance, an int >= 0"
+SEED_RANGE = "but ManiSkill takes seeds from 0 to 4294967295; choose a seed in that range"
 SELECTION = 'give episode indices, ints >= 0 (e.g. [0, 3]), their text as --episodes takes it ("0,3-7"), or None (all)'
 
 
@@ -32,7 +33,12 @@ def _policy(env, obs):
         ({"steps": 2.5}, f"steps=2.5: {STEPS}"),  # was: TypeError, once the env was built
         ({"steps": float("nan")}, f"steps=nan: {STEPS}"),  # was: the same
         ({"steps": 0}, "--steps must be >= 1, got 0"),
-        ({"seed": -1}, "--seed must be >= 0, got -1"),  # was: gymnasium's Error once the env was built
+        ({"seed": -1}, f"--seed -1: this audit would use seeds -1 to 1, {SEED_RANGE}"),  # was: gymnasium's Error
+        # once the env was built
+        ({"seed": 2**32 - 2}, f"--seed 4294967294: this audit would use seeds 4294967294 to 4294967296, {SEED_RANGE}"),
+        # was: numpy's ValueError inside the third reset, once the env was built
+        ({"seed": 2**32 - 10, "policy": _policy, "episodes": 12},
+         f"--seed 4294967286: this audit would use seeds 4294967286 to 4294967297, {SEED_RANGE}"),
         ({"seed": 1.5}, f"seed=1.5: {SEED}"),  # was: gymnasium's Error once the env was built
         ({"seed": None}, f"seed=None: {SEED}"),  # was: TypeError NoneType + int, once the env was built
         ({"imports": 5}, 'imports=5: give the .py files or modules that register the task, as a tuple of strings, '
@@ -63,7 +69,8 @@ def _policy(env, obs):
                        "reward_mode, env_kwargs, trajectory, trajectory_episodes, policy, policy_name, episodes, "
                        "every"),  # was: TypeError AuditOptions.__init__() got an unexpected keyword argument
     ],
-    ids=["steps-str", "steps-bool", "steps-float", "steps-nan", "steps-0", "seed-negative", "seed-float", "seed-none",
+    ids=["steps-str", "steps-bool", "steps-float", "steps-nan", "steps-0", "seed-negative", "seed-past-range",
+         "seed-policy-past-range", "seed-float", "seed-none",
          "imports-int", "control_mode-int", "obs_mode-int", "reward_mode-int", "env_kwargs-list", "trajectory-int",
          "trajectory_episodes-int", "trajectory_episodes-alone", "policy-int", "policy_name-int", "episodes-str",
          "episodes-alone", "every-bool", "every-alone", "unknown"],
@@ -100,7 +107,7 @@ def test_an_env_id_or_options_of_the_wrong_type_is_one_usage_error(env_id, optio
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--seed", "-1"], "--seed must be >= 0, got -1"),  # was: "internal error: Error: Seed must be greater or
+        (["--seed", "-1"], f"--seed -1: this audit would use seeds -1 to 1, {SEED_RANGE}"),  # was: "internal error: Error: Seed must be greater or
         # equal to zero", exit 3, once the env was built
         (["--every", "3"], "--every 3 restores along a trajectory: give one (--trajectory or --policy)"),  # was:
         # ignored, exit 0
