@@ -234,6 +234,8 @@ class ReplayRun:
         self._check_outputs()
         self.tally = self._tally(logged)
         self._new_files = [f for f in self.worklist.files if logged is None or f.path not in logged.files]
+        self._report_begun = logged is not None
+        """Whether `report` holds this run's lines: a resumed one, or once `_log` has begun it."""
         if self.strict and not self.worklist.items and logged is None:
             raise UsageError(f"{self.inputs[0]}: the recording has no episodes to replay")
         if opts.episodes and logged is None and self.worklist.readable and not self.worklist.items:
@@ -380,6 +382,8 @@ class ReplayRun:
                     "cannot be resumed)")
         if self.report_json is None:
             return f"run it again{advice} (with --report, a stopped run keeps its verdicts for --resume)"
+        if not self._report_begun:  # stopped while it started: a file there now is not this run's
+            return f"{self.report_json} was not begun (no episode had its verdict yet): run it again{advice}"
         return (f"{self.tally.total} of {self.tally.planned} episodes have their verdict in {self.report_json}; "
                 f"finish with: simreel replay --resume {self.report_json}{advice}")
 
@@ -405,6 +409,7 @@ class ReplayRun:
             yield None
             return
         with ReportLog(self.report_log, resume=self.options.resume) as log:
+            self._report_begun = True
             log.write(self._run_line())
             for f in self._new_files:
                 log.write({"type": "file", **self.tally.files[f.path].to_json()})
