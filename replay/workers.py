@@ -34,6 +34,7 @@ from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta,
 from simreel.errors import EPISODE_DATA_ERRORS, ReplayError, SimreelError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows
+from simreel.formats.durable import deferred_signals
 from simreel.replay.engine import (
     RESTORING_MODES,
     BlockSink,
@@ -482,6 +483,7 @@ def _worker_init(job: Any, parent: int, first: WorkItem | None = None) -> None:
     it): this process ends when that one is gone, even if it was gone before this one got here."""
     global _WORKER
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked since its start (`_launched`)
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     _one_thread_per_process()
     try:
@@ -548,9 +550,29 @@ def start_pool(job: Any, workers: int, first: WorkItem | None = None) -> Lanes:
     ctx = multiprocessing.get_context("spawn")  # sapien/torch state must not be forked
     lanes = Lanes([ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_worker_init,
                                        initargs=(job, os.getpid(), first)) for _ in range(workers - 1)])
-    for executor in lanes.executors:
-        executor.submit(_ready)  # starts the lane's process now
+    try:
+        with _launched():
+            for executor in lanes.executors:
+                executor.submit(_ready)  # starts the lane's process now
+    except BaseException:  # Ctrl-C or SIGTERM, handled once the processes are started: they end with the pool
+        lanes.stop()
+        lanes.shutdown()
+        raise
     return lanes
+
+
+@contextlib.contextmanager
+def _launched() -> Iterator[None]:
+    """Start worker processes in the block with SIGINT and SIGTERM held here, and SIGINT blocked in the processes
+    until `_worker_init` ignores it. A stop handled half way through a start left a process reading its set-up from a
+    closed pipe, and a terminal's Ctrl-C (which reaches every process of the group) that found a process still
+    importing before `_worker_init`: each printed a traceback under the command's one line."""
+    with deferred_signals():
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # inherited by the processes started now
+        try:
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 def run_pool(worker: Any, items: Iterable[WorkItem], workers: int, collect: Callable[[EpisodeResult], Any],

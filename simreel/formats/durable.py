@@ -44,9 +44,13 @@ def is_storage_error(e: BaseException) -> bool:
 
 
 @contextmanager
-def deferred_signals() -> Iterator[list[int]]:
+def deferred_signals(*, handled_only: bool = False) -> Iterator[list[int]]:
     """Hold SIGINT and SIGTERM until the block has finished, then handle them as they would have been; yields the
     list of the signals held so far (a block that waits can give up waiting once one is there).
+
+    `handled_only`: hold only a signal that a Python handler takes (one that would raise in the block's middle), for
+    a block that must not be cut half way by an exception but may end with its process: a signal left to the system
+    (its default ends the process at once, nothing half made survives it) then acts at once.
 
     When the block raises, its own error wins: a held signal is noted for `raise_if_stopped` instead of raising over
     it (a KeyboardInterrupt must not hide, say, the full disk that stopped a commit). Only the main thread can
@@ -63,7 +67,10 @@ def deferred_signals() -> Iterator[list[int]]:
         return
     caught: list[int] = []
     previous = {s: _signal.getsignal(s) for s in _DEFERRED}
-    held = [s for s, handler in previous.items() if handler is not None]
+    held = [s for s, handler in previous.items() if (callable(handler) if handled_only else handler is not None)]
+    if not held:
+        yield []
+        return
     for s in held:
         _signal.signal(s, lambda signum, frame: caught.append(signum))
     _holding, failed = caught, False

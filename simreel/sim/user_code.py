@@ -50,11 +50,12 @@ def native_import() -> Iterator[None]:
     KeyboardInterrupt raised inside it aborts the process when it lands in a native module's initialisation
     (torch's), turns into an ImportError in another's (sapien's), and is swallowed by trimesh, which catches every
     exception around its optional imports and leaves stand-ins behind: the command then went on, or failed later
-    on a half-made module.
+    on a half-made module. Only signals a Python handler takes are held: one whose default ends the process (a
+    replay's worker process told to stop, a script without a SIGTERM handler) ends it at once, not seconds later.
 
     Quietly: sapien warns that it falls back to its bundled libvulkan when the system has none; that is expected
     and fine, so the warning is hidden."""
-    with deferred_signals(), warnings.catch_warnings():
+    with deferred_signals(handled_only=True), warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*libvulkan.*", category=UserWarning)
         yield
 

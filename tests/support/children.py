@@ -114,3 +114,38 @@ class RecordingChild:
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait()
+
+
+def started_pool_worker(driver: subprocess.Popen, timeout: float = 120) -> list[int]:
+    """The children of `driver` (its pool's worker and multiprocessing's resource tracker) as soon as its worker
+    process exists: a worker then still starting (importing), long before its initializer runs."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        children = child_pids(driver.pid)
+        if pool_workers(children):
+            return children
+        assert driver.poll() is None, f"the run ended with {driver.returncode} before starting a worker"
+        time.sleep(0.01)
+    raise AssertionError(f"no worker process started in {timeout} s")
+
+
+def pool_workers(pids: list[int]) -> list[int]:
+    """The pool's worker processes among `pids` (started by multiprocessing's ``spawn``), not its resource tracker."""
+    return [pid for pid in pids if b"spawn_main" in _cmdline(pid)]
+
+
+def _cmdline(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return b""
+
+
+def kill_all(driver: subprocess.Popen, pids: list[int]) -> None:
+    """Kill `driver` and the processes `pids` it started, those still running: what a failed test leaves behind."""
+    if driver.poll() is None:
+        driver.kill()
+        driver.wait()
+    for pid in pids:
+        if running(pid):
+            os.kill(pid, signal.SIGKILL)
