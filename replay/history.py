@@ -40,8 +40,8 @@ def describe_missing_history(episode: EpisodeMeta, ran_before: int | None, recor
                 f"it was recorded (from episode {episode.chain['start']}): this file does not hold them all (left out "
                 f"of a copy, or damaged and lost by recover); {_MAY_DIVERGE}")
     if scene is None:
-        return ("replayed on a rebuilt scene: copied by a simreel that did not note which episodes ran in its scene "
-                f"before it when it was recorded; {_MAY_DIVERGE}")
+        return ("replayed on a rebuilt scene: made from another recording (copied, converted or replayed) by a simreel "
+                f"that did not note which episodes ran in its scene before it when it was recorded; {_MAY_DIVERGE}")
     return (f"replayed on a rebuilt scene without the {ran_before} episode(s) that ran in its scene before it when "
             f"it was recorded ({Path(scene['file']).name}, from episode {scene['start']}): this file, made from "
             f"another by simreel filter, merge or convert, does not hold them all; {_MAY_DIVERGE}")

@@ -22,7 +22,8 @@ episode and its place in that chain; so does a converted one (``provenance["scen
 re-render, the conversion's own run for a control-mode conversion, `run_scenes`). A file's episodes made from one
 recorded chain form a chain of that file, whose history at each place is any of its episodes at that place (copies
 of one recorded episode); an episode's history is in the file when the file holds an episode at every place before
-it (`SceneChains.complete`), else (episodes left out, or copied by a simreel that did not note the scene) it is not.
+it (`SceneChains.complete`), else (episodes left out, or made from another recording by a simreel that did not note
+the scene: a copy, a conversion, a replay's output) it is not.
 
 `simreel.replay.workers.ReplayWorker` replays the history before an episode in mode ``actions`` (actions only,
 nothing compared). The other modes restore recorded states and have tolerances of their own; they replay none, but
@@ -92,6 +93,7 @@ class SceneChains:
         """Chain → place → its episodes in this file at that place, in index order."""
         current: dict[int, tuple[int, int]] = {}  # sub-scene → (its chain's first episode, episodes in it so far)
         inferred = _inferred_scenes([ep for ep in episodes if ep.origin])
+        placed = _places_by_index([ep for ep in episodes if not (ep.origin or ep.chain) and _made_elsewhere(ep)])
         for ep in sorted(episodes, key=lambda e: e.index):
             scene = recorded_scene(ep) or inferred.get(ep.index)
             if scene is not None:
@@ -99,9 +101,14 @@ class SceneChains:
                 self._note(ep, _chain(scene), scene["position"], (where, scene["start"]))
             elif ep.origin:
                 self._note(ep, f"?{ep.index}", None, (None, ep.index))
-            else:
+            elif ep.chain or not _made_elsewhere(ep):
                 start, ran = _own_place(ep, current)
                 self._note(ep, f"#{start}", ran, (None, start))
+            elif ep.index in placed:
+                start, ran = placed[ep.index]
+                self._note(ep, f"#{start}", ran, (None, start))
+            else:
+                self._note(ep, f"?{ep.index}", None, (None, ep.index))
         self._complete = {key: next(p for p in range(len(at) + 1) if p not in at) for key, at in self._at.items()}
         """Chain → its first place this file holds no episode at: the chain is whole here up to it."""
 
@@ -141,6 +148,26 @@ class SceneChains:
         if ran is None:
             return None
         return {**(recording or _recording(path, recording_id)), "start": start, "position": ran}
+
+
+def _made_elsewhere(ep: EpisodeMeta) -> bool:
+    """Whether `ep` was made from an episode of another recording: a copy (``origin``), a conversion (its
+    ``provenance``) or a replay's output (its ``verification``). Where such an episode says neither where it ran nor
+    its place (a simreel older than those notes wrote it), the order of its file does not tell its place: ``convert
+    --episodes 0,2`` wrote episode 2 right after 0."""
+    return bool(ep.origin or ep.provenance or ep.verification)
+
+
+def _places_by_index(made: Sequence[EpisodeMeta]) -> dict[int, tuple[int, int]]:
+    """(its chain's first episode, its place there) of each episode of `made` that a conversion or a replay's output
+    wrote without noting where it ran (`_made_elsewhere`), where its index (that of the episode it was made from:
+    both keep it) tells: as for older copies (`_walk`), from one whose reset rebuilt the scene or that was its recording's first,
+    each made from the episode right after the one before it. Only for recordings of one env; the others are unknown
+    (left out)."""
+    if not all(ep.env_idx == 0 for ep in made):
+        return {}
+    walked = _walk("", sorted(((ep.index, ep) for ep in made), key=lambda x: x[0]))
+    return {index: (scene["start"], scene["position"]) for index, scene in walked.items()}
 
 
 def _own_place(ep: EpisodeMeta, current: dict[int, tuple[int, int]]) -> tuple[int, int]:

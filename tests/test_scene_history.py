@@ -147,3 +147,21 @@ def test_an_episode_its_file_lacks_leaves_a_gap_in_its_chain():
 def test_an_episode_of_no_step_the_recorder_discarded_leaves_no_gap():
     episodes = [_recorded(1, 1, 0), _recorded(2, 1, 1), _recorded(4, 4, 0)]  # 0 and 3 had no step (a reset after
     assert [_indices(episodes, i) for i in (1, 2, 4)] == [[], [1], []]  # a reset; 3's rebuilt the scene)
+
+
+def _old_conversion(index: int, **changes) -> EpisodeMeta:
+    """Episode `index` of a file converted (or written by replay -o, which says so in `verification` instead) by a
+    simreel that noted neither where converted episodes ran nor their place: made from episode `index` of its input."""
+    return EpisodeMeta(index, provenance={"source_episode": index, "verdict": "exact"}, **changes)
+
+
+def test_older_conversions_of_some_episodes_are_not_a_chain_of_their_file():
+    """Regression: `convert --episodes 0,2` by an older simreel: 2 was taken for the second episode of 0's chain."""
+    episodes = [_old_conversion(0), _old_conversion(2), EpisodeMeta(3, verification={"verdict": "exact"})]
+    assert [_indices(episodes, i) for i in (0, 2, 3)] == [[], None, None]
+    assert SceneChains(episodes).copied_scene(2, "/c.h5", "c1") is None
+
+
+def test_older_conversions_of_a_whole_chain_have_their_history():
+    episodes = [_old_conversion(0), _old_conversion(1), _old_conversion(2, reconfigured=True), _old_conversion(3)]
+    assert [_indices(episodes, i) for i in range(4)] == [[], [0], [], [2]]

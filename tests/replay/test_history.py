@@ -174,6 +174,47 @@ def test_a_whole_chain_filtered_by_an_older_simreel_replays_its_own_history(lift
         "results depend on the scene's history); 0–1 replayed for that, not verified" in episode["notes"]
 
 
+def _older_conversion(lift, tmp_path, episodes: str):
+    """`convert --episodes EPISODES` of the lift recording as a simreel wrote it before converted episodes noted where
+    they ran (``provenance["scene"]``) and before recordings noted each episode's place (``chain``)."""
+    converted = tmp_path / "converted.h5"
+    assert main(["convert", str(lift), str(converted), "--obs-mode", "state", "--episodes", episodes, "-q"]) == 0
+    with open_reader(converted) as reader:
+        episodes_read = [reader.read_episode(m.index) for m in reader.episodes]
+        meta = reader.meta
+    older = tmp_path / "older.h5"
+    write(older, meta, [dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, chain={}, provenance={
+        k: v for k, v in ep.meta.provenance.items() if k != "scene"})) for ep in episodes_read])
+    return older
+
+
+def test_an_episode_an_older_simreel_converted_without_its_predecessors_is_not_given_another_history(lift, tmp_path):
+    """Regression: of an older `convert --episodes 0,2`, episode 2 was replayed after episode 0 as its "recorded
+    predecessor" (its were 0 and 1), with no limit; and `convert --episodes 2` of that file re-ran episode 0's last
+    step before its reset and wrote that it ran after episode 0: a wrong scene, made authoritative."""
+    older = _older_conversion(lift, tmp_path, "0,2")
+    report = tmp_path / "r.json"
+    _replay(older, "--episodes", "2", "--report", report)
+    (episode,) = json.loads(report.read_text())["episodes"]
+    unknown = ("replayed on a rebuilt scene: made from another recording (copied, converted or replayed) by a simreel "
+               "that did not note which episodes ran in its scene before it when it was recorded; PhysX results "
+               "depend on the scene's history: a divergence may come from that alone")
+    assert unknown in episode["limits"] and not any("predecessor" in note for note in episode["notes"])
+    again = tmp_path / "again.h5"
+    main(["convert", str(older), str(again), "--obs-mode", "state", "--episodes", "2", "-q"])
+    with open_reader(again) as reader:
+        assert "scene" not in reader.episode_meta(2).provenance  # unknown, not a wrong one
+
+
+def test_a_whole_chain_an_older_simreel_converted_replays_its_own_history(lift, tmp_path):
+    older = _older_conversion(lift, tmp_path, "0-2")
+    report = tmp_path / "r.json"
+    assert _replay(older, "--episodes", "2", "--report", report) == 0
+    (episode,) = json.loads(report.read_text())["episodes"]
+    assert episode["limits"] == [] and "episode 2 replayed after its recorded predecessor(s) 0–1 (PhysX results " \
+        "depend on the scene's history); 0–1 replayed for that, not verified" in episode["notes"]
+
+
 def test_a_replay_written_alone_keeps_where_it_ran(lift, tmp_path):
     """`replay --episodes 2 -o` writes episode 2 replayed after its recorded history: replaying that file, which
     lacks the history, says so (it was taken as recorded there, on a fresh scene, and diverged silently)."""
