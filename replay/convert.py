@@ -254,14 +254,15 @@ class ConvertWorker:
     """One reader and the envs that convert its episodes: the replayer (target modes) and, for a control-mode
     conversion, a state-only env in the recorded control mode whose controller splits recorded actions."""
 
-    def __init__(self, job: ConvertJob, reader: EpisodeReader | None = None) -> None:
+    def __init__(self, job: ConvertJob, reader: EpisodeReader | None = None, chains: SceneChains | None = None) -> None:
         self.job = job
         self.reader = reader if reader is not None else open_reader(job.path)
         self.source_env: Any = None
         self.output: ReplayedWriter | None = None
         """The output when this process writes it: a re-rendered episode next in its order is written as it is
         re-rendered."""
-        self._chains: SceneChains | None = None
+        self._chains = chains
+        """The input's scene chains (`SceneChains`): given by a run that found them already, else found when needed."""
         self._scene: SceneRun | None = SceneRun()
         """What the re-rendering scene ran last (`ReplayWorker`'s rule; None: unknown)."""
         try:
@@ -709,9 +710,14 @@ class ConversionRun:
         listed = {m.index: m for m in self.reader.episodes}
         if self.options.control_mode:
             return run_scenes([listed[i] for i in self.indices], str(Path(self.output).resolve()), self._recording_id)
-        chains, path = SceneChains(self.reader.episodes), str(Path(self.path).resolve())
-        scenes = {i: chains.copied_scene(i, path, self.reader.meta.recording_id) for i in self.indices}
+        path = str(Path(self.path).resolve())
+        scenes = {i: self._chains.copied_scene(i, path, self.reader.meta.recording_id) for i in self.indices}
         return {i: scene for i, scene in scenes.items() if scene is not None}
+
+    @functools.cached_property
+    def _chains(self) -> SceneChains:
+        """The input's scene chains, found once for the re-render's scenes (`_scenes`) and this process's worker."""
+        return SceneChains(self.reader.episodes)
 
     @functools.cached_property
     def _recording_id(self) -> str:
@@ -771,7 +777,8 @@ class ConversionRun:
                  progress: Callable[[EpisodeReport], None] | None) -> dict[int, dict[str, str]]:
         """Convert every episode into `report` and the recording `staged` (complete and closed on return, or removed
         when nothing is written); returns each written episode's arrays' digests, to check it against."""
-        worker = ConvertWorker(self._job(), self.reader)  # closes the reader
+        chains = None if self.options.control_mode else self._chains  # a re-render's, found for `_scenes`
+        worker = ConvertWorker(self._job(), self.reader, chains)  # closes the reader
         try:
             report.warnings = _fingerprint_warnings(worker) + self._one_process_note()
             spec = self._output_spec(worker, staged)
