@@ -161,9 +161,9 @@ def _made_elsewhere(ep: EpisodeMeta) -> bool:
 def _places_by_index(made: Sequence[EpisodeMeta]) -> dict[int, tuple[int, int]]:
     """(its chain's first episode, its place there) of each episode of `made` that a conversion or a replay's output
     wrote without noting where it ran (`_made_elsewhere`), where its index (that of the episode it was made from:
-    both keep it) tells: as for older copies (`_walk`), from one whose reset rebuilt the scene or that was its recording's first,
-    each made from the episode right after the one before it. Only for recordings of one env; the others are unknown
-    (left out)."""
+    both keep it) tells: as for older copies (`_walk`), from one whose reset rebuilt the scene or that was its
+    recording's first, each made from the episode right after the one before it. Only for recordings of one env; the
+    others are unknown (left out)."""
     if not all(ep.env_idx == 0 for ep in made):
         return {}
     walked = _walk("", sorted(((ep.index, ep) for ep in made), key=lambda x: x[0]))
