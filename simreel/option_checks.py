@@ -1,6 +1,7 @@
 """Checks of the options the rooms take from Python (`RecordOptions` and `RecordWrapper`, `ReplayOptions` and
-`ReplayRun`, `AuditOptions` and `audit_task`, `ReplayerOptions` and `EpisodeReplayer`, ...): a value of the wrong type is a `UsageError` that names the option and says what to give, raised when
-the options are built, before anything starts. Unchecked, it fails later as a raw Python error, or is silently taken
+`ReplayRun`, `AuditOptions` and `audit_task`, `ReplayerOptions` and `EpisodeReplayer`, `DatasetOptions` and `merge`,
+...): a value of the wrong type, or a keyword that is no option (`options_with`), is a `UsageError` that names the
+option and says what to give, raised when the options are built, before anything starts. Unchecked, it fails later as a raw Python error, or is silently taken
 for another value: ``overwrite="no"`` counts as yes, ``resync=1.5`` restores at fractional steps, ``True`` counts
 as 1, a number is taken for a file name.
 
