@@ -367,7 +367,8 @@ class ReplayRun:
                         log.write({"type": "end"})
             ended = True
         except WorkerDiedError as e:
-            raise ReplayError(f"{e}; {self.how_to_finish('(with fewer --workers if memory ran out)')}") from None
+            advice = "(with fewer --workers if memory ran out)" if e.memory else ""
+            raise ReplayError(f"{e}; {self.how_to_finish(advice)}") from None
         finally:
             worker.close()
             self._write_report(ended)

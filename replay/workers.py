@@ -531,6 +531,26 @@ class Lanes:
 
     def __init__(self, executors: list[ProcessPoolExecutor]) -> None:
         self.executors = executors
+        self.started: list[tuple[Any, Future]] = []
+        """Each lane's process (a `multiprocessing.Process`) and the future of its first call (`_ready`), noted when
+        `start_pool` starts them: what `death` reads once one has died."""
+
+    def death(self) -> tuple[str, bool]:
+        """How a dead worker process ended, in words for `WorkerDiedError`, and whether it may have run out of memory:
+        killed by a signal (the OOM killer's, a kill -9) or unknown, or ended by an error of its own (its exit status;
+        Python printed the error), which before it was ready is most often a script that starts a replay with workers
+        outside a main guard: each worker process imports the script again (multiprocessing's "spawn")."""
+        for process, ready in self.started:
+            status = process.exitcode
+            if status is not None and status < 0:
+                return f"was killed by {_signal_name(-status)} (out of memory? a kill -9?)", True
+            if status:
+                if ready.done() and ready.exception() is None:
+                    return f"ended with exit status {status} (its error is printed above)", False
+                guard = ('; a script that starts a replay with workers must do so under `if __name__ == "__main__":`,'
+                         " as each worker process imports the script again" if _main_is_a_script() else "")
+                return f"ended with exit status {status} as it started (its error is printed above{guard})", False
+        return "died (killed from outside: out of memory?)", True
 
     def stop(self) -> None:
         """End the processes now (Ctrl-C, an error raised here): an episode they are replaying is not waited for."""
@@ -553,7 +573,8 @@ def start_pool(job: Any, workers: int, first: WorkItem | None = None) -> Lanes:
     try:
         with _launched():
             for executor in lanes.executors:
-                executor.submit(_ready)  # starts the lane's process now
+                ready = executor.submit(_ready)  # starts the lane's process now
+                lanes.started += [(process, ready) for process in executor._processes.values()]
     except BaseException:  # Ctrl-C or SIGTERM, handled once the processes are started: they end with the pool
         lanes.stop()
         lanes.shutdown()
@@ -613,7 +634,7 @@ class _Feed:
     (killed from outside) with the items the lanes then held."""
 
     def __init__(self, worker: Any, pool: Lanes, collect: Callable[[EpisodeResult], Any]) -> None:
-        self.worker, self.collect = worker, collect
+        self.worker, self.pool, self.collect = worker, pool, collect
         self.lanes: list[tuple[ProcessPoolExecutor, deque[WorkItem]]] = [(e, deque()) for e in pool.executors]
         """Each lane's executor and the items of its group not yet handed to it."""
         self.pending: dict[Future, tuple[WorkItem, ProcessPoolExecutor]] = {}
@@ -637,7 +658,7 @@ class _Feed:
                     del self.pending[fut]
                     self.collect(result)
         except BrokenProcessPool:
-            raise WorkerDiedError([item for item, _ in self.pending.values()]) from None
+            raise WorkerDiedError([item for item, _ in self.pending.values()], *self.pool.death()) from None
 
     def _hand_out(self, groups: deque[list[WorkItem]]) -> None:
         """Top up each lane to `_AHEAD` items in flight, from its group, then from the next group."""
@@ -650,16 +671,33 @@ class _Feed:
 
 
 class WorkerDiedError(ReplayError):
-    """A worker process of the pool died (the OOM killer, a kill -9): the pool cannot go on, and the episodes it
-    held (`lost`) have no result. The run stops rather than replaying them again: what killed the process
-    (memory, most often) would likely kill the next one too; the caller says how to finish the run."""
+    """A worker process of the pool died (`how`, `Lanes.death`: the OOM killer, a kill -9, an error of its own): the
+    pool cannot go on, and the episodes it held (`lost`) have no result. The run stops rather than replaying them
+    again: what killed the process (memory, most often: `memory`) would likely kill the next one too; the caller
+    says how to finish the run."""
 
-    def __init__(self, lost: list[WorkItem]) -> None:
-        self.lost = lost
+    def __init__(self, lost: list[WorkItem], how: str = "died", memory: bool = True) -> None:
+        self.lost, self.how, self.memory = lost, how, memory
         shown = ", ".join(f"{Path(item.path).name}:{item.index}" for item in lost[:6])
         more = f" and {len(lost) - 6} more" if len(lost) > 6 else ""
         held = f"; the pool was replaying episode(s) {shown}{more}" if lost else ""
-        super().__init__(f"a worker process died (killed from outside: out of memory?){held}")
+        super().__init__(f"a worker process {how}{held}")
 
-    def __reduce__(self) -> tuple[type, tuple[list[WorkItem]]]:
-        return type(self), (self.lost,)
+    def __reduce__(self) -> tuple[type, tuple[list[WorkItem], str, bool]]:
+        return type(self), (self.lost, self.how, self.memory)
+
+
+def _signal_name(number: int) -> str:
+    try:
+        return signal.Signals(number).name
+    except ValueError:
+        return f"signal {number}"
+
+
+def _main_is_a_script() -> bool:
+    """Whether this process runs a Python file as its main module (``python script.py``), which multiprocessing's
+    "spawn" imports again in each worker process; not ``python -m simreel``, an interactive session or ``-c``."""
+    import sys
+
+    main = sys.modules.get("__main__")
+    return bool(getattr(main, "__file__", None)) and getattr(getattr(main, "__spec__", None), "name", None) is None

@@ -146,8 +146,8 @@ def test_a_pool_worker_killed_ends_the_run_with_one_line_and_resume_finishes(rec
     os.kill(worker, 9)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 2, err
-    assert err.count("\n") == 1 and err.startswith("simreel replay: error: a worker process died (killed from "
-                                                   "outside: out of memory?); the pool was replaying episode(s) ")
+    assert err.count("\n") == 1 and err.startswith("simreel replay: error: a worker process was killed by SIGKILL (out "
+                                                   "of memory? a kill -9?); the pool was replaying episode(s) ")
     assert err.endswith(f"finish with: simreel replay --resume {report} (with fewer --workers if memory ran out)\n")
     doc = json.loads(report.read_text())
     assert doc["complete"] is False and len(doc["episodes"]) >= 2
