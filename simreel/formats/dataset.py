@@ -45,6 +45,7 @@ from simreel.formats.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL
 from simreel.formats.staging import staging_path, stale_staging
 from simreel.formats.targets import OVERWRITE_HINT, check_distinct, move_into_place
 from simreel.option_checks import (
+    check_callable,
     check_flag,
     check_text,
     is_whole_number,
@@ -82,7 +83,7 @@ class DatasetOptions:
     Attributes:
         overwrite: replace existing outputs (and their side files) instead of refusing.
         command: the command line, stored in the outputs' metadata.
-        progress: wraps each pass's work list (a progress bar); see `Progress`.
+        progress: wraps each pass's work list (a progress bar); see `Progress`. None: none.
     """
 
     overwrite: bool = False
@@ -95,9 +96,9 @@ class DatasetOptions:
         once the output is being written."""
         check_flag("overwrite", self.overwrite)
         check_text("command", self.command, "the command line as a string (stored in the outputs' metadata)")
-        if not callable(self.progress):
-            raise UsageError(f"progress={self.progress!r}: give a function called as progress(items, what) that "
-                             "returns the items (a progress bar), or leave it out")
+        check_callable("progress", self.progress, "a function called as progress(items, what) that returns the items "
+                       "(a progress bar), or leave it out")
+        object.__setattr__(self, "progress", self.progress or _no_bar)
 
 
 @dataclass(frozen=True)

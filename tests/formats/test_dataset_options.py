@@ -125,7 +125,7 @@ def test_one_path_is_one_input_and_any_iterable_of_paths_is_the_inputs(pickcube,
 
 def test_the_forms_the_cli_and_python_use_stay_valid(pickcube, tmp_path):
     """numpy ints and bools are counts and flags; one verdict given as a string is that verdict, not its
-    characters."""
+    characters; a progress of None is none."""
     import numpy as np
 
     criteria = EpisodeCriteria(success=np.bool_(False), min_steps=np.int64(1), verdicts={np.int64(0): "exact"},
@@ -133,5 +133,5 @@ def test_the_forms_the_cli_and_python_use_stay_valid(pickcube, tmp_path):
     assert (criteria.min_steps, criteria.keep_verdicts, criteria.verdicts) == (1, ("exact",), {0: "exact"})
     assert type(criteria.min_steps) is int
     report = filter_recording(pickcube, tmp_path / "kept.h5", criteria, DatasetOptions(command="x"),
-                              overwrite=np.bool_(False))
+                              overwrite=np.bool_(False), progress=None)  # None: no progress bar
     assert report.outputs[0].episodes == 1 and report.criteria == "no success; >= 1 steps; exact in r.json"
