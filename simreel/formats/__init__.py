@@ -45,12 +45,14 @@ MCAP_SUFFIXES = (".mcap",)
 
 
 def format_of(path: str | Path) -> str:
-    """"hdf5" or "mcap" from the file suffix; a clear error for anything else."""
+    """"hdf5" or "mcap" from the file suffix; a clear error for anything else (a folder named as such)."""
     suffix = Path(path).suffix.lower()
     if suffix in HDF5_SUFFIXES:
         return "hdf5"
     if suffix in MCAP_SUFFIXES:
         return "mcap"
+    if Path(path).is_dir():
+        raise UsageError(f"{path} is a folder, not a recording; name a .h5 (HDF5) or .mcap (MCAP) file")
     raise UsageError(f"{path}: unknown recording suffix {suffix!r}; use .h5 (HDF5) or .mcap (MCAP)")
 
 

@@ -20,6 +20,20 @@ def test_records_poses_by_default_refuses_an_unknown_suffix():
         records_poses_by_default("a.txt")
 
 
+@pytest.mark.parametrize("command", [["recover", "{d}"], ["merge", "{rec}", "-o", "{d}"], ["convert", "{rec}", "{d}"]])
+def test_a_folder_named_as_a_recording_is_called_a_folder(record, tmp_path, capsys, command):
+    """Regression: a folder without a suffix was "d: unknown recording suffix ''", as if a file's name were wrong."""
+    from simreel.cli.main import main
+
+    folder = tmp_path / "d"
+    folder.mkdir()
+    args = [a.format(d=folder, rec=record("PickCube-v1", 1, 3)) for a in command]
+    assert main(args) == 2
+    assert capsys.readouterr().err.splitlines()[-1].endswith(
+        f"error: {folder} is a folder, not a recording; name a .h5 (HDF5) or .mcap (MCAP) file")
+    assert list(folder.iterdir()) == []
+
+
 @pytest.mark.parametrize(
     ("target", "make", "overwrite", "message"),
     [
