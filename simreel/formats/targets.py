@@ -15,6 +15,7 @@ import glob
 import hashlib
 import os
 import socket
+import stat
 import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -40,7 +41,8 @@ def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path
     """Raise `UsageError` unless a new file can be written at `path` (and its `side_paths`); touch nothing.
 
     Refused: a name in `path`, or a side file's name, longer than the file system takes (`check_name_lengths`);
-    `path` is a folder or runs into a symbolic link loop (even with `overwrite`: nothing can be written through one);
+    `path` is a folder or runs into a symbolic link loop, or it or a side path is a FIFO, device or socket (even with
+    `overwrite`: nothing can be written through one, and a pipe or device is not replaced by a file);
     its folder does not exist, is not a folder or is not writable; and, without `overwrite`, `path` or one of
     `side_paths` already exists. `option` names the CLI option in messages (``--report``). Returns `path` as a
     `Path`. `overwrite` must be a bool: ``overwrite="no"`` would count as yes and replace the file.
@@ -54,6 +56,7 @@ def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path
         raise UsageError(f"{label}: that is a folder; name the file to write")
     if is_symlink_loop(p):
         raise UsageError(f"cannot write {label}: {SYMLINK_LOOP}")
+    _refuse_special_files(p, side_paths, label)
     folder = real_path(p).parent
     if not folder.exists():
         raise UsageError(f"cannot write {p}: folder {folder} does not exist")
@@ -69,6 +72,21 @@ def check_output(path: str | Path, *, overwrite: bool, side_paths: Iterable[Path
         if side.exists() or side.is_symlink():
             raise UsageError(f"{side} already exists and writing {p.name} would replace it; {OVERWRITE_HINT}")
     return p
+
+
+def _refuse_special_files(path: Path, side_paths: Iterable[Path], label: str) -> None:
+    """`UsageError` when `path` or one of its `side_paths`, through their links, is a FIFO, a device or a socket, even
+    with overwrite: an output is written beside its path and renamed over it, which would replace the pipe or device
+    itself (as root, /dev/null); and asking whether a writer holds a FIFO waits for its other end."""
+    for named in (path, *side_paths):
+        try:
+            mode = named.stat().st_mode
+        except OSError:  # missing, a dangling link: nothing there to replace
+            continue
+        if not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
+            which = "it is" if named == path else f"{named}, which writing it replaces, is"
+            raise UsageError(f"cannot write {label}: {which} a pipe, device or socket, not a regular file; simreel "
+                             "writes whole files, so name a file to write")
 
 
 def check_name_lengths(path: Path, side_paths: Iterable[Path] = (), *, label: str = "") -> None:

@@ -15,6 +15,7 @@ from simreel.errors import UsageError
 from simreel.formats.targets import check_distinct, check_output, staged_output, write_text_atomic
 
 LOOP = "a symbolic link loop (following its links never reaches a file); fix or remove the link"
+SPECIAL = "a pipe, device or socket, not a regular file; simreel writes whole files, so name a file to write"
 
 
 @pytest.mark.parametrize(
@@ -29,12 +30,17 @@ LOOP = "a symbolic link loop (following its links never reaches a file); fix or 
         ("old.json/r.json", True, "cannot write {tmp}/old.json/r.json: {tmp}/old.json is not a folder"),
         ("loop.json", False, "cannot write --report {tmp}/loop.json: " + LOOP),
         ("loop.json", True, "cannot write --report {tmp}/loop.json: " + LOOP),
+        ("fifo.json", False, "cannot write --report {tmp}/fifo.json: it is " + SPECIAL),
+        ("fifo.json", True, "cannot write --report {tmp}/fifo.json: it is " + SPECIAL),
+        ("null.json", True, "cannot write --report {tmp}/null.json: it is " + SPECIAL),
     ],
 )
 def test_check_output(tmp_path, target, overwrite, message):
     (tmp_path / "old.json").write_text("mine")
     (tmp_path / "dir").mkdir()
     link_loop(tmp_path / "loop.json")
+    os.mkfifo(tmp_path / "fifo.json")
+    (tmp_path / "null.json").symlink_to(os.devnull)  # written through, it would replace /dev/null (as root)
     before = sorted(tmp_path.iterdir())
     if message is None:
         assert check_output(tmp_path / target, overwrite=overwrite, option="--report") == tmp_path / target
@@ -68,6 +74,13 @@ def test_a_side_file_is_named_as_what_the_recording_would_replace(tmp_path):
         check_output(tmp_path / "out.h5", overwrite=False, side_paths=[tmp_path / "out.json"])
     assert str(e.value) == (f"{tmp_path}/out.json already exists and writing out.h5 would replace it; "
                             "pass --overwrite to replace it (overwrite=True from Python)")
+
+
+def test_a_side_file_that_is_a_pipe_is_refused_even_with_overwrite(tmp_path):
+    os.mkfifo(tmp_path / "out.json")
+    with pytest.raises(UsageError) as e:
+        check_output(tmp_path / "out.h5", overwrite=True, side_paths=[tmp_path / "out.json"])
+    assert str(e.value) == f"cannot write {tmp_path}/out.h5: {tmp_path}/out.json, which writing it replaces, is " + SPECIAL
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
