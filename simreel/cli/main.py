@@ -69,10 +69,31 @@ def run() -> None:
     Ctrl-C then killed the process (exit 130, no word; or a KeyboardInterrupt traceback from Python's shutdown) after
     a command that had done all its work. An ignored signal stays ignored through that shutdown, where a handler would
     not (Python resets those first). In-process callers use `main`, which leaves the signals as it found them."""
+    _open_standard_streams()
     status = main()
     for stop in (signal.SIGINT, signal.SIGTERM):
         signal.signal(stop, signal.SIG_IGN)
     sys.exit(status)
+
+
+def _open_standard_streams() -> None:
+    """Put /dev/null on each of descriptors 0, 1 and 2 that the process was started without (`cmd <&- >&- 2>&-`), and
+    give Python a stream for it. Else the next file or pipe opened takes the lowest free number: a writer child's pipe
+    on 0 or 1 was replaced by its own /dev/null stdin/stdout (`record` failed: "the writer process ended"), a
+    recording opened on 1 or 2 would take whatever a library or child prints there, and `sys.stderr`, None, made the
+    one line of an error an AttributeError (exit 1). What would have gone to a closed stream is dropped, as before."""
+    for fd, name, mode in ((0, "stdin", "r"), (1, "stdout", "w"), (2, "stderr", "w")):
+        try:
+            os.fstat(fd)
+            continue
+        except OSError:
+            pass
+        null = os.open(os.devnull, os.O_RDWR)  # the lowest free descriptor: `fd` itself
+        if null != fd:
+            os.dup2(null, fd)
+            os.close(null)
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(fd, mode, closefd=False, encoding="utf-8", errors="backslashreplace"))
 
 
 def _parse_and_run(argv: Sequence[str] | None) -> int:
