@@ -19,6 +19,7 @@ import signal
 import sys
 import traceback
 from collections.abc import Sequence
+from pathlib import Path
 
 from simreel import __version__
 from simreel.errors import SimreelError, Terminated
@@ -31,11 +32,38 @@ COMMANDS = ("record", "inspect", "replay", "audit", "convert", "recover", "merge
 
 
 class _OneLineParser(argparse.ArgumentParser):
-    """argparse, but a bad option is one line on stderr (not usage + error) and exit 2."""
+    """argparse, but a bad option is one line on stderr (not usage + error) and exit 2, which says how to name a file
+    whose name begins with '-' where one was taken for an option."""
+
+    _given: list[str] = []
+    """The arguments this parser was last given (`parse_known_args`; a subcommand's parser gets its own)."""
+
+    def parse_known_args(self, args=None, namespace=None):  # type: ignore[no-untyped-def,override]
+        self._given = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        sys.stderr.write(f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        dashed = self._dashed_file_name()
+        hint = f"{dashed} is taken for an option: write ./{dashed} for the file; " if dashed else ""
+        sys.stderr.write(f"{self.prog}: error: {message} ({hint}see {self.prog} --help)\n")
         sys.exit(2)
+
+    def _dashed_file_name(self) -> str | None:
+        """The first argument (before any ``--``) that argparse took for an option but that is no option of this parser
+        and names a file (one that exists, or a name with a suffix such as ``-x.h5``; not a number), or None. Which
+        message argparse gives then misleads ("the following arguments are required: PATH", "expected one argument")."""
+        given = self._given[:self._given.index("--")] if "--" in self._given else self._given
+        for arg in given:
+            if len(arg) < 2 or not arg.startswith("-") or "=" in arg or arg in self._option_string_actions:
+                continue
+            try:
+                float(arg)
+                continue
+            except ValueError:
+                pass
+            if os.path.lexists(arg) or Path(arg).suffix:
+                return arg
+        return None
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -395,6 +395,23 @@ def test_no_report_replaces_a_recording_or_its_sidecar_even_with_overwrite(tmp_p
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # nothing replaced, nothing written
 
 
+@pytest.mark.parametrize(("argv", "message"), [
+    (["inspect", "-x.h5"], "simreel inspect: error: the following arguments are required: PATH (-x.h5 is taken for an "
+                           "option: write ./-x.h5 for the file; see simreel inspect --help)"),
+    (["convert", "a.h5", "-y.mcap"], "simreel convert: error: the following arguments are required: OUT (-y.mcap is "
+                                     "taken for an option: write ./-y.mcap for the file; see simreel convert --help)"),
+    (["record", "PickCube-v1", "-o", "-z.h5"], "simreel record: error: argument -o/--output: expected one argument "
+                                               "(-z.h5 is taken for an option: write ./-z.h5 for the file; see simreel "
+                                               "record --help)"),
+    (["inspect", "--jsn", "a.h5"], "simreel: error: unrecognized arguments: --jsn (see simreel --help)"),  # no file
+    (["replay", "a.h5", "--atol", "-1.5"], "simreel replay: error: argument --atol: '-1.5': a tolerance must be a "
+                                           "finite number >= 0 (see simreel replay --help)"),  # a number
+], ids=["positional", "second-positional", "option-value", "typo-no-hint", "number-no-hint"])
+def test_a_file_name_that_begins_with_a_dash_is_named_with_how_to_pass_it(capsys, argv, message):
+    """argparse takes `-x.h5` for an option, and its message alone ("the following arguments are required") misleads."""
+    assert _run(capsys, argv) == (2, message + "\n")
+
+
 def test_the_command_line_itself_gives_one_line_and_exit_2():
     """The one subprocess check: what a shell sees (stderr, exit status) from `python -m simreel`."""
     done = subprocess.run([sys.executable, "-m", "simreel", "inspect", "no-such-file.h5"], capture_output=True,
