@@ -89,7 +89,7 @@ def _converting(args: argparse.Namespace) -> bool:
     given = [name for name, value in (("--camera-size", args.camera_size), ("--shader", args.shader),
                                       ("--episodes", args.episodes), ("--count", args.count), ("--keep", args.keep),
                                       ("--tol", args.tol), ("--report", args.report), ("--sim-backend", args.sim_backend))
-             if value]
+             if value not in (None, (), [])]  # given, even as "" or 0, which a copy would otherwise drop unsaid
     if given:
         raise UsageError(f"{', '.join(given)} apply to a conversion: add --obs-mode and/or --control-mode "
                          "(without them, convert copies IN to another format as it is)")

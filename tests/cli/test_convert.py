@@ -55,6 +55,18 @@ def test_progress_bar_counts_episodes_on_a_terminal_only(tmp_path, capsys, monke
     assert "3/3" in sys.stderr.getvalue()
 
 
+@pytest.mark.parametrize(("option", "value"), [("--episodes", ""), ("--count", "0"), ("--report", ""),
+                                               ("--shader", ""), ("--sim-backend", "")])
+def test_a_conversion_option_given_empty_or_zero_to_a_copy_is_refused(tmp_path, capsys, option, value):
+    """Regression: `--episodes ""` (an unset shell variable) or `--count 0` was taken for "not given" and the copy
+    wrote every episode without a word, where `--episodes 0` or `--count 1` is refused."""
+    src, _ = _source(tmp_path, ".h5")
+    assert main(["convert", str(src), str(tmp_path / "out.mcap"), "-q", option, value]) == 2
+    assert capsys.readouterr().err == (f"simreel convert: error: {option} apply to a conversion: add --obs-mode and/or "
+                                       "--control-mode (without them, convert copies IN to another format as it is)\n")
+    assert not (tmp_path / "out.mcap").exists()
+
+
 def test_overwrite_replaces_output(tmp_path):
     src, episodes = _source(tmp_path, ".h5")
     (tmp_path / "out.mcap").write_bytes(b"old")
