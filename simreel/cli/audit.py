@@ -6,7 +6,7 @@ import argparse
 import json
 from typing import Any
 
-from simreel.cli.common import add_import_option, parse_index_ranges, parse_json_kwargs
+from simreel.cli.common import GivenOnce, add_import_option, parse_index_ranges, parse_json_kwargs
 from simreel.errors import UsageError
 from simreel.formats.durable import raise_if_stopped
 
@@ -35,7 +35,7 @@ def add_parser(sub: Any) -> None:
                             "MODULE:CALLABLE or FILE.py:CALLABLE")
     along.add_argument("--trajectory", default=None, metavar="REC",
                        help="also audit along the episodes of this recording (.h5/.mcap), replaying its actions")
-    p.add_argument("--episodes", default=None, metavar="N|LIST",
+    p.add_argument("--episodes", action=GivenOnce, default=None, metavar="N|LIST",
                    help="with --policy: how many episodes (seeds S, S+1, ...; default 1); with --trajectory: which "
                         "episodes, e.g. 0,3-5 (default all)")
     p.add_argument("--every", type=int, default=1, metavar="K",

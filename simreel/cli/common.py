@@ -13,7 +13,7 @@ from simreel.errors import UsageError
 
 __all__ = ["add_env_options", "env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
            "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar", "mode_choices",
-           "LOG_LINE_SECONDS"]
+           "GivenOnce", "LOG_LINE_SECONDS"]
 
 
 LOG_LINE_SECONDS = 60.0
@@ -115,6 +115,21 @@ def parse_json_kwargs(text: str) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise argparse.ArgumentTypeError("expected a JSON object")
     return value
+
+
+class GivenOnce(argparse.Action):
+    """An option that stores a list (`--episodes 0,3-7`, `--contacts A:B,C:D`, `--keep`) and refuses a second one: given
+    twice, argparse kept the last list alone without a word, where `--episodes 0 --episodes 1` may well mean both."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        text = ",".join(values) if isinstance(values, tuple) else str(values)  # `--keep`'s type makes a tuple
+        given = vars(namespace).setdefault("_given_once", {})
+        if self.dest in given:
+            raise argparse.ArgumentError(self, f"given twice ({given[self.dest]!r}, then {text!r}); give it once, "
+                                               "with every item in one comma-separated list")
+        given[self.dest] = text
+        setattr(namespace, self.dest, values)
 
 
 def parse_index_ranges(text: str) -> EpisodeSelection:

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from simreel.cli.common import (
+    GivenOnce,
     add_import_option,
     parse_group_tolerance,
     parse_index_ranges,
@@ -49,10 +50,10 @@ def add_parser(sub: Any) -> None:
                    "to pd_joint_delta_pos, pd_ee_delta_pos or pd_ee_delta_pose; from pd_joint_delta_pos to pd_joint_pos")
     g.add_argument("--camera-size", type=parse_size, default=None, metavar="WxH", help="size of every sensor camera")
     g.add_argument("--shader", default=None, help="ManiSkill shader of every camera (default, rt, rt-fast, ...)")
-    g.add_argument("--episodes", default=None, metavar="LIST", help="episodes to convert, e.g. 0,3-7 (default: all)")
+    g.add_argument("--episodes", action=GivenOnce, default=None, metavar="LIST", help="episodes to convert, e.g. 0,3-7 (default: all)")
     g.add_argument("--count", type=int, default=None, metavar="N", help="convert only the first N of those episodes; --keep then chooses "
                    "which of them are written (N converted, at most N written)")
-    g.add_argument("--keep", type=_keep, default=(), metavar="WHAT",
+    g.add_argument("--keep", type=_keep, action=GivenOnce, default=(), metavar="WHAT",
                    help="write only episodes that are all of (comma-separated): verified (their check passed), "
                    "success (at their last step), not_truncated (they did not end at the time limit)")
     g.add_argument("--tol", type=_tracking_tolerance, action="append", default=[], metavar="GROUP=X",

@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import parse_index_ranges
+from simreel.cli.common import GivenOnce, parse_index_ranges
 from simreel.cli.merge import dataset_progress
 from simreel.errors import UsageError
 
@@ -25,7 +25,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("input", metavar="IN", help="recording to read (.h5, .mcap, ManiSkill .h5 + .json)")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="file for the episodes kept (.h5 or .mcap)")
     p.add_argument("--rest", default=None, metavar="OTHER", help="file for every episode not kept (.h5 or .mcap)")
-    p.add_argument("--episodes", default=None, metavar="LIST", help="original episode indices, e.g. 0,3-7")
+    p.add_argument("--episodes", action=GivenOnce, default=None, metavar="LIST", help="original episode indices, e.g. 0,3-7")
     success = p.add_mutually_exclusive_group()
     success.add_argument("--success", dest="success", action="store_const", const=True, default=None,
                          help="episodes whose final success is true (a file without success has none)")

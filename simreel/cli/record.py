@@ -6,7 +6,7 @@ import argparse
 from dataclasses import dataclass
 from typing import Any
 
-from simreel.cli.common import add_env_options, apply_imports, env_options, progress_bar
+from simreel.cli.common import GivenOnce, add_env_options, apply_imports, env_options, progress_bar
 from simreel.cli.policy_option import POLICY_HELP
 from simreel.errors import UsageError
 from simreel.formats.durable import raise_if_stopped
@@ -30,7 +30,7 @@ def add_parser(sub: Any) -> None:
                    help="the episodes' time limit in steps, longer or shorter than the task's (default: the task's, "
                         f"else {_DEFAULT_MAX_STEPS}); the replay rebuilds the env with it. `max_episode_steps` in "
                         "--env-kwargs does the same")
-    p.add_argument("--contacts", default="auto", metavar="auto|none|A:B,...",
+    p.add_argument("--contacts", action=GivenOnce, default="auto", metavar="auto|none|A:B,...",
                    help="contact channels: auto (default), none, or pairs like panda/panda_leftfinger:cube")
     p.add_argument("--record-obs", action="store_true", help="also record observations")
     p.add_argument("--poses", action=argparse.BooleanOptionalAction, default=None,

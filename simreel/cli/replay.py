@@ -8,7 +8,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import add_import_option, add_tolerance_options, parse_index_ranges, progress_bar
+from simreel.cli.common import (
+    GivenOnce,
+    add_import_option,
+    add_tolerance_options,
+    parse_index_ranges,
+    progress_bar,
+)
 from simreel.errors import UsageError
 
 __all__ = ["add_parser", "run"]
@@ -35,7 +41,7 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("--resync", type=int, default=None, metavar="K",
                    help="with --mode actions: restore the recorded state every K steps")
-    p.add_argument("--episodes", default=None, metavar="LIST",
+    p.add_argument("--episodes", action=GivenOnce, default=None, metavar="LIST",
                    help="episodes to replay of every recording, e.g. 0,3-7 (default: all)")
     p.add_argument("--report", default=None, metavar="REPORT.json",
                    help="stream every verdict into REPORT.jsonl as it comes and write the report REPORT.json")

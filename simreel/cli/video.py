@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 from simreel.cli.common import (
+    GivenOnce,
     add_import_option,
     mode_choices,
     parse_index_ranges,
@@ -30,7 +31,7 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("path", metavar="PATH", help="a recording (.h5 or .mcap; simreel's or ManiSkill's)")
     p.add_argument("-o", "--output", default=".", metavar="FOLDER", help="folder for the videos (default: here)")
-    p.add_argument("--episodes", default=None, metavar="LIST", help="episodes, e.g. 0,3-7 (default: all)")
+    p.add_argument("--episodes", action=GivenOnce, default=None, metavar="LIST", help="episodes, e.g. 0,3-7 (default: all)")
     p.add_argument("--compare", default=None, metavar="OTHER",
                    help="another recording of the task, drawn on the right: a replay (simreel replay -o) or "
                         "conversion (simreel convert) of PATH, or a second recording")

@@ -412,6 +412,26 @@ def test_a_file_name_that_begins_with_a_dash_is_named_with_how_to_pass_it(capsys
     assert _run(capsys, argv) == (2, message + "\n")
 
 
+@pytest.mark.parametrize(("argv", "said"), [
+    (["replay", "a.h5", "--episodes", "0", "--episodes", "1"], "--episodes: given twice ('0', then '1')"),
+    (["filter", "a.h5", "-o", "b.h5", "--episodes", "0", "--episodes=1"], "--episodes: given twice ('0', then '1')"),
+    (["video", "a.h5", "--episodes", "0-3", "--episodes", "5"], "--episodes: given twice ('0-3', then '5')"),
+    (["audit", "--trajectory", "a.h5", "--episodes", "0", "--episodes", "1"], "--episodes: given twice ('0', then '1')"),
+    (["convert", "a.h5", "b.h5", "--obs-mode", "state", "--episodes", "0", "--episodes", "0"],
+     "--episodes: given twice ('0', then '0')"),
+    (["convert", "a.h5", "b.h5", "--obs-mode", "state", "--keep", "verified", "--keep", "success"],
+     "--keep: given twice ('verified', then 'success')"),
+    (["record", "PickCube-v1", "-o", "b.h5", "--contacts", "none", "--contacts", "auto"],
+     "--contacts: given twice ('none', then 'auto')"),
+], ids=["replay", "filter", "video", "audit", "convert-episodes", "convert-keep", "record-contacts"])
+def test_a_list_option_given_twice_is_refused_not_cut_to_its_last_list(tmp_path, monkeypatch, capsys, argv, said):
+    """Regression: `--episodes 0 --episodes 1` replayed (filtered, ...) episode 1 alone, without a word."""
+    monkeypatch.chdir(tmp_path)  # without the refusal, `record` would write b.h5 here
+    prog = f"simreel {argv[0]}"
+    assert _run(capsys, argv) == (2, f"{prog}: error: argument {said}; give it once, with every item in one "
+                                     f"comma-separated list (see {prog} --help)\n")
+
+
 def test_the_command_line_itself_gives_one_line_and_exit_2():
     """The one subprocess check: what a shell sees (stderr, exit status) from `python -m simreel`."""
     done = subprocess.run([sys.executable, "-m", "simreel", "inspect", "no-such-file.h5"], capture_output=True,
