@@ -169,11 +169,12 @@ def _stopped(prog: str, stop: KeyboardInterrupt) -> int:
 
 
 def _unexpected(args: argparse.Namespace, e: Exception) -> int:
-    """Exit 3 for a bug of simreel's, one line; exit 2 where the user's task code raised (`task_code_error`) or a
-    path given is longer than the file system takes (`_name_too_long`)."""
+    """Exit 3 for a bug of simreel's, one line; exit 2 where the user's task code raised (`task_code_error`), a
+    path given is longer than the file system takes (`_name_too_long`) or the storage refused a write
+    (`_storage_refused`)."""
     from simreel.sim.user_code import task_code_error
 
-    user_bug = task_code_error(e) or _name_too_long(e)
+    user_bug = task_code_error(e) or _name_too_long(e) or _storage_refused(e)
     if user_bug is not None:
         _fail(args, f"error: {user_bug}")
         return 2
@@ -189,6 +190,17 @@ def _name_too_long(e: Exception) -> str | None:
     if not isinstance(e, OSError) or e.errno != errno.ENAMETOOLONG:
         return None
     return f"{e.filename}: a name in this path is longer than the file system takes; give a shorter path"
+
+
+def _storage_refused(e: Exception) -> str | None:
+    """What to say of the storage refusing a write that no writer said in its own words (`storage_error`, which names
+    the recording), such as the standard output on a full disk (`> /dev/full`): never simreel's bug. None for
+    another error."""
+    from simreel.formats.durable import is_storage_error, storage_error
+
+    if not is_storage_error(e):
+        return None
+    return str(storage_error(e.filename or "writing the output", e))  # type: ignore[union-attr]
 
 
 def _fail(args: argparse.Namespace, message: str) -> None:
