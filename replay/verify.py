@@ -33,6 +33,7 @@ from simreel.errors import FileProblemError, ReplayError, StorageError, UsageErr
 from simreel.formats import check_report_writable, check_writable, format_of, recording_files
 from simreel.formats.durable import is_storage_error, raise_if_stopped, storage_error
 from simreel.formats.inputs import file_identity
+from simreel.formats.paths import refuse_empty
 from simreel.formats.targets import check_distinct
 from simreel.option_checks import (
     check_flag,
@@ -138,6 +139,8 @@ class ReplayOptions:
         for name in ("output", "report"):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, path_text(name, getattr(self, name), _PATH_OPTIONS[name]))
+                # "" would be taken for None: a report asked for and never written
+                refuse_empty(getattr(self, name), what="file", instead=f"give {_PATH_OPTIONS[name]}")
         self.tolerances()  # the values: mode, resync, workers, tolerances
         object.__setattr__(self, "group_tolerances", {g: float(t) for g, t in self.group_tolerances.items()})
         if self.atol is not None:

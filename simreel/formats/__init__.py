@@ -45,7 +45,11 @@ MCAP_SUFFIXES = (".mcap",)
 
 
 def format_of(path: str | Path) -> str:
-    """"hdf5" or "mcap" from the file suffix; a clear error for anything else (a folder named as such)."""
+    """"hdf5" or "mcap" from the file suffix; a clear error for anything else (an empty path, a folder named as
+    such)."""
+    from simreel.formats.paths import refuse_empty
+
+    refuse_empty(path, what="recording", instead="name a .h5 or .mcap file")
     suffix = Path(path).suffix.lower()
     if suffix in HDF5_SUFFIXES:
         return "hdf5"

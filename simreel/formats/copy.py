@@ -70,8 +70,8 @@ def convert(
     through (``simreel convert --poses``). `progress` wraps the episode list (a progress bar). A damaged
     episode makes the whole copy fail (naming it): `recover` copies the intact ones.
     """
+    format_of(dst)  # a bad suffix, or none (Path("") is "."), fails before anything is read
     src_p, dst_p = Path(src), Path(dst)
-    format_of(dst_p)  # a bad suffix fails before anything is read
     check_distinct({"OUT": recording_files(dst_p)}, recording_files(src_p), input_label="IN")
     check_writable(dst_p, overwrite=overwrite)  # before the reader and a transform's env cost anything
     with open_reader(src_p) as reader:

@@ -67,6 +67,15 @@ def test_a_conversion_option_given_empty_or_zero_to_a_copy_is_refused(tmp_path, 
     assert not (tmp_path / "out.mcap").exists()
 
 
+@pytest.mark.parametrize("extra", [[], ["--obs-mode", "state"]], ids=["copy", "conversion"])
+def test_an_empty_out_is_one_line_naming_it(tmp_path, capsys, extra):
+    """Regression: `simreel convert IN "$UNSET"` said ".: unknown recording suffix ''" (the working folder)."""
+    src, _ = _source(tmp_path, ".h5")
+    assert main(["convert", str(src), "", "-q", *extra]) == 2
+    assert capsys.readouterr().err == ("simreel convert: error: an empty path names no recording (an unset shell "
+                                       "variable?); name a .h5 or .mcap file\n")
+
+
 def test_overwrite_replaces_output(tmp_path):
     src, episodes = _source(tmp_path, ".h5")
     (tmp_path / "out.mcap").write_bytes(b"old")

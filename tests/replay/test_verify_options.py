@@ -43,6 +43,10 @@ WORKERS = "give the number of processes (Ray actors with ray) replaying episodes
         ({"output": 5}, "output=5: give the file to write the replayed episodes to, a str or pathlib.Path ending in "
                         ".h5 or .mcap, or None"),  # was: accepted as a file named 5
         ({"report": 5}, "report=5: give the report to write, a str or pathlib.Path (REPORT.json), or None"),
+        ({"report": ""}, "an empty path names no file (an unset shell variable?); give the report to write, a str or "
+                         "pathlib.Path (REPORT.json), or None"),  # was: taken for None, and no report was written
+        ({"output": ""}, "an empty path names no file (an unset shell variable?); give the file to write the replayed "
+                         "episodes to, a str or pathlib.Path ending in .h5 or .mcap, or None"),
         ({"obs_mode": 5}, 'obs_mode=5: give an observation mode as a string, e.g. "rgb", or None (the recorded '
                           'one)'),
         ({"sim_backend": 5}, 'sim_backend=5: give a sim backend as a string, e.g. "physx_cpu", or None (the '
@@ -54,6 +58,7 @@ WORKERS = "give the number of processes (Ray actors with ray) replaying episodes
     ids=["resync-str", "resync-bool", "resync-float", "workers-str", "workers-float", "atol-str", "atol-bool",
          "group_tolerances-list", "episodes-int", "episodes-bad-text", "episodes-float", "episodes-negative",
          "imports-int", "overwrite-str", "resume-int", "ship-str", "ship-without-ray", "output-int", "report-int",
+         "report-empty", "output-empty",
          "obs_mode-int", "sim_backend-int", "ray-int", "command-int"],
 )
 def test_an_option_of_the_wrong_type_is_one_usage_error_when_the_options_are_built(tmp_path, monkeypatch, options,
