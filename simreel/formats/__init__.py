@@ -21,6 +21,7 @@ from simreel.episode import RecordingMeta, StepBlock
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats.base import EpisodeReader, EpisodeSink, EpisodeWriter
 from simreel.formats.maniskill.layout import refuse_replacing_sidecar, sidecar_owners
+from simreel.formats.paths import read_head, refuse_empty
 from simreel.formats.targets import check_output
 from simreel.option_checks import path_text
 
@@ -47,8 +48,6 @@ MCAP_SUFFIXES = (".mcap",)
 def format_of(path: str | Path) -> str:
     """"hdf5" or "mcap" from the file suffix; a clear error for anything else (an empty path, a folder named as
     such)."""
-    from simreel.formats.paths import refuse_empty
-
     refuse_empty(path, what="recording", instead="name a .h5 or .mcap file")
     suffix = Path(path).suffix.lower()
     if suffix in HDF5_SUFFIXES:
@@ -139,7 +138,6 @@ def open_reader(path: str | Path) -> EpisodeReader:
     """A reader for `path`, chosen by the file's magic bytes, whatever its suffix."""
     from simreel.formats.hdf5.layout import HDF5_MAGIC
     from simreel.formats.mcap.records import MCAP_MAGIC
-    from simreel.formats.paths import read_head, refuse_empty
 
     if not isinstance(path, (str, os.PathLike)):
         raise UsageError(f"{path!r}: give a recording's path, a str or Path")
