@@ -53,7 +53,7 @@ from simreel.replay.audit_checks import (
     max_error,
 )
 from simreel.sim.rebuild import build_with_render_fallback
-from simreel.sim.seeds import SEED_LIMIT, is_seed
+from simreel.sim.seeds import check_seed_span
 from simreel.sim.state import read_state, restore_state
 from simreel.sim.user_code import import_specs
 from simreel.state_tree import describe_leaf, layout_of, to_numpy
@@ -121,9 +121,7 @@ class AuditOptions:
         if self.steps < 1:
             raise UsageError(f"--steps must be >= 1, got {self.steps}")
         last = self.seed + max(2, self.episodes - 1)  # the layout check resets with seed + 2; episode k uses seed + k
-        if not (is_seed(self.seed) and is_seed(last)):
-            raise UsageError(f"--seed {self.seed}: this audit would use seeds {self.seed} to {last}, but ManiSkill takes "
-                             f"seeds from 0 to {SEED_LIMIT - 1}; choose a seed in that range")
+        check_seed_span(self.seed, last, "audit", "--episodes")
         if self.every < 1 or self.episodes < 1:
             raise UsageError(f"--every and --episodes must be >= 1, got {self.every} and {self.episodes}")
         if self.trajectory is not None and self.policy is not None:

@@ -58,12 +58,10 @@ def _check_counts(args: argparse.Namespace) -> None:
     num_envs = EnvConfig.num_envs if args.num_envs is None else args.num_envs
     if num_envs < 1:
         raise UsageError(f"--num-envs must be ≥ 1, got {num_envs}")
-    from simreel.sim.seeds import SEED_LIMIT, is_seed
+    from simreel.sim.seeds import check_seed_span
 
     last = args.seed + max(args.episodes, num_envs) - 1  # the largest seed a run uses (`_record_batched`)
-    if not (is_seed(args.seed) and is_seed(last)):
-        raise UsageError(f"--seed {args.seed}: this run would use seeds {args.seed} to {last}, but ManiSkill takes "
-                         f"seeds from 0 to {SEED_LIMIT - 1}; choose a seed in that range")
+    check_seed_span(args.seed, last, "run", "-n")
 
 
 @dataclass(frozen=True)

@@ -63,6 +63,9 @@ BAD_INPUT = [
      "--seed -1: this run would use seeds -1 to -1, but ManiSkill takes seeds from 0 to 4294967295"),
     ("record-seed-past-2**32", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--seed", "4294967295", "-n", "2"],
      "this run would use seeds 4294967295 to 4294967296"),
+    ("record-episodes-past-seeds", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "-n", "99999999999999999999999"],
+     "seeds 0 to 99999999999999999999998, but ManiSkill takes seeds from 0 to 4294967295; choose a seed, or fewer "
+     "episodes (-n), that keeps them in that range"),  # was: "choose a seed in that range", -n not named
     ("record-policy-raises", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/policies.py:boom"],
      "policies.py:boom raised RuntimeError: policy bug (episode 0, step 0); fix the policy"),
     ("record-policy-shape", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/policies.py:short"],

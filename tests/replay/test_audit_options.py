@@ -17,7 +17,8 @@ from simreel.replay import AuditOptions, audit_task
 
 STEPS = "give the number of random steps before the restore, an int >= 1"
 SEED = "give the seed of the first instance, an int >= 0"
-SEED_RANGE = "but ManiSkill takes seeds from 0 to 4294967295; choose a seed in that range"
+SEED_RANGE = ("but ManiSkill takes seeds from 0 to 4294967295; choose a seed, or fewer episodes (--episodes), that "
+              "keeps them in that range")
 SELECTION = 'give episode indices, ints >= 0 (e.g. [0, 3]), their text as --episodes takes it ("0,3-7"), or None (all)'
 
 
