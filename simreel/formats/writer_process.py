@@ -28,6 +28,7 @@ Run by `ProcessWriter` only (`_BOOTSTRAP`).
 
 from __future__ import annotations
 
+import fcntl
 import os
 import pickle
 import subprocess
@@ -66,8 +67,8 @@ class ProcessWriter:
         self._target = Path(path)
         """The file asked for (`path` is the one the writer opened)."""
         self.path: Path | None = None
-        to_child, to_child_writes = os.pipe()
-        from_child_reads, from_child = os.pipe()
+        to_child, to_child_writes = _pipe()
+        from_child_reads, from_child = _pipe()
         try:
             self._child = subprocess.Popen(
                 [sys.executable, *_interpreter_flags(), "-c", _BOOTSTRAP, _simreel_root(),
@@ -372,6 +373,20 @@ _BOOTSTRAP = (
 """The child's program: it ignores SIGINT and SIGTERM (the recorder handles them and tells it what to keep) and runs
 the simreel this process runs, loaded from the folder this process loaded it from, without putting that folder (or the
 working directory, and whatever lies there) on its path."""
+
+
+def _pipe() -> tuple[int, int]:
+    """`os.pipe()` whose ends are above the standard descriptors 0-2: in a process started without stdin or stdout
+    (a daemon, `python script.py <&- >&-`) a pipe end would be 0 or 1, which the child's own /dev/null stdin and
+    stdout replace: the child would read and answer the wrong file, and the recorder say the writer process ended."""
+    ends = []
+    for fd in os.pipe():
+        if fd > 2:
+            ends.append(fd)
+            continue
+        ends.append(fcntl.fcntl(fd, fcntl.F_DUPFD_CLOEXEC, 3))
+        os.close(fd)
+    return ends[0], ends[1]
 
 
 def _interpreter_flags() -> list[str]:

@@ -493,3 +493,28 @@ def test_a_row_source_that_does_not_pickle_falls_back_to_converting_here(tmp_pat
     w.close()
     with open_reader(tmp_path / "r.h5") as r:
         assert r.read_episode(0).info["elapsed_steps"].tolist() == [1, 2, 3, 4]
+
+
+_RECORD_SCRIPT = """
+import sys
+from simreel.recorders import RecordWrapper
+from simreel.sim.make import make_env
+env = RecordWrapper(make_env("PickCube-v1", max_episode_steps=3), sys.argv[1])
+env.reset(seed=0)
+for _ in range(3):
+    env.step(env.action_space.sample())
+env.close()
+"""
+
+
+def test_a_recorder_in_a_process_without_stdin_and_stdout_writes_its_file(tmp_path):
+    """Regression: in a Python process started without descriptors 0 and 1 (a daemon, ``<&- >&-``), the writer
+    child's pipes took them and the child's own /dev/null stdin and stdout replaced them: "the writer process ended"
+    at the first episode, no file."""
+    script, out = tmp_path / "rec.py", tmp_path / "r.h5"
+    script.write_text(_RECORD_SCRIPT)
+    done = subprocess.run(["sh", "-c", 'exec "$@" <&- >&-', "sh", sys.executable, str(script), str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    with open_reader(out) as reader:
+        assert [ep.length for ep in reader.episodes] == [3]
