@@ -166,6 +166,7 @@ def make_env(env_id: str, config: EnvConfig | None = None, **overrides: Any) -> 
             task cannot be built without one (PushT-v1).
     """
     cfg = _fold_env_kwargs(env_id, (config or EnvConfig()).with_overrides(**overrides))
+    _check_sim_backend(env_id, cfg.sim_backend)
     configure_vulkan()
     if cfg.render_backend == "auto":
         start_render_probe()  # runs in a child process while mani_skill imports here
@@ -178,6 +179,19 @@ def make_env(env_id: str, config: EnvConfig | None = None, **overrides: Any) -> 
         raise EnvBuildError(f"{env_id}: ManiSkill exited while building the env ({exc.code})") from exc
     except Exception as exc:
         raise _build_error(env_id, exc, backend=backend, cfg=cfg) from exc
+
+
+SIM_BACKENDS = ("auto", "physx_cpu", "cpu", "physx_cuda", "gpu", "cuda")
+"""The sim backends ManiSkill 3.0.1 takes (`parse_sim_and_render_backend`), a CUDA one also as ``physx_cuda:N``."""
+
+
+def _check_sim_backend(env_id: str, sim_backend: Any) -> None:
+    """`EnvBuildError` naming the sim backends there are for one ManiSkill has no name for: it fails on it inside
+    gym.make as a bare KeyError ('foo')."""
+    name, _, device = sim_backend.partition(":") if isinstance(sim_backend, str) else (None, "", "")
+    if name not in SIM_BACKENDS or (device and not device.isdigit()):
+        raise EnvBuildError(f"{env_id}: sim backend {sim_backend!r} is none of ManiSkill's: {', '.join(SIM_BACKENDS)} "
+                            "(a CUDA device as physx_cuda:N)")
 
 
 def time_limit(env_id: str) -> int | None:

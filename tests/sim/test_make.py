@@ -327,3 +327,15 @@ def test_a_gpu_build_without_the_physx_gpu_library_says_where_to_get_it_and_put_
     line = done.stdout.strip().splitlines()[-1]
     assert line.startswith(f"PickCube-v1: the GPU sim needs SAPIEN's PhysX GPU library, which is not in {folder}")
     assert f"/releases/download/{folder.name}/linux" in line and f"unzip it into {folder} on this one" in line
+
+
+@pytest.mark.parametrize("backend", ["foo", "physx_cuda:x", "", 5])
+def test_a_sim_backend_maniskill_has_no_name_for_is_named_with_those_it_has(backend):
+    """Regression: ManiSkill failed on it inside gym.make as a bare KeyError ('could not build the env: KeyError:
+    'foo''), naming none of its backends."""
+    from simreel.errors import EnvBuildError
+    from simreel.sim.make import make_env
+
+    with pytest.raises(EnvBuildError, match=rf"^PickCube-v1: sim backend {backend!r} is none of ManiSkill's: auto, "
+                                            r"physx_cpu, cpu, physx_cuda, gpu, cuda \(a CUDA device as physx_cuda:N\)$"):
+        make_env("PickCube-v1", sim_backend=backend)
