@@ -68,7 +68,7 @@ from simreel.replay.output import (
     published,
     staged_path,
 )
-from simreel.replay.report import CHECK_ORDER, EpisodeReport, episode_lines, recording_limits
+from simreel.replay.report import CHECK_ORDER, WITH_ENV_STATES, EpisodeReport, episode_lines, recording_limits
 from simreel.replay.tracking import Commands, EndEffector, TrackingBlocks, tracking_tolerances
 from simreel.replay.workers import (
     EpisodeResult,
@@ -654,8 +654,7 @@ class ConversionRun:
         opts = self.options
         if not meta.state_layout:
             raise UsageError(f"{self.path} holds no env_states: a conversion restores or is checked against the "
-                             "recorded states; record with them (RecordEpisode(record_env_state=True), simreel record), "
-                             "or let ManiSkill's replay_trajectory --save-traj write a copy that has them")
+                             f"recorded states; {WITH_ENV_STATES}")
         if opts.control_mode is not None:
             if opts.converter is None:
                 check_pair(meta.control_mode, opts.control_mode)

@@ -10,11 +10,12 @@ from typing import Any
 
 from simreel.compare import Divergence, EpisodeComparison, format_number, json_number, worst_keys
 from simreel.divergence import Explanation
-from simreel.episode import Episode
+from simreel.episode import FLAG_FIELDS, Episode, RecordingMeta
 from simreel.formats.base import EpisodeRows
 from simreel.sim.fingerprint import SceneDifference
 
-__all__ = ["EpisodeReport", "VERIFIED", "CHECK_ORDER", "checked_groups", "recording_limits", "episode_lines"]
+__all__ = ["EpisodeReport", "VERIFIED", "CHECK_ORDER", "WITH_ENV_STATES", "checked_groups", "recording_limits",
+           "only_flags_problem", "episode_lines"]
 
 VERIFIED = ("exact", "within_tolerance")
 """Verdicts of an episode that verified; the others are ``diverged`` and ``error`` (it could not be replayed:
@@ -38,6 +39,29 @@ _LIMITS = {
                "replayed alone (num_envs=1)",
 }
 """What a replay cannot check or reproduce when a file does not hold something (`RecordingMeta.unknown`)."""
+
+
+WITH_ENV_STATES = ("record with them (RecordEpisode(record_env_state=True), simreel record), or let ManiSkill's "
+                   "replay_trajectory --save-traj write a copy that has them")
+"""How to come by a recording with env states, for the commands that need them."""
+_FLAG_REWARD_MODES = ("sparse", "none")
+"""Reward modes whose rewards follow the flags alone (ManiSkill's sparse reward is success - fail) or are 0."""
+
+
+def only_flags_problem(meta: RecordingMeta) -> str | None:
+    """Why a replay of a recording with `meta` could verify nothing: it holds no env states, observations or contact
+    forces, and no rewards but flag-driven ones (a ManiSkill RecordEpisode file made with record_env_state=False and
+    obs_mode "none"), so only the flags would be compared, and those (all False, in most episodes) match whatever
+    the trajectory did. None: the recording holds something that follows the trajectory."""
+    if meta.state_layout or meta.obs_layout or meta.contact_channels:
+        return None
+    if "rewards" not in meta.unknown and meta.reward_mode not in _FLAG_REWARD_MODES:
+        return None
+    held = ("no env_states, observations or rewards" if "rewards" in meta.unknown else
+            f"no env_states or observations, and its rewards are {meta.reward_mode}")
+    flags = ", ".join(f for f in FLAG_FIELDS if f not in meta.unknown)
+    return (f"holds {held} (recorded without them): a replay could compare only its flags ({flags}), which do not "
+            f"tell whether the trajectory reproduced; {WITH_ENV_STATES}")
 
 
 def recording_limits(unknown: list[str]) -> list[str]:

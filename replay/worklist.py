@@ -23,6 +23,7 @@ from simreel.episode import EpisodeSelection, RecordingMeta, json_default
 from simreel.errors import FileProblemError, SimreelError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.inputs import expand_inputs, file_identity
+from simreel.replay.report import only_flags_problem
 from simreel.scene_history import SceneChains
 
 __all__ = ["RecordingInfo", "WorkItem", "WorkList", "env_key", "build_worklist", "chain_groups", "next_item"]
@@ -103,6 +104,9 @@ def _read_header(path: Path, wanted: EpisodeSelection | None, restores: str | No
         if restores is not None and not reader.meta.state_layout:
             raise UsageError(f"{path}: holds no env_states (recorded without them), and {restores} restores recorded "
                              "states; replay it with --mode actions")
+        only_flags = only_flags_problem(reader.meta)
+        if only_flags:
+            raise UsageError(f"{path}: {only_flags}")
         if wanted is None:
             reader.refuse_damaged("replayed")  # a damaged episode is never left out silently
         steps = {m.index: m.length for m in reader.episodes}

@@ -268,3 +268,27 @@ def test_a_flat_observation_under_a_dict_obs_mode_is_named_not_compared(altered_
     episode = _replay(path, tmp_path, 0)["episodes"][0]
     assert "obs" not in episode["checked"]
     assert "obs/state_dict not compared: the replay's observation has no such key" in episode["limits"]
+
+
+@pytest.mark.parametrize(
+    ("options", "held"),
+    [({"record_reward": False}, "no env_states, observations or rewards"),
+     ({"env_kwargs": {"reward_mode": "sparse"}}, "no env_states or observations, and its rewards are sparse")],
+    ids=["no-rewards", "sparse-rewards"],
+)
+def test_a_file_that_holds_only_flags_is_refused_never_called_exact(tmp_path, capsys, options, held):
+    """RecordEpisode(record_env_state=False) with obs_mode "none" and no rewards (or sparse ones: success - fail again)
+    leaves a replay only the flags to compare, all False here: actions zeroed still replayed "exact" before. One line,
+    exit 2; in a dataset run the file is an error and the other files replay."""
+    path = record_maniskill(tmp_path / "data", "PickCube-v1", name="flags", episodes=1, steps=4, obs_mode="none",
+                            record_env_state=False, **options)
+    record_maniskill(tmp_path / "data", "PickCube-v1", name="full", episodes=1, steps=4)
+    with h5py.File(path, "a") as f:
+        f["traj_0/actions"][...] = 0.0
+    capsys.readouterr()
+    assert main(["replay", str(path), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{path}: holds {held} (recorded without them): a replay could compare only its " \
+        "flags (terminated, truncated, success), which do not tell whether the trajectory reproduced" in err, err
+    report = _replay(tmp_path / "data", tmp_path, 2)
+    assert [(Path(e["file"]).name, e["verdict"]) for e in report["episodes"]] == [("full.h5", "exact")], report
