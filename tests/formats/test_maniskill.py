@@ -329,3 +329,27 @@ def test_sidecar_keys_simreel_does_not_map_are_kept(ms_dir, tmp_path, capsys):
     # and the copy's sidecar says where the demos came from, for ManiSkill's tools: not "simreel"
     written = json.loads((tmp_path / "merged.json").read_text())
     assert (written["source_type"], written["source_desc"]) == ("scripted", "joint-space random walks")
+
+
+def test_a_file_recordepisode_wrote_no_episode_into_is_read_as_empty_not_foreign(tmp_path, capsys):
+    """RecordEpisode(save_on_reset=False) whose flush_trajectory() was never called writes no traj_N group and a
+    sidecar listing none: an empty ManiSkill file, as inspect says (exit 0); replay says it has no episodes. Before, every
+    command called it "neither a simreel recording nor a ManiSkill trajectory file"."""
+    path = record_maniskill(tmp_path, "PickCube-v1", name="unflushed", episodes=1, steps=3, save_on_reset=False)
+    with h5py.File(path, "r") as f:
+        assert list(f) == [] and json.loads(path.with_suffix(".json").read_text())["episodes"] == []
+    capsys.readouterr()
+    assert main(["inspect", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "episodes: 0, steps: 0" in out and "the file holds no episodes: RecordEpisode writes one at each reset and " \
+        "at close, or with save_on_reset=False only at each flush_trajectory()" in out, out
+    assert main(["replay", str(path), "-q"]) == 2
+    assert f"{path}: the recording has no episodes to replay" in capsys.readouterr().err
+    for other in ('{"a": 1}', None):  # another tool's JSON beside it, or none: nothing says what the file is
+        path.with_suffix(".json").unlink()
+        if other:
+            path.with_suffix(".json").write_text(other)
+        assert main(["inspect", str(path)]) == 2
+        assert capsys.readouterr().err == (f"simreel inspect: error: {path}: an HDF5 file that is neither a simreel "
+                                           "recording (no simreel metadata) nor a ManiSkill trajectory file (no traj_N "
+                                           "groups)\n")

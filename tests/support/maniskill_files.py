@@ -111,7 +111,8 @@ def record_maniskill(folder: Path, env_id: str, *, name: str = "demos", episodes
     """Record `episodes` episodes of `steps` steps (seeds 0, 1, ...) with RecordEpisode into folder/name.h5.
 
     `options`: ``obs_mode`` (default "none", as published demos), ``control_mode`` (default "pd_joint_pos"),
-    ``record_env_state`` / ``record_reward`` (default True), ``source_type``/``source_desc``, ``path``
+    ``record_env_state`` / ``record_reward`` / ``save_on_reset`` (default True; without the last, RecordEpisode writes
+    an episode only at ``flush_trajectory()``, never called here), ``source_type``/``source_desc``, ``path``
     ("walk" default, "smooth" or "pick": see the module docstring), ``path_seed`` (of the first episode's path,
     default 100; episode k uses path_seed + k), ``env_kwargs``.
     """
@@ -126,6 +127,7 @@ def record_maniskill(folder: Path, env_id: str, *, name: str = "demos", episodes
     env = RecordEpisode(env, str(folder), trajectory_name=name, save_video=False,
                         record_env_state=options.get("record_env_state", True),
                         record_reward=options.get("record_reward", True),
+                        save_on_reset=options.get("save_on_reset", True),
                         source_type=options.get("source_type"), source_desc=options.get("source_desc"))
     path = options.get("path", "walk")
     for k in range(episodes):

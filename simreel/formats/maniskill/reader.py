@@ -65,6 +65,9 @@ _UNLISTED_WHY = ("simreel reads ManiSkill's own datasets only, and refuses an ep
                  "them: keep ManiSkill's tools for this file, or delete them from a copy (h5py: "
                  "del f['traj_N/<name>']) to use simreel on the rest")
 """Why a dataset of a ``traj_N`` group that no field reads is refused (`unlisted_datasets_problem`), and what to do."""
+_EMPTY = ("the file holds no episodes: RecordEpisode writes one at each reset and at close, or with "
+          "save_on_reset=False only at each flush_trajectory()")
+"""The note on a file without ``traj_N`` groups beside a sidecar listing none: what RecordEpisode did not do."""
 _ENTRY_KEYS = ("episode_id", "episode_seed", "control_mode", "elapsed_steps", "reset_kwargs", "success", "fail")
 _RESET_KEYS = ("seed", "options")
 """An episode entry's keys, as ManiSkill 3.0.1 writes them, that the reader maps onto simreel's metadata (its
@@ -123,10 +126,10 @@ class ManiskillReader(EpisodeReader):
 
     def _open(self) -> None:
         groups = self._groups()
-        self.sidecar = Sidecar.read(self.path)
+        self.sidecar = self._sidecar(groups)
         self.episodes = _episode_metas(self.sidecar, groups, self._action_rows)
-        self.notes = _unlisted_groups(self.sidecar, groups)
-        """Recording-level quirks (groups the sidecar does not list)."""
+        self.notes = _unlisted_groups(self.sidecar, groups) + ([] if groups else [_EMPTY])
+        """Recording-level quirks (groups the sidecar does not list, a file without any)."""
         first = self._held(self.episodes[0].index) if self.episodes else None
         self._first = _layout(first) if first is not None else {}
         """The first listed episode's datasets (`_layout`): the file's layout, which every episode must have."""
@@ -140,8 +143,9 @@ class ManiskillReader(EpisodeReader):
         self.kind = f"ManiSkill trajectory file (JSON sidecar {self.sidecar.path.name})"
 
     def _groups(self) -> dict[int, str]:
-        """The ``traj_N`` groups at the root by episode index; `RecordingFileError` for a file with none, or where a
-        ``traj_N`` is no group (not a trajectory file, or a damaged one)."""
+        """The ``traj_N`` groups at the root by episode index (none: `_sidecar` tells an empty trajectory file from
+        another HDF5 file); `RecordingFileError` where a ``traj_N`` is no group (not a trajectory file, or a damaged
+        one)."""
         import h5py
 
         try:  # the object's kind from its header (h5o), without opening it: cheap for tens of thousands of groups
@@ -149,16 +153,25 @@ class ManiskillReader(EpisodeReader):
                      for name in self._file if (i := group_index(name)) is not None}
         except H5PY_ERRORS as e:
             raise RecordingFileError(self.path, f"corrupt HDF5 file: its list of groups cannot be read ({e})") from None
-        if not found:
-            raise RecordingFileError(
-                self.path, "an HDF5 file that is neither a simreel recording (no simreel metadata) nor a ManiSkill "
-                "trajectory file (no traj_N groups)"
-            )
         odd = [name for name, is_group in found.values() if not is_group]
         if odd:
             raise RecordingFileError(self.path, f"{odd[0]} is a dataset, not a group of an episode's arrays: not a "
                                                 "ManiSkill trajectory file, or a damaged one")
         return {i: name for i, (name, _) in found.items()}
+
+    def _sidecar(self, groups: dict[int, str]) -> Sidecar:
+        """The file's sidecar. A file without ``traj_N`` groups (`groups`) is a trajectory file only beside a sidecar
+        that reads: one RecordEpisode wrote no episode into (`_EMPTY`; a sidecar listing some says the .h5 lacks
+        them); without one, `RecordingFileError`: an HDF5 file of neither kind."""
+        try:
+            return Sidecar.read(self.path)
+        except RecordingFileError:
+            if groups:
+                raise
+            raise RecordingFileError(
+                self.path, "an HDF5 file that is neither a simreel recording (no simreel metadata) nor a ManiSkill "
+                "trajectory file (no traj_N groups)"
+            ) from None
 
     def _held(self, index: int) -> dict[str, Any]:
         """Every dataset of episode `index`'s group (`_datasets`); `RecordingFileError` when its structure cannot be
