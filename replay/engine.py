@@ -467,9 +467,10 @@ class EpisodeReplayer:
         start = time.perf_counter()
         done = self.reset_for(source.meta)
         self._check_layout()
+        recorded = source.reset()
+        unseeded = self._start_unseeded(source, recorded)
         converter.bind(self.u)
         sink.start()
-        recorded = source.reset()
         sink.reset(recorded, self._reset_row(recorded))
         clipped: list[int] = []
         commands = np.full((source.length, 2, 7), np.nan)
@@ -487,16 +488,32 @@ class EpisodeReplayer:
                     self._after_step(buf, i, self._step(torch.from_numpy(buf.actions[i]).to(self.u.device)))
                     _put(commands[first + i], getattr(converted, "wanted", None), commanded())
                 sink.steps(first, block, buf.block())
-        notes = [*done.notes, *source.meta.notes, *done.limits]
+        notes = [*done.notes, *source.meta.notes, *done.limits, *unseeded]
         if clipped:
             notes.append(f"the {converter.target_mode} action was clipped to its limits at {len(clipped)} step(s) "
                          f"(first: step {clipped[0]}): the recorded target was out of one step's reach; their commands "
                          "are not compared, the trajectory is")
-        out = ReplayedEpisode(None, notes, limits=[*source.meta.notes, *done.limits], clipped=clipped,
+        out = ReplayedEpisode(None, notes, limits=[*source.meta.notes, *done.limits, *unseeded], clipped=clipped,
                               commands=commands)
         out.compare_contacts = self._contacts is not None
         out.seconds = time.perf_counter() - start
         return out
+
+    def _start_unseeded(self, source: EpisodeRows, recorded: StepBlock) -> list[str]:
+        """Start an episode without a seed from its recorded initial state (`recorded`: its reset row): no replay can
+        remake an unseeded reset (ManiSkill drew it from the global RNG), so the reset goes unchecked; the limit that
+        says so (none for a seeded episode). `RecordingFileError` where the recording holds no states to start from:
+        where the episode began is then unknown, and stepping from another start would judge another trajectory."""
+        if source.meta.seed is not None:
+            return []
+        row = _States(recorded).row(0)
+        if not row:
+            raise RecordingFileError(getattr(source, "path", None) or "the recording",
+                                     f"episode {source.meta.index}: its reset had no seed and the recording holds no "
+                                     "env states, so where it began can be neither remade nor restored: it cannot be "
+                                     "replayed")
+        restore_state(self.u, row, elapsed_steps=0)
+        return ["actions replayed from the recorded initial state"]
 
     def _replay(self, run: _Run) -> ReplayedEpisode:
         meta = run.source.meta
@@ -523,12 +540,10 @@ class EpisodeReplayer:
         run.info_returned = set()  # a replay again after a rebuild starts afresh
         recorded = source.reset()
         states = run.states = _States(recorded)
-        if run.mode == "states" or (run.mode == "actions" and source.meta.seed is None):
+        if run.mode == "states":
             restore_state(self.u, states.row(0), elapsed_steps=0)
-        if run.mode == "actions" and source.meta.seed is None:
-            # An unseeded reset cannot be reproduced (ManiSkill drew it from the global RNG): start the
-            # actions from the recorded initial state instead, and say that the reset went unchecked.
-            out.limits.append("actions replayed from the recorded initial state")
+        elif run.mode == "actions" and source.meta.seed is None:
+            out.limits += self._start_unseeded(source, recorded)
             out.restored_at.append(0)
         run.sink.reset(recorded, self._reset_row(recorded))
         self._stepped = self._stepped or source.length > 0

@@ -15,6 +15,8 @@ from simreel.cli.main import main
 from simreel.errors import RecordingFileError
 from simreel.formats import open_reader
 from simreel.formats.maniskill.reader import ALWAYS_UNKNOWN, ManiskillReader
+from simreel.replay import verify_recording
+from simreel.replay.convert import convert_recording
 
 
 @pytest.fixture(scope="module")
@@ -353,3 +355,50 @@ def test_a_file_recordepisode_wrote_no_episode_into_is_read_as_empty_not_foreign
         assert capsys.readouterr().err == (f"simreel inspect: error: {path}: an HDF5 file that is neither a simreel "
                                            "recording (no simreel metadata) nor a ManiSkill trajectory file (no traj_N "
                                            "groups)\n")
+
+
+@pytest.mark.parametrize(("env_kwargs", "seeds"), [({}, [0, None, None]),
+                                                   ({"enhanced_determinism": True}, "recorded")],
+                         ids=["unseeded", "enhanced-determinism"])
+def test_an_episode_reset_without_a_seed_has_none_and_replays_from_its_recorded_first_state(tmp_path, env_kwargs,
+                                                                                           seeds):
+    """reset() without a seed: ManiSkill 3.0.1 draws the initial state from torch's global RNG, and RecordEpisode still
+    writes the env's last seed as episode_seed, which every replay used before (each such episode "diverged" at the
+    reset, "input inconsistent"). Its seed is unknown; the actions are replayed from the recorded first state. With
+    enhanced_determinism ManiSkill draws a new seed and uses it: that episode_seed is the reset's."""
+    path = record_maniskill(tmp_path, "PickCube-v1", name="unseeded", episodes=3, steps=5, obs_mode="state",
+                            seeded=False, env_kwargs=env_kwargs)
+    entries = json.loads(path.with_suffix(".json").read_text())["episodes"]
+    assert ["seed" in e["reset_kwargs"] for e in entries] == [True, False, False]
+    with open_reader(path) as r:
+        assert [m.seed for m in r.episodes] == (seeds if seeds != "recorded" else [e["episode_seed"] for e in entries])
+        said = [n for m in r.episodes for n in m.notes if n.startswith("reset without a seed")]
+    assert len(said) == (2 if seeds != "recorded" else 0)
+    assert not said or said[0] == (
+        "reset without a seed (its reset_kwargs hold none): episode_seed 0 is not this reset's (ManiSkill draws an "
+        "unseeded reset from torch's global RNG, and RecordEpisode writes the env's last seed): no replay can remake "
+        "it, ManiSkill's replay_trajectory neither")
+    report = verify_recording(path)
+    assert report.episodes[0].verdict == "exact"
+    if seeds == "recorded":
+        assert [e.verdict for e in report.episodes] == ["exact"] * 3
+    for e in report.episodes[1:]:  # from a restored state, PhysX may drift (README: determinism), never off at reset
+        assert e.first_divergence is None or e.first_divergence.at != "reset", e.first_divergence
+        assert ("actions replayed from the recorded initial state" in e.limits) == (seeds != "recorded")
+    if seeds == "recorded":
+        return
+    converted = convert_recording(path, tmp_path / "delta.h5", control_mode="pd_joint_delta_pos")
+    for e in converted.episodes[1:]:  # a conversion starts there too: before, from an unseeded reset, objects elsewhere
+        assert e.max_abs_error["env_states/actors/goal_site[p]"] == 0.0 and "actions replayed from the recorded " \
+            "initial state" in e.limits, (e.max_abs_error, e.limits)
+
+
+def test_an_episode_reset_without_a_seed_nor_recorded_states_is_an_error_of_that_episode(tmp_path):
+    """Neither its seed nor its first state is known: where it began cannot be told, so it is not replayed from
+    anywhere else (before: an unseeded reset, then "the task's reset is not reproducible")."""
+    path = record_maniskill(tmp_path, "PickCube-v1", name="unseeded", episodes=2, steps=3, obs_mode="state",
+                            seeded=False, record_env_state=False)
+    report = verify_recording(path)
+    assert [e.verdict for e in report.episodes] == ["exact", "error"]
+    assert report.episodes[1].error == ("episode 1: its reset had no seed and the recording holds no env states, so "
+                                        "where it began can be neither remade nor restored: it cannot be replayed")

@@ -114,7 +114,8 @@ def record_maniskill(folder: Path, env_id: str, *, name: str = "demos", episodes
     ``record_env_state`` / ``record_reward`` / ``save_on_reset`` (default True; without the last, RecordEpisode writes
     an episode only at ``flush_trajectory()``, never called here), ``source_type``/``source_desc``, ``path``
     ("walk" default, "smooth" or "pick": see the module docstring), ``path_seed`` (of the first episode's path,
-    default 100; episode k uses path_seed + k), ``env_kwargs``.
+    default 100; episode k uses path_seed + k), ``env_kwargs``, ``seeded`` (default True; False: only the first
+    episode resets with a seed, the others with none, as an RL loop does).
     """
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401
@@ -131,7 +132,7 @@ def record_maniskill(folder: Path, env_id: str, *, name: str = "demos", episodes
                         source_type=options.get("source_type"), source_desc=options.get("source_desc"))
     path = options.get("path", "walk")
     for k in range(episodes):
-        env.reset(seed=k)
+        env.reset(**({"seed": k} if k == 0 or options.get("seeded", True) else {}))
         for action in _path(env, path, steps, seed=options.get("path_seed", 100) + k):
             env.step(action)
     env.close()

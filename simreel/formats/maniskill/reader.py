@@ -315,10 +315,27 @@ def _episode_control_mode(sidecar: Sidecar) -> str | None:
     return modes.pop() if len(modes) == 1 else None
 
 
-def _seed(entry: dict[str, Any], notes: list[str]) -> int | None:
-    """The episode's seed: `episode_seed` (what replay_trajectory uses), checked against `reset_kwargs.seed`."""
+def _unseeded_resets_are_random(sidecar: Sidecar) -> bool:
+    """Whether an episode whose reset was given no seed was drawn from no seed at all: with one env (whose reset
+    kwargs RecordEpisode records) and without ``enhanced_determinism``, ManiSkill 3.0.1 then initialises the episode
+    from torch's global RNG, and RecordEpisode still writes the env's last seed as ``episode_seed``. With
+    ``enhanced_determinism`` it draws a new episode seed and uses it: that ``episode_seed`` is the reset's."""
+    kw = sidecar.env_kwargs
+    return int(kw.get("num_envs") or 1) == 1 and not kw.get("enhanced_determinism")
+
+
+def _seed(entry: dict[str, Any], notes: list[str], *, unseeded_random: bool) -> int | None:
+    """The episode's seed: `episode_seed` (what replay_trajectory uses), checked against `reset_kwargs.seed`; None
+    where the recorded reset kwargs hold no seed and such a reset is random (`_unseeded_resets_are_random`): its
+    episode_seed is not its seed, and replays start from the recorded first state (`EpisodeReplayer`)."""
     seed = entry.get("episode_seed")
-    given = (entry.get("reset_kwargs") or {}).get("seed")
+    reset = entry.get("reset_kwargs") or {}
+    if unseeded_random and reset and "seed" not in reset:
+        notes.append(f"reset without a seed (its reset_kwargs hold none): episode_seed {seed} is not this reset's "
+                     "(ManiSkill draws an unseeded reset from torch's global RNG, and RecordEpisode writes the env's "
+                     "last seed): no replay can remake it, ManiSkill's replay_trajectory neither")
+        return None
+    given = reset.get("seed")
     if isinstance(given, list):
         notes.append(f"reset_kwargs.seed is a list ({given}); ManiSkill's replay takes its one element")
         given = given[0] if len(given) == 1 else given
@@ -342,10 +359,10 @@ def _episode_metas(sidecar: Sidecar, groups: dict[int, str],
         shown = ", ".join(group_name(i) for i in missing[:5])
         raise RecordingFileError(sidecar.path, f"lists episodes the .h5 does not hold ({shown}): the sidecar belongs "
                                                "to another file, or the .h5 was cut")
-    metas = []
+    metas, unseeded_random = [], _unseeded_resets_are_random(sidecar)
     for entry in sidecar.episodes:
         notes: list[str] = []
-        seed = _seed(entry, notes)
+        seed = _seed(entry, notes, unseeded_random=unseeded_random)
         _note_sidecar_keys(entry, notes)
         options = dict((entry.get("reset_kwargs") or {}).get("options") or {})
         metas.append(EpisodeMeta(
