@@ -38,6 +38,7 @@ from simreel.option_checks import check_flag, check_mapping, check_text, options
 from simreel.sim.fingerprint import SceneDifference
 from simreel.sim.rebuild import (
     GYM_MAKE_SEED,
+    UNSEEDED_WITHOUT_STATES,
     EpisodeReset,
     build_with_render_fallback,
     env_from_meta,
@@ -509,9 +510,7 @@ class EpisodeReplayer:
         row = _States(recorded).row(0)
         if not row:
             raise RecordingFileError(getattr(source, "path", None) or "the recording",
-                                     f"episode {source.meta.index}: its reset had no seed and the recording holds no "
-                                     "env states, so where it began can be neither remade nor restored: it cannot be "
-                                     "replayed")
+                                     f"episode {source.meta.index}: {UNSEEDED_WITHOUT_STATES}: it cannot be replayed")
         restore_state(self.u, row, elapsed_steps=0)
         return ["actions replayed from the recorded initial state"]
 

@@ -28,7 +28,7 @@ from simreel.errors import UsageError, ViewError
 from simreel.formats import EpisodeReader
 from simreel.formats.targets import staged_output
 from simreel.option_checks import is_whole_number, options_with
-from simreel.sim.rebuild import GYM_MAKE_SEED, reset_to_episode
+from simreel.sim.rebuild import GYM_MAKE_SEED, UNSEEDED_WITHOUT_STATES, reset_to_episode
 from simreel.sim.state import check_rebuilt_layout, read_state
 from simreel.sim.user_code import import_specs
 from simreel.viewers.compare import (
@@ -541,8 +541,12 @@ def _source_path(source: Source) -> str | Path:
 
 def states_by_stepping(unwrapped: Any, episode: Episode) -> None:
     """Fill the `env_states` of an episode whose file holds none (a ManiSkill file recorded without them) by
-    stepping its recorded actions from the reproduced reset in `unwrapped`; the session then draws those."""
+    stepping its recorded actions from the reproduced reset in `unwrapped`; the session then draws those.
+    `ViewError` for an episode without a seed: its reset cannot be reproduced, so those states would be another's."""
     import torch
+
+    if episode.meta.seed is None:
+        raise ViewError(f"episode {episode.meta.index}: {UNSEEDED_WITHOUT_STATES}: its poses cannot be shown")
 
     rows = [read_state(unwrapped)]
     for action in episode.actions:

@@ -31,6 +31,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "GYM_MAKE_SEED",
+    "UNSEEDED_WITHOUT_STATES",
     "OTHER_EPISODE_OFFSET",
     "another_episode",
     "EpisodeReset",
@@ -107,6 +108,11 @@ class EpisodeReset:
     """What was done, for reports: ``"rebuilt the scene with seed 4"``."""
     limits: list[str] = field(default_factory=list)
     """What could not be reproduced: ``"the episode has no seed: its reset cannot be reproduced"``."""
+
+
+UNSEEDED_WITHOUT_STATES = ("its reset had no seed and the recording holds no env states, so where it began can be "
+                           "neither remade nor restored")
+"""Why an episode without a seed cannot be stepped from a recording without states: any start would be another's."""
 
 
 def reset_to_episode(env: Any, episode: EpisodeMeta, *, scene_seed: int | None = GYM_MAKE_SEED) -> EpisodeReset:

@@ -393,12 +393,16 @@ def test_an_episode_reset_without_a_seed_has_none_and_replays_from_its_recorded_
             "initial state" in e.limits, (e.max_abs_error, e.limits)
 
 
-def test_an_episode_reset_without_a_seed_nor_recorded_states_is_an_error_of_that_episode(tmp_path):
-    """Neither its seed nor its first state is known: where it began cannot be told, so it is not replayed from
-    anywhere else (before: an unseeded reset, then "the task's reset is not reproducible")."""
+def test_an_episode_reset_without_a_seed_nor_recorded_states_is_an_error_of_that_episode(tmp_path, capsys):
+    """Neither its seed nor its first state is known: where it began cannot be told, so it is not replayed nor shown
+    from anywhere else (before: an unseeded reset, then "the task's reset is not reproducible"; view drew it)."""
     path = record_maniskill(tmp_path, "PickCube-v1", name="unseeded", episodes=2, steps=3, obs_mode="state",
                             seeded=False, record_env_state=False)
     report = verify_recording(path)
     assert [e.verdict for e in report.episodes] == ["exact", "error"]
     assert report.episodes[1].error == ("episode 1: its reset had no seed and the recording holds no env states, so "
                                         "where it began can be neither remade nor restored: it cannot be replayed")
+    capsys.readouterr()
+    assert main(["view", str(path), "--episode", "1", "--save", str(tmp_path / "1.rrd")]) == 2
+    assert capsys.readouterr().err.endswith("where it began can be neither remade nor restored: its poses cannot be "
+                                            "shown\n") and not (tmp_path / "1.rrd").exists()
