@@ -406,3 +406,25 @@ def test_an_episode_reset_without_a_seed_nor_recorded_states_is_an_error_of_that
     assert main(["view", str(path), "--episode", "1", "--save", str(tmp_path / "1.rrd")]) == 2
     assert capsys.readouterr().err.endswith("where it began can be neither remade nor restored: its poses cannot be "
                                             "shown\n") and not (tmp_path / "1.rrd").exists()
+
+
+def test_a_first_step_that_moved_nothing_is_not_said_to_be_replay_trajectorys_off_by_one(tmp_path):
+    """RecordEpisode itself, RotateValveLevel0 with the D'Claw held still at first (an idle first step, as a teleop demo
+    begins): state rows 0 and 1 are equal, as in replay_trajectory's off-by-one state files. The note said the file was
+    one of those, and that it restored the original's state at every step; it says both possibilities now."""
+    import gymnasium as gym
+    from mani_skill.utils.wrappers.record import RecordEpisode
+
+    env = RecordEpisode(gym.make("RotateValveLevel0-v1", obs_mode="state"), str(tmp_path), trajectory_name="idle",
+                        save_video=False)
+    env.reset(seed=0)
+    for action in (np.zeros(env.action_space.shape), np.full(env.action_space.shape, 0.05)):
+        env.step(action)
+    env.close()
+    with open_reader(tmp_path / "idle.h5") as r:
+        notes = r.open_episode(0).meta.notes
+    assert len(notes) == 1 and notes[0].startswith("env_states[0] and env_states[1] agree within restore noise "), notes
+    assert notes[0].endswith("): the first step moved nothing, or row 0 is the state after step 0 (off by one), as in "
+                             "files replay_trajectory writes with --use-env-states or --use-first-env-state; the reset "
+                             "state is not compared (--mode step checks a --use-env-states file as it was made: it "
+                             "restored the original's state at every step)"), notes

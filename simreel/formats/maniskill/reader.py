@@ -12,7 +12,8 @@ fail and env_states. Quirks found in the file go to the episode's `EpisodeMeta.n
   reader is opened, so that every command selects and counts episodes by what they hold);
 - a state row 0 equal to row 1 within restore noise: files that replay_trajectory wrote in its state modes
   (`--use-env-states`, `--use-first-env-state`) store the state *after* step 0 as the first state (off by
-  one), so row 0 is not the reset state (`EpisodeMeta.initial_state_known` is False and replays skip it);
+  one), so row 0 is not the reset state (`EpisodeMeta.initial_state_known` is False and replays skip it); a first
+  step that moved nothing (an idle start) looks the same, and the note says both;
 - episodes the sidecar lists that the .h5 lacks (an error), groups the sidecar does not list (skipped, as
   ManiSkill's tools skip them).
 
@@ -418,10 +419,10 @@ def _note_quirks(episode: Hdf5Rows) -> None:
     if gap is not None:
         meta.initial_state_known = False
         meta.notes.append(
-            f"env_states[0] and env_states[1] agree within restore noise (largest difference {gap:.3g}), as in files "
-            "replay_trajectory writes with --use-env-states or --use-first-env-state, whose first state is the "
-            "state after step 0 (off by one): the reset state is not compared; such files restore the original's "
-            "state at every step, so --mode step checks them as they were made"
+            f"env_states[0] and env_states[1] agree within restore noise (largest difference {gap:.3g}): the first step "
+            "moved nothing, or row 0 is the state after step 0 (off by one), as in files replay_trajectory writes with "
+            "--use-env-states or --use-first-env-state; the reset state is not compared (--mode step checks a "
+            "--use-env-states file as it was made: it restored the original's state at every step)"
         )
 
 
