@@ -124,11 +124,21 @@ def _open_standard_streams() -> None:
             setattr(sys, name, open(fd, mode, closefd=False, encoding="utf-8", errors="backslashreplace"))
 
 
+def _command_parser(parser: argparse.ArgumentParser, command: str | None) -> argparse.ArgumentParser:
+    """The parser of subcommand `command` (`parser` itself where none was given)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+            return action.choices[command]
+    return parser
+
+
 def _parse_and_run(argv: Sequence[str] | None) -> int:
     try:
         parser = build_parser()
         argv = list(sys.argv[1:] if argv is None else argv)
-        args = parser.parse_args(argv)
+        args, unknown = parser.parse_known_args(argv)
+        if unknown:  # said by the command's parser, which names its own --help (argparse's top parser would not)
+            _command_parser(parser, args.command).error(f"unrecognized arguments: {' '.join(unknown)}")
     except KeyboardInterrupt as e:  # Terminated (SIGTERM) is one too
         return _stopped("simreel", e)
     args.command_line = shlex.join(["simreel", *argv])  # stored in recordings for provenance

@@ -406,10 +406,12 @@ def test_no_report_replaces_a_recording_or_its_sidecar_even_with_overwrite(tmp_p
     (["record", "PickCube-v1", "-o", "-z.h5"], "simreel record: error: argument -o/--output: expected one argument "
                                                "(-z.h5 is taken for an option: write ./-z.h5 for the file; see simreel "
                                                "record --help)"),
-    (["inspect", "--jsn", "a.h5"], "simreel: error: unrecognized arguments: --jsn (see simreel --help)"),  # no file
+    (["inspect", "--jsn", "a.h5"], "simreel inspect: error: unrecognized arguments: --jsn (see simreel inspect "
+                                   "--help)"),  # no file; was said by `simreel`, pointing at its own --help
     (["replay", "a.h5", "--atol", "-1.5"], "simreel replay: error: argument --atol: '-1.5': a tolerance must be a "
                                            "finite number >= 0 (see simreel replay --help)"),  # a number
-], ids=["positional", "second-positional", "option-value", "typo-no-hint", "number-no-hint"])
+    (["--jsn"], "simreel: error: unrecognized arguments: --jsn (see simreel --help)"),
+], ids=["positional", "second-positional", "option-value", "typo-no-hint", "number-no-hint", "no-command"])
 def test_a_file_name_that_begins_with_a_dash_is_named_with_how_to_pass_it(capsys, argv, message):
     """argparse takes `-x.h5` for an option, and its message alone ("the following arguments are required") misleads."""
     assert _run(capsys, argv) == (2, message + "\n")
