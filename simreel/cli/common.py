@@ -108,13 +108,19 @@ def apply_imports(specs: list[str]) -> None:
 
 
 def parse_json_kwargs(text: str) -> dict[str, Any]:
+    """`--env-kwargs`: a JSON object, strictly: Python's json also takes NaN and Infinity, which no JSON reader of the
+    recording's metadata would (and a NaN sim setting fails inside ManiSkill)."""
     try:
-        value = json.loads(text)
+        value = json.loads(text, parse_constant=_no_json_constant)
     except json.JSONDecodeError as e:
         raise argparse.ArgumentTypeError(f"not valid JSON ({e.msg})") from None
     if not isinstance(value, dict):
         raise argparse.ArgumentTypeError("expected a JSON object")
     return value
+
+
+def _no_json_constant(name: str) -> Any:
+    raise argparse.ArgumentTypeError(f"not valid JSON ({name} is no JSON number; give a finite number)")
 
 
 class GivenOnce(argparse.Action):

@@ -53,6 +53,9 @@ BAD_INPUT = [
     ("record-non-int", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "-n", "two"],
      "argument -n/--episodes: invalid int value"),
     ("record-bad-json", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--env-kwargs", "[1]"], "expected a JSON object"),
+    ("record-json-nan", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--env-kwargs", '{{"sim_config": {{"x": NaN}}}}'],
+     "argument --env-kwargs: not valid JSON (NaN is no JSON number; give a finite number)"),  # was: taken, then
+    # ManiSkill's AttributeError, or NaN written into the recording's metadata
     ("record-bad-import", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--import", "{tmp}/missing.py"], "missing.py"),
     ("record-broken-policy-file", ["record", "PickCube-v1", "-o", "{tmp}/x.h5", "--policy", "{tmp}/broken.py:f"],
      "broken.py"),
