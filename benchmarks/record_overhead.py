@@ -3,14 +3,22 @@ ManiSkill's own RecordEpisode on the same content.
 
 Usage: python benchmarks/record_overhead.py [--env PickCube-v1] [--episodes 100] [--steps 50]
                                            [--contacts auto|none] [--poses] [--format h5|mcap] [--no-storage]
-                                           [--without-fingerprints] [--breakdown]
+                                           [--without-fingerprints] [--floor] [--breakdown]
 
 Overhead: a bare env and recorded ones step the same actions from the same seeds, interleaved episode by
-episode so machine noise hits all alike: the default recorder, whose writer runs in a child process and commits each
+episode so machine noise hits all alike (the order turning each episode, so none always runs first): the default
+recorder, whose writer runs in a child process and commits each
 finished episode while the env resets, and one writing in its own process (`writer_process=False`, whose commit's
 mean time is printed). The step() ratio times step() alone; the end-to-end ratio adds the resets, which end with
 the episode committed either way. CPU ratios are this process's; the writer process's own CPU is printed beside them.
-Target (issue 17): end to end ≤ 1.05× for PickCube-v1, state obs, contacts on.
+Target (issue 17): end to end ≤ 1.05× for PickCube-v1, state obs, contacts on. This machine's noise moves one run's
+ratio by a few percent, so each recorder's end-to-end ratio also gets a 95% bootstrap interval over the run's
+episodes, and a verdict: met (the interval lies under the target), missed (over it) or undecided (it holds the
+target).
+
+`--floor` adds the capture floor, interleaved with the others: the least a recording of this content must do per
+step (the action, the PhysX state, the contacts and the step's scalars copied out, nothing written, nothing at a
+reset). What the recorder costs above it is its own machinery.
 
 `--without-fingerprints` adds another env, recorded without the per-episode scene fingerprints (taken at every reset
 that rebuilds the scene, issue 14), interleaved with the other two: the fingerprints' cost is the difference between
@@ -34,9 +42,11 @@ import tempfile
 import time
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
 from simreel.recorders import RecordWrapper
+from simreel.sim.contacts import ContactSampler, contact_channels
 from simreel.sim.make import make_env
 
 _STORAGE_EPISODES = 10
@@ -76,6 +86,36 @@ class _CommitClock:
         writer.begin_episode = timed_begin
 
 
+class _CaptureFloor(gym.Wrapper):
+    """A reference for the recorder's ratio, not a recorder: per step it copies out what a recording of this content
+    must read before the next step changes it (the action, the PhysX state's `pack()`, the step's contacts, its
+    rewards, flags and info) into a list, and does nothing else: no checks, no buffer, no file, nothing at a reset. The
+    recorder's ratio above this one's is its own machinery. CPU sim, one env (`pack()`)."""
+
+    def __init__(self, env: gym.Env, contacts: str) -> None:
+        super().__init__(env)
+        self._sampler = ContactSampler(contact_channels(env.unwrapped, contacts))
+        self._px = None
+        self._steps: list = []
+
+    def reset(self, **kwargs):
+        result = self.env.reset(**kwargs)
+        if self._px is not self.unwrapped.scene.px:  # built, or rebuilt by a reconfiguring reset
+            self._px = self.unwrapped.scene.px
+            self._sampler.bind(self.unwrapped)
+        self._steps.clear()
+        return result
+
+    def step(self, action):
+        copied = action.tolist()
+        result = self.env.step(action)
+        reward, terminated, truncated, info = result[1:]
+        scalars = [v.tolist() for v in (reward, terminated, truncated, *info.values()) if hasattr(v, "tolist")]
+        contacts = self._sampler.capture() if self._sampler.channels else None
+        self._steps.append((copied, self._px.pack(), contacts, scalars))
+        return result
+
+
 class _WithoutFingerprints(RecordWrapper):
     """The recorder without a scene fingerprint per rebuilt scene (the recording's own, taken once when the recorder
     starts, is outside the timed loop either way)."""
@@ -84,26 +124,63 @@ class _WithoutFingerprints(RecordWrapper):
         pass
 
 
-def _ratios(label: str, bare: np.ndarray, rec: np.ndarray, steps: int, per_episode: list[tuple[float, float]]) -> None:
-    (bw, bc, br, brc), (rw, rc, rr, rrc) = bare, rec
+def _ratios(label: str, bare: np.ndarray, rec: np.ndarray, steps: int) -> None:
+    """Print a recorder's step() and end-to-end ratios to the bare env; `bare` and `rec` are (episodes, 4) arrays of
+    `_episode`'s times, the same episodes in the same rows."""
+    (bw, bc, br, brc), (rw, rc, rr, rrc) = bare.sum(axis=0), rec.sum(axis=0)
+    episodes = len(bare)
+    step_ratios = rec[:, 0] / bare[:, 0]
+    e2e_ratios = (rec[:, 0] + rec[:, 2]) / (bare[:, 0] + bare[:, 2])
+    low, high = _interval(bare, rec)
     print(f"  {label:<20} {rw / steps * 1e6:8.1f} µs/step wall, {rc / steps * 1e6:8.1f} µs/step CPU, "
-          f"reset {rr / len(per_episode) * 1e3:.2f} ms (bare {br / len(per_episode) * 1e3:.2f} ms)")
+          f"reset {rr / episodes * 1e3:.2f} ms (bare {br / episodes * 1e3:.2f} ms)")
     print(f"  step() ratio         {rw / bw:8.3f}× wall, {rc / bc:.3f}× CPU "
-          f"(per-episode wall ratios: median {statistics.median(r for r, _ in per_episode):.3f})")
+          f"(per-episode wall ratios: median {np.median(step_ratios):.3f})")
     print(f"  end-to-end ratio     {(rw + rr) / (bw + br):8.3f}× wall, {(rc + rrc) / (bc + brc):.3f}× CPU "
-          f"(per-episode wall ratios: median {statistics.median(r for _, r in per_episode):.3f}; resets, which commit "
-          "episodes, included; target ≤ 1.05×)")
+          f"(per-episode wall ratios: median {np.median(e2e_ratios):.3f}; resets, which commit episodes, included)")
+    print(f"  end-to-end, 95% CI   {low:.3f}–{high:.3f}× wall over these episodes (bootstrap): target ≤ 1.05× "
+          f"{_verdict(low, high, _TARGET)}")
 
 
-def _recorders(args: argparse.Namespace, folder: Path) -> dict[str, RecordWrapper]:
+_TARGET = 1.05
+"""Issue 17's target for the end-to-end ratio (PickCube-v1, state obs, contacts on)."""
+
+
+def _interval(bare: np.ndarray, rec: np.ndarray, resamples: int = 4000) -> tuple[float, float]:
+    """The 95% bootstrap interval of the end-to-end wall ratio (sum of the recorder's step and reset times over the
+    bare env's): episodes drawn again with replacement, each keeping its bare and recorded times together, so the
+    interval says how far this machine's noise across episodes could move the ratio."""
+    bare_e2e, rec_e2e = bare[:, 0] + bare[:, 2], rec[:, 0] + rec[:, 2]
+    draws = np.random.default_rng(0).integers(0, len(bare), size=(resamples, len(bare)))
+    ratios = rec_e2e[draws].sum(axis=1) / bare_e2e[draws].sum(axis=1)
+    low, high = np.quantile(ratios, [0.025, 0.975])
+    return float(low), float(high)
+
+
+def _verdict(low: float, high: float, target: float) -> str:
+    """Whether an interval of the ratio is under the target, over it, or holds it (the run cannot tell)."""
+    if high <= target:
+        return "met"
+    if low > target:
+        return "missed"
+    return "undecided: the interval holds the target (run more episodes)"
+
+
+def _recorders(args: argparse.Namespace, folder: Path) -> dict[str, gym.Env]:
     """The recorders timed beside the bare env, by label: the default one (its writer in a child process), one writing
-    in its own process, and with `--without-fingerprints` one without scene fingerprints."""
+    in its own process, with `--without-fingerprints` one without scene fingerprints, and with `--floor` the capture
+    floor (`_CaptureFloor`)."""
     kinds = {"recorded step": (RecordWrapper, {}), "writer in-process": (RecordWrapper, {"writer_process": False})}
     if args.without_fingerprints:
         kinds["without fingerprints"] = (_WithoutFingerprints, {})
-    return {label: kind(make_env(args.env, obs_mode="state", max_episode_steps=args.steps),
-                        folder / f"overhead{i}.{args.format}", contacts=args.contacts, poses=args.poses, **options)
-            for i, (label, (kind, options)) in enumerate(kinds.items())}
+    recs: dict[str, gym.Env] = {
+        label: kind(make_env(args.env, obs_mode="state", max_episode_steps=args.steps),
+                    folder / f"overhead{i}.{args.format}", contacts=args.contacts, poses=args.poses, **options)
+        for i, (label, (kind, options)) in enumerate(kinds.items())}
+    if args.floor:
+        recs["capture floor"] = _CaptureFloor(make_env(args.env, obs_mode="state", max_episode_steps=args.steps),
+                                              args.contacts)
+    return recs
 
 
 def overhead(args: argparse.Namespace, folder: Path) -> None:
@@ -114,29 +191,26 @@ def overhead(args: argparse.Namespace, folder: Path) -> None:
     for env in (bare, *recs.values()):  # warm-up: first steps build caches, the first commit creates the file's layout
         _episode(env, 10_000, actions[0])
     clock = _CommitClock(recs["writer in-process"])
-    totals = np.zeros((1 + len(recs), 4))
-    per_episode: list[list[tuple[float, float]]] = [[] for _ in recs]
-    """Per recorder, each episode's (step() ratio, end-to-end ratio) to the bare env's same episode: their median is
-    what a burst of machine noise during a few episodes does not move."""
-    for k in range(args.episodes):  # interleaved episode by episode, so machine noise hits all alike
-        b = _episode(bare, k, actions[k])
-        totals[0] += b
-        for i, rec in enumerate(recs.values()):
-            r = _episode(rec, k, actions[k])
-            totals[1 + i] += r
-            per_episode[i].append((r[0] / b[0], (r[0] + r[2]) / (b[0] + b[2])))
+    envs = [bare, *recs.values()]
+    times = np.zeros((args.episodes, len(envs), 4))
+    """Each episode's `_episode` times, per env (the bare one first): a recorder's ratios compare it with the bare env
+    on the same episodes, and the bootstrap interval draws episodes again (`_interval`)."""
+    for k in range(args.episodes):  # interleaved episode by episode, so machine noise hits all alike; the order
+        for j in np.roll(np.arange(len(envs)), -k):  # turns each episode, so none is always first after another
+            times[k, j] = _episode(envs[j], k, actions[k])
     closes = {}
     for label, rec in recs.items():
         t = time.perf_counter()
         rec.close()
         closes[label] = time.perf_counter() - t
     steps = args.episodes * args.steps
-    bw, bc = totals[0][:2]
+    bw, bc = times[:, 0, :2].sum(axis=0)
     print(f"{args.env}, state obs, contacts={args.contacts}, poses={args.poses}, format={args.format}: "
-          f"{args.episodes} episodes × {args.steps} steps, bare and recorded interleaved per episode")
+          f"{args.episodes} episodes × {args.steps} steps, bare and recorded interleaved per episode, their order "
+          "turning")
     print(f"  bare env.step        {bw / steps * 1e6:8.1f} µs/step wall, {bc / steps * 1e6:8.1f} µs/step CPU")
     for i, label in enumerate(recs):
-        _ratios(label, totals[0], totals[1 + i], steps, per_episode[i])
+        _ratios(label, times[:, 0], times[:, 1 + i], steps)
     writer = recs["recorded step"]._writer
     print(f"  writer process CPU   {writer.child_cpu_seconds / (args.episodes + 1) * 1e3:8.2f} ms/episode (writing, "
           "warm-up episode included, start-up left out; not in the CPU ratios above, which are this process's)")
@@ -259,6 +333,8 @@ def main() -> None:
     ap.add_argument("--without-fingerprints", action="store_true",
                     help="also time a recorder without per-episode scene fingerprints, interleaved")
     ap.add_argument("--breakdown", action="store_true", help="then time each part of the recorder")
+    ap.add_argument("--floor", action="store_true",
+                    help="also time the capture floor: the step's numbers copied out, nothing else (CPU sim, one env)")
     args = ap.parse_args()
 
     import torch
