@@ -330,21 +330,21 @@ def test_a_ctrl_c_right_after_a_step_is_stored_keeps_the_episode_whole(tmp_path,
 def test_a_ctrl_c_while_an_ended_episode_is_handed_over_loses_none_of_it(tmp_path, monkeypatch):
     """A real SIGINT while the reset hands the ended episode's steps to the writer process (as its send first reads
     what the child has said): the steps and the commit still go out; the Ctrl-C comes after."""
-    from multiprocessing.connection import Connection
+    from simreel.formats.writer_process import ProcessWriter
 
     rec = RecordWrapper(make_env("PickCube-v1"), tmp_path / "r.h5")
     rec.reset(seed=0)
     for _ in range(10):
         rec.step(np.zeros(rec.action_space.shape, np.float32))
-    poll, armed = Connection.poll, [True]
+    news_waiting, armed = ProcessWriter._news_waiting, [True]
 
-    def ctrl_c_in_first_look(self, timeout=0.0):
-        if armed and timeout == 0:
+    def ctrl_c_in_first_look(self, seconds=0):
+        if armed and seconds == 0:
             armed.clear()
             os.kill(os.getpid(), signal.SIGINT)
-        return poll(self, timeout)
+        return news_waiting(self, seconds)
 
-    monkeypatch.setattr(Connection, "poll", ctrl_c_in_first_look)
+    monkeypatch.setattr(ProcessWriter, "_news_waiting", ctrl_c_in_first_look)
     with pytest.raises(KeyboardInterrupt):
         rec.reset(seed=1)
     monkeypatch.undo()
