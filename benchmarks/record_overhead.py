@@ -336,6 +336,8 @@ def main() -> None:
     ap.add_argument("--floor", action="store_true",
                     help="also time the capture floor: the step's numbers copied out, nothing else (CPU sim, one env)")
     args = ap.parse_args()
+    if args.floor and args.poses:
+        ap.error("--floor copies out no body poses, so it is no floor for a recording with them: leave out --poses")
 
     import torch
 
