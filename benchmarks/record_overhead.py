@@ -3,7 +3,7 @@ ManiSkill's own RecordEpisode on the same content.
 
 Usage: python benchmarks/record_overhead.py [--env PickCube-v1] [--episodes 100] [--steps 50]
                                            [--contacts auto|none] [--poses] [--format h5|mcap] [--no-storage]
-                                           [--without-fingerprints] [--floor] [--breakdown]
+                                           [--without-fingerprints] [--floor] [--only-default] [--breakdown]
 
 Overhead: a bare env and recorded ones step the same actions from the same seeds, interleaved episode by
 episode so machine noise hits all alike (the order turning each episode, so none always runs first): the default
@@ -19,6 +19,9 @@ target).
 `--floor` adds the capture floor, interleaved with the others: the least a recording of this content must do per
 step (the action, the PhysX state, the contacts and the step's scalars copied out, nothing written, nothing at a
 reset). What the recorder costs above it is its own machinery.
+
+`--only-default` times the default recorder alone beside the bare env (no in-process writer, no floor): twice the
+episodes in the same time, so a narrower interval.
 
 `--without-fingerprints` adds another env, recorded without the per-episode scene fingerprints (taken at every reset
 that rebuilds the scene, issue 14), interleaved with the other two: the fingerprints' cost is the difference between
@@ -169,8 +172,10 @@ def _verdict(low: float, high: float, target: float) -> str:
 def _recorders(args: argparse.Namespace, folder: Path) -> dict[str, gym.Env]:
     """The recorders timed beside the bare env, by label: the default one (its writer in a child process), one writing
     in its own process, with `--without-fingerprints` one without scene fingerprints, and with `--floor` the capture
-    floor (`_CaptureFloor`)."""
-    kinds = {"recorded step": (RecordWrapper, {}), "writer in-process": (RecordWrapper, {"writer_process": False})}
+    floor (`_CaptureFloor`); with `--only-default` the default one alone."""
+    kinds = {"recorded step": (RecordWrapper, {})}
+    if not args.only_default:
+        kinds["writer in-process"] = (RecordWrapper, {"writer_process": False})
     if args.without_fingerprints:
         kinds["without fingerprints"] = (_WithoutFingerprints, {})
     recs: dict[str, gym.Env] = {
@@ -190,7 +195,7 @@ def overhead(args: argparse.Namespace, folder: Path) -> None:
     recs = _recorders(args, folder)
     for env in (bare, *recs.values()):  # warm-up: first steps build caches, the first commit creates the file's layout
         _episode(env, 10_000, actions[0])
-    clock = _CommitClock(recs["writer in-process"])
+    clock = _CommitClock(recs["writer in-process"]) if "writer in-process" in recs else None
     envs = [bare, *recs.values()]
     times = np.zeros((args.episodes, len(envs), 4))
     """Each episode's `_episode` times, per env (the bare one first): a recorder's ratios compare it with the bare env
@@ -214,21 +219,26 @@ def overhead(args: argparse.Namespace, folder: Path) -> None:
     writer = recs["recorded step"]._writer
     print(f"  writer process CPU   {writer.child_cpu_seconds / (args.episodes + 1) * 1e3:8.2f} ms/episode (writing, "
           "warm-up episode included, start-up left out; not in the CPU ratios above, which are this process's)")
-    print(f"  commit in-process    {statistics.mean(clock.seconds) * 1e3:8.2f} ms/episode mean "
-          f"(median {statistics.median(clock.seconds) * 1e3:.2f}); close {closes['recorded step'] * 1e3:.0f} ms "
-          "incl. env.close")
+    if clock is not None:
+        print(f"  commit in-process    {statistics.mean(clock.seconds) * 1e3:8.2f} ms/episode mean "
+              f"(median {statistics.median(clock.seconds) * 1e3:.2f})")
+    print(f"  close                {closes['recorded step'] * 1e3:8.0f} ms incl. env.close")
     path = recs["recorded step"].path
     print(f"  file size            {path.stat().st_size / ((args.episodes + 1) * args.steps):8.1f} bytes/step")
 
 
 _PARTS = {"env.step": ("env", "step"), "env.reset": ("env", "reset"), "episode end (sent to commit)": (None, "_finish"),
           "  of which block conversion": ("_buffer", "_convert"), "wait for the commit": (None, "_settle"),
+          "get_state_dict() (resets)": ("_u", "get_state_dict"), "fast reader's check": (None, "_bind_fast_reader"),
+          "episode begun": ("_writer", "begin_episode"),
           "contacts": ("_sampler", "capture"),
           "state read": (None, "_state"), "step scalars": ("_scalars", "capture"), "buffer push": ("_buffer", "push"),
           "action check": (None, "_actions"), "state row fields": (None, "_per_state_rows")}
 """What `--breakdown` times: label -> (attribute of the RecordWrapper holding the method, or None: its own; method).
 A label that starts with spaces is timed inside the one before it (a block's captures are converted when its rows are
-taken, at the episode's end for an episode shorter than a block: by the writer process, so 0 here, where it has one)."""
+taken, at the episode's end for an episode shorter than a block: by the writer process, so 0 here, where it has one).
+`get_state_dict()` reads each reset row, and once a scene its first step's state for the fast reader's check, inside
+"state read" (counted in both)."""
 
 
 def breakdown(args: argparse.Namespace, folder: Path) -> None:
@@ -332,12 +342,16 @@ def main() -> None:
     ap.add_argument("--no-storage", action="store_true", help="skip the file-size comparison with RecordEpisode")
     ap.add_argument("--without-fingerprints", action="store_true",
                     help="also time a recorder without per-episode scene fingerprints, interleaved")
+    ap.add_argument("--only-default", action="store_true",
+                    help="time only the default recorder beside the bare env: more episodes in the same time")
     ap.add_argument("--breakdown", action="store_true", help="then time each part of the recorder")
     ap.add_argument("--floor", action="store_true",
                     help="also time the capture floor: the step's numbers copied out, nothing else (CPU sim, one env)")
     args = ap.parse_args()
     if args.floor and args.poses:
         ap.error("--floor copies out no body poses, so it is no floor for a recording with them: leave out --poses")
+    if args.only_default and (args.floor or args.without_fingerprints):
+        ap.error("--only-default times the default recorder alone: leave out --floor and --without-fingerprints")
 
     import torch
 
