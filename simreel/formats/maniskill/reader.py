@@ -51,7 +51,13 @@ from simreel.episode import (
 )
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader, not_a_file
-from simreel.formats.hdf5.reader import H5PY_ERRORS, Hdf5Rows, open_hdf5, unlisted_datasets_problem
+from simreel.formats.hdf5.reader import (
+    H5PY_ERRORS,
+    Hdf5Rows,
+    datasets_below,
+    open_hdf5,
+    unlisted_datasets_problem,
+)
 from simreel.formats.maniskill.layout import OBS, dataset_name, field_name, group_index, group_name
 from simreel.formats.maniskill.sidecar import Sidecar
 from simreel.state_tree import LeafSpec
@@ -76,15 +82,6 @@ _RESET_KEYS = ("seed", "options")
 (`_note_sidecar_keys`), never dropped unsaid; the top level's and ``env_info``'s others are `Sidecar.other`."""
 _NOTE_VALUE_CHARS = 200
 """The longest JSON of an episode entry's own key that its note quotes (a longer one is named, with its size)."""
-
-
-def _datasets(group: Any) -> dict[str, Any]:
-    """Every dataset below `group` by its path relative to the group (h5py objects, not read)."""
-    import h5py
-
-    out: dict[str, Any] = {}
-    group.visititems(lambda name, obj: out.__setitem__(name, obj) if isinstance(obj, h5py.Dataset) else None)
-    return out
 
 
 def _layout(datasets: dict[str, Any]) -> dict[str, LeafSpec]:
@@ -175,10 +172,10 @@ class ManiskillReader(EpisodeReader):
             ) from None
 
     def _held(self, index: int) -> dict[str, Any]:
-        """Every dataset of episode `index`'s group (`_datasets`); `RecordingFileError` when its structure cannot be
+        """Every dataset of episode `index`'s group (`datasets_below`); `RecordingFileError` when its structure cannot be
         read."""
         try:
-            return _datasets(self._file[group_name(index)])
+            return datasets_below(self._file[group_name(index)])
         except H5PY_ERRORS as e:
             raise RecordingFileError(self.path, f"{group_name(index)} is corrupt: its structure cannot be read "
                                                 f"({e})") from None
