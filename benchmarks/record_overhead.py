@@ -152,7 +152,9 @@ _TARGET = 1.05
 def _interval(bare: np.ndarray, rec: np.ndarray, resamples: int = 4000) -> tuple[float, float]:
     """The 95% bootstrap interval of the end-to-end wall ratio (sum of the recorder's step and reset times over the
     bare env's): episodes drawn again with replacement, each keeping its bare and recorded times together, so the
-    interval says how far this machine's noise across episodes could move the ratio."""
+    interval says how far this machine's noise across episodes could move the ratio. It does not cover the machine's
+    drift between runs (on 2026-11-29 two runs of the same code gave 1.037× and 1.049×, their intervals barely
+    overlapping): judge a target by several runs."""
     bare_e2e, rec_e2e = bare[:, 0] + bare[:, 2], rec[:, 0] + rec[:, 2]
     draws = np.random.default_rng(0).integers(0, len(bare), size=(resamples, len(bare)))
     ratios = rec_e2e[draws].sum(axis=1) / bare_e2e[draws].sum(axis=1)
@@ -166,7 +168,7 @@ def _verdict(low: float, high: float, target: float) -> str:
         return "met"
     if low > target:
         return "missed"
-    return "undecided: the interval holds the target (run more episodes)"
+    return "undecided: the interval holds the target (more episodes narrow it; it does not cover drift between runs)"
 
 
 def _recorders(args: argparse.Namespace, folder: Path) -> dict[str, gym.Env]:
