@@ -328,7 +328,10 @@ class EpisodeMeta:
     scene differences, explanation: `simreel.replay.report.EpisodeReport.verification`); empty elsewhere."""
 
     def to_json(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self), default=json_default))
+        """Its fields as JSON values, new objects throughout (the JSON round trip copies; `dataclasses.asdict`'s deep
+        copy before it doubled the cost, and every writer does this several times an episode)."""
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        return json.loads(json.dumps(fields, default=json_default))
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> EpisodeMeta:

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import errno
 import inspect
-import json
 import math
 import shutil
 from abc import ABC, abstractmethod
@@ -136,11 +135,11 @@ class EpisodeWriter(ABC):
         naming the file and the field where a reader would refuse it (`from_json`: the file or the episode would be
         written and then never read), before anything is written. Numpy numbers become Python's, as in the file."""
         try:
-            text = json.dumps(meta.to_json())
+            as_read = meta.to_json()  # values of JSON types only, as `json.loads` of the file's text gives them
         except (TypeError, ValueError) as e:
             raise UsageError(f"{self.path}: {_METADATA[kind]} does not convert to JSON: {e}") from None
         try:
-            checked = kind.from_json(json.loads(text))
+            checked = kind.from_json(as_read)
             if kind is RecordingMeta:
                 _check_rates(checked)
         except MetadataError as e:
