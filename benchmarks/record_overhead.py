@@ -4,6 +4,7 @@ ManiSkill's own RecordEpisode on the same content.
 Usage: python benchmarks/record_overhead.py [--env PickCube-v1] [--episodes 100] [--steps 50]
                                            [--contacts auto|none] [--poses] [--format h5|mcap] [--no-storage]
                                            [--without-fingerprints] [--floor] [--only-default] [--breakdown]
+                                           [--runs N]
 
 Overhead: a bare env and recorded ones step the same actions from the same seeds, interleaved episode by
 episode so machine noise hits all alike (the order turning each episode, so none always runs first): the default
@@ -23,6 +24,10 @@ reset). What the recorder costs above it is its own machinery.
 `--only-default` times the default recorder alone beside the bare env (no in-process writer, no floor): twice the
 episodes in the same time, so a narrower interval.
 
+`--runs N` runs the whole comparison N times, each in a fresh process, and judges each ratio by a 95% t-interval over
+the N runs' ratios. One run's bootstrap interval covers the noise across its episodes, not the drift between runs
+(two runs of the same code on 2026-11-29 gave 1.037× and 1.049×); an interval over runs covers both.
+
 `--without-fingerprints` adds another env, recorded without the per-episode scene fingerprints (taken at every reset
 that rebuilds the scene, issue 14), interleaved with the other two: the fingerprints' cost is the difference between
 the two recorded rows (it shows in the resets of tasks that rebuild their scene, e.g. --env SimreelHeteroPick-v1,
@@ -40,7 +45,10 @@ Target (issue 17): ≤ 0.7× for both formats.
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -127,9 +135,9 @@ class _WithoutFingerprints(RecordWrapper):
         pass
 
 
-def _ratios(label: str, bare: np.ndarray, rec: np.ndarray, steps: int) -> None:
-    """Print a recorder's step() and end-to-end ratios to the bare env; `bare` and `rec` are (episodes, 4) arrays of
-    `_episode`'s times, the same episodes in the same rows."""
+def _ratios(label: str, bare: np.ndarray, rec: np.ndarray, steps: int) -> float:
+    """Print a recorder's step() and end-to-end ratios to the bare env, and return the end-to-end wall ratio; `bare`
+    and `rec` are (episodes, 4) arrays of `_episode`'s times, the same episodes in the same rows."""
     (bw, bc, br, brc), (rw, rc, rr, rrc) = bare.sum(axis=0), rec.sum(axis=0)
     episodes = len(bare)
     step_ratios = rec[:, 0] / bare[:, 0]
@@ -143,6 +151,7 @@ def _ratios(label: str, bare: np.ndarray, rec: np.ndarray, steps: int) -> None:
           f"(per-episode wall ratios: median {np.median(e2e_ratios):.3f}; resets, which commit episodes, included)")
     print(f"  end-to-end, 95% CI   {low:.3f}–{high:.3f}× wall over these episodes (bootstrap): target ≤ 1.05× "
           f"{_verdict(low, high, _TARGET)}")
+    return (rw + rr) / (bw + br)
 
 
 _TARGET = 1.05
@@ -162,13 +171,16 @@ def _interval(bare: np.ndarray, rec: np.ndarray, resamples: int = 4000) -> tuple
     return float(low), float(high)
 
 
-def _verdict(low: float, high: float, target: float) -> str:
-    """Whether an interval of the ratio is under the target, over it, or holds it (the run cannot tell)."""
+def _verdict(low: float, high: float, target: float, *, over_runs: bool = False) -> str:
+    """Whether an interval of the ratio is under the target, over it, or holds it (the runs cannot tell)."""
     if high <= target:
         return "met"
     if low > target:
         return "missed"
-    return "undecided: the interval holds the target (more episodes narrow it; it does not cover drift between runs)"
+    if over_runs:
+        return "undecided: the interval holds the target (more runs narrow it)"
+    return ("undecided: the interval holds the target (more episodes narrow it; it does not cover drift between "
+            "runs: judge by --runs)")
 
 
 def _recorders(args: argparse.Namespace, folder: Path) -> dict[str, gym.Env]:
@@ -190,7 +202,9 @@ def _recorders(args: argparse.Namespace, folder: Path) -> dict[str, gym.Env]:
     return recs
 
 
-def overhead(args: argparse.Namespace, folder: Path) -> None:
+def overhead(args: argparse.Namespace, folder: Path) -> dict[str, float]:
+    """Time the bare env and the recorders, interleaved; print their ratios and return each one's end-to-end wall
+    ratio, by label."""
     bare = make_env(args.env, obs_mode="state", max_episode_steps=args.steps)
     shape = bare.action_space.shape
     actions = np.random.default_rng(0).uniform(-1, 1, size=(args.episodes, args.steps, *shape)).astype(np.float32)
@@ -216,8 +230,7 @@ def overhead(args: argparse.Namespace, folder: Path) -> None:
           f"{args.episodes} episodes × {args.steps} steps, bare and recorded interleaved per episode, their order "
           "turning")
     print(f"  bare env.step        {bw / steps * 1e6:8.1f} µs/step wall, {bc / steps * 1e6:8.1f} µs/step CPU")
-    for i, label in enumerate(recs):
-        _ratios(label, times[:, 0], times[:, 1 + i], steps)
+    ratios = {label: _ratios(label, times[:, 0], times[:, 1 + i], steps) for i, label in enumerate(recs)}
     writer = recs["recorded step"]._writer
     print(f"  writer process CPU   {writer.child_cpu_seconds / (args.episodes + 1) * 1e3:8.2f} ms/episode (writing, "
           "warm-up episode included, start-up left out; not in the CPU ratios above, which are this process's)")
@@ -227,6 +240,44 @@ def overhead(args: argparse.Namespace, folder: Path) -> None:
     print(f"  close                {closes['recorded step'] * 1e3:8.0f} ms incl. env.close")
     path = recs["recorded step"].path
     print(f"  file size            {path.stat().st_size / ((args.episodes + 1) * args.steps):8.1f} bytes/step")
+    return ratios
+
+
+def runs(args: argparse.Namespace, argv: list[str]) -> None:
+    """Run the comparison `args.runs` times, each in a fresh process (new envs, recorders, writer processes, memory
+    layout), then judge each recorder's end-to-end ratio by the spread of the runs' ratios: a 95% t-interval over the
+    runs, which covers the drift between runs that one run's bootstrap interval does not."""
+    from scipy import stats
+
+    per_run: list[dict[str, float]] = []
+    with tempfile.TemporaryDirectory(prefix="simreel-runs-") as tmp:
+        for k in range(args.runs):
+            out = Path(tmp) / f"run{k}.json"
+            print(f"--- run {k + 1} of {args.runs} (a fresh process)", flush=True)
+            subprocess.run([sys.executable, __file__, *_one_run_argv(argv), "--ratios-to", str(out)], check=True)
+            per_run.append(json.loads(out.read_text()))
+    print(f"Over {args.runs} runs of {args.episodes} episodes, each in its own process:")
+    for label in per_run[0]:
+        ratios = np.array([run[label] for run in per_run])
+        half = stats.t.ppf(0.975, len(ratios) - 1) * ratios.std(ddof=1) / np.sqrt(len(ratios))
+        low, high = ratios.mean() - half, ratios.mean() + half
+        print(f"  {label:<20} end to end {', '.join(f'{r:.3f}' for r in ratios)}×: mean {ratios.mean():.3f}×, "
+              f"95% t-interval over the runs {low:.3f}–{high:.3f}×: target ≤ {_TARGET}× "
+              f"{_verdict(low, high, _TARGET, over_runs=True)}")
+
+
+def _one_run_argv(argv: list[str]) -> list[str]:
+    """`argv` without `--runs N` (either spelling) and without what a run of `runs` does not do (the breakdown, the
+    storage comparison)."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--runs":
+            skip = True
+        elif not a.startswith("--runs=") and a != "--breakdown":
+            out.append(a)
+    return [*out, "--no-storage"]
 
 
 _PARTS = {"env.step": ("env", "step"), "env.reset": ("env", "reset"), "episode end (sent to commit)": (None, "_finish"),
@@ -366,17 +417,30 @@ def main() -> None:
     ap.add_argument("--breakdown", action="store_true", help="then time each part of the recorder")
     ap.add_argument("--floor", action="store_true",
                     help="also time the capture floor: the step's numbers copied out, nothing else (CPU sim, one env)")
-    args = ap.parse_args()
+    ap.add_argument("--runs", type=int, default=1,
+                    help="run the comparison this many times, each in a fresh process, and judge the target by the "
+                         "spread of the runs' ratios (no --breakdown, no storage comparison then)")
+    ap.add_argument("--ratios-to", type=Path, help=argparse.SUPPRESS)  # where a run of --runs leaves its ratios
+    argv = sys.argv[1:]
+    args = ap.parse_args(argv)
+    if args.runs < 1:
+        ap.error("--runs takes a count of at least 1")
     if args.floor and args.poses:
         ap.error("--floor copies out no body poses, so it is no floor for a recording with them: leave out --poses")
     if args.only_default and (args.floor or args.without_fingerprints):
         ap.error("--only-default times the default recorder alone: leave out --floor and --without-fingerprints")
 
+    if args.runs > 1:
+        runs(args, argv)
+        return
+
     import torch
 
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory(prefix="simreel-bench-") as tmp:
-        overhead(args, Path(tmp))
+        ratios = overhead(args, Path(tmp))
+        if args.ratios_to is not None:
+            args.ratios_to.write_text(json.dumps(ratios))
         if args.breakdown:
             breakdown(args, Path(tmp))
         if not args.no_storage:
