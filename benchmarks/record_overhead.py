@@ -267,8 +267,9 @@ def runs(args: argparse.Namespace, argv: list[str]) -> None:
 
 
 def _one_run_argv(argv: list[str]) -> list[str]:
-    """`argv` without `--runs N` (either spelling) and without what a run of `runs` does not do (the breakdown, the
-    storage comparison)."""
+    """`argv` for one run of `runs`: without `--runs N` and without what such a run does not do (the breakdown, the
+    storage comparison). It ends with ``--runs 1``, which wins over an abbreviation left in (``--run 6``): a run never
+    starts runs of its own."""
     out, skip = [], False
     for a in argv:
         if skip:
@@ -277,7 +278,7 @@ def _one_run_argv(argv: list[str]) -> list[str]:
             skip = True
         elif not a.startswith("--runs=") and a != "--breakdown":
             out.append(a)
-    return [*out, "--no-storage"]
+    return [*out, "--no-storage", "--runs", "1"]
 
 
 _PARTS = {"env.step": ("env", "step"), "env.reset": ("env", "reset"), "episode end (sent to commit)": (None, "_finish"),
