@@ -150,12 +150,14 @@ def _ratios(label: str, bare: np.ndarray, rec: np.ndarray, steps: int) -> float:
     print(f"  end-to-end ratio     {(rw + rr) / (bw + br):8.3f}× wall, {(rc + rrc) / (bc + brc):.3f}× CPU "
           f"(per-episode wall ratios: median {np.median(e2e_ratios):.3f}; resets, which commit episodes, included)")
     print(f"  end-to-end, 95% CI   {low:.3f}–{high:.3f}× wall over these episodes (bootstrap): target ≤ 1.05× "
-          f"{_verdict(low, high, _TARGET)}")
+          f"{_verdict(low, high, _TARGET, _MORE_EPISODES)}")
     return (rw + rr) / (bw + br)
 
 
 _TARGET = 1.05
 """Issue 17's target for the end-to-end ratio (PickCube-v1, state obs, contacts on)."""
+_MORE_EPISODES = "more episodes narrow it; it does not cover drift between runs: judge by --runs"
+"""What narrows one run's bootstrap interval (`_verdict`), and what it leaves out."""
 
 
 def _interval(bare: np.ndarray, rec: np.ndarray, resamples: int = 4000) -> tuple[float, float]:
@@ -171,16 +173,14 @@ def _interval(bare: np.ndarray, rec: np.ndarray, resamples: int = 4000) -> tuple
     return float(low), float(high)
 
 
-def _verdict(low: float, high: float, target: float, *, over_runs: bool = False) -> str:
-    """Whether an interval of the ratio is under the target, over it, or holds it (the runs cannot tell)."""
+def _verdict(low: float, high: float, target: float, narrowed_by: str) -> str:
+    """Whether an interval of the ratio is under the target, over it, or holds it (then `narrowed_by` says what would
+    narrow it)."""
     if high <= target:
         return "met"
     if low > target:
         return "missed"
-    if over_runs:
-        return "undecided: the interval holds the target (more runs narrow it)"
-    return ("undecided: the interval holds the target (more episodes narrow it; it does not cover drift between "
-            "runs: judge by --runs)")
+    return f"undecided: the interval holds the target ({narrowed_by})"
 
 
 def _recorders(args: argparse.Namespace, folder: Path) -> dict[str, gym.Env]:
@@ -263,22 +263,13 @@ def runs(args: argparse.Namespace, argv: list[str]) -> None:
         low, high = ratios.mean() - half, ratios.mean() + half
         print(f"  {label:<20} end to end {', '.join(f'{r:.3f}' for r in ratios)}×: mean {ratios.mean():.3f}×, "
               f"95% t-interval over the runs {low:.3f}–{high:.3f}×: target ≤ {_TARGET}× "
-              f"{_verdict(low, high, _TARGET, over_runs=True)}")
+              f"{_verdict(low, high, _TARGET, 'more runs narrow it')}")
 
 
 def _one_run_argv(argv: list[str]) -> list[str]:
-    """`argv` for one run of `runs`: without `--runs N` and without what such a run does not do (the breakdown, the
-    storage comparison). It ends with ``--runs 1``, which wins over an abbreviation left in (``--run 6``): a run never
-    starts runs of its own."""
-    out, skip = [], False
-    for a in argv:
-        if skip:
-            skip = False
-        elif a == "--runs":
-            skip = True
-        elif not a.startswith("--runs=") and a != "--breakdown":
-            out.append(a)
-    return [*out, "--no-storage", "--runs", "1"]
+    """`argv` for one run of `runs`: without what such a run does not do (the breakdown, the storage comparison), and
+    ending with ``--runs 1``, which wins over the ``--runs N`` before it in any spelling: a run never starts runs."""
+    return [*(a for a in argv if a != "--breakdown"), "--no-storage", "--runs", "1"]
 
 
 _PARTS = {"env.step": ("env", "step"), "env.reset": ("env", "reset"), "episode end (sent to commit)": (None, "_finish"),
@@ -300,16 +291,16 @@ def breakdown(args: argparse.Namespace, folder: Path) -> None:
     rec = RecordWrapper(make_env(args.env, obs_mode="state", max_episode_steps=args.steps),
                         folder / f"breakdown.{args.format}", contacts=args.contacts, poses=args.poses)
     actions = np.random.default_rng(0).uniform(-1, 1, size=(args.episodes, args.steps, *rec.action_space.shape))
-    seconds = dict.fromkeys(_PARTS, 0.0)
-    waits: list[float] = []
+    calls: dict[str, list[float]] = {label: [] for label in _PARTS}
     for label, (owner, name) in _PARTS.items():
         target = rec if owner is None else getattr(rec, owner)
-        setattr(target, name, _clocked(getattr(target, name), seconds, label, waits if name == "_settle" else None))
+        setattr(target, name, _clocked(getattr(target, name), calls[label]))
     t = time.perf_counter()
     for k in range(args.episodes):
         _episode(rec, k, actions[k].astype(np.float32))
     total = time.perf_counter() - t
     rec.close()
+    seconds = {label: sum(took) for label, took in calls.items()}
     steps = args.episodes * args.steps
     env_time = seconds["env.step"] + seconds["env.reset"]
     print(f"Where a recorded step's time goes ({args.episodes} episodes x {args.steps} steps, each part clocked; % of "
@@ -318,7 +309,7 @@ def breakdown(args: argparse.Namespace, folder: Path) -> None:
         print(f"  {label:<28} {s / steps * 1e6:8.1f} µs/step  {s / env_time * 100:6.2f}%")
     rest = total - sum(s for label, s in seconds.items() if not label.startswith(" "))
     print(f"  {'rest of the wrapper':<28} {rest / steps * 1e6:8.1f} µs/step  {rest / env_time * 100:6.2f}%")
-    _print_waits(waits[1:])  # the first reset commits nothing
+    _print_waits(calls["wait for the commit"][1:])  # the first reset commits nothing
     _dataset_creation(folder)
 
 
@@ -359,17 +350,14 @@ def _print_waits(waits: list[float]) -> None:
           f"{len(ms)} resets waited over 0.1 ms")
 
 
-def _clocked(method, seconds: dict[str, float], label: str, calls: list[float] | None = None):
-    """`method`, its time added to `seconds[label]` at each call (and appended to `calls`, where given)."""
+def _clocked(method, calls: list[float]):
+    """`method`, the time of each of its calls appended to `calls`."""
     def clocked(*args, **kwargs):
         t = time.perf_counter()
         try:
             return method(*args, **kwargs)
         finally:
-            took = time.perf_counter() - t
-            seconds[label] += took
-            if calls is not None:
-                calls.append(took)
+            calls.append(time.perf_counter() - t)
 
     return clocked
 
