@@ -23,6 +23,7 @@ __all__ = ["ActionCheck"]
 _PYTHON_CHECK_MAX = 256
 """Actions of up to this many numbers are checked and copied out in Python floats."""
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
+_FLOAT32 = np.dtype(np.float32)
 
 
 class ActionCheck:
@@ -32,6 +33,8 @@ class ActionCheck:
     def __init__(self, env_id: str, shape: tuple[int, ...], num_envs: int) -> None:
         self.env_id, self.shape, self.num_envs = env_id, shape, num_envs
         self._shapes = {(num_envs, *shape)} | ({shape} if num_envs == 1 else set())
+        self._usual_shape = shape if num_envs == 1 and len(shape) == 1 and shape[0] <= _PYTHON_CHECK_MAX else None
+        """The shape of the usual action, checked by the shortest path (`__call__`): one env's flat float32 action."""
 
     @classmethod
     def for_env(cls, env: Any) -> ActionCheck:
@@ -42,8 +45,18 @@ class ActionCheck:
 
     def __call__(self, action: Any) -> list[Any] | np.ndarray:
         """`action`'s numbers once checked: a small action as a flat list (a copy), a large one as a (num_envs, A)
-        float32 array."""
-        a = action if type(action) is np.ndarray else _as_array(action)  # the usual action: no conversion
+        float32 array. The usual action, one env's flat float32 numpy array, takes the shortest path: its sum is
+        finite exactly where every number is (float32 numbers cannot overflow a float64 sum)."""
+        if type(action) is np.ndarray and action.dtype is _FLOAT32 and action.shape == self._usual_shape:
+            values = action.tolist()
+            if not math.isfinite(sum(values)):
+                raise _non_finite(action)
+            return values
+        return self._checked(action)
+
+    def _checked(self, action: Any) -> list[Any] | np.ndarray:
+        """`__call__` for every action but the usual one."""
+        a = action if type(action) is np.ndarray else _as_array(action)  # a numpy array: no conversion
         kind = "" if a is None else a.dtype.kind
         if not kind or kind not in "biuf":
             what = f"dtype {action.dtype}" if hasattr(action, "dtype") else f"type {type(action).__name__}"
