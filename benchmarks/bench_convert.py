@@ -66,7 +66,7 @@ def _runners(src: Path, what: str, out: Path) -> dict[str, Any]:
     """The two conversions, each a function returning (output file, verified episodes or None)."""
     from mani_skill.trajectory import replay_trajectory as ms_replay
 
-    from simreel.replay.convert import convert_recording
+    from simreel.replay.convert.convert import convert_recording
 
     ms_args = ["--traj-path", str(src), "--save-traj", "--allow-failure"]
     ms_args += ["-c", "pd_ee_delta_pose"] if what == "control" else ["-o", what, "--use-env-states"]

@@ -59,8 +59,8 @@ def _with_frames(path: Path, frames: Path, out: Path) -> None:
     camera observations) repeated row after row, a block at a time (`simreel.formats` writer API)."""
     import dataclasses
 
-    from simreel.episode import StepBlock
     from simreel.formats import open_reader, open_writer
+    from simreel.model.blocks import StepBlock
 
     if out.exists():
         return

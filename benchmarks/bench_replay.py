@@ -149,7 +149,7 @@ def main() -> int:
             rec = _as_maniskill_file(rec, ms_replay)
 
         from simreel.formats import open_reader
-        from simreel.replay.verify import verify_recording
+        from simreel.replay.run.verify import verify_recording
 
         with open_reader(rec) as r:
             steps, n_eps, env_id = sum(m.length for m in r.episodes), len(r.episodes), r.meta.env_id

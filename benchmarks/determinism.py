@@ -45,7 +45,7 @@ def _record(env_id: str, path: Path, episodes: int, steps: int) -> None:
 
 _KINDS = {"position": ("[p]", "[root_p]", "[qpos]"), "rotation": ("[q]", "[root_q]"),
           "velocity": ("[v]", "[w]", "[root_v]", "[root_w]", "[qvel]")}
-"""State components by kind, by the name `simreel.compare` gives them; everything else of the state (task state,
+"""State components by kind, by the name `simreel.verdicts.compare` gives them; everything else of the state (task state,
 controller targets) is "other"."""
 
 

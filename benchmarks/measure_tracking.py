@@ -1,5 +1,5 @@
 """How far a correct control-mode conversion is from the original, per step: the measurements behind the default
-tracking tolerances of `simreel.replay.tracking`.
+tracking tolerances of `simreel.replay.convert.tracking`.
 
 Records pd_joint_pos demos with ManiSkill's own RecordEpisode (the test fixtures' paths: an IK-planned grasp for
 PickCube, smooth joint paths for StackCube, PegInsertionSide and SimreelHeteroDrawer), converts them to
@@ -48,8 +48,8 @@ def main() -> int:
     from support.maniskill_files import record_maniskill
 
     import simreel.tasks  # noqa: F401  (registers SimreelHeteroDrawer-v1 for ManiSkill's gym.make)
-    from simreel.replay.convert import convert_recording
-    from simreel.replay.tracking import DEFAULT_TRACKING_TOLERANCES
+    from simreel.replay.convert.convert import convert_recording
+    from simreel.replay.convert.tracking import DEFAULT_TRACKING_TOLERANCES
 
     tmp = Path(tempfile.mkdtemp(prefix="measure_tracking_"))
     try:

@@ -8,7 +8,7 @@ the software Vulkan driver where `make setup` fetched one, and on a machine with
 the no-render layer, so ``gym.make(..., obs_mode="state", render_backend="none")`` builds.
 """
 
-from simreel.formats.durable import stopping_signals
+from simreel.io.durable import stopping_signals
 from simreel.recorders.record_wrapper import RecordOptions, RecordWrapper
 from simreel.sim.make import prepare_plain_gym_make
 

@@ -3,7 +3,7 @@
 Every parallel env's episode is its own episode on disk. An episode runs from a reset of its env to
 the next reset of that env (a partial reset `options={"env_idx": [...]}` ends only those envs'
 episodes) or to `close()`. Steps are buffered in blocks of `block_steps` and streamed to the writer,
-so memory does not grow with episode length. The writer runs in a child process (`simreel.formats.writer_process`)
+so memory does not grow with episode length. The writer runs in a child process (`simreel.recorders.writer_process`)
 and commits the episodes a reset ends while the env resets; `reset()` returns once they are durable. After
 each step the recorder copies out what it needs and converts a block of steps at once (`StepBuffer`):
 right after a physics step every numpy call costs several times its usual price.
@@ -24,14 +24,17 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from simreel.episode import EpisodeMeta, StepBlock, episode_fields, json_default
 from simreel.errors import EpisodeLayoutError, SimreelError, StateLayoutError, Terminated, UsageError
 from simreel.formats import check_writer_options, open_writer, records_poses_by_default
-from simreel.formats.durable import deferred_signals
-from simreel.formats.writer_process import ProcessWriter
-from simreel.option_checks import check_flag, check_text, options_with, path_text, whole_number
+from simreel.io.durable import deferred_signals
+from simreel.model.blocks import StepBlock
+from simreel.model.fields import episode_fields
+from simreel.model.meta import EpisodeMeta, json_default
+from simreel.model.state_tree import LeafSpec, layout_differences, layout_of, to_numpy
+from simreel.options.checks import check_flag, check_text, options_with, path_text, whole_number
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.recorders.step_scalars import StepScalars, scalar_info
+from simreel.recorders.writer_process import ProcessWriter
 from simreel.sim.actions import ActionCheck
 from simreel.sim.contacts import ContactSampler, contact_channels, contacts_spec
 from simreel.sim.describe import flatten_obs, recording_meta
@@ -41,7 +44,6 @@ from simreel.sim.seeds import SEED_LIMIT, is_seed
 from simreel.sim.state import FastStateReader, check_same_layout, read_state
 from simreel.sim.step_rows import ActionRows, PackedRows
 from simreel.sim.user_code import found_spec, import_specs
-from simreel.state_tree import LeafSpec, layout_differences, layout_of, to_numpy
 
 __all__ = ["RecordWrapper", "RecordOptions", "what_stopped"]
 
@@ -64,7 +66,7 @@ class RecordOptions:
         command: the command line, stored for provenance.
         writer_options: keyword options for the format's writer (HDF5: `compression`; MCAP: `McapOptions`); another
             name is refused when the recorder starts, naming those the format takes.
-        writer_process: write the file from a child process (`simreel.formats.writer_process`), so an episode's
+        writer_process: write the file from a child process (`simreel.recorders.writer_process`), so an episode's
             commit runs beside the env's reset; `reset()` still returns only once the episodes it ended are
             committed. False: write in this process (one process less; each commit then adds to the reset).
     """
@@ -174,7 +176,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._chain_start = [0] * self._n
         self._chain_ran = [0] * self._n
         """Per sub-scene: the index of its chain's first episode, and the episodes committed in that chain (each
-        episode's `EpisodeMeta.chain`; the env is taken as fresh from ``gym.make``, as `simreel.scene_history` says)."""
+        episode's `EpisodeMeta.chain`; the env is taken as fresh from ``gym.make``, as `simreel.verdicts.scene_history` says)."""
         self._fingerprint_scenes(range(1, self._n))  # sub-scene 0's is the recording's own
         self._closed = False
 
@@ -447,7 +449,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """End a recording stopped before it was complete (`reason`: what stopped it, e.g. "Ctrl-C (SIGINT)"): each
         running episode that has steps is committed with a note that it was cut short, and a recording that was to
         replace an old file (`overwrite`) stays in its side folder, the old file as it was (a reader of the old file
-        says where the new one is in its `notes`, as `simreel inspect` does: `simreel.formats.staging`). Then the env
+        says where the new one is in its `notes`, as `simreel inspect` does: `simreel.io.staging`). Then the env
         is closed, as by `close`."""
         for i, meta in enumerate(self._episodes):
             if meta is not None and not self._ended(i) and i not in self._refused:

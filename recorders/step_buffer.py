@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import StepBlock
+from simreel.model.blocks import StepBlock
 
 __all__ = ["StepBuffer", "RowSource", "FieldsChanged"]
 

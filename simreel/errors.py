@@ -105,7 +105,7 @@ class ContactSpecError(SimreelError):
 
 
 class EpisodeLayoutError(SimreelError, ValueError):
-    """An episode's arrays do not fit its recording's field table (`simreel.episode.episode_fields`): a field
+    """An episode's arrays do not fit its recording's field table (`simreel.model.fields.episode_fields`): a field
     is missing, has another row shape, or a row count that does not fit T (per step) or T+1 (per state).
     Also a `ValueError`, which writers raised for this before."""
 
@@ -140,7 +140,7 @@ class TaskCodeError(SimreelError):
 
 class HeterogeneousBuildError(SimreelError):
     """Parts that cannot be merged into one record-safe heterogeneous view (DOF over the declared bound, a
-    missing link); see `simreel.heterogeneous`."""
+    missing link); see `simreel.authoring.heterogeneous`."""
 
 
 class ReplayError(SimreelError):
@@ -153,7 +153,7 @@ class ViewError(SimreelError):
 
 class EnvMismatchError(SimreelError):
     """Recordings that would become one file (`simreel merge`) record different envs: the message names the first
-    field that differs (`simreel.formats.same_env`)."""
+    field that differs (`simreel.datasets.same_env`)."""
 
 
 class OutputCheckError(RuntimeError):

@@ -1,7 +1,7 @@
 """Recorded vs compared for the viewer (``--compare OTHER``): what OTHER is to the recording (`compared_role`: its
-replay, its conversion, or another recording of the task), the core's comparison (`simreel.compare`, the same numbers
+replay, its conversion, or another recording of the task), the core's comparison (`simreel.verdicts.compare`, the same numbers
 `simreel replay` reports) placed on state rows, so the viewer can plot errors and mark the divergence, and the
-explanation of that divergence (`simreel.divergence`: events, error growth, and the cause `simreel replay -o`
+explanation of that divergence (`simreel.verdicts.divergence`: events, error growth, and the cause `simreel replay -o`
 classified and stored with the replayed episode, when OTHER is that replay).
 
 The core reports a divergence by step (the outcome of step k is state row k + 1; ``at="reset"`` is row 0);
@@ -18,11 +18,14 @@ from typing import Any
 
 import numpy as np
 
-from simreel.compare import BlockComparison, Divergence, EpisodeComparison, Tolerances
-from simreel.divergence import Explanation, describe_divergence
-from simreel.episode import ContactChannel, Episode, RecordingMeta, StepBlock
+from simreel.datasets.dataset import provenance_tolerances
 from simreel.formats.base import EpisodeRows, block_rows
-from simreel.formats.dataset import provenance_tolerances
+from simreel.model.blocks import StepBlock
+from simreel.model.components import Tolerances
+from simreel.model.episode import Episode
+from simreel.model.meta import ContactChannel, RecordingMeta
+from simreel.verdicts.compare import BlockComparison, Divergence, EpisodeComparison
+from simreel.verdicts.divergence import Explanation, describe_divergence
 
 __all__ = ["ViewComparison", "compare_for_view", "compared_role", "divergence_row", "explain_for_view",
            "judging_tolerances", "made_from", "DEFAULT_MODE"]
@@ -148,7 +151,7 @@ def compare_for_view(
     tolerances: Tolerances | None = None,
     rows: int | None = None,
 ) -> ViewComparison:
-    """Compare with `simreel.compare.BlockComparison` (the rule `simreel replay` judges by; default tolerances:
+    """Compare with `simreel.verdicts.compare.BlockComparison` (the rule `simreel replay` judges by; default tolerances:
     those of `DEFAULT_MODE`) over the steps both episodes have, reading both `rows` steps at a time (None:
     `simreel.formats.base.block_rows` of the recording): only a block of each and the per-row error curves are held.
     Both are read front to back once, block beside block (an MCAP episode read by `steps` is scanned from its

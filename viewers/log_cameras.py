@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import rerun as rr
 
-from simreel.episode import FieldSpec
+from simreel.model.fields import FieldSpec
 from simreel.viewers.paths import CAMERAS
 
 __all__ = ["camera_streams", "log_camera_formats", "log_camera_block"]

@@ -12,8 +12,8 @@ from collections.abc import Sequence
 import numpy as np
 import rerun as rr
 
-from simreel.divergence import CONTACT_THRESHOLD_N
-from simreel.episode import ContactChannel
+from simreel.model.meta import ContactChannel
+from simreel.verdicts.divergence import CONTACT_THRESHOLD_N
 from simreel.viewers.paths import contact_path
 
 __all__ = ["FORCE_THRESHOLD_N", "ARROW_SCALE_M", "ActiveChannels", "arrow_vectors", "active_channels", "log_contact_block",

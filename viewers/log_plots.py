@@ -14,9 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 import rerun as rr
 
-from simreel.divergence import EpisodeEvent, Explanation
-from simreel.divergence import episode_events as core_episode_events
-from simreel.episode import ContactChannel, Episode
+from simreel.model.episode import Episode
+from simreel.model.meta import ContactChannel
+from simreel.verdicts.divergence import EpisodeEvent, Explanation
+from simreel.verdicts.divergence import episode_events as core_episode_events
 from simreel.viewers.compare import ViewComparison, divergence_row
 from simreel.viewers.log_contacts import ActiveChannels
 from simreel.viewers.paths import EVENTS, SIM_TIME, STEP, plot_path
@@ -140,7 +141,7 @@ class Event:
 
 _EVENT_LEVELS = {"contact_begins": "DEBUG", "contact_ends": "DEBUG", "success_lost": "WARN", "fail": "WARN",
                  "controller_jump": "WARN"}
-"""Text-log level of each `simreel.divergence.EpisodeEvent` kind (INFO for the others)."""
+"""Text-log level of each `simreel.verdicts.divergence.EpisodeEvent` kind (INFO for the others)."""
 
 
 def _row(step: int) -> int:
@@ -178,7 +179,7 @@ def episode_events(
     compared: tuple[str, str] | None = None,
     explanation: Explanation | None = None,
 ) -> list[Event]:
-    """Start, the episode's events (`simreel.divergence.episode_events`: contacts with their force, grasps, success,
+    """Start, the episode's events (`simreel.verdicts.divergence.episode_events`: contacts with their force, grasps, success,
     controller jumps, termination), the first divergence and its explanation. `compared`: the compared episode's
     label and subject (`simreel.viewers.sources.EpisodeRun`), what the comparison's lines call it."""
     m = episode.meta

@@ -4,8 +4,8 @@ Rerun's file sink writes in a thread of its own: a failed write (a full disk) st
 Rerun's log on stderr, and leaves a flush waiting forever inside Rust, where Ctrl-C and SIGTERM are not seen — a
 flush given a time limit too (rerun-sdk 0.41: a 600 KiB disk, a 5.7 MB session). `write_rrd` holds stderr back while
 it writes, flushes in a thread of its own and waits in Python, watching Rerun's log: a line about a failed write ends
-the wait with one error (`simreel.formats.durable.storage_error` for a full disk: exit 2), leaving the stuck flush
-behind. The file it writes is a temporary one (`simreel.formats.targets.staged_output`), renamed by its caller when
+the wait with one error (`simreel.io.durable.storage_error` for a full disk: exit 2), leaving the stuck flush
+behind. The file it writes is a temporary one (`simreel.io.targets.staged_output`), renamed by its caller when
 whole. (Rerun's in-memory binary stream would avoid the writer thread, but it must be read whole — reads in parts
 concatenate into a file Rerun's reader rejects — and a session with camera frames is as big as its frames.)
 """
@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from simreel.errors import ViewError
-from simreel.formats.durable import storage_error
+from simreel.io.durable import storage_error
 
 __all__ = ["write_rrd", "first_line"]
 

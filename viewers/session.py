@@ -21,16 +21,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from simreel.compare import Tolerances
-from simreel.divergence import Explanation
-from simreel.episode import Episode, RecordingMeta
 from simreel.errors import UsageError, ViewError
 from simreel.formats import EpisodeReader
-from simreel.formats.targets import staged_output
-from simreel.option_checks import is_whole_number, options_with
+from simreel.io.targets import staged_output
+from simreel.model.components import Tolerances
+from simreel.model.episode import Episode
+from simreel.model.meta import RecordingMeta
+from simreel.options.checks import is_whole_number, options_with
 from simreel.sim.rebuild import GYM_MAKE_SEED, UNSEEDED_WITHOUT_STATES, reset_to_episode
 from simreel.sim.state import check_rebuilt_layout, read_state
 from simreel.sim.user_code import import_specs
+from simreel.verdicts.divergence import Explanation
 from simreel.viewers.compare import (
     DEFAULT_MODE,
     ViewComparison,
@@ -85,7 +86,7 @@ class ViewOptions:
             ``"visual"`` or ``"collision"``.
         mode, atol, tolerances: the comparison's tolerances, as for ``simreel replay --mode/--atol/--tol``: the
             defaults of `mode` (``actions``, ``states`` or ``step``; None: actions'), `atol` for every group, then
-            per-group overrides such as ``{"pos": 1e-4}`` (see `simreel.compare.Tolerances.for_mode`). With none
+            per-group overrides such as ``{"pos": 1e-4}`` (see `simreel.model.components.Tolerances.for_mode`). With none
             of them, a `compare` file that is a replay or a conversion of this recording is judged with the
             tolerances that judged it when it was written (`simreel.viewers.compare.judging_tolerances`).
         block_steps: steps per block read from the files, compared and sent with `send_columns` (bounds the memory of
@@ -157,8 +158,8 @@ def check_rrd_target(path: str | Path, *, overwrite: bool, shown: Sequence[str |
     bytes, whatever its name, so one named .rrd, or a link to one, would be written over); and what `check_output`
     refuses (an existing file without `overwrite`, a missing folder unless `make_folder` makes it). Returns `path`."""
     from simreel.formats import recording_files
-    from simreel.formats.targets import check_distinct, check_output
-    from simreel.option_checks import check_flag
+    from simreel.io.targets import check_distinct, check_output
+    from simreel.options.checks import check_flag
 
     check_flag("overwrite", overwrite)
     if Path(path).suffix.lower() != ".rrd":  # a name, not what Path makes of it: Path("") is "."
@@ -340,7 +341,7 @@ class ViewSession:
 
     @property
     def divergence(self) -> Any:
-        """The compared episode's first divergence (`simreel.compare.Divergence`), or None."""
+        """The compared episode's first divergence (`simreel.verdicts.compare.Divergence`), or None."""
         return None if self.comparison is None else self.comparison.divergence
 
     @property

@@ -2,7 +2,7 @@
 conversion or another recording of the task), read from their files.
 
 An `EpisodeRun` keeps its file open and holds a summary of the episode: its per-step fields (actions, rewards,
-flags, info, contact forces) and its controller states, what the events of a whole episode (`simreel.divergence`:
+flags, info, contact forces) and its controller states, what the events of a whole episode (`simreel.verdicts.divergence`:
 grasps, contacts, controller jumps) and the layout are found from. The rest, the states, body poses and
 observations (camera frames) that make up most of a long episode, is read a block of rows at a time from
 `EpisodeRun.rows` whenever it is compared or logged.
@@ -16,10 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from simreel.episode import Episode, FieldSpec, RecordingMeta, StepBlock, join_blocks
 from simreel.errors import RecordingFileError, StorageError, ViewError
 from simreel.formats import EpisodeReader, open_reader
 from simreel.formats.base import EpisodeRows, block_rows, recover_hint
+from simreel.model.blocks import StepBlock, join_blocks
+from simreel.model.episode import Episode
+from simreel.model.fields import FieldSpec
+from simreel.model.meta import RecordingMeta
 from simreel.viewers.compare import compared_role
 
 __all__ = ["EpisodeRun", "read_run", "read_compare", "Source"]

@@ -8,7 +8,7 @@ ManiSkill's render camera (``render_mode="rgb_array"``) after restoring each rec
 from the reset first, as ``simreel view`` does. With ``compare``, the other recording's episode of the same index
 is drawn on the right, and the verdict is that of its conversion (`EpisodeMeta.provenance`, written by
 ``simreel convert``, used only when that file converted this very recording and episode) or, for a replay (or any
-other file), of comparing the two (`simreel.compare`, ``simreel replay``'s rules; a shorter replay is incomplete),
+other file), of comparing the two (`simreel.verdicts.compare`, ``simreel replay``'s rules; a shorter replay is incomplete),
 said of what the other file is (`simreel.viewers.sources.EpisodeRun.subject`: ``replay diverged``, ``second.h5
 diverged``).
 Encoding: H.264 (yuv420p) by ffmpeg (imageio's binary), through a temporary file renamed when the video is whole.
@@ -26,15 +26,17 @@ from typing import Any
 
 import numpy as np
 
-from simreel.compare import DEFAULT_TOLERANCES, Tolerances
-from simreel.episode import Episode, EpisodeSelection, RecordingMeta
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader, recording_files
 from simreel.formats.base import recover_hint
-from simreel.formats.durable import STORAGE_ERRNOS, raise_if_stopped, storage_error
-from simreel.formats.paths import refuse_empty
-from simreel.formats.targets import check_distinct, check_output, staged_output
-from simreel.option_checks import check_flag, options_with, whole_number_pair
+from simreel.io.durable import STORAGE_ERRNOS, raise_if_stopped, storage_error
+from simreel.io.paths import refuse_empty
+from simreel.io.targets import check_distinct, check_output, staged_output
+from simreel.model.components import DEFAULT_TOLERANCES, Tolerances
+from simreel.model.episode import Episode
+from simreel.model.meta import RecordingMeta
+from simreel.model.selection import EpisodeSelection
+from simreel.options.checks import check_flag, options_with, whole_number_pair
 from simreel.sim.user_code import import_specs
 from simreel.viewers.compare import ViewComparison, compare_for_view, compared_role, judging_tolerances
 from simreel.viewers.session import states_by_stepping

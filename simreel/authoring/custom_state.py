@@ -6,7 +6,7 @@ restored state silently disagrees with the episode it came from. ManiSkill's doc
 override for that; `CustomStateMixin` replaces it with one declaration::
 
     from mani_skill.envs.sapien_env import BaseEnv
-    from simreel.custom_state import CustomStateMixin
+    from simreel.authoring.custom_state import CustomStateMixin
 
     class LiftCubeEnv(CustomStateMixin, BaseEnv):     # the mixin goes before BaseEnv
         custom_state = ("goal_height",)              # names of tensor attributes of the task

@@ -7,7 +7,7 @@ several built-in tasks do) makes the state dict hold ``obj-0``, ``obj-1``, ... s
 ``num_envs``; merging articulations of different DOF makes its shape depend on which objects were drawn.
 The helpers here do all of it in one call::
 
-    from simreel.heterogeneous import build_heterogeneous_actor
+    from simreel.authoring.heterogeneous import build_heterogeneous_actor
 
     def _load_scene(self, options):
         kinds = self._batched_episode_rng.choice(["box", "ball"])   # one draw per sub-scene

@@ -8,7 +8,7 @@ from typing import Any
 
 from simreel.cli.common import GivenOnce, add_import_option, parse_index_ranges, parse_json_kwargs
 from simreel.errors import UsageError
-from simreel.formats.durable import raise_if_stopped
+from simreel.io.durable import raise_if_stopped
 
 __all__ = ["add_parser", "run"]
 
@@ -82,7 +82,7 @@ def _check_json(args: argparse.Namespace) -> None:
     or a file of it, or a file another recording keeps beside it (its JSON sidecar), `--overwrite` or not; without
     --overwrite, any file. Nothing of the recording is ever replaced by a report of it."""
     from simreel.formats import check_report_writable, recording_files
-    from simreel.formats.targets import check_distinct
+    from simreel.io.targets import check_distinct
 
     if args.trajectory is not None:
         check_distinct({"--json": [args.json]}, recording_files(args.trajectory),
@@ -95,8 +95,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--steps must be >= 1, got {args.steps}")
     if args.env_id is None and args.trajectory is None:
         raise UsageError("name the task to audit (ENV_ID), or a recording with --trajectory")
-    from simreel.formats.targets import write_text_atomic
-    from simreel.replay.audit import AuditOptions, audit_task
+    from simreel.io.targets import write_text_atomic
+    from simreel.replay.audit.audit import AuditOptions, audit_task
 
     if args.json is not None:
         _check_json(args)

@@ -8,8 +8,11 @@ import sys
 from collections.abc import Iterable
 from typing import Any
 
-from simreel.episode import EpisodeSelection
 from simreel.errors import UsageError
+from simreel.model.selection import parse_index_ranges
+from simreel.options.declare import GivenOnce, add_option
+from simreel.sim.user_code import IMPORTS
+from simreel.verdicts.options import ATOL, TOL, mode_choices, parse_group_tolerance, parse_tolerance
 
 __all__ = ["add_env_options", "env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
            "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar", "mode_choices",
@@ -60,15 +63,7 @@ class _LogLines:
 
 
 def add_import_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--import",
-        dest="imports",
-        action="append",
-        default=[],
-        metavar="MODULE_OR_FILE",
-        help="import user code (a module or a .py file) that registers tasks or policies; repeatable. Given to a "
-             "command that reads a recording, it is imported instead of the code the recording names",
-    )
+    add_option(p, "imports", IMPORTS, [])
 
 
 def add_env_options(p: argparse.ArgumentParser) -> None:
@@ -123,74 +118,12 @@ def _no_json_constant(name: str) -> Any:
     raise argparse.ArgumentTypeError(f"not valid JSON ({name} is no JSON number; give a finite number)")
 
 
-class GivenOnce(argparse.Action):
-    """An option that stores a list (`--episodes 0,3-7`, `--contacts A:B,C:D`, `--keep`) and refuses a second one: given
-    twice, argparse kept the last list alone without a word, where `--episodes 0 --episodes 1` may well mean both."""
-
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
-                 option_string: str | None = None) -> None:
-        text = ",".join(values) if isinstance(values, tuple) else str(values)  # `--keep`'s type makes a tuple
-        given = vars(namespace).setdefault("_given_once", {})
-        if self.dest in given:
-            raise argparse.ArgumentError(self, f"given twice ({given[self.dest]!r}, then {text!r}); give it once, "
-                                               "with every item in one comma-separated list")
-        given[self.dest] = text
-        setattr(namespace, self.dest, values)
-
-
-def parse_index_ranges(text: str) -> EpisodeSelection:
-    """`--episodes`: `"0,3-7"` → the selection of 0 and 3 to 7, kept as ranges (`EpisodeSelection`), so a huge range
-    costs no memory; `UsageError` unless every part is N or N-M (M >= N) in digits."""
-    try:
-        return EpisodeSelection.parse(text)
-    except ValueError:
-        raise UsageError(f"bad episode list {text!r}: expected e.g. 0,3-7") from None
-
-
 def parse_size(text: str) -> tuple[int, int]:
     """`"256x128"` → (256, 128): an image's width and height (`--size`, `--camera-size`)."""
     width, sep, height = text.lower().partition("x")
     if not sep or not width.isdigit() or not height.isdigit() or int(width) < 1 or int(height) < 1:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 256x256, got {text!r}")
     return int(width), int(height)
-
-
-def parse_tolerance(text: str) -> float:
-    """`--atol X`: a finite number >= 0."""
-    return _tolerance_option(text, "")
-
-
-def _tolerance_option(text: str, what: str) -> float:
-    """`text` as a tolerance option's number, by the rule every tolerance keeps (`simreel.compare.tolerance`)."""
-    from simreel.compare import tolerance
-
-    try:
-        return tolerance(text, what)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(str(e).lstrip()) from None
-
-
-def _tolerance_groups() -> list[str]:
-    from simreel.compare import GROUPS
-
-    return [g for g in GROUPS if g != "flag"]  # flags are always compared exactly
-
-
-def parse_group_tolerance(text: str, groups: list[str] | tuple[str, ...] | None = None) -> tuple[str, float]:
-    """`--tol GROUP=X`: `"contact=5"` → ("contact", 5.0), GROUP one of `groups` (default: `simreel.compare.GROUPS`
-    but "flag")."""
-    groups = list(groups) if groups is not None else _tolerance_groups()
-    group, sep, value = text.partition("=")
-    if not sep or group not in groups:
-        raise argparse.ArgumentTypeError(f"expected GROUP=NUMBER with GROUP one of {', '.join(groups)}, got {text!r}")
-    return group, _tolerance_option(value, f"{text!r}:")
-
-
-def mode_choices() -> list[str]:
-    """What `--mode` takes wherever it chooses tolerances: the replay modes (resync is `--mode actions --resync K`)."""
-    from simreel.compare import TOLERANCE_MODES
-
-    return [m for m in TOLERANCE_MODES if m != "resync"]
 
 
 def refuse_tolerances_without_compare(args: argparse.Namespace) -> None:
@@ -206,9 +139,7 @@ def refuse_tolerances_without_compare(args: argparse.Namespace) -> None:
 
 def add_tolerance_options(p: argparse.ArgumentParser, *, mode_help: str, mode_default: str | None = "actions") -> None:
     """`--mode` (a replay mode: whose default tolerances apply; `mode_default` when not given), `--atol X` and
-    `--tol GROUP=X` (repeatable)."""
+    `--tol GROUP=X` (repeatable), as `simreel.verdicts.options` declares them."""
     p.add_argument("--mode", choices=mode_choices(), default=mode_default, help=mode_help)
-    p.add_argument("--atol", type=parse_tolerance, default=None, metavar="X",
-                   help="one absolute tolerance for every compared value (flags stay exact)")
-    p.add_argument("--tol", type=parse_group_tolerance, action="append", default=[], metavar="GROUP=X",
-                   help=f"tolerance of one group, repeatable; groups: {', '.join(_tolerance_groups())}")
+    add_option(p, "atol", ATOL, None)
+    add_option(p, "tol", TOL, [])

@@ -1,6 +1,6 @@
 """`simreel convert`: copy a recording between HDF5 (.h5) and MCAP (.mcap), losslessly; or, with --obs-mode and/or
 --control-mode, convert it (re-render observations from the recorded states, convert actions to another control
-mode) and verify every episode step by step (`simreel.replay.convert`). Exit 0 when every written episode
+mode) and verify every episode step by step (`simreel.replay.convert.convert`). Exit 0 when every written episode
 verifies, 1 when one does not (or nothing was written), 2 on bad input."""
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ def add_parser(sub: Any) -> None:
 
 
 def _keep(text: str) -> tuple[str, ...]:
-    from simreel.replay.convert import KEEP
+    from simreel.replay.convert.convert import KEEP
 
     wanted = tuple(w.strip().replace("-", "_") for w in text.split(",") if w.strip())
     unknown = [w for w in wanted if w not in KEEP]
@@ -78,7 +78,7 @@ def _keep(text: str) -> tuple[str, ...]:
 
 
 def _tracking_tolerance(text: str) -> tuple[str, float]:
-    from simreel.replay.tracking import TRACKING_GROUPS
+    from simreel.replay.convert.tracking import TRACKING_GROUPS
 
     return parse_group_tolerance(text, TRACKING_GROUPS)
 
@@ -115,7 +115,7 @@ def _link_poses(args: argparse.Namespace) -> Callable[[Any], Any]:
             raise UsageError(f"--poses: {args.input} holds no env states, from which the poses are computed; "
                              "convert it without --poses (or replay it with `simreel replay -o` first, which "
                              "records the states it reaches)")
-        from simreel.sim.poses import LinkPoses
+        from simreel.datasets.poses import LinkPoses
         from simreel.sim.user_code import resolve_task_imports
 
         found = resolve_task_imports(meta.imports, explicit=args.imports, recording=args.input)
@@ -127,8 +127,8 @@ def _link_poses(args: argparse.Namespace) -> Callable[[Any], Any]:
 
 
 def _copy(args: argparse.Namespace) -> int:
+    from simreel.datasets.copy import convert
     from simreel.formats import format_of
-    from simreel.formats.copy import convert
 
     src = Path(args.input)
     report = convert(src, args.output, overwrite=args.overwrite, transform=_link_poses(args) if args.poses else None,
@@ -146,7 +146,7 @@ def _copy(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------- a verified conversion
 def _options(args: argparse.Namespace) -> Any:
-    from simreel.replay.convert import ConvertOptions
+    from simreel.replay.convert.convert import ConvertOptions
 
     if args.poses:
         raise UsageError("--poses applies to a copy between formats, not to a conversion")
@@ -163,8 +163,8 @@ def _options(args: argparse.Namespace) -> Any:
 
 def _convert(args: argparse.Namespace) -> int:
     from simreel.formats import check_report_writable, recording_files
-    from simreel.formats.targets import check_distinct, write_text_atomic
-    from simreel.replay.convert import ConversionRun
+    from simreel.io.targets import check_distinct, write_text_atomic
+    from simreel.replay.convert.convert import ConversionRun
 
     options = _options(args)
     if args.report is not None:

@@ -45,7 +45,7 @@ def add_parser(sub: Any) -> None:
 
 
 def _criteria(args: argparse.Namespace) -> Any:
-    from simreel.formats.dataset import EpisodeCriteria
+    from simreel.datasets.dataset import EpisodeCriteria
 
     episodes = None if args.episodes is None else parse_index_ranges(args.episodes)
     if episodes is not None and not episodes:
@@ -59,7 +59,7 @@ def _verdicts(args: argparse.Namespace) -> dict[str, Any]:
     report = args.verified or args.diverged
     if report is None:
         return {}
-    from simreel.formats.dataset import DIVERGED, VERIFIED, report_verdicts
+    from simreel.datasets.dataset import DIVERGED, VERIFIED, report_verdicts
     from simreel.replay import read_verdicts
 
     found = read_verdicts(report)
@@ -68,7 +68,7 @@ def _verdicts(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from simreel.formats.dataset import filter_recording
+    from simreel.datasets.dataset import filter_recording
 
     report = filter_recording(args.input, args.output, _criteria(args), rest=args.rest, overwrite=args.overwrite,
                               command=args.command_line, progress=dataset_progress(args.quiet))

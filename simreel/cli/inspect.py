@@ -90,7 +90,7 @@ def _print_header(reader: Any) -> None:
     if m.source:
         print("  source     " + ", ".join(f"{k} {v}" for k, v in m.source.items()))
     if m.provenance:
-        from simreel.formats.dataset import describe_provenance
+        from simreel.datasets.dataset import describe_provenance
 
         print(f"  made by    {describe_provenance(m.provenance)}")
     print(f"  env        {m.env_id}  obs={m.obs_mode} control={m.control_mode} reward={m.reward_mode}")
@@ -111,7 +111,7 @@ def _print_header(reader: Any) -> None:
 
 
 def _print_episodes(eps: list[Any]) -> None:
-    from simreel.formats.dataset import describe_origin
+    from simreel.datasets.dataset import describe_origin
 
     succ = sum(1 for e in eps if e.success)
     origins = [describe_origin(e.origin) for e in eps]
@@ -168,8 +168,8 @@ def _print_text(reader: Any, found: dict[str, list[str]], episodes: list[Any]) -
 
 
 def run(args: argparse.Namespace) -> int:
+    from simreel.datasets.inputs import expand_inputs
     from simreel.formats import open_reader
-    from simreel.formats.inputs import expand_inputs
 
     files = expand_inputs(args.paths)
     if len(files) == 1 and files[0][1]:
@@ -187,9 +187,9 @@ def run(args: argparse.Namespace) -> int:
 def _inspect_many(paths: list[Any], *, as_json: bool) -> int:
     """One line per recording (or a JSON list of summaries), the totals; 2 when one could not be read, 1 when one
     is damaged."""
+    from simreel.datasets.inputs import shown_path
     from simreel.errors import FileProblemError, SimreelError
     from simreel.formats import open_reader
-    from simreel.formats.inputs import shown_path
 
     entries: list[dict[str, Any]] = []
     for path in paths:

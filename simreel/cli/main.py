@@ -4,7 +4,7 @@ Exit status: 0 success, 1 a verdict that failed (replay diverged, audit findings
 stderr), 3 an internal error (one line), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 141 stdout closed (a
 pipe into `head`). `--debug` prints the traceback before that line and changes nothing else: the exit status is the
 same with it as without. SIGTERM is handled like Ctrl-C: the command stops where it is and cleans up (a recording
-closes its file with every committed episode); a commit in progress finishes first (`simreel.formats.durable`),
+closes its file with every committed episode); a commit in progress finishes first (`simreel.io.durable`),
 and so does an import of mani_skill (`simreel.sim.user_code.native_import`).
 """
 
@@ -23,7 +23,7 @@ from pathlib import Path
 
 from simreel import __version__
 from simreel.errors import SimreelError, Terminated
-from simreel.formats.durable import stop_raised, stopping_signals
+from simreel.io.durable import stop_raised, stopping_signals
 
 __all__ = ["main", "run", "COMMANDS"]
 
@@ -195,7 +195,7 @@ def _unexpected(args: argparse.Namespace, e: Exception) -> int:
 
 def _name_too_long(e: Exception) -> str | None:
     """What to say of ENAMETOOLONG, wherever a command first touched the path (None for another error): names simreel
-    makes itself are cut to fit (`simreel.formats.targets.short_name`) and outputs are checked before any work
+    makes itself are cut to fit (`simreel.io.targets.short_name`) and outputs are checked before any work
     (`check_name_lengths`), so the name is one the user gave, e.g. a recording to read."""
     if not isinstance(e, OSError) or e.errno != errno.ENAMETOOLONG:
         return None
@@ -206,7 +206,7 @@ def _storage_refused(e: Exception) -> str | None:
     """What to say of the storage refusing a write that no writer said in its own words (`storage_error`, which names
     the recording), such as the standard output on a full disk (`> /dev/full`): never simreel's bug. None for
     another error."""
-    from simreel.formats.durable import is_storage_error, storage_error
+    from simreel.io.durable import is_storage_error, storage_error
 
     if not is_storage_error(e):
         return None

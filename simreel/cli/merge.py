@@ -32,7 +32,7 @@ def dataset_progress(quiet: bool) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    from simreel.formats.dataset import merge
+    from simreel.datasets.dataset import merge
 
     report = merge(args.inputs, args.output, overwrite=args.overwrite, command=args.command_line,
                    progress=dataset_progress(args.quiet))

@@ -9,7 +9,7 @@ from typing import Any
 from simreel.cli.common import GivenOnce, add_env_options, apply_imports, env_options, progress_bar
 from simreel.cli.policy_option import POLICY_HELP
 from simreel.errors import UsageError
-from simreel.formats.durable import raise_if_stopped
+from simreel.io.durable import raise_if_stopped
 
 __all__ = ["add_parser", "run"]
 
@@ -42,7 +42,7 @@ def add_parser(sub: Any) -> None:
 
 
 def _done(terminated: Any, truncated: Any) -> Any:
-    from simreel.state_tree import to_numpy
+    from simreel.model.state_tree import to_numpy
 
     return to_numpy(terminated).reshape(-1) | to_numpy(truncated).reshape(-1)
 
@@ -53,7 +53,7 @@ def _check_counts(args: argparse.Namespace) -> None:
     if args.max_steps is not None and not 1 <= args.max_steps <= _STEP_LIMIT:
         raise UsageError(f"--max-steps must be from 1 to {_STEP_LIMIT} (ManiSkill counts steps in 32 bits), got "
                          f"{args.max_steps}")
-    from simreel.sim.make import EnvConfig
+    from simreel.model.env_config import EnvConfig
 
     num_envs = EnvConfig.num_envs if args.num_envs is None else args.num_envs
     if num_envs < 1:
@@ -207,7 +207,7 @@ def _record_batched(rec: Any, policy: _Policy, args: argparse.Namespace, max_ste
 def _summary(rec: Any, stopped: bool = False) -> None:
     """What the file holds; for a recording stopped before it was complete, also the episode it cut short and, when
     it was to replace an old file, where it is instead (the error's own line follows, on stderr)."""
-    from simreel.formats.staging import side_folder
+    from simreel.io.staging import side_folder
 
     eps = rec.episodes_committed
     steps = sum(e.length for e in eps)

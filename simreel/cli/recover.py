@@ -35,7 +35,7 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from simreel.formats.copy import recover
+    from simreel.datasets.copy import recover
 
     r = recover(args.path, args.output, overwrite=args.overwrite)
     if r.complete and r.output is None:

@@ -11,7 +11,7 @@ from typing import Any
 
 from simreel.cli.common import add_import_option, add_tolerance_options, refuse_tolerances_without_compare
 from simreel.errors import UsageError
-from simreel.formats.durable import raise_if_stopped
+from simreel.io.durable import raise_if_stopped
 
 __all__ = ["add_parser", "run", "default_output", "has_display", "open_command", "viewer_available"]
 

@@ -3,8 +3,8 @@
 Writing streams: `EpisodeWriter.begin_episode` opens an `EpisodeSink` per running episode (one per
 parallel env) with the episode's reset row, the recorder appends `StepBlock`s of a few hundred steps, and
 `commit` makes the episode durable — after `commit` returns, a `kill -9` of the process must not lose it.
-Every block is checked against the recording's field table (`simreel.episode.episode_fields`) on its way
-in. A writer holds its file's lock for its whole life and writes where `simreel.formats.staging` says (a
+Every block is checked against the recording's field table (`simreel.model.fields.episode_fields`) on its way
+in. A writer holds its file's lock for its whole life and writes where `simreel.io.staging` says (a
 recording that replaces another is moved over it only by `close`); `abort` drops what it wrote instead.
 Reading is per episode, and an episode is read in blocks of rows (`EpisodeReader.open_episode` gives its
 `EpisodeRows`), so neither a large file nor a long episode has to fit in memory; `read_episode` puts one whole
@@ -26,22 +26,17 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from simreel.episode import (
-    Episode,
-    EpisodeMeta,
-    FieldSpec,
-    RecordingMeta,
-    StepBlock,
-    episode_fields,
-    join_blocks,
-)
 from simreel.errors import EpisodeLayoutError, MetadataError, RecordingFileError, StorageError, UsageError
-from simreel.formats.durable import is_storage_error, storage_error
-from simreel.formats.lock import being_written
-from simreel.formats.paths import is_symlink_loop, read_problem
-from simreel.formats.staging import refuse_kept_recording
-from simreel.formats.targets import check_output
-from simreel.option_checks import is_whole_number
+from simreel.io.durable import is_storage_error, storage_error
+from simreel.io.lock import being_written
+from simreel.io.paths import is_symlink_loop, read_problem
+from simreel.io.staging import refuse_kept_recording
+from simreel.io.targets import check_output
+from simreel.model.blocks import StepBlock, join_blocks
+from simreel.model.episode import Episode
+from simreel.model.fields import FieldSpec, episode_fields
+from simreel.model.meta import EpisodeMeta, RecordingMeta
+from simreel.options.checks import is_whole_number
 
 __all__ = ["EpisodeSink", "EpisodeWriter", "EpisodeReader", "EpisodeRows", "BLOCK_BYTES", "block_rows"]
 
@@ -166,7 +161,7 @@ class EpisodeWriter(ABC):
 
     @classmethod
     def check_target(cls, path: Path, *, overwrite: bool) -> None:
-        """Raise `UsageError` if a new recording cannot go to `path` (`simreel.formats.targets.check_output`,
+        """Raise `UsageError` if a new recording cannot go to `path` (`simreel.io.targets.check_output`,
         with this format's side paths, or another writer holds it). Cheap: touches nothing."""
         check_output(path, overwrite=overwrite, side_paths=cls.side_paths(path))
         if being_written(path):
@@ -254,18 +249,18 @@ class EpisodeWriter(ABC):
 
     def checkpoint(self) -> None:  # noqa: B027 - optional hook
         """Mark what `settle` waits for: everything handed to the writer so far (a writer that writes elsewhere starts
-        on it now: `simreel.formats.writer_process`)."""
+        on it now: `simreel.recorders.writer_process`)."""
 
     def settle(self) -> None:  # noqa: B027 - optional hook
         """Wait until everything handed to the writer up to the last `checkpoint` is written. A writer in the caller's
-        process writes as it is called, so there is nothing to wait for (`simreel.formats.writer_process` has a writer
+        process writes as it is called, so there is nothing to wait for (`simreel.recorders.writer_process` has a writer
         that does wait)."""
 
     @abstractmethod
     def close(self, *, replace: bool = True) -> None:
         """Finish the file (a staged recording replaces the old one now) and give up its lock. `replace=False`: the
         recording stopped before it was complete, so a staged one stays beside the old one, which stays as it was
-        (`simreel.formats.staging`)."""
+        (`simreel.io.staging`)."""
 
     @abstractmethod
     def abort(self) -> None:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from simreel.errors import ActionError
-from simreel.state_tree import to_numpy
+from simreel.model.state_tree import to_numpy
 
 __all__ = ["ActionCheck"]
 

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import ContactChannel
 from simreel.errors import ContactSpecError, UsageError
+from simreel.model.meta import ContactChannel
 from simreel.sim.describe import dynamic_actor_names, named_bodies
 from simreel.sim.step_rows import ContactRows
 

@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import RecordingMeta, new_recording_id
 from simreel.errors import UsageError
+from simreel.model.meta import RecordingMeta, new_recording_id
+from simreel.model.state_tree import flatten, layout_of
 from simreel.sim.make import EnvConfig, env_versions
-from simreel.state_tree import flatten, layout_of
 
 __all__ = [
     "recording_meta",

@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import json_default
+from simreel.model.meta import json_default
 from simreel.sim.describe import scene_bodies
 
 __all__ = [

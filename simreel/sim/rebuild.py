@@ -22,9 +22,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from simreel.episode import EpisodeMeta, RecordingMeta
 from simreel.errors import RenderUnavailableError
-from simreel.state_tree import to_numpy
+from simreel.model.meta import EpisodeMeta, RecordingMeta
+from simreel.model.state_tree import to_numpy
 
 if TYPE_CHECKING:
     import gymnasium as gym

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 
 from simreel.errors import StateLayoutError, TaskCodeError
+from simreel.model.state_tree import LeafSpec, flatten, layout_differences, layout_of, to_numpy, unflatten
 from simreel.sim.step_rows import PackedRows
-from simreel.state_tree import LeafSpec, flatten, layout_differences, layout_of, to_numpy, unflatten
 
 __all__ = [
     "FastStateReader",
@@ -304,7 +304,7 @@ def check_same_layout(env_id: str, first: Mapping[str, LeafSpec], now: Mapping[s
         first, now, ("when the recording started", "now"),
         f"the state dict of {env_id} changed after a reset",
         "one recording needs one layout — register merged views for per-episode objects, with a `state_dof` bound "
-        "where their joints vary (see simreel.heterogeneous)",
+        "where their joints vary (see simreel.authoring.heterogeneous)",
     )
     if error is not None:
         raise error

@@ -4,8 +4,8 @@ A recorder copies each step's numbers out as plain Python objects right after th
 call costs several times its usual price) and converts a block of steps at once, later
 (`simreel.recorders.step_buffer`). These classes do the converting. They hold only numbers and names, so they
 pickle: a recorder whose writer runs in a child process sends a block's captures with their sources, and the child
-converts them while the env goes on (`simreel.episode.StepBlock.captured`). The child keeps each source it was sent
-and is sent only its number after (`simreel.formats.writer_process.ProcessWriter`), so a source never changes once a
+converts them while the env goes on (`simreel.model.blocks.StepBlock.captured`). The child keeps each source it was sent
+and is sent only its number after (`simreel.recorders.writer_process.ProcessWriter`), so a source never changes once a
 block has used it.
 
 Each is called with the captures of k steps, in step order, and returns each of its fields (`names`) as a
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from simreel.state_tree import to_numpy
+from simreel.model.state_tree import to_numpy
 
 __all__ = ["PackedRows", "ContactRows", "ActionRows", "ScalarRows", "one_per_env", "STEP_RESULTS"]
 

@@ -24,9 +24,10 @@ from types import ModuleType
 from typing import Any
 
 from simreel.errors import EnvBuildError, TaskCodeError, UsageError
-from simreel.formats.durable import deferred_signals
-from simreel.formats.paths import SYMLINK_LOOP, is_symlink_loop, real_path
-from simreel.option_checks import text_tuple
+from simreel.io.durable import deferred_signals
+from simreel.io.paths import SYMLINK_LOOP, is_symlink_loop, real_path
+from simreel.options.checks import text_tuple
+from simreel.options.declare import Option
 from simreel.sim.render_device import configure_vulkan
 
 __all__ = ["import_specs", "found_spec", "import_user_code", "imported_user_code", "import_mani_skill", "native_import",
@@ -108,6 +109,15 @@ def import_specs(imports: Any) -> tuple[str, ...]:
     one spec per character); anything but strings is `UsageError`."""
     return text_tuple("imports", imports, 'the .py files or modules that register the task, as a tuple of strings, '
                       'e.g. ("my_tasks.py",)')
+
+
+IMPORTS = Option(
+    help="import user code (a module or a .py file) that registers tasks or policies; repeatable. Given to a command "
+         "that reads a recording, it is imported instead of the code the recording names",
+    flags=("--import",), metavar="MODULE_OR_FILE", action="append", cli_default=[], from_cli=tuple,
+    check=lambda name, value: tuple(recorded_spec(spec) for spec in import_specs(value)))
+"""``--import``, declared once for every command that takes it; its check keeps a file by its absolute path (a
+resumed run, or a worker, may work in another folder)."""
 
 
 def recorded_spec(spec: str, *, base: str | Path | None = None) -> str:

@@ -12,7 +12,7 @@ from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 
-from simreel.custom_state import CustomStateMixin
+from simreel.authoring.custom_state import CustomStateMixin
 
 DEFAULT_CONTROL_MODE = "pd_ee_delta_pos"
 """Tasks default to end-effector position control; the scripted policies in `policies.py` need it."""

@@ -9,7 +9,7 @@ import sapien.physx as physx
 import torch
 from mani_skill.utils.registration import register_env
 
-from simreel.heterogeneous import build_heterogeneous_articulation
+from simreel.authoring.heterogeneous import build_heterogeneous_articulation
 from simreel.tasks._tabletop import HeterogeneousTabletopEnv
 from simreel.tasks.cabinets import MAX_DOF, add_cabinet_links, sample_cabinet
 

@@ -10,7 +10,7 @@ import torch
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs.pose import Pose
 
-from simreel.heterogeneous import build_heterogeneous_actor
+from simreel.authoring.heterogeneous import build_heterogeneous_actor
 from simreel.tasks._tabletop import HeterogeneousTabletopEnv
 from simreel.tasks.shapes import add_object_shapes, sample_object
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from simreel.custom_state import (
+from simreel.authoring.custom_state import (
     CustomStateError,
     CustomStateMixin,
     custom_state_names,

@@ -9,8 +9,8 @@ from types import SimpleNamespace
 import pytest
 import torch
 
+from simreel.authoring.heterogeneous import HeterogeneousBuildError, merge_articulations
 from simreel.errors import SimreelError
-from simreel.heterogeneous import HeterogeneousBuildError, merge_articulations
 from simreel.sim.render_device import configure_vulkan
 
 configure_vulkan()  # the project lavapipe, before sapien creates a device (as make_env does)
@@ -18,7 +18,7 @@ configure_vulkan()  # the project lavapipe, before sapien creates a device (as m
 
 def test_helpers_import_without_torch_or_mani_skill():
     code = (
-        "import sys, simreel.custom_state, simreel.heterogeneous; "
+        "import sys, simreel.authoring.custom_state, simreel.authoring.heterogeneous; "
         "print(sorted(m for m in ('torch', 'mani_skill', 'sapien') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

@@ -8,8 +8,8 @@ import pytest
 
 from simreel.cli.common import parse_group_tolerance, parse_tolerance
 from simreel.cli.main import build_parser
-from simreel.compare import GROUPS, TOLERANCE_MODES
-from simreel.replay.engine import MODES
+from simreel.model.components import GROUPS, TOLERANCE_MODES
+from simreel.replay.run.engine import MODES
 
 
 @pytest.mark.parametrize("command", ["replay", "view"])

@@ -90,8 +90,8 @@ def test_overwrite_replaces_output(tmp_path):
 )
 def test_poses_checks_out_before_building_the_env(tmp_path, monkeypatch, out, message):
     """Regression: `convert --poses` built the env before finding that OUT could not be written."""
+    from simreel.datasets.copy import convert
     from simreel.errors import UsageError
-    from simreel.formats.copy import convert
 
     def no_env(meta):
         raise AssertionError("the env was built before OUT was checked")
@@ -160,7 +160,7 @@ def test_poses_of_a_file_without_env_states_is_one_line(tmp_path, capsys):
 
 
 def test_the_help_names_every_tracking_tolerance_group(capsys):
-    from simreel.replay.tracking import TRACKING_GROUPS
+    from simreel.replay.convert.tracking import TRACKING_GROUPS
 
     with pytest.raises(SystemExit):
         main(["convert", "--help"])

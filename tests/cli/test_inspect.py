@@ -13,8 +13,8 @@ from simreel.cli.main import main
 
 
 def test_inspect_file_without_frequencies(tmp_path, capsys):
-    from simreel.episode import RecordingMeta
     from simreel.formats import open_writer
+    from simreel.model.meta import RecordingMeta
 
     open_writer(tmp_path / "api.h5", RecordingMeta(env_id="PickCube-v1")).close()
     assert main(["inspect", str(tmp_path / "api.h5")]) == 0

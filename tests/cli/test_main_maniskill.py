@@ -129,9 +129,9 @@ def test_a_control_mode_conversion_by_replay_trajectory_verifies(maniskill_env, 
 def test_a_file_without_rewards_replays_without_computing_them_and_minus_o_still_writes_real_ones(tmp_path, capsys):
     """Rewards nothing could check are not computed (reward_mode="none": ManiSkill's replay_trajectory computes
     them anyway); a replay written with -o computes them, equal to what RecordEpisode recorded for the same run."""
-    from simreel.compare import Tolerances
-    from simreel.replay.engine import EpisodeReplayer
-    from simreel.replay.workers import ReplayJob
+    from simreel.model.components import Tolerances
+    from simreel.replay.run.engine import EpisodeReplayer
+    from simreel.replay.run.workers import ReplayJob
 
     with_rewards = record_maniskill(tmp_path / "a", "PickCube-v1", episodes=2, steps=12)
     without = record_maniskill(tmp_path / "b", "PickCube-v1", episodes=2, steps=12, record_reward=False)

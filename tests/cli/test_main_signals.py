@@ -81,7 +81,7 @@ def test_an_error_after_a_swallowed_signal_is_that_signal_not_an_internal_error(
 def test_a_bug_while_a_commit_held_a_ctrl_c_is_still_an_internal_error(monkeypatch, capsys):
     """The signal a failing block held is noted, not raised: its error wins (exit 3 for a bug, not 130)."""
     import simreel.cli.inspect as inspect_cmd
-    from simreel.formats.durable import deferred_signals
+    from simreel.io.durable import deferred_signals
 
     def failing_commit(args):
         with deferred_signals():

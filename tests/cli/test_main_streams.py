@@ -39,7 +39,7 @@ def test_an_error_without_stderr_is_still_exit_2(tmp_path: Path):
 @pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux)")
 def test_a_full_standard_output_is_bad_input_not_an_internal_error(tmp_path):
     """Regression: `simreel inspect X > /dev/full` was "internal error: OSError: [Errno 28] ... please report it", exit
-    3; the storage refusing a write is never simreel's bug (`simreel.formats.durable.STORAGE_ERRNOS`)."""
+    3; the storage refusing a write is never simreel's bug (`simreel.io.durable.STORAGE_ERRNOS`)."""
     meta = synthetic_meta()
     rec = write(tmp_path / "r.h5", meta, [synthetic_episode(meta, 0, 3)])
     done = _simreel_closing(">/dev/full", "inspect", str(rec))

@@ -18,14 +18,14 @@ from pathlib import Path
 import pytest
 
 from simreel.formats import open_reader
-from simreel.replay.output import scratch_folder
+from simreel.replay.run.output import scratch_folder
 
 
 @pytest.fixture(scope="module")
 def long_run(record) -> Path:
     """Enough episodes that a run is still going when it is interrupted after its first verdicts; every reset
     rebuilds the scene, so each episode is a scene chain of its own and `--workers 2` shares them between two
-    processes (one chain is replayed in one: `simreel.replay.worklist.chain_groups`)."""
+    processes (one chain is replayed in one: `simreel.replay.run.worklist.chain_groups`)."""
     return record("PickCube-v1", 24, 30, "--env-kwargs", '{"reconfiguration_freq": 1}')
 
 

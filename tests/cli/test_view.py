@@ -460,8 +460,8 @@ def test_view_and_video_judge_a_step_mode_replay_with_the_tolerances_that_judged
     import json
     import shutil
 
-    from simreel.compare import Tolerances
     from simreel.formats import open_reader, open_writer
+    from simreel.model.components import Tolerances
     from simreel.viewers.compare import judging_tolerances
 
     moved = tmp_path / "moved.h5"

@@ -9,9 +9,9 @@ import pytest
 from support.maniskill_files import record_maniskill
 
 from simreel.cli.main import main
-from simreel.episode import FieldSpec
 from simreel.formats import open_reader
 from simreel.formats.base import BLOCK_BYTES, block_rows
+from simreel.model.fields import FieldSpec
 
 
 @pytest.fixture(scope="module")

@@ -11,9 +11,11 @@ import re
 import numpy as np
 import pytest
 
-from simreel.episode import Episode, EpisodeMeta, StepBlock
 from simreel.errors import EpisodeLayoutError, UsageError
 from simreel.formats import open_reader, open_writer
+from simreel.model.blocks import StepBlock
+from simreel.model.episode import Episode
+from simreel.model.meta import EpisodeMeta
 
 SUFFIXES = [".h5", ".mcap"]
 

@@ -17,12 +17,15 @@ import pytest
 from support.children import child_pids, wait_ended
 
 from simreel import FORMAT_VERSION
-from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta, StepBlock, episode_fields
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import open_reader, open_writer
 from simreel.formats.hdf5 import partial_dir, sidecar_path
 from simreel.formats.hdf5.reader import datasets_below
-from simreel.state_tree import LeafSpec
+from simreel.model.blocks import StepBlock
+from simreel.model.episode import Episode
+from simreel.model.fields import episode_fields
+from simreel.model.meta import ContactChannel, EpisodeMeta, RecordingMeta
+from simreel.model.state_tree import LeafSpec
 
 SUPPORT = Path(__file__).parents[1] / "support"
 

@@ -81,7 +81,7 @@ def test_maniskills_dataset_loader_reads_simreel_recordings(record, obs_mode, ex
     dict observation, an empty group when none were recorded (as ManiSkill's obs_mode=none demos)."""
     from mani_skill.trajectory.dataset import ManiSkillTrajectoryDataset
 
-    from simreel.state_tree import flatten
+    from simreel.model.state_tree import flatten
 
     path = record("PickCube-v1", 2, 8, "--obs-mode", obs_mode, *extra)
     with open_reader(path) as r:

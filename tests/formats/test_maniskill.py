@@ -16,7 +16,7 @@ from simreel.errors import RecordingFileError
 from simreel.formats import open_reader
 from simreel.formats.maniskill.reader import ALWAYS_UNKNOWN, ManiskillReader
 from simreel.replay import verify_recording
-from simreel.replay.convert import convert_recording
+from simreel.replay.convert.convert import convert_recording
 
 
 @pytest.fixture(scope="module")

@@ -14,11 +14,12 @@ import pytest
 from support.children import child_pids, wait_ended
 from support.mcap_samples import assert_same_episode, long_sample, synthetic_episode, synthetic_meta, write
 
-from simreel.episode import Episode, episode_fields
+from simreel.datasets.copy import convert, recover
 from simreel.errors import EpisodeLayoutError, RecordingFileError, SimreelError, UsageError
 from simreel.formats import open_reader
-from simreel.formats.copy import convert, recover
 from simreel.formats.mcap import TOPICS, McapReader, McapWriter
+from simreel.model.episode import Episode
+from simreel.model.fields import episode_fields
 
 SUPPORT = Path(__file__).parents[1] / "support"
 
@@ -506,7 +507,7 @@ def test_convert_with_poses_computes_the_recorded_link_poses(pickcube_h5, tmp_pa
     for ep in episodes:
         ep.body_poses = None
     write(tmp_path / "no_poses.h5", stripped, episodes)
-    from simreel.sim.poses import LinkPoses
+    from simreel.datasets.poses import LinkPoses
 
     convert(tmp_path / "no_poses.h5", tmp_path / "poses.mcap", transform=LinkPoses)
     with open_reader(tmp_path / "poses.mcap") as r:
@@ -518,8 +519,8 @@ def test_convert_with_poses_computes_the_recorded_link_poses(pickcube_h5, tmp_pa
 def test_convert_with_poses_streams_an_episode_of_many_blocks(pickcube_h5, tmp_path):
     """`convert --poses` adds the poses a block of rows at a time: a real 30-step PickCube episode repeated to
     9,000 steps (three blocks) gets, on every row, the link poses recorded with the state it repeats."""
+    from simreel.datasets.poses import LinkPoses
     from simreel.formats.base import block_rows
-    from simreel.sim.poses import LinkPoses
 
     with open_reader(pickcube_h5) as r:
         meta, episode = r.meta, r.read_episode(r.episodes[0].index)

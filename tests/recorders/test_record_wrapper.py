@@ -14,9 +14,9 @@ import torch
 
 from simreel.errors import StateLayoutError, UsageError
 from simreel.formats import open_reader
+from simreel.model.state_tree import flatten, to_numpy
 from simreel.recorders import RecordWrapper
 from simreel.sim.make import make_env
-from simreel.state_tree import flatten, to_numpy
 
 TASKS = [
     ("PickCube-v1", {}),
@@ -330,7 +330,7 @@ def test_a_ctrl_c_right_after_a_step_is_stored_keeps_the_episode_whole(tmp_path,
 def test_a_ctrl_c_while_an_ended_episode_is_handed_over_loses_none_of_it(tmp_path, monkeypatch):
     """A real SIGINT while the reset hands the ended episode's steps to the writer process (as its send first reads
     what the child has said): the steps and the commit still go out; the Ctrl-C comes after."""
-    from simreel.formats.writer_process import ProcessWriter
+    from simreel.recorders.writer_process import ProcessWriter
 
     rec = RecordWrapper(make_env("PickCube-v1"), tmp_path / "r.h5")
     rec.reset(seed=0)

@@ -15,9 +15,9 @@ pytestmark = [
 
 def test_batched_recording_splits_envs_and_partial_resets(tmp_path):
     from simreel.formats import open_reader
+    from simreel.model.state_tree import flatten, to_numpy
     from simreel.recorders import RecordWrapper
     from simreel.sim.make import make_env
-    from simreel.state_tree import flatten, to_numpy
 
     n = 8
     env = RecordWrapper(make_env("PickCube-v1", num_envs=n, sim_backend="physx_cuda"), tmp_path / "g.h5")

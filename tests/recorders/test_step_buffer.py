@@ -68,7 +68,7 @@ def test_one_env_block_can_leave_its_captures_to_the_writer_process_which_conver
     the rows the recorder would have made."""
     import pickle
 
-    from simreel.episode import FieldSpec
+    from simreel.model.fields import FieldSpec
     from simreel.sim.step_rows import ActionRows, ScalarRows
 
     sources = (ActionRows(1), ScalarRows(1, ["success"], [("success", "success", np.dtype(bool))]))

@@ -9,10 +9,10 @@ import pytest
 import torch
 
 from simreel.formats import open_reader
+from simreel.model.state_tree import to_numpy
 from simreel.recorders import RecordWrapper
 from simreel.recorders.step_scalars import StepScalars
 from simreel.sim.make import make_env
-from simreel.state_tree import to_numpy
 
 _BIG = 2**60 + 1
 """An int64 info value float64 cannot hold exactly."""

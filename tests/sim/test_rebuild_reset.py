@@ -7,8 +7,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from simreel.episode import EpisodeMeta
 from simreel.errors import RenderUnavailableError
+from simreel.model.meta import EpisodeMeta
 from simreel.sim.rebuild import GYM_MAKE_SEED, build_with_render_fallback, reset_to_episode
 
 

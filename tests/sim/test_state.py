@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from simreel.formats import open_reader
-from simreel.replay.engine import EpisodeReplayer
+from simreel.model.state_tree import flatten, unflatten
+from simreel.replay.run.engine import EpisodeReplayer
 from simreel.sim.state import restore_state, state_row
-from simreel.state_tree import flatten, unflatten
 
 
 def _restore_into_another_episode_then_step(path, *, t: int, plain: bool) -> dict[str, float]:

@@ -14,7 +14,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from simreel.episode import Episode, RecordingMeta
+from simreel.model.episode import Episode
+from simreel.model.meta import RecordingMeta
 
 __all__ = ["stored_bytes", "corrupt_chunk", "write_format1", "sweep"]
 

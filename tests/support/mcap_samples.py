@@ -6,9 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from simreel.episode import ContactChannel, Episode, EpisodeMeta, RecordingMeta
 from simreel.formats import open_reader, open_writer
-from simreel.state_tree import LeafSpec
+from simreel.model.episode import Episode
+from simreel.model.meta import ContactChannel, EpisodeMeta, RecordingMeta
+from simreel.model.state_tree import LeafSpec
 
 ARRAYS = ("actions", "rewards", "terminated", "truncated", "success", "fail", "contact_forces", "body_poses")
 

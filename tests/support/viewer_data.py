@@ -41,7 +41,7 @@ def write_variant(src: Path, dst: Path, *, shift_from: int | None = None, drop_p
     """A copy of episode 0 of `src` with the cube moved 5 cm along +y from row `shift_from` on (a replay that
     diverges there), without body poses (the viewer must restore them), and/or with a fake 8×6 rgb camera."""
     from simreel.formats import open_reader, open_writer
-    from simreel.state_tree import LeafSpec
+    from simreel.model.state_tree import LeafSpec
 
     with open_reader(src) as r:
         meta, ep = r.meta, r.read_episode(0)

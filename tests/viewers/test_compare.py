@@ -6,8 +6,10 @@ import dataclasses
 
 import numpy as np
 
-from simreel.compare import Divergence, Tolerances
-from simreel.episode import Episode, EpisodeMeta
+from simreel.model.components import Tolerances
+from simreel.model.episode import Episode
+from simreel.model.meta import EpisodeMeta
+from simreel.verdicts.compare import Divergence
 from simreel.viewers.compare import compare_for_view, divergence_row
 
 

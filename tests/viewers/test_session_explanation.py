@@ -71,8 +71,8 @@ def test_a_replay_of_another_recording_lends_this_one_no_cause(diverged, rrd_rea
     called the replay."""
     import dataclasses
 
-    from simreel.episode import new_recording_id
     from simreel.formats import open_reader, open_writer
+    from simreel.model.meta import new_recording_id
 
     path, replayed, _ = diverged
     other = tmp_path / "other.h5"

@@ -111,7 +111,7 @@ def test_compare_ghost_and_first_divergence(pickcube_h5, view_env, variant, rrd_
     out = tmp_path / "cmp.rrd"
     with build_session(pickcube_h5, env=view_env, compare=replayed, geometry="collision") as session:
         session.save(out)
-    d = session.divergence  # simreel.compare's: the outcome of step 11 is state row 12
+    d = session.divergence  # simreel.verdicts.compare's: the outcome of step 11 is state row 12
     assert (d.step, d.at, d.key) == (DIVERGE_AT - 1, "step", "env_states/actors/cube[p]")
     assert d.error == pytest.approx(0.05, abs=1e-6)
     rrd = rrd_reader(out)

@@ -12,7 +12,7 @@ import pytest
 from support.mcap_samples import synthetic_episode, synthetic_meta, write
 
 from simreel.cli.main import main
-from simreel.state_tree import LeafSpec
+from simreel.model.state_tree import LeafSpec
 from simreel.viewers.video import VideoRun, video_path
 
 

@@ -16,7 +16,7 @@ from support.mcap_samples import synthetic_episode, synthetic_meta, write
 from support.small_disk import fill, small_disk
 
 from simreel.cli.main import main
-from simreel.state_tree import LeafSpec
+from simreel.model.state_tree import LeafSpec
 from simreel.viewers.video import VideoRun, video_path
 
 

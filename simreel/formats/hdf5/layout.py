@@ -13,9 +13,9 @@ Layout (ManiSkill-compatible where ManiSkill has a convention)::
     <name>.json             ManiSkill's sidecar (env_info, episodes[]) for its own tools
     <name>.h5.partial/      while recording: running.jsonl (the episodes begun, `running_journal`), traj_N.h5
                             (a long running episode's scratch file); <name>.h5 and <name>.json of a recording that
-                            replaces an existing one (`simreel.formats.staging`)
+                            replaces an existing one (`simreel.io.staging`)
 
-Datasets inside `traj_N` are the recording's fields (`simreel.episode.episode_fields`) under their flat names,
+Datasets inside `traj_N` are the recording's fields (`simreel.model.fields.episode_fields`) under their flat names,
 laid out as ManiSkill lays them out (`simreel.formats.maniskill.layout`: a bare-array observation is the dataset
 `obs`), so ManiSkill's own tools read the file.
 
@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from simreel.formats.maniskill.layout import group_name, sidecar_path
-from simreel.formats.staging import side_folder
+from simreel.io.staging import side_folder
 
 __all__ = [
     "HDF5_MAGIC",

@@ -1,7 +1,7 @@
 """`Hdf5Reader`: reads a simreel HDF5 recording (layout: `simreel.formats.hdf5.layout`), episode by episode, checking
 every episode against the recording's own layout, and naming what it cannot read rather than skipping it.
 
-- A file still being written is read under the writer's commit lock (`simreel.formats.lock`): the reader sees
+- A file still being written is read under the writer's commit lock (`simreel.io.lock`): the reader sees
   the episodes committed when it opened it, never a commit half done, and keeps a handle of each episode's
   group so it never walks the parts of the file a later commit changes.
 - An episode whose group or metadata is corrupt or half written (a crash in a commit, a damaged disk) is listed
@@ -30,10 +30,8 @@ from typing import Any
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import EpisodeMeta, FieldSpec, RecordingMeta, StepBlock, episode_fields, json_default
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader, EpisodeRows, closed_reader, not_a_file
-from simreel.formats.durable import errno_of
 from simreel.formats.hdf5.layout import (
     EPISODE_ATTR,
     HDF5_MAGIC,
@@ -45,11 +43,15 @@ from simreel.formats.hdf5.layout import (
     running_journal,
     scratch_path,
 )
-from simreel.formats.lock import CommitLock, being_written
 from simreel.formats.maniskill.layout import dataset_name, group_index, sidecar_path
 from simreel.formats.maniskill.sidecar import sidecar_document
-from simreel.formats.paths import read_head, read_problem
-from simreel.formats.staging import replacement_note
+from simreel.io.durable import errno_of
+from simreel.io.lock import CommitLock, being_written
+from simreel.io.paths import read_head, read_problem
+from simreel.io.staging import replacement_note
+from simreel.model.blocks import StepBlock
+from simreel.model.fields import FieldSpec, episode_fields
+from simreel.model.meta import EpisodeMeta, RecordingMeta, json_default
 
 __all__ = ["Hdf5Reader", "Hdf5Rows", "open_hdf5", "holds_simreel_metadata", "unlisted_datasets_problem", "datasets_below",
            "H5PY_ERRORS"]

@@ -9,13 +9,13 @@ ends with a flush, after which the file on disk is whole again; between commits 
 
 - first reserves the disk space it may need, so a full disk refuses it before the file is touched (the
   recording then stops with one line, every episode committed before readable);
-- holds SIGINT/SIGTERM until it has ended (`simreel.formats.durable`);
+- holds SIGINT/SIGTERM until it has ended (`simreel.io.durable`);
 - holds the commit lock, so a reader in another process never reads the file half way through a commit
-  (`simreel.formats.lock`);
+  (`simreel.io.lock`);
 - then adds the episode to the JSON sidecar (`simreel.formats.maniskill.sidecar`).
 
 A recording that replaces an existing one (`overwrite`) is written in the side folder and moved over the old
-one by `close` (`simreel.formats.staging`); a second writer of the same name is refused.
+one by `close` (`simreel.io.staging`); a second writer of the same name is refused.
 """
 
 from __future__ import annotations
@@ -31,17 +31,8 @@ from typing import Any
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import StorageError, UsageError
 from simreel.formats.base import EpisodeSink, EpisodeWriter
-from simreel.formats.durable import (
-    deferred_signals,
-    is_storage_error,
-    release_space,
-    release_unused,
-    reserve_space,
-    storage_error,
-)
 from simreel.formats.hdf5.datasets import DatasetWriter, check_compression, image_storage
 from simreel.formats.hdf5.layout import (
     EPISODE_ATTR,
@@ -55,11 +46,21 @@ from simreel.formats.hdf5.layout import (
     scratch_path,
     sidecar_path,
 )
-from simreel.formats.lock import CommitLock
 from simreel.formats.maniskill.layout import OBS, dataset_name, refuse_replacing_sidecar
 from simreel.formats.maniskill.sidecar import SidecarFile
-from simreel.formats.staging import RecordingTarget
-from simreel.formats.targets import check_name_lengths
+from simreel.io.durable import (
+    deferred_signals,
+    is_storage_error,
+    release_space,
+    release_unused,
+    reserve_space,
+    storage_error,
+)
+from simreel.io.lock import CommitLock
+from simreel.io.staging import RecordingTarget
+from simreel.io.targets import check_name_lengths
+from simreel.model.blocks import StepBlock
+from simreel.model.meta import EpisodeMeta, RecordingMeta
 
 __all__ = ["Hdf5Writer", "image_storage"]
 

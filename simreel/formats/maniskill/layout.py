@@ -10,7 +10,7 @@ A ManiSkill trajectory file (written by `mani_skill.utils.wrappers.RecordEpisode
     obs                                       (T+1, D)   an observation that is one array (obs_mode "state")
     obs/<key path>                            (T+1, ...) a dict observation (state_dict, rgb, sensor_data, ...)
 
-A field of simreel's table (`simreel.episode.episode_fields`) is the dataset of the same name, except a
+A field of simreel's table (`simreel.model.fields.episode_fields`) is the dataset of the same name, except a
 bare-array observation: simreel names it ``obs/<obs mode>`` (the key `flatten_obs` gives it), ManiSkill stores
 it as the dataset ``obs`` itself; `dataset_name` and `field_name` translate.
 """
@@ -21,8 +21,8 @@ import glob
 import re
 from pathlib import Path
 
-from simreel.episode import RecordingMeta
 from simreel.errors import UsageError
+from simreel.model.meta import RecordingMeta
 
 __all__ = ["group_name", "group_index", "sidecar_path", "refuse_replacing_sidecar", "sidecar_owners", "obs_is_array", "dataset_name",
            "field_name", "maniskill_tools", "OBS"]
@@ -64,7 +64,7 @@ def refuse_replacing_sidecar(file: Path, *, writing: str | Path, own: Path | Non
 
 def sidecar_owners(file: Path) -> list[Path]:
     """The HDF5 files beside `file` whose JSON sidecar it is (`x.json` is the sidecar of `x.h5` and of `x.hdf5`)."""
-    from simreel.formats import HDF5_SUFFIXES
+    from simreel.formats.registry import HDF5_SUFFIXES
 
     file = Path(file)
     return [other for other in sorted(file.parent.glob(glob.escape(file.stem) + ".*"))

@@ -40,15 +40,6 @@ from typing import Any
 
 import numpy as np
 
-from simreel.compare import Tolerances, component_error, components_of
-from simreel.episode import (
-    OPTIONAL_STEP_FIELDS,
-    EpisodeMeta,
-    RecordingMeta,
-    StepBlock,
-    episode_fields,
-    field_group,
-)
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader, not_a_file
 from simreel.formats.hdf5.reader import (
@@ -60,7 +51,11 @@ from simreel.formats.hdf5.reader import (
 )
 from simreel.formats.maniskill.layout import OBS, dataset_name, field_name, group_index, group_name
 from simreel.formats.maniskill.sidecar import Sidecar
-from simreel.state_tree import LeafSpec
+from simreel.model.blocks import StepBlock
+from simreel.model.components import Tolerances, component_error, components_of
+from simreel.model.fields import OPTIONAL_STEP_FIELDS, episode_fields, field_group
+from simreel.model.meta import EpisodeMeta, RecordingMeta
+from simreel.model.state_tree import LeafSpec
 
 __all__ = ["ManiskillReader", "ALWAYS_UNKNOWN"]
 
@@ -247,7 +242,7 @@ class ManiskillReader(EpisodeReader):
 def _recording_meta(sidecar: Sidecar, held: dict[str, Any] | None, episodes: list[EpisodeMeta]) -> RecordingMeta:
     """The recording's metadata from the sidecar and the datasets its first episode holds (`held`; None: the
     sidecar lists no episode)."""
-    from simreel.sim.make import EnvConfig
+    from simreel.model.env_config import EnvConfig
 
     kw = sidecar.env_kwargs
     obs_mode = kw.get("obs_mode") or "state"
@@ -425,7 +420,7 @@ def _note_quirks(episode: Hdf5Rows) -> None:
 
 def _first_step_gap(reset: StepBlock, first: StepBlock) -> float | None:
     """The largest difference between state rows 0 (`reset`) and 1 (after the first step, `first`) when every part of
-    every leaf agrees within the tolerances of a restore (`simreel.compare`, mode ``states``), else None (a real first
+    every leaf agrees within the tolerances of a restore (`simreel.verdicts.compare`, mode ``states``), else None (a real first
     step moved something, or the file holds no states)."""
     states = [name for name in reset.arrays if name.startswith("env_states/")]
     if not states:

@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from simreel.episode import EpisodeMeta, RecordingMeta, json_default
 from simreel.errors import RecordingFileError
 from simreel.formats.maniskill.layout import sidecar_path
-from simreel.formats.targets import write_text_atomic
+from simreel.io.targets import write_text_atomic
+from simreel.model.meta import EpisodeMeta, RecordingMeta, json_default
 
 __all__ = ["Sidecar", "SidecarFile", "sidecar_document", "write_sidecar"]
 

@@ -26,7 +26,7 @@ and Rerun's timelines play the whole recording; each message's `sequence` is its
 every `/plots` message names its episode. `McapReader.read_episode(i)` reads only the chunks in
 episode i's span.
 
-Crash safety: `commit` closes the current chunk, writes the `simreel.episode` metadata record after it
+Crash safety: `commit` closes the current chunk, writes the `simreel.model` metadata record after it
 and flushes to the OS, so a `kill -9` after `commit` returns loses nothing of that episode (`fsync=True`
 also survives a power cut). An episode exists for simreel only once its record is in the file: a
 discarded or never-committed episode's messages stay in the append-only file (viewers show them; `/log`

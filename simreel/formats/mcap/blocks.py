@@ -8,7 +8,7 @@ Two channels carry the data bit-exactly (no float formatting):
 A message is a 12-byte little-endian header `(episode index, first row, rows)` followed by each field's
 rows in C order, fields in the order of the channel's field table. The field table (name, numpy dtype
 string with byte order, per-row shape) is the channel's schema (encoding `simreel-fields`), derived from
-the recording's `simreel.episode.episode_fields`. Nothing else in simreel knows these bytes.
+the recording's `simreel.model.fields.episode_fields`. Nothing else in simreel knows these bytes.
 """
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from simreel.episode import FieldSpec, RecordingMeta, episode_fields
+from simreel.model.fields import FieldSpec, episode_fields
+from simreel.model.meta import RecordingMeta
 
 __all__ = [
     "WireField",
@@ -84,7 +85,7 @@ def fields_from_schema(data: bytes) -> list[WireField]:
 
 def pack_block(fields: list[WireField], arrays: dict[str, Any], *, episode: int, first_row: int, rows: int) -> bytes:
     """Header + every field's `rows` rows in its wire dtype; `arrays` are already checked against the field
-    table (`simreel.episode.StepBlock.conform`)."""
+    table (`simreel.model.blocks.StepBlock.conform`)."""
     parts = [HEADER.pack(episode, first_row, rows)]
     parts += [np.ascontiguousarray(arrays[f.name], dtype=f.dtype).tobytes() for f in fields]
     return b"".join(parts)

@@ -16,7 +16,6 @@ from typing import IO, Any
 import numpy as np
 
 from simreel import FORMAT_VERSION, __version__
-from simreel.episode import FLAG_FIELDS, EpisodeMeta, RecordingMeta
 from simreel.formats.mcap.blocks import (
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
@@ -44,6 +43,8 @@ from simreel.formats.mcap.records import (
     seal,
     step_ns_of,
 )
+from simreel.model.fields import FLAG_FIELDS
+from simreel.model.meta import EpisodeMeta, RecordingMeta
 
 __all__ = ["EpisodeLane", "McapChannels"]
 

@@ -24,10 +24,8 @@ from typing import IO, Any
 import numpy as np
 
 from simreel import FORMAT_VERSION
-from simreel.episode import EpisodeMeta, StepBlock, episode_fields
 from simreel.errors import RecordingFileError
 from simreel.formats.base import EpisodeReader, EpisodeRows, block_rows, not_a_file
-from simreel.formats.lock import lock_file
 from simreel.formats.mcap.blocks import (
     fields_from_schema,
     reset_fields,
@@ -44,8 +42,12 @@ from simreel.formats.mcap.records import (
     record_kind,
     unseal,
 )
-from simreel.formats.paths import open_for_reading
-from simreel.formats.staging import replacement_note
+from simreel.io.lock import lock_file
+from simreel.io.paths import open_for_reading
+from simreel.io.staging import replacement_note
+from simreel.model.blocks import StepBlock
+from simreel.model.fields import episode_fields
+from simreel.model.meta import EpisodeMeta
 
 __all__ = ["McapReader", "McapRows"]
 

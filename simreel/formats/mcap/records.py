@@ -19,7 +19,7 @@ import zlib
 from dataclasses import dataclass
 from typing import Any
 
-from simreel.episode import EpisodeMeta, RecordingMeta
+from simreel.model.meta import EpisodeMeta, RecordingMeta
 
 __all__ = [
     "MCAP_MAGIC",
@@ -57,7 +57,7 @@ def step_ns_of(meta: RecordingMeta) -> int:
 
 
 def record_kind(name: str) -> str:
-    """The record name without its episode index: ``simreel.episode.3`` → ``simreel.episode``."""
+    """The record name without its episode index: ``simreel.episode.3`` → ``simreel.model``."""
     return name if name == RecordingRecord.NAME else name.rsplit(".", 1)[0]
 
 

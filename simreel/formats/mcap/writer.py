@@ -8,14 +8,15 @@ from pathlib import Path
 from typing import IO, Any
 
 from simreel import __version__
-from simreel.episode import EpisodeMeta, RecordingMeta, StepBlock
 from simreel.errors import StorageError, UsageError
 from simreel.formats.base import EpisodeSink, EpisodeWriter
-from simreel.formats.durable import deferred_signals, is_storage_error, storage_error
 from simreel.formats.mcap.channels import EpisodeLane, McapChannels
 from simreel.formats.mcap.records import COMPRESSIONS
-from simreel.formats.staging import RecordingTarget, side_folder
-from simreel.option_checks import check_flag, whole_number
+from simreel.io.durable import deferred_signals, is_storage_error, storage_error
+from simreel.io.staging import RecordingTarget, side_folder
+from simreel.model.blocks import StepBlock
+from simreel.model.meta import EpisodeMeta, RecordingMeta
+from simreel.options.checks import check_flag, whole_number
 
 __all__ = ["McapWriter", "McapOptions"]
 
@@ -93,7 +94,7 @@ class McapWriter(EpisodeWriter):
         path: the .mcap file to write.
         meta: the recording's metadata (layouts, pose bodies, contact channels, control frequency).
         overwrite: replace an existing file instead of refusing; the old one is replaced only by `close`
-            (`simreel.formats.staging`), and never while another writer holds it.
+            (`simreel.io.staging`), and never while another writer holds it.
         options: `McapOptions` fields (compression, chunk_size, fsync).
 
     If the constructor fails once it has created a file, it removes it; a file it refuses (exists, being

@@ -1,0 +1,890 @@
+"""Dataset operations: `merge` recordings of one env into one file, `filter_recording` (and split) a recording's
+episodes by index, final success, length or a replay's verdicts.
+
+Both are lossless and proven. Episodes are copied one at a time, a block of rows at a time (memory bounded
+whatever an episode's length), through `simreel.datasets.copy`'s writer loop (a failure or Ctrl-C removes every
+output); the outputs are then read back, a block at a time too, and every episode is checked against what was
+read from its source: each array's name, dtype, shape and bytes, and the episode's metadata (BLAKE2b-256
+digests of both, taken as the source was read: `HashedRows`). A difference is simreel's bug:
+`OutputCheckError`, and the outputs are removed.
+
+Inputs may be simreel HDF5 or MCAP recordings or ManiSkill trajectory files, mixed; the output's suffix picks
+its format. Output episodes are numbered 0..N-1 in input order (as ManiSkill's `merge_trajectory` and
+`clean_trajectories` number them), each with its `EpisodeMeta.origin` (input file and index there); the output's
+`RecordingMeta.provenance` names the operation, each input (path, size, mtime, a digest of its metadata, its own
+versions, command and provenance) and the criteria. What may differ between merged inputs, and why, is
+`simreel.datasets.same_env`'s rule.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import hashlib
+import json
+import shutil
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from itertools import groupby, islice
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from simreel import FORMAT_VERSION
+from simreel.datasets.copy import Target, write_episodes
+from simreel.datasets.inputs import file_identity, shown_path
+from simreel.datasets.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
+from simreel.errors import OutputCheckError, RecordingFileError, StorageError, UsageError
+from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
+from simreel.formats.base import EpisodeRows, PassedRows, not_a_file
+from simreel.io.durable import deferred_signals, raise_if_stopped
+from simreel.io.paths import real_path, refuse_empty
+from simreel.io.staging import staging_path, stale_staging
+from simreel.io.targets import OVERWRITE_HINT, check_distinct, move_into_place
+from simreel.model.blocks import StepBlock
+from simreel.model.components import Tolerances
+from simreel.model.episode import Episode
+from simreel.model.meta import EpisodeMeta, RecordingMeta, new_recording_id
+from simreel.model.selection import EpisodeSelection
+from simreel.options.checks import (
+    check_callable,
+    check_flag,
+    check_text,
+    is_whole_number,
+    options_with,
+    path_list,
+    path_text,
+    whole_number,
+)
+from simreel.verdicts.compare import VERDICTS
+from simreel.verdicts.scene_history import SceneChains
+
+__all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
+           "FieldHashes", "HashedRows", "episode_digest", "field_digests", "describe_provenance", "describe_origin",
+           "VERIFIED", "DIVERGED", "report_verdicts", "StagedOutput"]
+
+VERIFIED = ("exact", "within_tolerance")
+"""The verdicts `filter --verified` keeps: the episodes a replay verified."""
+DIVERGED = ("diverged",)
+"""The verdict `filter --diverged` keeps (an episode that could not be replayed, ``error``, is neither)."""
+REPORT_VERDICTS = (*VERDICTS, "error")
+"""Every verdict a replay report gives an episode: judged, or ``error`` (it could not be replayed)."""
+
+_T = TypeVar("_T")
+Progress = Callable[[Sequence[_T], str], Iterable[_T]]
+"""`progress(items, what)` wraps a list of work items ("merge", "filter", "check ...") in a progress bar."""
+
+
+def _no_bar(items: Sequence[_T], what: str) -> Iterable[_T]:
+    return items
+
+
+@dataclass(frozen=True)
+class DatasetOptions:
+    """How `merge` and `filter_recording` write.
+
+    Attributes:
+        overwrite: replace existing outputs (and their side files) instead of refusing.
+        command: the command line, stored in the outputs' metadata.
+        progress: wraps each pass's work list (a progress bar); see `Progress`. None: none.
+    """
+
+    overwrite: bool = False
+    command: str = ""
+    progress: Progress = _no_bar
+
+    def __post_init__(self) -> None:
+        """`UsageError` for an option of the wrong type, naming it and what to give, before any file is read or
+        written: ``overwrite="no"`` would count as yes and replace OUT, a command that is no string fail only
+        once the output is being written."""
+        check_flag("overwrite", self.overwrite)
+        check_text("command", self.command, "the command line as a string (stored in the outputs' metadata)")
+        check_callable("progress", self.progress, "a function called as progress(items, what) that returns the items "
+                       "(a progress bar), or leave it out")
+        object.__setattr__(self, "progress", self.progress or _no_bar)
+
+
+@dataclass(frozen=True)
+class EpisodeCriteria:
+    """Which episodes `filter_recording` keeps: those that meet every criterion given (None: not a criterion).
+
+    Attributes:
+        episodes: original indices to keep: an `EpisodeSelection` (``--episodes 0,3-7``) or indices.
+        success: True keeps episodes whose final success is True, False those whose final success is False; an
+            episode whose file holds no success (None) meets neither.
+        min_steps, max_steps: bounds on the episode's length, inclusive.
+        verdicts: a replay's verdict of each episode of the file (index → ``exact``, ``within_tolerance``,
+            ``diverged``, ``error``); an episode it does not cover meets no verdict criterion.
+        keep_verdicts: the verdicts to keep (with `verdicts`).
+        report: where `verdicts` came from, for the provenance.
+    """
+
+    episodes: EpisodeSelection | Sequence[int] | None = None
+    success: bool | None = None
+    min_steps: int | None = None
+    max_steps: int | None = None
+    verdicts: Mapping[int, str] | None = None
+    keep_verdicts: tuple[str, ...] = ()
+    report: str = ""
+
+    def __post_init__(self) -> None:
+        """Check every criterion, so that one of the wrong type is a `UsageError` here, naming it and what to give,
+        not a raw error once the file is read nor one taken for another (``success="no"`` or ``success=0``, which
+        no final success ``is``, keeping nothing; ``min_steps=True`` as 1; ``keep_verdicts`` without `verdicts`
+        ignored); put them in one form: episodes as an `EpisodeSelection`, counts as ints, verdicts as a dict and
+        the verdicts to keep as a tuple."""
+        object.__setattr__(self, "episodes", EpisodeSelection.of(self.episodes))  # ranges, whatever the numbers
+        if self.success is not None:
+            check_flag("success", self.success)
+            object.__setattr__(self, "success", bool(self.success))  # compared with `is`: np.False_ is not False
+        for name in ("min_steps", "max_steps"):
+            value = getattr(self, name)
+            if value is not None:
+                value = whole_number(name, value, "a number of steps, an int >= 0, or None (no bound)")
+                if value < 0:
+                    raise UsageError(f"--{name.replace('_', '-')} must be >= 0, got {value}")
+                object.__setattr__(self, name, value)
+        if self.min_steps is not None and self.max_steps is not None and self.min_steps > self.max_steps:
+            raise UsageError(f"--min-steps {self.min_steps} is above --max-steps {self.max_steps}: no episode fits")
+        self._check_verdicts()
+
+    def _check_verdicts(self) -> None:
+        """The verdict criterion: `verdicts` a mapping of episode indices to verdicts, `keep_verdicts` one or more of
+        `REPORT_VERDICTS` (one string is one verdict, not its characters), each given with the other, `report`
+        a string."""
+        keep = (self.keep_verdicts,) if isinstance(self.keep_verdicts, str) else self.keep_verdicts
+        names = ", ".join(REPORT_VERDICTS)
+        if not isinstance(keep, (list, tuple)) or not all(v in REPORT_VERDICTS for v in keep):
+            raise UsageError(f"keep_verdicts={self.keep_verdicts!r}: give the verdicts to keep as a tuple of any of "
+                             f"{names}, e.g. (\"exact\", \"within_tolerance\")")
+        object.__setattr__(self, "keep_verdicts", tuple(keep))
+        verdicts = self.verdicts
+        if verdicts is not None:
+            if not isinstance(verdicts, Mapping) or not all(is_whole_number(i) and isinstance(v, str)
+                                                            for i, v in verdicts.items()):
+                raise UsageError(f"verdicts={verdicts!r}: give a replay's verdict of each episode as a dict of "
+                                 f"episode indices and verdicts ({names}), e.g. {{0: \"exact\"}} "
+                                 "(simreel.datasets.dataset.report_verdicts reads them from a replay report)")
+            object.__setattr__(self, "verdicts", {int(i): v for i, v in verdicts.items()})
+        if (verdicts is None) != (not self.keep_verdicts):
+            given, missing = ("verdicts", "keep_verdicts") if verdicts is not None else ("keep_verdicts", "verdicts")
+            raise UsageError(f"{given} without {missing}: give both (the verdicts of the file's episodes, and those to "
+                             "keep), or neither")
+        check_text("report", self.report, "where the verdicts came from as a string (the replay report's path)")
+
+    def given(self) -> bool:
+        return any(v is not None for v in (self.episodes, self.success, self.min_steps, self.max_steps,
+                                           self.verdicts))
+
+    def keeps(self, meta: EpisodeMeta) -> bool:
+        """Whether the episode of `meta` meets every criterion."""
+        return all(meets(meta) for _, meets in self._each())
+
+    def _each(self) -> list[tuple[str, Callable[[EpisodeMeta], bool]]]:
+        """Each criterion given: what it is, for people (``episodes 0,3,4``, ``success``, ``>= 20 steps``), and
+        whether an episode's metadata meets it."""
+        parts: list[tuple[str, Callable[[EpisodeMeta], bool]]] = []
+        if self.episodes is not None:
+            first = list(islice(self.episodes, 11))  # a range is walked no further than shown
+            shown = ",".join(str(i) for i in first[:10])
+            parts.append((f"episodes {shown}{',...' if len(first) > 10 else ''}",
+                          lambda m: m.index in self.episodes))
+        if self.success is not None:
+            parts.append(("success" if self.success else "no success", lambda m: m.success is self.success))
+        if self.min_steps is not None:
+            parts.append((f">= {self.min_steps} steps", lambda m: m.length >= self.min_steps))
+        if self.max_steps is not None:
+            parts.append((f"<= {self.max_steps} steps", lambda m: m.length <= self.max_steps))
+        if self.verdicts is not None:
+            parts.append((f"{' or '.join(self.keep_verdicts)} in {Path(self.report).name}",
+                          lambda m: self.verdicts.get(m.index) in self.keep_verdicts))
+        return parts
+
+    def describe(self) -> str:
+        """The criteria given, for people: ``episodes 0,3,4; success; >= 20 steps``."""
+        return "; ".join(what for what, _ in self._each())
+
+    def why_none(self, episodes: Sequence[EpisodeMeta]) -> str:
+        """Why none of `episodes` is kept, for people: how many meet each criterion alone, and how many hold no
+        final success (with a success criterion) or lack a verdict (with a verdict one)."""
+        if not episodes:
+            return "the file holds no episode"
+        met = [f"{sum(1 for m in episodes if meets(m))} meet {what}" for what, meets in self._each()]
+        why = f"of {len(episodes)} episode(s): {', '.join(met)}{', none all' if len(met) > 1 else ''}"
+        no_success, uncovered = self.no_success(episodes), self.uncovered(episodes)
+        why += f"; {_no_success_note(no_success)}" if no_success else ""
+        return why + (f"; {_uncovered_note(uncovered)}" if uncovered else "")
+
+    def no_success(self, episodes: Sequence[EpisodeMeta]) -> int:
+        """With a success criterion, how many of `episodes` hold no final success (0 without one)."""
+        return sum(1 for m in episodes if m.success is None) if self.success is not None else 0
+
+    def uncovered(self, episodes: Sequence[EpisodeMeta]) -> int:
+        """With a verdict criterion, how many of `episodes` its report does not cover (0 without one)."""
+        return sum(1 for m in episodes if m.index not in self.verdicts) if self.verdicts is not None else 0
+
+    def to_json(self) -> dict[str, Any]:
+        """The criteria given, for the provenance (the verdicts as the report's path and the verdicts kept)."""
+        d: dict[str, Any] = {k: getattr(self, k) for k in ("episodes", "success", "min_steps", "max_steps")
+                             if getattr(self, k) is not None}
+        if "episodes" in d:  # as many as the file has at most: `filter_recording` refused any it lacks
+            d["episodes"] = list(d["episodes"])
+        if self.verdicts is not None:
+            d.update(report=self.report, verdicts=list(self.keep_verdicts))
+        return d
+
+
+def _no_success_note(count: int) -> str:
+    return f"{count} episode(s) hold no final success: neither --success nor --no-success keeps them"
+
+
+def _uncovered_note(count: int) -> str:
+    return f"{count} episode(s) are not in the replay report: not kept"
+
+
+@dataclass
+class OutputSummary:
+    """One file an operation wrote."""
+
+    path: Path
+    episodes: int
+    steps: int
+    cleared: list[Path] = field(default_factory=list)
+    """What killed commands had left beside it under a staging name, removed once it was published."""
+
+    def line(self) -> str:
+        size = self.path.stat().st_size if self.path.exists() else 0
+        return f"{self.episodes} episode(s), {self.steps} steps → {self.path} ({size / 1024:.0f} KiB)"
+
+
+@dataclass
+class DatasetReport:
+    """What `merge` or `filter_recording` did."""
+
+    operation: str
+    outputs: list[OutputSummary]
+    """OUT, then (a split) the rest."""
+    inputs: list[tuple[Path, int, int]]
+    """Each input, how many episodes it holds, and how many of them went to OUT."""
+    checked: int
+    """Episodes read back from the outputs and found equal to their sources."""
+    no_success: int = 0
+    """Episodes whose file holds no final success (with a success criterion: neither kept nor meeting it)."""
+    uncovered: int = 0
+    """Episodes a verdict criterion's replay report does not cover (not kept)."""
+    criteria: str = ""
+    """`EpisodeCriteria.describe` of a filter."""
+    unfinished: list[str] = field(default_factory=list)
+    """``<input>: <episode>`` for each episode an input holds uncommitted (a killed recording): not copied."""
+    notes: list[str] = field(default_factory=list)
+    """What else the output does not take from its inputs as they are (a render_mode they differ in)."""
+
+    def summary(self) -> str:
+        """What was written, from where, and what was checked: the text the CLI prints."""
+        out = self.outputs[0]
+        if self.operation == "merge":
+            lines = [f"merged {len(self.inputs)} file(s): {out.line()}"]
+            first = 0
+            for path, _, n in self.inputs:
+                span = f"episodes {first}-{first + n - 1}" if n > 1 else (f"episode {first}" if n else "nothing")
+                lines.append(f"  {path.name:<24} {n:>6} episode(s) → {span}")
+                first += n
+        else:
+            path, total, _ = self.inputs[0]
+            lines = [f"filter {path.name} ({self.criteria}): kept {out.episodes} of {total}, {out.line()}"]
+            lines += [f"rest: {o.line()}" for o in self.outputs[1:]]
+        lines += [f"note: {u} was never committed (a killed recording) and is not copied" for u in self.unfinished]
+        lines += [f"note: {n}" for n in self.notes]
+        lines += [f"note: removed {shown_path(p)}: the unchecked output of a merge or filter of {o.path.name} killed "
+                  "before it finished" for o in self.outputs for p in o.cleared]
+        lines += [f"note: {_no_success_note(self.no_success)}"] if self.no_success else []
+        lines += [f"note: {_uncovered_note(self.uncovered)}"] if self.uncovered else []
+        lines.append(f"checked: {self.checked} episodes, every array equal to its source")
+        return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------------- sources
+@dataclass
+class _Source:
+    """One input as planned: its episode list and what identifies the file."""
+
+    path: Path
+    """Absolute."""
+    label: str
+    """As given on the command line."""
+    meta: RecordingMeta
+    episodes: list[EpisodeMeta]
+    identity: dict[str, Any] = field(default_factory=dict)
+    unfinished: list[str] = field(default_factory=list)
+    """Episodes the file holds that were never committed (a killed recording): not listed, not copied."""
+    chains: SceneChains | None = None
+    """Its episodes' scene chains (`simreel.verdicts.scene_history`), for each copy to keep where it ran."""
+
+    @classmethod
+    def read(cls, path: str | Path) -> _Source:
+        with open_reader(path) as reader:
+            if reader.damaged:  # never left out silently: the output would lack them without a word
+                raise RecordingFileError(path, f"{len(reader.damaged)} damaged episode(s) ({'; '.join(reader.damaged)})"
+                                               f"; `simreel recover {path} -o OUT` copies the intact ones")
+            source = cls(real_path(path), str(path), reader.meta, list(reader.episodes))
+            size, mtime_ns = file_identity(path)
+            m = reader.meta
+            source.identity = {
+                "path": str(source.path), "size": size, "mtime_ns": mtime_ns,
+                "meta_digest": hashlib.blake2b(_canonical(m.to_json()), digest_size=16).hexdigest(),
+                "kind": reader.kind, "episodes": len(reader.episodes), "versions": m.versions,
+                "created_utc": m.created_utc, "command": m.command, "source": m.source, "provenance": m.provenance,
+            }
+            source.unfinished = list(getattr(reader, "unfinished", []))
+            source.chains = SceneChains(source.episodes)
+        return source
+
+    def reopen(self) -> Any:
+        """The input's reader again; `RecordingFileError` when the file changed since it was planned."""
+        reader = open_reader(self.path)
+        if file_identity(self.path) != (self.identity["size"], self.identity["mtime_ns"]):
+            reader.close()
+            raise RecordingFileError(self.label, "changed while it was being copied (size or mtime differ from when "
+                                                "it was first read); run the command again")
+        return reader
+
+
+def _canonical(value: Any) -> bytes:
+    return json.dumps(value, sort_keys=True, separators=(",", ":")).encode()
+
+
+class FieldHashes:
+    """BLAKE2b-256 of each field's rows as blocks of them pass (`add`, in row order): the field's dtype and row
+    shape, its row count and its bytes. Equal digests mean equal arrays (but for a collision of a 256-bit hash),
+    however the rows were split in blocks: what a copy or a conversion hashes as it writes an episode, to check
+    against the same hashes of what it reads back."""
+
+    def __init__(self) -> None:
+        self._hashes: dict[str, Any] = {}
+        self._row_kinds: dict[str, str] = {}
+        self._counts: dict[str, int] = {}
+
+    def add(self, block: StepBlock, names: Iterable[str]) -> None:
+        """Hash the rows of the fields `names` in `block`, after the rows hashed before them."""
+        for name in names:
+            a = np.ascontiguousarray(block[name])
+            if name not in self._hashes:
+                self._hashes[name], self._counts[name] = hashlib.blake2b(digest_size=32), 0
+            kind = f"\0{a.dtype.str}\0{a.shape[1:]}\0"
+            if self._row_kinds.get(name) != kind:  # once per field, unless a block changes its dtype or row shape
+                self._row_kinds[name] = kind
+                self._hashes[name].update(kind.encode())
+            self._hashes[name].update(a.reshape(-1).view(np.uint8) if a.size else b"")
+            self._counts[name] += len(a)
+
+    def digests(self) -> dict[str, str]:
+        """Field name -> the hex digest of its rows and row count, by name."""
+        return {name: hashlib.blake2b(f"\0{name}\0{self._counts[name]}\0".encode() + h.digest(),
+                                      digest_size=32).hexdigest()
+                for name, h in sorted(self._hashes.items())}
+
+
+class HashedRows(PassedRows):
+    """An episode's rows (under new metadata, when given), hashed as a reader passes through them: the reset row
+    first, then the steps in order, as `EpisodeWriter.write_rows` reads them. `digest()`, once every row has
+    passed, is BLAKE2b-256 of the metadata and of every array's `FieldHashes` digest: equal digests mean equal
+    episodes, however the rows were split in blocks."""
+
+    def __init__(self, rows: EpisodeRows, meta: EpisodeMeta | None = None) -> None:
+        super().__init__(rows, meta)
+        self._fields = FieldHashes()
+        self._next: int | None = None
+        """The next step to hash; None before the reset row."""
+
+    def passed_reset(self, block: StepBlock) -> StepBlock:
+        if self._next is None:
+            self._fields.add(block, [f.name for f in self.fields if f.per_state])
+            self._next = 0
+        return block
+
+    def passed(self, start: int, block: StepBlock) -> StepBlock:
+        if start != self._next:
+            raise RuntimeError(f"episode {self.meta.index}: steps {start}.. read before step {self._next} was hashed")
+        self._fields.add(block, [f.name for f in self.fields])
+        self._next = start + block.rows
+        return block
+
+    def field_digests(self) -> dict[str, str]:
+        """`FieldHashes.digests` of the episode's arrays, once every row has passed."""
+        if self._next != self.length:
+            raise RuntimeError(f"episode {self.meta.index}: digest taken at step {self._next} of {self.length}")
+        return self._fields.digests()
+
+    def digest(self) -> bytes:
+        h = hashlib.blake2b(_canonical(self.meta.to_json()), digest_size=32)
+        for name, field_digest in self.field_digests().items():
+            h.update(f"\0{name}\0{field_digest}".encode())
+        return h.digest()
+
+
+def episode_digest(rows: EpisodeRows) -> bytes:
+    """`HashedRows.digest` of an episode, read a block at a time."""
+    hashed = HashedRows(rows)
+    hashed.read_through()
+    return hashed.digest()
+
+
+def field_digests(rows: EpisodeRows) -> dict[str, str]:
+    """`HashedRows.field_digests` of an episode (its arrays, not its metadata), read a block at a time."""
+    hashed = HashedRows(rows)
+    hashed.read_through()
+    return hashed.field_digests()
+
+
+# ---------------------------------------------------------------------------------------------------- the plan
+@dataclass(frozen=True)
+class _Item:
+    """One episode to copy: from which source, its index there, to which output, its index there."""
+
+    source: int
+    index: int
+    target: int
+    new_index: int
+
+
+Decide = Callable[[_Source, EpisodeMeta], "int | None"]
+"""Which output an episode goes to (its number in the target list), or None: not copied."""
+
+
+@dataclass(frozen=True)
+class _Selection:
+    """Which episodes an operation copies where, as `_run` needs it."""
+
+    decide: Decide
+    what: str
+    """The operation, for its progress bar: ``merge``, ``filter``."""
+    why_none: Callable[[], str]
+    """Why no episode goes to OUT, when none does (the error says it)."""
+
+
+def _plan(sources: Sequence[_Source], decide: Decide, n_targets: int) -> list[_Item]:
+    counts = [0] * n_targets
+    items = []
+    for k, source in enumerate(sources):
+        for m in source.episodes:
+            target = decide(source, m)
+            if target is not None:
+                items.append(_Item(k, m.index, target, counts[target]))
+                counts[target] += 1
+    return items
+
+
+def _origin(source: _Source, meta: EpisodeMeta) -> dict[str, Any]:
+    """`EpisodeMeta.origin` of a copy of `meta`: where it was copied from, and where it ran when it was recorded
+    (``scene``, for a replay to find its history: `simreel.verdicts.scene_history`)."""
+    origin: dict[str, Any] = {"file": str(source.path), "index": meta.index}
+    chains = source.chains
+    scene = chains.copied_scene(meta.index, str(source.path), source.meta.recording_id) if chains is not None else None
+    if scene is not None:
+        origin["scene"] = scene
+    if meta.origin:
+        origin["origin"] = meta.origin
+    return origin
+
+
+def _read(items: Sequence[_Item], sources: Sequence[_Source], decide: Decide,
+          digests: list[list[bytes]]) -> Iterator[tuple[int, HashedRows]]:
+    """Each item's episode, renumbered with its origin, to be read a block at a time, source by source (one
+    reader open at a time); once it has been read, its digest goes to `digests[target]`. The decision is made
+    again on the episode as opened: readers list each episode as it opens (a ManiSkill file's length is its
+    actions' count from the start, not its sidecar's word), so a different one is simreel's bug (exit 3), never a
+    silent change of the selection."""
+    for k, group in groupby(items, key=lambda item: item.source):
+        source = sources[k]
+        with source.reopen() as reader:
+            for item in group:
+                raise_if_stopped()  # a Ctrl-C that landed in a finalizer (h5py's) was printed and dropped by Python
+                rows = reader.open_episode(item.index)
+                if decide(source, rows.meta) != item.target:
+                    listed = _episode_meta(source, item.index)
+                    raise RuntimeError(f"{source.label}: episode {item.index} opens as {rows.length} steps, success "
+                                       f"{rows.meta.success}, but was listed, and selected, as {listed.length} "
+                                       f"steps, success {listed.success}")
+                meta = dataclasses.replace(rows.meta, index=item.new_index, origin=_origin(source, rows.meta))
+                hashed = HashedRows(rows, meta)
+                yield item.target, hashed
+                digests[item.target].append(hashed.digest())
+
+
+# ---------------------------------------------------------------------------------------------------- outputs
+def _now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+def _common(dicts: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """The entries every dict of `dicts` holds with the same value."""
+    return {k: v for k, v in dicts[0].items() if all(k in d and d[k] == v for d in dicts[1:])}
+
+
+def _versions(sources: Sequence[_Source]) -> dict[str, str]:
+    """The inputs' versions (equal by the same-env rule but for simreel's own: its distinct values, joined)."""
+    versions = dict(sources[0].meta.versions)
+    for key in PHYSICS_NEUTRAL_VERSIONS:
+        seen = list(dict.fromkeys(s.meta.versions[key] for s in sources if key in s.meta.versions))
+        if seen:
+            versions[key] = ", ".join(seen)
+    return versions
+
+
+def _env_kwargs(sources: Sequence[_Source]) -> dict[str, Any]:
+    """The inputs' gym.make arguments (equal by the same-env rule but for `PHYSICS_NEUTRAL_ENV_KWARGS`): those
+    kept where every input gives the same value, and left out where they differ (gym.make's default: no
+    ``render_mode``, which needs no render device), since no one value is every episode's (`_neutral_differences`
+    says so)."""
+    shared = _common([s.meta.env_kwargs for s in sources])
+    return {k: v for k, v in sources[0].meta.env_kwargs.items() if k not in PHYSICS_NEUTRAL_ENV_KWARGS or k in shared}
+
+
+def _neutral_differences(sources: Sequence[_Source]) -> list[str]:
+    """A note for each `PHYSICS_NEUTRAL_ENV_KWARGS` entry the inputs give different values, left out of the output."""
+    notes = []
+    for key in PHYSICS_NEUTRAL_ENV_KWARGS:
+        labels: dict[str, list[str]] = {}
+        for s in sources:
+            value = s.meta.env_kwargs.get(key)
+            labels.setdefault("none" if value is None else repr(value), []).append(s.label)
+        if len(labels) > 1:
+            given = "; ".join(f"{value} in {_some(names)}" for value, names in labels.items())
+            notes.append(f"{key} differs between the inputs ({given}); it changes neither the physics nor the "
+                         "arrays, and the output records none")
+    return notes
+
+
+def _some(labels: list[str]) -> str:
+    return ", ".join(labels[:3]) + (f" and {len(labels) - 3} more" if len(labels) > 3 else "")
+
+
+def _output_meta(sources: Sequence[_Source], provenance: dict[str, Any], command: str) -> RecordingMeta:
+    return dataclasses.replace(
+        sources[0].meta, created_utc=_now(), command=command, recording_id=new_recording_id(),
+        format_version=FORMAT_VERSION,
+        source=_common([s.meta.source for s in sources]), versions=_versions(sources), env_kwargs=_env_kwargs(sources),
+        provenance={**provenance, "inputs": [s.identity for s in sources]},
+    )
+
+
+def _check_outputs(outputs: Sequence[str | Path], inputs: Sequence[str | Path], options: DatasetOptions) -> None:
+    """The output rule, before any input is opened (only their names are needed): known suffixes, no output is an
+    input (or a file beside one) or another output, none replaces a file without `overwrite`."""
+    for path in outputs:
+        format_of(path)
+    files = {option: recording_files(p) for option, p in zip(("-o", "--rest"), outputs, strict=False)}
+    for path in inputs:
+        check_distinct(files, recording_files(path), input_label=f"input {path}")
+    for path in outputs:
+        check_writable(path, overwrite=options.overwrite)
+
+
+@dataclass
+class StagedOutput:
+    """One output while it is made: written under a staging name beside its final one, checked, then moved
+    (`publish`: merge and filter, and `simreel.replay.run.output.publish_checked` for convert)."""
+
+    final: Target
+    staged: Target
+    items: list[_Item] = field(default_factory=list)
+    """The episodes it receives, in order."""
+    digests: list[bytes] = field(default_factory=list)
+    """`episode_digest` of each episode as read from its source (renumbered, with its origin)."""
+
+    @classmethod
+    def of(cls, target: Target) -> StagedOutput:
+        return cls(target, dataclasses.replace(target, path=staging_path(target.path), overwrite=True))
+
+    def _pairs(self) -> list[tuple[Path, Path]]:
+        """(staged file, final name) of the recording's side files, then of the recording (a reader that finds it
+        finds its sidecar)."""
+        pairs = list(zip(recording_files(self.staged.path), recording_files(self.final.path), strict=True))
+        return pairs[1:] + pairs[:1]
+
+    def check_free(self) -> None:
+        """`UsageError` when the staged recording is gone (another command removed it) or, without `overwrite`, a
+        final name is taken by now (another command writing the same OUT), before any output is published."""
+        if not self.staged.path.is_file():
+            raise UsageError(f"{self.final.path}: its output, written as {self.staged.path.name}, was removed by "
+                             "another command while this one ran; nothing was written")
+        for src, dst in self._pairs():
+            if not self.final.overwrite and src.exists() and (dst.exists() or dst.is_symlink()):
+                raise self._taken(dst)
+
+    def publish(self) -> None:
+        """Move the checked recording and its side files to their final names. Files of an old recording there that
+        the new one lacks (its `.partial/` scratch folder) go: with `overwrite` only, as the output rule checked at
+        the start. A name taken since the start (a file made after `check_free`) is never replaced."""
+        for src, dst in self._pairs():
+            if src.exists():
+                try:
+                    move_into_place(src, dst, overwrite=self.final.overwrite)
+                except FileExistsError:
+                    raise self._taken(dst) from None
+            elif self.final.overwrite and dst.is_dir():
+                shutil.rmtree(dst)
+            elif self.final.overwrite:
+                dst.unlink(missing_ok=True)
+
+    def _taken(self, dst: Path) -> UsageError:
+        return UsageError(f"{self.final.path} was written by another command while this one ran ({dst.name} is there "
+                          f"now); it is left as it is and nothing was written ({OVERWRITE_HINT})")
+
+
+def _run(sources: Sequence[_Source], targets: Sequence[Target], selection: _Selection,
+         options: DatasetOptions) -> tuple[list[OutputSummary], list[_Item]]:
+    """Plan, copy, check and publish: the work both operations share. The outputs are written under staging names
+    (an old OUT stays until the new one is checked) and removed on any failure or Ctrl-C."""
+    decide, what = selection.decide, selection.what
+    items = _plan(sources, decide, len(targets))
+    if not any(item.target == 0 for item in items):
+        raise UsageError(f"no episode to write to {targets[0].path}: nothing matches ({selection.why_none()}); "
+                         "nothing written")
+    outputs = [StagedOutput.of(t) for t in targets]
+    for item in items:
+        outputs[item.target].items.append(item)
+    try:
+        episodes = _read(options.progress(items, what), sources, decide, [o.digests for o in outputs])
+        steps = write_episodes([o.staged for o in outputs], episodes)
+        for output in outputs:
+            _check(output, sources, options)
+        raise_if_stopped()
+        for output in outputs:
+            output.check_free()  # every output or none: OUT is not published when --rest can no longer be
+        with deferred_signals():  # nor when a Ctrl-C lands between the two
+            for output in outputs:
+                output.publish()
+    except BaseException as e:
+        for output in outputs:
+            remove_recording(output.staged.path)
+        if isinstance(e, StorageError):
+            out = next((o.final.path for o in outputs if Path(e.path) == o.staged.path), e.path)
+            raise e.dropped("; nothing was written and the inputs are unchanged", out) from None
+        raise
+    return [OutputSummary(o.final.path, len(o.items), n, _clear_stale(o.final.path))
+            for o, n in zip(outputs, steps, strict=True)], items
+
+
+def _clear_stale(final: Path) -> list[Path]:
+    """Remove what killed commands left beside the published `final` (`stale_staging`), with its files beside it."""
+    stale = stale_staging(final)
+    for path in stale:
+        remove_recording(path)
+    return stale
+
+
+# ---------------------------------------------------------------------------------------------------- the check
+def _check(output: StagedOutput, sources: Sequence[_Source], options: DatasetOptions) -> None:
+    """Read the staged output back: its metadata as planned, episodes 0..N-1, each equal to its source (digests).
+    Messages name the output by its final name."""
+    name, digests = output.final.path, output.digests
+    with open_reader(output.staged.path) as reader:
+        if _canonical(reader.meta.to_json()) != _canonical(output.final.meta.to_json()):
+            raise OutputCheckError(f"{name}: the recording metadata read back is not the one written")
+        indices = [m.index for m in reader.episodes]
+        if indices != list(range(len(digests))):
+            raise OutputCheckError(f"{name}: holds episodes {indices[:10]}, expected 0..{len(digests) - 1}")
+        for m in options.progress(reader.episodes, f"check {name.name}"):
+            raise_if_stopped()
+            if episode_digest(reader.open_episode(m.index)) != digests[m.index]:
+                episode = reader.read_episode(m.index)
+                raise OutputCheckError(f"{name}: episode {m.index} {_difference(episode, output.items[m.index], sources)}")
+
+
+def _difference(got: Episode, item: _Item, sources: Sequence[_Source]) -> str:
+    """What differs between an output episode and its source, read again, both whole (the rare path of a failed
+    check)."""
+    source = sources[item.source]
+    with source.reopen() as reader:
+        want = reader.read_episode(item.index)
+    where = f"does not read back as episode {item.index} of {source.label}"
+    ours = {k: v for k, v in got.meta.to_json().items() if k not in ("index", "origin")}
+    theirs = {k: v for k, v in want.meta.to_json().items() if k not in ("index", "origin")}
+    if ours != theirs:
+        return f"{where}: its metadata differs"
+    a, b = got.fields(), want.fields()
+    for name in sorted(set(a) | set(b)):
+        x, y = a.get(name), b.get(name)
+        if x is None or y is None:
+            return f"{where}: {name} is {'missing' if x is None else 'extra'}"
+        if x.dtype != y.dtype or x.shape != y.shape or x.tobytes() != y.tobytes():
+            return f"{where}: {name} is {x.dtype} {x.shape} here, {y.dtype} {y.shape} there, or its bytes differ"
+    return f"{where} (its digest differs)"
+
+
+# ---------------------------------------------------------------------------------------------------- operations
+def _output_path(name: str, value: Any) -> str:
+    """The output `value` (option `name`) as a str; `UsageError` for a value that is no path (a number would be taken
+    for a file name, None fail as a raw TypeError) or an empty one."""
+    path = path_text(name, value, "the recording to write, a str or pathlib.Path ending in .h5 or .mcap")
+    refuse_empty(path, what="recording", instead=f"name the recording to write ({name})")
+    return path
+
+
+def _input_path(value: Any) -> str:
+    """The input `value` of `filter_recording` as a str; `UsageError` for a value that is no path."""
+    return path_text("path", value, "the recording to read, a str or pathlib.Path")
+
+
+def merge(inputs: str | Path | Iterable[str | Path], output: str | Path, options: DatasetOptions | None = None,
+          **overrides: Any) -> DatasetReport:
+    """Copy every episode of `inputs` (recordings of one env, any format: a list of paths, or one) into a new
+    recording `output`, numbered 0..N-1 in input order. `overrides` replace fields of `options` (`DatasetOptions`)."""
+    opts = options_with(DatasetOptions, options, overrides, "merge(inputs, output, overwrite=True)")
+    inputs = path_list("inputs", inputs, "the recordings to merge, a list of str or pathlib.Path (or one)")
+    output = _output_path("output", output)
+    if not inputs:
+        raise UsageError("no input to merge")
+    resolved = [real_path(p) for p in inputs]
+    twice = next((p for k, p in enumerate(inputs) if resolved[k] in resolved[:k]), None)
+    if twice is not None:
+        raise UsageError(f"{twice} is given twice; each input is merged once")
+    _check_outputs([output], inputs, opts)
+    sources = [_Source.read(p) for p in inputs]
+    check_same_env([(s.label, s.meta) for s in sources])
+    target = Target(Path(output), _output_meta(sources, {"operation": "merge"}, opts.command), opts.overwrite)
+    everything = _Selection(lambda source, meta: 0, "merge", lambda: "the inputs hold no episode")
+    outputs, items = _run(sources, [target], everything, opts)
+    taken = [sum(1 for i in items if i.source == k) for k in range(len(sources))]
+    return DatasetReport("merge", outputs, [(s.path, len(s.episodes), n) for s, n in zip(sources, taken, strict=True)],
+                         outputs[0].episodes, unfinished=_unfinished(sources), notes=_neutral_differences(sources))
+
+
+def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCriteria,
+                     options: DatasetOptions | None = None, *, rest: str | Path | None = None,
+                     **overrides: Any) -> DatasetReport:
+    """Copy the episodes of `path` that meet `criteria` into a new recording `output` (numbered 0..N-1), and with
+    `rest` the others into a second one: a split, every episode in exactly one of them. `overrides` replace
+    fields of `options` (`DatasetOptions`)."""
+    opts = options_with(DatasetOptions, options, overrides, "filter_recording(path, output, criteria, overwrite=True)")
+    if not isinstance(criteria, EpisodeCriteria):
+        raise UsageError(f"criteria={criteria!r}: give an EpisodeCriteria, e.g. EpisodeCriteria(success=True)")
+    path, output = _input_path(path), _output_path("output", output)
+    rest = None if rest is None else _output_path("rest", rest)
+    if not criteria.given():
+        raise UsageError("no criterion: give --episodes, --success/--no-success, --min-steps, --max-steps, "
+                         "--verified or --diverged (to copy every episode, use `simreel convert`)")
+    outputs = [output] if rest is None else [output, rest]
+    _check_outputs(outputs, [path], opts)
+    source = _Source.read(path)
+    held = {m.index for m in source.episodes}
+    for index in criteria.episodes or ():  # one at a time: a range past the file's end stops at its first gap
+        if index not in held:
+            _episode_meta(source, index)  # raises, naming the episodes the file has
+    provenance: dict[str, Any] = {"operation": "filter", "criteria": criteria.to_json()}
+    parts = ["kept", "rest"][: len(outputs)]
+    targets = [Target(Path(p), _output_meta([source], {**provenance, "part": part}, opts.command), opts.overwrite)
+               for p, part in zip(outputs, parts, strict=True)]
+
+    def decide(_: _Source, meta: EpisodeMeta) -> int | None:
+        return 0 if criteria.keeps(meta) else (1 if rest is not None else None)
+
+    written, _ = _run([source], targets, _Selection(decide, "filter", lambda: criteria.why_none(source.episodes)), opts)
+    return DatasetReport(
+        "filter", written, [(source.path, len(source.episodes), written[0].episodes)], sum(o.episodes for o in written),
+        no_success=criteria.no_success(source.episodes), uncovered=criteria.uncovered(source.episodes),
+        criteria=criteria.describe(), unfinished=_unfinished([source]),
+    )
+
+
+def _unfinished(sources: Sequence[_Source]) -> list[str]:
+    return [f"{s.label}: {u}" for s in sources for u in s.unfinished]
+
+
+def _episode_meta(source: _Source, index: int) -> EpisodeMeta:
+    for m in source.episodes:
+        if m.index == index:
+            return m
+    have = ", ".join(str(m.index) for m in source.episodes[:20]) or "none"
+    raise RecordingFileError(source.label, f"no episode {index} (episodes: {have}{', ...' if len(source.episodes) > 20 else ''})")
+
+
+def describe_provenance(provenance: Mapping[str, Any]) -> str:
+    """One line saying what made a recording from others (`RecordingMeta.provenance`), for `simreel inspect`."""
+    if provenance.get("operation") == "convert":
+        return _describe_conversion(provenance)
+    if provenance.get("operation") == "replay":
+        return _describe_replay(provenance)
+    inputs = provenance.get("inputs") or []
+    names = ", ".join(f"{Path(i.get('path', '?')).name} ({i.get('episodes', '?')} episode(s))" for i in inputs[:5])
+    names += f", ... ({len(inputs)} files)" if len(inputs) > 5 else ""
+    line = f"{provenance.get('operation', '?')} of {names or 'nothing'}"
+    criteria = provenance.get("criteria")
+    if criteria:
+        line += "; criteria " + ", ".join(f"{k} {json.dumps(v)}" for k, v in criteria.items())
+    if provenance.get("part"):
+        line += f"; the episodes {'kept' if provenance['part'] == 'kept' else 'not kept'}"
+    return line
+
+
+def _describe_conversion(provenance: Mapping[str, Any]) -> str:
+    """``convert of /data/demos.h5 (episodes 0, 1): control_mode pd_joint_pos -> pd_ee_delta_pose; kept: verified``."""
+    conversion = provenance.get("conversion") or {}
+    changed = [f"{k} {v[0]} -> {v[1]}" for k, v in conversion.items() if isinstance(v, list) and len(v) == 2]
+    episodes = ", ".join(str(i) for i in provenance.get("source_episodes", []))
+    keep = (provenance.get("filters") or {}).get("keep")
+    return (f"convert of {provenance.get('source')} (episodes {episodes}): {'; '.join(changed)}"
+            + (f"; kept: {', '.join(keep)}" if keep else ""))
+
+
+def _describe_replay(provenance: Mapping[str, Any]) -> str:
+    """``replay of /data/demos.h5 (simreel replay --mode step; pos 0.1 instead of its defaults), each episode's
+    verdict kept; the input: convert of ...``."""
+    run, judged = _replay_command(provenance), provenance_tolerances(provenance)
+    changed = judged[0].overrides(judged[2]) if judged else ""
+    if changed:
+        run += f"; {changed} instead of its defaults"
+    line = f"replay of {provenance.get('source')} ({run}), each episode's verdict kept"
+    of = provenance.get("input")
+    return line + (f"; the input: {describe_provenance(of)}" if of else "")
+
+
+def _replay_command(made: Mapping[str, Any]) -> str:
+    """``simreel replay --mode actions --resync 5``: the replay of provenance `made`, its options that chose its
+    tolerances' defaults."""
+    resync = made.get("resync")
+    return f"simreel replay --mode {made.get('mode')}" + (f" --resync {resync}" if resync else "")
+
+
+def provenance_tolerances(made: Mapping[str, Any]) -> tuple[Tolerances, str, str] | None:
+    """The tolerances the replay (``simreel replay -o``) or conversion of provenance `made` judged its file with, the
+    command that did (``simreel replay --mode step``), and the mode whose defaults it started from; None where it
+    holds none this simreel can read (a control-mode conversion's tracking tolerances, another operation)."""
+    stored = made.get("tolerances")
+    if made.get("operation") == "replay":
+        base, run = ("resync" if made.get("resync") else made.get("mode")), _replay_command(made)
+    elif made.get("operation") == "convert":
+        base, run = "states", "simreel convert"
+    else:
+        return None
+    try:
+        return Tolerances.for_mode(base, groups=stored), run, base
+    except (TypeError, ValueError):  # no tolerances, or not these groups
+        return None
+
+
+def describe_origin(origin: Mapping[str, Any]) -> str:
+    """``file.h5#3``: where an episode was copied from (`EpisodeMeta.origin`); empty for a recorded one."""
+    return f"{Path(origin['file']).name}#{origin['index']}" if origin.get("file") else ""
+
+
+def report_verdicts(path: str | Path, verdicts: Mapping[tuple[str, int], str],
+                    files: Mapping[str, tuple[int | None, int | None]], report: str | Path) -> dict[int, str]:
+    """The verdicts a replay report (`simreel.replay.read_verdicts`: (file, index) → verdict, and each file's
+    (size, mtime_ns) when it was replayed) gives the episodes of `path`, by index.
+
+    Raises `UsageError` when the report does not cover `path`, or when `path` changed since it was replayed (its
+    size or mtime differ): its verdicts would be about another file."""
+    p = Path(path)
+    if not p.is_file():
+        raise not_a_file(p)
+    entry = next((f for f in files if real_path(f) == real_path(p)), None)
+    if entry is None:
+        raise UsageError(f"{report} holds no verdict for {path}: replay it with --report first (simreel replay "
+                         f"{path} --report REPORT.json)")
+    if tuple(files[entry]) != file_identity(p):
+        raise UsageError(f"{path} changed since {report} verified it (its size or modification time differ): the "
+                         "verdicts are about another file; replay it again")
+    return {index: verdict for (f, index), verdict in verdicts.items() if f == entry}
