@@ -18,6 +18,11 @@ from support.rrd import read_rrd
 from support.viewer_data import record_pickcube, write_variant
 
 from simreel.cli.main import main
+from simreel.sim.render_device import configure_vulkan
+
+# The project lavapipe for the envs tests build in this process (ManiSkill's own tools, a plain gym.make), as a
+# user's script gets it from `prepare_plain_gym_make()`; `import simreel` itself changes no environment variable.
+configure_vulkan()
 
 # The Ctrl-C tests stand for a user at a terminal. A suite started in the background by a non-interactive
 # shell (`make test &`, some CI runners) inherits SIGINT ignored, and so would every process it starts; Python

@@ -59,6 +59,7 @@ from simreel.options.checks import (
     whole_number_pair,
 )
 from simreel.replay.convert.control import check_pair
+from simreel.replay.convert.replayer import ConvertingReplayer
 from simreel.replay.convert.tracking import Commands, EndEffector, TrackingBlocks, tracking_tolerances
 from simreel.replay.report.report import (
     CHECK_ORDER,
@@ -278,7 +279,7 @@ class ConvertWorker:
             meta = self.reader.meta
             self.meta = dataclasses.replace(meta, imports=resolve_task_imports(meta.imports, explicit=job.imports,
                                                                                recording=job.path))
-            self.replayer = EpisodeReplayer(meta, self._replayer_options())
+            self.replayer = ConvertingReplayer(meta, self._replayer_options())
             self.converter = self._converter() if job.control_mode else None
         except BaseException:
             self.close()

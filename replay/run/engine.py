@@ -74,7 +74,7 @@ class ReplayerOptions:
         pose_bodies: also sample the world pose of these bodies after reset and every step (for ``-o``).
         render_backend: None: ``"none"`` unless the observation mode needs cameras, then ``"auto"``.
         sim_backend: None: the recorded one.
-        control_mode: None: the recorded one (another one to replay converted actions: `replay_converted_rows`).
+        control_mode: None: the recorded one (another one to replay converted actions: `simreel.replay.convert.replayer`).
         env_kwargs: ``gym.make`` arguments added to the recorded ones (camera size, shader).
     """
 
@@ -139,10 +139,10 @@ class ReplayedEpisode:
     limits: list[str] = field(default_factory=list)
     """What was not checked or not reproduced ("contacts not compared: ...", "... has no seed ...")."""
     clipped: list[int] = field(default_factory=list)
-    """Steps whose converted action the target mode's limits clipped (`EpisodeReplayer.replay_converted_rows`)."""
+    """Steps whose converted action the target mode's limits clipped (`simreel.replay.convert.replayer.ConvertingReplayer`)."""
     commands: np.ndarray | None = None
     """(T, 2, 7) per step: the tool-centre pose the recorded action commanded, and the one the converted action
-    commanded (`EpisodeReplayer.replay_converted_rows`; NaN where unknown)."""
+    commanded (`simreel.replay.convert.replayer.ConvertingReplayer`; NaN where unknown)."""
     scene_differences: list[SceneDifference] | None = None
     """Where the replaying scene differs from the episode's recorded scene fingerprint, found at the reset, before
     any step (empty: the same scene; None: not compared, the recording has no fingerprint)."""
@@ -399,7 +399,7 @@ class EpisodeReplayer:
             if self._stepped:
                 self.forget_scene()
             return
-        with _task_code_errors():
+        with task_code_errors():
             self._carried += self._reset_scene(before.episode)[1]
             self._check_layout()
             restore_state(self.u, before.state, elapsed_steps=before.step)
@@ -431,7 +431,7 @@ class EpisodeReplayer:
             raise ReplayError(f"resync={resync} needs mode 'actions' and K >= 1")
         start = time.perf_counter()
         run = _Run(source, sink, mode, resync, rows)
-        with _task_code_errors():
+        with task_code_errors():
             try:
                 out = self._replay(run)
             except SimreelError:
@@ -447,56 +447,6 @@ class EpisodeReplayer:
                 out = self._replay(run)
                 out.notes.insert(0, f"replayed with obs_mode={self.obs_mode!r}: the task failed without "
                                     f"observations ({type(exc).__name__}: {exc})")
-        out.compare_contacts = self._contacts is not None
-        out.seconds = time.perf_counter() - start
-        return out
-
-    def replay_converted_rows(self, source: EpisodeRows, converter: Any, sink: BlockSink, *,
-                              rows: int | None = None) -> ReplayedEpisode:
-        """Reproduce episode `source`'s reset, then step, for each recorded action, the action `converter` turns it
-        into (`simreel.replay.convert.control`: bound to this env after the reset, called with each recorded action,
-        returning the target mode's action and whether it was clipped), a block of `rows` recorded steps at a time
-        (None: the reader's `block_rows`), each block handed to `sink` with its replay (which holds the converted
-        actions). The result's notes say at which steps the target mode's limits clipped the action; its `commands`
-        hold per step the tool-centre pose each action commanded (12 floats a step, kept whole)."""
-        with _task_code_errors():
-            return self._replay_converted(source, converter, sink, rows=rows)
-
-    def _replay_converted(self, source: EpisodeRows, converter: Any, sink: BlockSink, *,
-                          rows: int | None) -> ReplayedEpisode:
-        import torch
-
-        start = time.perf_counter()
-        done = self.reset_for(source.meta)
-        self._check_layout()
-        recorded = source.reset()
-        unseeded = self._start_unseeded(source, recorded)
-        converter.bind(self.u)
-        sink.start()
-        sink.reset(recorded, self._reset_row(recorded))
-        clipped: list[int] = []
-        commands = np.full((source.length, 2, 7), np.nan)
-        commanded = getattr(converter, "commanded", lambda: None)  # optional for converters of one's own
-        self._stepped = self._stepped or source.length > 0
-        shape = self.u.single_action_space.shape
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            for first, block in source.blocks(rows):
-                buf = self._block(block, np.zeros((block.rows, *shape), np.float32))
-                for i, action in enumerate(_without_nan(source, first, block["actions"])):
-                    converted = converter(action)
-                    buf.actions[i] = converted.action
-                    clipped += [first + i] if converted.clipped else []
-                    self._after_step(buf, i, self._step(torch.from_numpy(buf.actions[i]).to(self.u.device)))
-                    _put(commands[first + i], getattr(converted, "wanted", None), commanded())
-                sink.steps(first, block, buf.block())
-        notes = [*done.notes, *source.meta.notes, *done.limits, *unseeded]
-        if clipped:
-            notes.append(f"the {converter.target_mode} action was clipped to its limits at {len(clipped)} step(s) "
-                         f"(first: step {clipped[0]}): the recorded target was out of one step's reach; their commands "
-                         "are not compared, the trajectory is")
-        out = ReplayedEpisode(None, notes, limits=[*source.meta.notes, *done.limits, *unseeded], clipped=clipped,
-                              commands=commands)
         out.compare_contacts = self._contacts is not None
         out.seconds = time.perf_counter() - start
         return out
@@ -551,7 +501,7 @@ class EpisodeReplayer:
         for first, block in source.blocks(run.rows):
             states.advance(first, block)
             buf = self._block(block)
-            actions = self._actions(_without_nan(source, first, block["actions"]))
+            actions = self._actions(without_nan(source, first, block["actions"]))
             for i in range(block.rows):
                 step(run, buf, i, actions[i])
             run.sink.steps(first, block, buf.block())
@@ -674,7 +624,7 @@ class EpisodeReplayer:
 
 
 @contextlib.contextmanager
-def _task_code_errors() -> Iterator[None]:
+def task_code_errors() -> Iterator[None]:
     """Raise what the user's task code raised in the block as `TaskCodeError` (`task_code_error`): that episode's
     verdict is then an error naming the task's line, and a dataset run goes on with the next episode."""
     from simreel.sim.user_code import task_code_error
@@ -690,7 +640,7 @@ def _task_code_errors() -> Iterator[None]:
         raise error from exc
 
 
-def _without_nan(source: EpisodeRows, first: int, actions: np.ndarray) -> np.ndarray:
+def without_nan(source: EpisodeRows, first: int, actions: np.ndarray) -> np.ndarray:
     """`actions`, the recorded actions of `source` from step `first`; `RecordingFileError` naming the episode and the
     first step whose action holds NaN: ManiSkill's CPU sim refuses to step one (a GPU-sim recording may hold NaN it
     stepped, which no replay here can repeat)."""
@@ -701,12 +651,6 @@ def _without_nan(source: EpisodeRows, first: int, actions: np.ndarray) -> np.nda
                                         f"{first + int(np.argmax(nan))} holds NaN, which ManiSkill's CPU sim refuses "
                                         "to step (on it, no recorder stepped it: the file was altered or damaged)")
     return actions
-
-
-def _put(rows: np.ndarray, *values: np.ndarray | None) -> None:
-    for row, value in zip(rows, values, strict=True):
-        if value is not None:
-            row[:] = value
 
 
 class _States:
