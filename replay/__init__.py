@@ -17,28 +17,29 @@ tolerances, quaternion-aware errors, first divergence) are in the core, so the v
 Importing this package imports neither mani_skill nor torch.
 """
 
-from simreel.replay.audit.audit import AuditFinding, AuditOptions, AuditReport, audit_task
-from simreel.replay.report.log import Verdicts, read_verdicts
-from simreel.replay.report.report import EpisodeReport
-from simreel.replay.report.tally import ReplayReport, RunTally
-from simreel.replay.run.engine import MODES, EpisodeReplayer, ReplayedEpisode, ReplayerOptions
-from simreel.replay.run.verify import ReplayOptions, ReplayRun, verify_recording
+from __future__ import annotations
 
-__all__ = [
-    "MODES",
-    "AuditFinding",
-    "AuditOptions",
-    "AuditReport",
-    "EpisodeReplayer",
-    "EpisodeReport",
-    "ReplayOptions",
-    "ReplayReport",
-    "ReplayRun",
-    "ReplayedEpisode",
-    "ReplayerOptions",
-    "RunTally",
-    "Verdicts",
-    "audit_task",
-    "read_verdicts",
-    "verify_recording",
-]
+import importlib
+from typing import Any
+
+_HOMES = {
+    "simreel.replay.audit.audit": ("AuditFinding", "AuditOptions", "AuditReport", "audit_task"),
+    "simreel.replay.run.engine": ("EpisodeReplayer", "ReplayedEpisode", "ReplayerOptions"),
+    "simreel.replay.run.options": ("MODES", "ReplayOptions"),
+    "simreel.replay.report.report": ("EpisodeReport",),
+    "simreel.replay.report.log": ("Verdicts", "read_verdicts"),
+    "simreel.replay.report.tally": ("ReplayReport", "RunTally"),
+    "simreel.replay.run.verify": ("ReplayRun", "verify_recording"),
+    "simreel.replay.convert.convert": ("ConvertOptions", "convert_recording"),
+}
+"""Each public name and the module that defines it, imported on first use (so a command's options, which live in
+light modules of this package, can be read without importing the whole room)."""
+_HOME_OF = {name: module for module, names in _HOMES.items() for name in names}
+
+__all__ = sorted(_HOME_OF)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _HOME_OF:
+        return getattr(importlib.import_module(_HOME_OF[name]), name)
+    raise AttributeError(f"module 'simreel.replay' has no attribute {name!r}")

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,18 +47,11 @@ from simreel.io.targets import check_distinct
 from simreel.model.blocks import StepBlock
 from simreel.model.components import Tolerances, format_number
 from simreel.model.meta import EpisodeMeta, RecordingMeta, new_recording_id
-from simreel.model.selection import EpisodeSelection
 from simreel.options.checks import (
-    check_callable,
-    check_flag,
-    check_mapping,
-    check_text,
     options_with,
-    text_tuple,
-    whole_number,
-    whole_number_pair,
 )
 from simreel.replay.convert.control import check_pair
+from simreel.replay.convert.options import KEEP, ConvertOptions
 from simreel.replay.convert.replayer import ConvertingReplayer
 from simreel.replay.convert.tracking import Commands, EndEffector, TrackingBlocks, tracking_tolerances
 from simreel.replay.report.report import (
@@ -88,132 +81,15 @@ from simreel.replay.run.workers import (
     run_pool,
 )
 from simreel.replay.run.worklist import WorkItem
-from simreel.sim.user_code import import_specs, resolve_task_imports
+from simreel.sim.user_code import resolve_task_imports
 from simreel.verdicts.compare import CompareScope
 from simreel.verdicts.scene_history import SceneChains, run_scenes
 
 __all__ = ["KEEP", "ConvertOptions", "ConvertJob", "ConvertWorker", "ConversionReport", "ConversionRun",
            "convert_recording"]
 
-KEEP = ("verified", "success", "not_truncated")
-"""What `ConvertOptions.keep` may ask of an episode for it to be written."""
 _TRACKING_LIMITS = ("versions", "sim_config", "scene_seeds", "reset_options", "env_idx", "success")
 """What a file may not hold that limits a control-mode conversion's check (`RecordingMeta.unknown`)."""
-
-
-@dataclass(frozen=True)
-class ConvertOptions:
-    """What `convert_recording` converts, how it judges and what it writes.
-
-    Attributes:
-        obs_mode: the output's observation mode (None: the input's; with a control mode, computed in the
-            converted run; without, re-rendered from the recorded states).
-        control_mode: convert the actions to this control mode (`simreel.replay.convert.control.SUPPORTED`).
-        camera_size: (width, height) of every sensor camera (ManiSkill's ``sensor_configs``).
-        shader: ManiSkill's ``shader_dir`` for every camera (``"default"``, ``"rt"``, ...).
-        episodes: episode indices to convert, an `EpisodeSelection` (``--episodes 0,3-7``) or indices (None: all, in
-            file order); `count`: only the first N of them.
-        keep: write only episodes that are ``verified``, ended in ``success``, and/or ``not_truncated``: chosen
-            among the `count` converted (the first N episodes are converted, at most N written).
-        group_tolerances: tracking tolerances overriding the defaults (`simreel.replay.convert.tracking`), e.g.
-            ``{"ee_pos": 1e-3}``.
-        workers: processes converting episodes in parallel (this one and workers - 1 more).
-        imports: `--import` specs (besides those the recording names); sim_backend: convert on this backend.
-        overwrite: replace an existing output; command: the command line, kept in the output's metadata.
-        converter: the factory of the action converter, called as `simreel.replay.convert.control.converter_for` is
-            (``(source_mode, target_mode, unwrapped, source_controller) -> ActionConverter``): bring your own for a
-            robot or mode pair simreel does not convert, and it is verified the same way. Picklable for workers.
-        block_rows: steps read, converted, checked and written at a time (None: the input reader's
-            `simreel.formats.base.block_rows`).
-    """
-
-    obs_mode: str | None = None
-    control_mode: str | None = None
-    camera_size: tuple[int, int] | None = None
-    shader: str | None = None
-    episodes: EpisodeSelection | Sequence[int] | None = None
-    count: int | None = None
-    keep: tuple[str, ...] = ()
-    group_tolerances: Mapping[str, float] = field(default_factory=dict)
-    workers: int = 1
-    imports: tuple[str, ...] = ()
-    sim_backend: str | None = None
-    overwrite: bool = False
-    command: str = ""
-    converter: Callable[..., Any] | None = None
-    block_rows: int | None = None
-
-    def __post_init__(self) -> None:
-        """Check every option's type, so that a wrong one is a `UsageError` here, naming it and what to give, not a raw
-        error once the conversion runs or a value taken for another (``overwrite="no"`` as yes, ``imports="x.py"`` as
-        one spec per character); put them in one form: episodes as an `EpisodeSelection`, counts as ints, sequences
-        as tuples. Their values (counts >= 1, known `keep` names) are `check`'s, whose messages name the CLI's
-        options."""
-        check_flag("overwrite", self.overwrite)
-        for name, what in _TEXT_OPTIONS.items():
-            check_text(name, getattr(self, name), what, optional=name != "command")
-        for name, what in _COUNT_OPTIONS.items():
-            value = getattr(self, name)
-            if value is not None or name == "workers":
-                object.__setattr__(self, name, whole_number(name, value, what))
-        object.__setattr__(self, "episodes", EpisodeSelection.of(self.episodes))  # ranges, whatever the numbers
-        object.__setattr__(self, "imports", import_specs(self.imports))
-        object.__setattr__(self, "keep", _keep(self.keep))
-        if self.camera_size is not None:
-            object.__setattr__(self, "camera_size", whole_number_pair("camera_size", self.camera_size, _CAMERA_SIZE))
-        check_mapping("group_tolerances", self.group_tolerances, 'a dict of tracking tolerance groups and numbers, '
-                      'e.g. {"ee_pos": 1e-3}')
-        check_callable("converter", self.converter, "a factory called as simreel.replay.convert.control.converter_for is, "
-                       "or None")
-
-    def check(self) -> None:
-        """`UsageError` for options that cannot work whatever the file: nothing to convert, bad numbers."""
-        if self.obs_mode is None and self.control_mode is None:
-            raise UsageError("nothing to convert: give an observation mode (--obs-mode) and/or a control mode "
-                             "(--control-mode); `simreel convert IN OUT` alone copies a recording between formats")
-        unknown = sorted(set(self.keep) - set(KEEP))
-        if unknown:
-            raise UsageError(f"--keep {','.join(unknown)}: expected any of {', '.join(KEEP)}")
-        if self.workers < 1 or (self.count is not None and self.count < 1):
-            raise UsageError(f"--workers and --count must be >= 1 (got {self.workers}, {self.count})")
-        if self.block_rows is not None and self.block_rows < 1:
-            raise UsageError(f"block_rows must be >= 1, got {self.block_rows}")
-        if self.camera_size is not None and (len(self.camera_size) != 2 or min(self.camera_size) < 1):
-            raise UsageError(f"--camera-size must be WIDTHxHEIGHT, got {self.camera_size}")
-
-    def env_kwargs(self) -> dict[str, Any]:
-        """The ``gym.make`` arguments the camera options add."""
-        out: dict[str, Any] = {}
-        if self.camera_size is not None:
-            out["sensor_configs"] = {"width": int(self.camera_size[0]), "height": int(self.camera_size[1])}
-        if self.shader is not None:
-            out["shader_dir"] = self.shader
-        return out
-
-
-_TEXT_OPTIONS = {
-    "obs_mode": 'an observation mode as a string, e.g. "rgb", or None (the recorded one)',
-    "control_mode": 'a control mode as a string, e.g. "pd_ee_delta_pose", or None (the recorded one)',
-    "shader": 'a ManiSkill shader_dir as a string, e.g. "rt", or None (the default)',
-    "sim_backend": 'a sim backend as a string, e.g. "physx_cpu", or None (the recorded one)',
-    "command": "the command line as a string (kept in the output's metadata)",
-}
-"""`ConvertOptions`' options that are strings (all but `command` may be None), and what each means."""
-_CAMERA_SIZE = "(width, height) of the cameras in pixels, two ints >= 1, e.g. (128, 128), or None (the task's)"
-"""What `ConvertOptions.camera_size` takes (its values >= 1 are `ConvertOptions.check`'s)."""
-_COUNT_OPTIONS = {
-    "count": "the number of episodes to convert, an int >= 1, or None (all of them)",
-    "workers": "the number of processes converting episodes, an int >= 1",
-    "block_rows": "the number of steps converted at a time, an int >= 1, or None (the reader's)",
-}
-"""`ConvertOptions`' counts (all but `workers` may be None), and what each means."""
-
-
-def _keep(keep: Any) -> tuple[str, ...]:
-    """The `keep` option as a tuple of `KEEP` names: one string is one name (not one per character); anything but
-    strings is `UsageError` (names it does not know are `ConvertOptions.check`'s)."""
-    return text_tuple("keep", keep, f"the episodes to write as a tuple of any of {', '.join(KEEP)}, e.g. "
-                                    '("verified",)')
 
 
 @dataclass(frozen=True)

@@ -56,12 +56,12 @@ from simreel.errors import UsageError
 from simreel.model.blocks import StepBlock
 from simreel.model.components import Component, Tolerances, component_error, components_of
 from simreel.model.fields import field_group
+from simreel.replay.convert.options import TRACKING_GROUPS
 from simreel.verdicts.compare import CompareScope, EpisodeComparison, ErrorTable
 
 __all__ = ["TRACKING_GROUPS", "DEFAULT_TRACKING_TOLERANCES", "Commands", "EndEffector", "tracking_tolerances",
            "TrackingBlocks", "success_timing"]
 
-TRACKING_GROUPS = ("cmd_pos", "cmd_rot", "ee_pos", "ee_rot", "obj_pos", "obj_rot", "obj_qpos", "success")
 DEFAULT_TRACKING_TOLERANCES: dict[str, float] = {
     "cmd_pos": 1e-4, "cmd_rot": 1e-3, "ee_pos": 1e-2, "ee_rot": 0.05, "obj_pos": 2e-3, "obj_rot": 0.01,
     "obj_qpos": 2e-3, "success": 1.0,

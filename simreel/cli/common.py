@@ -10,6 +10,7 @@ from typing import Any
 
 from simreel.errors import UsageError
 from simreel.model.selection import parse_index_ranges
+from simreel.options.checks import parse_size
 from simreel.options.declare import GivenOnce, add_option
 from simreel.sim.user_code import IMPORTS
 from simreel.verdicts.options import ATOL, TOL, mode_choices, parse_group_tolerance, parse_tolerance
@@ -116,14 +117,6 @@ def parse_json_kwargs(text: str) -> dict[str, Any]:
 
 def _no_json_constant(name: str) -> Any:
     raise argparse.ArgumentTypeError(f"not valid JSON ({name} is no JSON number; give a finite number)")
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """`"256x128"` → (256, 128): an image's width and height (`--size`, `--camera-size`)."""
-    width, sep, height = text.lower().partition("x")
-    if not sep or not width.isdigit() or not height.isdigit() or int(width) < 1 or int(height) < 1:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 256x256, got {text!r}")
-    return int(width), int(height)
 
 
 def refuse_tolerances_without_compare(args: argparse.Namespace) -> None:

@@ -13,15 +13,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import (
-    GivenOnce,
-    add_import_option,
-    parse_group_tolerance,
-    parse_index_ranges,
-    parse_size,
-    progress_bar,
-)
+from simreel.cli.common import progress_bar
 from simreel.errors import UsageError
+from simreel.options.declare import add_arguments, changed_on_command_line, cli_names, from_arguments
+from simreel.replay.convert.options import ConvertOptions
 
 __all__ = ["add_parser", "run"]
 
@@ -38,59 +33,32 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("input", metavar="IN", help="recording to read (.h5 or .mcap; simreel's or ManiSkill's)")
     p.add_argument("output", metavar="OUT", help="file to write: .h5/.hdf5 or .mcap")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT (and --report) if they exist")
+    add_arguments(p, ConvertOptions, only=["overwrite"])
     p.add_argument("--poses", action="store_true",
                    help="when IN has no body poses, compute every actor's and link's world pose by restoring each "
                    "recorded state into the rebuilt env (needs the task; OUT then holds them, so MCAP's /tf "
                    "shows every link)")
     g = p.add_argument_group("conversion (verified)")
-    g.add_argument("--obs-mode", default=None, help="observation mode of OUT: state, state_dict, rgb, rgbd, depth, "
-                   "pointcloud, sensor_data, ... (cameras render on a GPU or on lavapipe)")
-    g.add_argument("--control-mode", default=None, help="convert the actions to this control mode: from pd_joint_pos "
-                   "to pd_joint_delta_pos, pd_ee_delta_pos or pd_ee_delta_pose; from pd_joint_delta_pos to pd_joint_pos")
-    g.add_argument("--camera-size", type=parse_size, default=None, metavar="WxH", help="size of every sensor camera")
-    g.add_argument("--shader", default=None, help="ManiSkill shader of every camera (default, rt, rt-fast, ...)")
-    g.add_argument("--episodes", action=GivenOnce, default=None, metavar="LIST", help="episodes to convert, e.g. 0,3-7 (default: all)")
-    g.add_argument("--count", type=int, default=None, metavar="N", help="convert only the first N of those episodes; --keep then chooses "
-                   "which of them are written (N converted, at most N written)")
-    g.add_argument("--keep", type=_keep, action=GivenOnce, default=(), metavar="WHAT",
-                   help="write only episodes that are all of (comma-separated): verified (their check passed), "
-                   "success (at their last step), not_truncated (they did not end at the time limit)")
-    g.add_argument("--tol", type=_tracking_tolerance, action="append", default=[], metavar="GROUP=X",
-                   help="tracking tolerance of a control-mode conversion, repeatable; groups: cmd_pos (m), cmd_rot "
-                   "(rad), ee_pos (m), ee_rot (rad), obj_pos (m), obj_rot (rad), obj_qpos, success (steps)")
+    add_arguments(g, ConvertOptions, only=[n for n in cli_names(ConvertOptions) if n not in _EVERY_CONVERT])
     g.add_argument("--report", default=None, metavar="REPORT.json", help="write the JSON report here (per-step errors)")
-    g.add_argument("--workers", type=int, default=1, metavar="N", help="parallel processes (default 1)")
-    g.add_argument("--sim-backend", default=None, help="convert on this sim backend (physx_cpu for a GPU recording)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    add_import_option(p)
+    add_arguments(p, ConvertOptions, only=["imports"])
     p.set_defaults(run=run)
 
 
-def _keep(text: str) -> tuple[str, ...]:
-    from simreel.replay.convert.convert import KEEP
-
-    wanted = tuple(w.strip().replace("-", "_") for w in text.split(",") if w.strip())
-    unknown = [w for w in wanted if w not in KEEP]
-    if unknown or not wanted:
-        raise argparse.ArgumentTypeError(f"expected any of {', '.join(KEEP)}, got {text!r}")
-    return wanted
-
-
-def _tracking_tolerance(text: str) -> tuple[str, float]:
-    from simreel.replay.convert.tracking import TRACKING_GROUPS
-
-    return parse_group_tolerance(text, TRACKING_GROUPS)
+_EVERY_CONVERT = ("overwrite", "imports")
+"""The `ConvertOptions` a lossless copy takes too (the rest are the conversion's group)."""
+_COPY_IGNORES = ("workers",)
+"""A conversion option a copy takes without a word (it runs in one process)."""
 
 
 def _converting(args: argparse.Namespace) -> bool:
     """Whether this is a verified conversion (else a lossless copy, which takes none of its options)."""
     if args.obs_mode is not None or args.control_mode is not None:
         return True
-    given = [name for name, value in (("--camera-size", args.camera_size), ("--shader", args.shader),
-                                      ("--episodes", args.episodes), ("--count", args.count), ("--keep", args.keep),
-                                      ("--tol", args.tol), ("--report", args.report), ("--sim-backend", args.sim_backend))
-             if value not in (None, (), [])]  # given, even as "" or 0, which a copy would otherwise drop unsaid
+    conversion = [n for n in cli_names(ConvertOptions) if n not in (*_EVERY_CONVERT, *_COPY_IGNORES)]
+    given = changed_on_command_line(ConvertOptions, args, conversion)  # given, even as "" or 0
+    given += ["--report"] if args.report is not None else []
     if given:
         raise UsageError(f"{', '.join(given)} apply to a conversion: add --obs-mode and/or --control-mode "
                          "(without them, convert copies IN to another format as it is)")
@@ -146,19 +114,14 @@ def _copy(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------- a verified conversion
 def _options(args: argparse.Namespace) -> Any:
-    from simreel.replay.convert.convert import ConvertOptions
-
     if args.poses:
         raise UsageError("--poses applies to a copy between formats, not to a conversion")
-    episodes = None if args.episodes is None else parse_index_ranges(args.episodes)
-    if episodes is not None and not episodes:
+    options = from_arguments(ConvertOptions, args, command=args.command_line)
+    if options.episodes is not None and not options.episodes:
         raise UsageError(f"--episodes {args.episodes!r} names no episode")
-    if args.tol and args.control_mode is None:
+    if options.group_tolerances and args.control_mode is None:
         raise UsageError("--tol sets the tracking tolerances of a control-mode conversion: add --control-mode")
-    return ConvertOptions(obs_mode=args.obs_mode, control_mode=args.control_mode, camera_size=args.camera_size,
-                          shader=args.shader, episodes=episodes, count=args.count, keep=args.keep,
-                          group_tolerances=dict(args.tol), workers=args.workers, imports=args.imports,
-                          sim_backend=args.sim_backend, overwrite=args.overwrite, command=args.command_line)
+    return options
 
 
 def _convert(args: argparse.Namespace) -> int:

@@ -10,6 +10,7 @@ Each rule is here once; the message is always ``name=value: give what``, `what` 
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import numbers
 import os
@@ -21,7 +22,7 @@ import numpy as np
 from simreel.errors import UsageError
 
 __all__ = ["check_flag", "check_text", "check_mapping", "check_callable", "text_tuple", "is_whole_number",
-           "whole_number", "whole_number_pair", "is_path", "path_text", "path_list", "options_with", "refuse_empty", "Check", "flag",
+           "whole_number", "whole_number_pair", "is_path", "path_text", "path_list", "options_with", "parse_size", "refuse_empty", "Check", "flag",
            "text", "mapping", "whole", "path"]
 
 Options = TypeVar("Options")
@@ -91,6 +92,15 @@ def whole_number_pair(name: str, value: Any, what: str) -> tuple[int, int]:
     if len(pair) != 2 or not all(map(is_whole_number, pair)):
         raise _refused(name, value, what)
     return int(pair[0]), int(pair[1])
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """The command line's text of a size: `"256x128"` → (256, 128), an image's width and height (`--size`,
+    `--camera-size`); argparse's error for anything else."""
+    width, sep, height = text.lower().partition("x")
+    if not sep or not width.isdigit() or not height.isdigit() or int(width) < 1 or int(height) < 1:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 256x256, got {text!r}")
+    return int(width), int(height)
 
 
 def is_path(value: Any) -> bool:
