@@ -23,23 +23,17 @@ The comparisons themselves are `simreel.replay.audit.checks`.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from simreel.errors import EnvBuildError, UsageError
 from simreel.model.components import Tolerances
-from simreel.model.selection import EpisodeSelection
 from simreel.model.state_tree import describe_leaf, layout_of, to_numpy
 from simreel.options.checks import (
-    check_callable,
-    check_mapping,
     check_text,
     options_with,
-    path_text,
-    whole_number,
 )
 from simreel.replay.audit.checks import (
     DECLARE,
@@ -53,102 +47,14 @@ from simreel.replay.audit.checks import (
     differing_attributes,
     max_error,
 )
+from simreel.replay.audit.options import AuditOptions
 from simreel.sim.rebuild import build_with_render_fallback
-from simreel.sim.seeds import check_seed_span
 from simreel.sim.state import read_state, restore_state
-from simreel.sim.user_code import import_specs
 
 __all__ = ["AuditFinding", "AuditReport", "AuditOptions", "audit_task", "FOLLOW_STEPS"]
 
 FOLLOW_STEPS = 5
 """Steps both instances take after the restore, compared step by step."""
-
-
-@dataclass(frozen=True)
-class AuditOptions:
-    """How `audit_task` builds and drives the task.
-
-    Attributes:
-        imports: `--import` specs that register the task.
-        steps: random steps before the restore.
-        seed: seed of the first instance; the second uses seed + 1.
-        control_mode, obs_mode, reward_mode, env_kwargs: as for `simreel.sim.make.EnvConfig`; the observations of
-            `obs_mode` are compared.
-    """
-
-    imports: tuple[str, ...] = ()
-    steps: int = 20
-    seed: int = 0
-    control_mode: str | None = None
-    obs_mode: str = "state"
-    reward_mode: str | None = None
-    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
-    trajectory: str | None = None
-    """Also audit along the episodes of this recording (`simreel.replay.audit.trajectory`); its env, control mode
-    and kwargs are the recording's."""
-    trajectory_episodes: EpisodeSelection | Sequence[int] | None = None
-    """Which of its episodes (None: all): an `EpisodeSelection` (``--episodes 0,3-7``, walked one index at a time,
-    so a range past the file's end is refused at the first episode it lacks) or indices."""
-    policy: Callable[[Any, Any], Any] | None = None
-    """Also audit along `episodes` episodes of this policy (`policy(env, obs) -> action`), seeds `seed`, `seed` + 1, ..."""
-    policy_name: str = "the policy"
-    episodes: int = 1
-    every: int = 1
-    """Along a trajectory, restore into the second instance after every `every`-th step (and after the first)."""
-
-    def __post_init__(self) -> None:
-        """Check every option, so that a wrong one is a `UsageError` here, naming it and what to give, before any
-        env is built: not a raw error inside the audit (``steps="3"``), the env's own error once built
-        (``seed=-1``), nor a value taken for another (``imports="x.py"`` as the modules x, ., p, y; ``steps=True``
-        as 1) or ignored (``every=3`` with nothing to audit along). Put them in one form: imports as a tuple,
-        counts as ints, the trajectory as a str and its episodes as an `EpisodeSelection`."""
-        object.__setattr__(self, "imports", import_specs(self.imports))
-        for name, what in _COUNT_OPTIONS.items():
-            object.__setattr__(self, name, whole_number(name, getattr(self, name), what))
-        for name, what in _TEXT_OPTIONS.items():
-            check_text(name, getattr(self, name), what, optional=name != "policy_name")
-        check_mapping("env_kwargs", self.env_kwargs, 'the gym.make arguments as a dict, e.g. {"robot_uids": "panda"}')
-        if self.trajectory is not None:
-            object.__setattr__(self, "trajectory", path_text("trajectory", self.trajectory, "the recording to audit "
-                                                             "along, a str or pathlib.Path, or None"))
-        object.__setattr__(self, "trajectory_episodes",
-                           EpisodeSelection.of(self.trajectory_episodes, name="trajectory_episodes"))
-        check_callable("policy", self.policy, "a callable policy(env, obs) -> action, or None")
-        self.check()
-
-    def check(self) -> None:
-        """`UsageError` for values that cannot work, or options that would be ignored, whatever the task."""
-        if self.steps < 1:
-            raise UsageError(f"--steps must be >= 1, got {self.steps}")
-        last = self.seed + max(2, self.episodes - 1)  # the layout check resets with seed + 2; episode k uses seed + k
-        check_seed_span(self.seed, last, "audit", "--episodes")
-        if self.every < 1 or self.episodes < 1:
-            raise UsageError(f"--every and --episodes must be >= 1, got {self.every} and {self.episodes}")
-        if self.trajectory is not None and self.policy is not None:
-            raise UsageError("audit along a recording (--trajectory) or along a policy (--policy), not both")
-        if self.trajectory_episodes is not None and self.trajectory is None:
-            raise UsageError("trajectory_episodes picks episodes of the trajectory: give the recording (--trajectory)")
-        if self.episodes != 1 and self.policy is None:
-            raise UsageError(f"--episodes {self.episodes} is the number of episodes of a policy: give the policy "
-                             "(--policy)")
-        if self.every != 1 and self.trajectory is None and self.policy is None:
-            raise UsageError(f"--every {self.every} restores along a trajectory: give one (--trajectory or --policy)")
-
-
-_COUNT_OPTIONS = {
-    "steps": "the number of random steps before the restore, an int >= 1",
-    "seed": "the seed of the first instance, an int >= 0",
-    "episodes": "the number of the policy's episodes, an int >= 1",
-    "every": "the number of steps between two restores along a trajectory, an int >= 1",
-}
-"""`AuditOptions`' whole numbers, and what each means (their ranges are `AuditOptions.check`'s)."""
-_TEXT_OPTIONS = {
-    "control_mode": 'a control mode as a string, e.g. "pd_ee_delta_pos", or None (the task\'s)',
-    "obs_mode": 'an observation mode as a string, e.g. "state", or None (the task\'s)',
-    "reward_mode": 'a reward mode as a string, e.g. "dense", or None (the task\'s)',
-    "policy_name": 'what the policy is called in findings, a string, e.g. "--policy scripted"',
-}
-"""`AuditOptions`' options that are strings (all but `policy_name` may be None), and what each means."""
 
 
 def _state(u: Any) -> dict[str, np.ndarray]:

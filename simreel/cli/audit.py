@@ -6,9 +6,11 @@ import argparse
 import json
 from typing import Any
 
-from simreel.cli.common import GivenOnce, add_import_option, parse_index_ranges, parse_json_kwargs
+from simreel.cli.common import GivenOnce, parse_index_ranges
 from simreel.errors import UsageError
 from simreel.io.durable import raise_if_stopped
+from simreel.options.declare import add_arguments, from_arguments
+from simreel.replay.audit.options import AuditOptions
 
 __all__ = ["add_parser", "run"]
 
@@ -28,28 +30,21 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("env_id", metavar="ENV_ID", nargs="?", default=None,
                    help="the task (may be left out with --trajectory: the recording names it)")
-    p.add_argument("--steps", type=int, default=20, metavar="N", help="random steps before the restore (default 20)")
+    add_arguments(p, AuditOptions, only=["steps"])
     along = p.add_mutually_exclusive_group()
     along.add_argument("--policy", default=None, metavar="POLICY",
                        help="also audit along episodes of this policy: scripted (the task's shipped one), "
                             "MODULE:CALLABLE or FILE.py:CALLABLE")
-    along.add_argument("--trajectory", default=None, metavar="REC",
-                       help="also audit along the episodes of this recording (.h5/.mcap), replaying its actions")
+    add_arguments(along, AuditOptions, only=["trajectory"])
     p.add_argument("--episodes", action=GivenOnce, default=None, metavar="N|LIST",
                    help="with --policy: how many episodes (seeds S, S+1, ...; default 1); with --trajectory: which "
                         "episodes, e.g. 0,3-5 (default all)")
-    p.add_argument("--every", type=int, default=1, metavar="K",
-                   help="along a trajectory, restore into the second instance after every K-th step (default 1)")
-    p.add_argument("--seed", type=int, default=0, metavar="S", help="seed of the first instance; the second uses S+1")
+    add_arguments(p, AuditOptions, only=["every", "seed"])
     p.add_argument("--json", default=None, metavar="PATH", help="write the findings as JSON here")
     p.add_argument("--overwrite", action="store_true", help="replace the --json file if it exists")
-    p.add_argument("--control-mode", default=None, help="ManiSkill control_mode (default: the task's)")
-    p.add_argument("--obs-mode", default="state", help="observation mode whose observations are compared (default state)")
-    p.add_argument("--reward-mode", default=None, help="ManiSkill reward_mode (default: the task's)")
-    p.add_argument("--env-kwargs", type=parse_json_kwargs, default={}, metavar="JSON",
-                   help='extra gym.make kwargs as a JSON object')
+    add_arguments(p, AuditOptions, only=["control_mode", "obs_mode", "reward_mode", "env_kwargs"])
     p.add_argument("-q", "--quiet", action="store_true", help="print only the findings")
-    add_import_option(p)
+    add_arguments(p, AuditOptions, only=["imports"])
     p.set_defaults(run=run)
 
 
@@ -57,7 +52,7 @@ def _along(args: argparse.Namespace) -> dict[str, Any]:
     """The AuditOptions fields of --policy / --trajectory / --episodes / --every."""
     if args.episodes is not None and args.policy is None and args.trajectory is None:
         raise UsageError("--episodes needs --policy or --trajectory")
-    out: dict[str, Any] = {"every": args.every, "trajectory": args.trajectory}
+    out: dict[str, Any] = {}
     if args.trajectory is not None and args.episodes is not None:
         out["trajectory_episodes"] = parse_index_ranges(args.episodes)
     if args.policy is not None:
@@ -96,13 +91,11 @@ def run(args: argparse.Namespace) -> int:
     if args.env_id is None and args.trajectory is None:
         raise UsageError("name the task to audit (ENV_ID), or a recording with --trajectory")
     from simreel.io.targets import write_text_atomic
-    from simreel.replay.audit.audit import AuditOptions, audit_task
+    from simreel.replay.audit.audit import audit_task
 
     if args.json is not None:
         _check_json(args)
-    options = AuditOptions(imports=tuple(args.imports), steps=args.steps, seed=args.seed, control_mode=args.control_mode,
-                           obs_mode=args.obs_mode, reward_mode=args.reward_mode, env_kwargs=args.env_kwargs,
-                           **_along(args))
+    options = from_arguments(AuditOptions, args, **_along(args))
     report = audit_task(args.env_id, options)
     raise_if_stopped()  # a Ctrl-C a library swallowed on the way: no report of a run asked to stop
     text = report.summary()

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Iterable
 from typing import Any
 
 from simreel.errors import UsageError
 from simreel.model.selection import parse_index_ranges
-from simreel.options.checks import parse_size
+from simreel.options.checks import parse_json_kwargs, parse_size
 from simreel.options.declare import GivenOnce, add_option
 from simreel.sim.user_code import IMPORTS
 from simreel.verdicts.options import ATOL, TOL, mode_choices, parse_group_tolerance, parse_tolerance
@@ -101,22 +100,6 @@ def apply_imports(specs: list[str]) -> None:
 
     for spec in specs:
         import_user_code(spec)
-
-
-def parse_json_kwargs(text: str) -> dict[str, Any]:
-    """`--env-kwargs`: a JSON object, strictly: Python's json also takes NaN and Infinity, which no JSON reader of the
-    recording's metadata would (and a NaN sim setting fails inside ManiSkill)."""
-    try:
-        value = json.loads(text, parse_constant=_no_json_constant)
-    except json.JSONDecodeError as e:
-        raise argparse.ArgumentTypeError(f"not valid JSON ({e.msg})") from None
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError("expected a JSON object")
-    return value
-
-
-def _no_json_constant(name: str) -> Any:
-    raise argparse.ArgumentTypeError(f"not valid JSON ({name} is no JSON number; give a finite number)")
 
 
 def refuse_tolerances_without_compare(args: argparse.Namespace) -> None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import numbers
 import os
 from collections.abc import Callable, Iterable, Mapping
@@ -22,7 +23,7 @@ import numpy as np
 from simreel.errors import UsageError
 
 __all__ = ["check_flag", "check_text", "check_mapping", "check_callable", "text_tuple", "is_whole_number",
-           "whole_number", "whole_number_pair", "is_path", "path_text", "path_list", "options_with", "parse_size", "refuse_empty", "Check", "flag",
+           "whole_number", "whole_number_pair", "is_path", "path_text", "path_list", "options_with", "parse_size", "parse_json_kwargs", "refuse_empty", "Check", "flag",
            "text", "mapping", "whole", "path"]
 
 Options = TypeVar("Options")
@@ -101,6 +102,22 @@ def parse_size(text: str) -> tuple[int, int]:
     if not sep or not width.isdigit() or not height.isdigit() or int(width) < 1 or int(height) < 1:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 256x256, got {text!r}")
     return int(width), int(height)
+
+
+def parse_json_kwargs(text: str) -> dict[str, Any]:
+    """`--env-kwargs`: a JSON object, strictly: Python's json also takes NaN and Infinity, which no JSON reader of the
+    recording's metadata would (and a NaN sim setting fails inside ManiSkill)."""
+    try:
+        value = json.loads(text, parse_constant=_no_json_constant)
+    except json.JSONDecodeError as e:
+        raise argparse.ArgumentTypeError(f"not valid JSON ({e.msg})") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError("expected a JSON object")
+    return value
+
+
+def _no_json_constant(name: str) -> Any:
+    raise argparse.ArgumentTypeError(f"not valid JSON ({name} is no JSON number; give a finite number)")
 
 
 def is_path(value: Any) -> bool:
