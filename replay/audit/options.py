@@ -10,7 +10,7 @@ from typing import Any
 
 from simreel.errors import UsageError
 from simreel.model.selection import EpisodeSelection
-from simreel.options.checks import check_callable, mapping, parse_json_kwargs, path_text, text, whole
+from simreel.options.checks import function, mapping, parse_json_kwargs, path_text, text, whole
 from simreel.options.declare import check_options, documented, option
 from simreel.sim.seeds import check_seed_span
 from simreel.sim.user_code import IMPORTS, import_specs
@@ -21,11 +21,6 @@ __all__ = ["AuditOptions"]
 def _trajectory(name: str, value: Any) -> str | None:
     return None if value is None else path_text(name, value, "the recording to audit along, a str or pathlib.Path, "
                                                              "or None")
-
-
-def _policy(name: str, value: Any) -> Any:
-    check_callable(name, value, "a callable policy(env, obs) -> action, or None")
-    return value
 
 
 @documented
@@ -61,7 +56,7 @@ class AuditOptions:
         help="which of its episodes (None: all): an EpisodeSelection (--episodes 0,3-7, walked one index at a time, "
              "so a range past the file's end is refused at the first episode it lacks) or indices")
     policy: Callable[[Any, Any], Any] | None = option(
-        None, cli=False, check=_policy,
+        None, cli=False, check=function("a callable policy(env, obs) -> action, or None"),
         help="also audit along `episodes` episodes of this policy (policy(env, obs) -> action), seeds seed, seed + 1, "
              "... (the command line's --policy names it)")
     policy_name: str = option("the policy", cli=False, help="what the policy is called in findings",

@@ -11,7 +11,16 @@ from typing import Any
 
 from simreel.errors import UsageError
 from simreel.model.selection import EpisodeSelection, parse_index_ranges
-from simreel.options.checks import flag, mapping, parse_size, text, text_tuple, whole, whole_number_pair
+from simreel.options.checks import (
+    flag,
+    function,
+    mapping,
+    parse_size,
+    text,
+    text_tuple,
+    whole,
+    whole_number_pair,
+)
 from simreel.options.declare import GivenOnce, check_options, documented, option
 from simreel.sim.user_code import IMPORTS, import_specs
 from simreel.verdicts.options import TOL, parse_group_tolerance
@@ -47,13 +56,6 @@ def _keep(name: str, keep: Any) -> tuple[str, ...]:
 def _camera_size(name: str, value: Any) -> tuple[int, int] | None:
     what = "(width, height) of the cameras in pixels, two ints >= 1, e.g. (128, 128), or None (the task's)"
     return None if value is None else whole_number_pair(name, value, what)
-
-
-def _converter(name: str, value: Any) -> Any:
-    from simreel.options.checks import check_callable
-
-    check_callable(name, value, "a factory called as simreel.replay.convert.control.converter_for is, or None")
-    return value
 
 
 @documented
@@ -107,8 +109,10 @@ class ConvertOptions:
                              check=flag())
     command: str = option("", cli=False, help="the command line, kept in the output's metadata",
                           check=text("the command line as a string (kept in the output's metadata)"))
-    converter: Callable[..., Any] | None = option(None, cli=False, check=_converter,
-                                                  help="the factory of the action converter (see above)")
+    converter: Callable[..., Any] | None = option(
+        None, cli=False,
+        check=function("a factory called as simreel.replay.convert.control.converter_for is, or None"),
+        help="the factory of the action converter (see above)")
     block_rows: int | None = option(
         None, cli=False, help="steps read, converted, checked and written at a time (None: the input reader's "
                               "`simreel.formats.base.block_rows`)",

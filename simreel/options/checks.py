@@ -24,7 +24,7 @@ from simreel.errors import UsageError
 
 __all__ = ["check_flag", "check_text", "check_mapping", "check_callable", "text_tuple", "is_whole_number",
            "whole_number", "whole_number_pair", "is_path", "path_text", "path_list", "options_with", "parse_size", "parse_json_kwargs", "refuse_empty", "Check", "flag",
-           "text", "mapping", "whole", "path"]
+           "text", "mapping", "function", "whole", "path"]
 
 Options = TypeVar("Options")
 
@@ -185,6 +185,11 @@ def text(what: str, *, optional: bool = False) -> Check:
 def mapping(what: str) -> Check:
     """A dict option (`check_mapping`)."""
     return lambda name, value: check_mapping(name, value, what) or value
+
+
+def function(what: str) -> Check:
+    """A callable option, or None (`check_callable`)."""
+    return lambda name, value: check_callable(name, value, what) or value
 
 
 def whole(what: str, *, optional: bool = False) -> Check:
