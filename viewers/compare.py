@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from simreel.datasets.dataset import provenance_tolerances
+from simreel.datasets.provenance import provenance_tolerances
 from simreel.formats.base import EpisodeRows, block_rows
 from simreel.model.blocks import StepBlock
 from simreel.model.components import Tolerances

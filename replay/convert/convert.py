@@ -24,7 +24,7 @@ sit in memory whole): into the output when the episode is next in its order, els
 own (`simreel.replay.run.output.ScratchEpisode`), copied in at its turn. What outlives a block is per-row errors, a
 control-mode conversion's commanded poses and success flags (a few dozen bytes a step). The output is written in
 the run's scratch folder, and every written episode read back from there a block at a time, its arrays' digests
-compared with those of what was written (`simreel.datasets.dataset.FieldHashes`), before the output is moved to its
+compared with those of what was written (`simreel.datasets.digests.FieldHashes`), before the output is moved to its
 name: one that fails the check is never published (`OutputCheckError`), and an old file it was to replace stays.
 """
 
@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from simreel.datasets.dataset import FieldHashes, field_digests
+from simreel.datasets.digests import FieldHashes, field_digests
 from simreel.errors import OutputCheckError, SimreelError, UsageError
 from simreel.formats import EpisodeReader, check_writable, format_of, open_reader, recording_files
 from simreel.io.durable import raise_if_stopped

@@ -90,7 +90,7 @@ def _print_header(reader: Any) -> None:
     if m.source:
         print("  source     " + ", ".join(f"{k} {v}" for k, v in m.source.items()))
     if m.provenance:
-        from simreel.datasets.dataset import describe_provenance
+        from simreel.datasets.provenance import describe_provenance
 
         print(f"  made by    {describe_provenance(m.provenance)}")
     print(f"  env        {m.env_id}  obs={m.obs_mode} control={m.control_mode} reward={m.reward_mode}")
@@ -111,7 +111,7 @@ def _print_header(reader: Any) -> None:
 
 
 def _print_episodes(eps: list[Any]) -> None:
-    from simreel.datasets.dataset import describe_origin
+    from simreel.datasets.provenance import describe_origin
 
     succ = sum(1 for e in eps if e.success)
     origins = [describe_origin(e.origin) for e in eps]

@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import hashlib
-import json
 import shutil
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -29,21 +28,18 @@ from itertools import groupby, islice
 from pathlib import Path
 from typing import Any, TypeVar
 
-import numpy as np
-
 from simreel import FORMAT_VERSION
 from simreel.datasets.copy import Target, write_episodes
+from simreel.datasets.digests import HashedRows, canonical_json, episode_digest
 from simreel.datasets.inputs import file_identity, shown_path
 from simreel.datasets.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
 from simreel.errors import OutputCheckError, RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
-from simreel.formats.base import EpisodeRows, PassedRows, not_a_file
+from simreel.formats.base import not_a_file
 from simreel.io.durable import deferred_signals, raise_if_stopped
 from simreel.io.paths import real_path, refuse_empty
 from simreel.io.staging import staging_path, stale_staging
 from simreel.io.targets import OVERWRITE_HINT, check_distinct, move_into_place
-from simreel.model.blocks import StepBlock
-from simreel.model.components import Tolerances
 from simreel.model.episode import Episode
 from simreel.model.meta import EpisodeMeta, RecordingMeta, new_recording_id
 from simreel.model.selection import EpisodeSelection
@@ -61,7 +57,6 @@ from simreel.verdicts.compare import VERDICTS
 from simreel.verdicts.scene_history import SceneChains
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
-           "FieldHashes", "HashedRows", "episode_digest", "field_digests", "describe_provenance", "describe_origin",
            "VERIFIED", "DIVERGED", "report_verdicts", "StagedOutput"]
 
 VERIFIED = ("exact", "within_tolerance")
@@ -332,7 +327,7 @@ class _Source:
             m = reader.meta
             source.identity = {
                 "path": str(source.path), "size": size, "mtime_ns": mtime_ns,
-                "meta_digest": hashlib.blake2b(_canonical(m.to_json()), digest_size=16).hexdigest(),
+                "meta_digest": hashlib.blake2b(canonical_json(m.to_json()), digest_size=16).hexdigest(),
                 "kind": reader.kind, "episodes": len(reader.episodes), "versions": m.versions,
                 "created_utc": m.created_utc, "command": m.command, "source": m.source, "provenance": m.provenance,
             }
@@ -348,93 +343,6 @@ class _Source:
             raise RecordingFileError(self.label, "changed while it was being copied (size or mtime differ from when "
                                                 "it was first read); run the command again")
         return reader
-
-
-def _canonical(value: Any) -> bytes:
-    return json.dumps(value, sort_keys=True, separators=(",", ":")).encode()
-
-
-class FieldHashes:
-    """BLAKE2b-256 of each field's rows as blocks of them pass (`add`, in row order): the field's dtype and row
-    shape, its row count and its bytes. Equal digests mean equal arrays (but for a collision of a 256-bit hash),
-    however the rows were split in blocks: what a copy or a conversion hashes as it writes an episode, to check
-    against the same hashes of what it reads back."""
-
-    def __init__(self) -> None:
-        self._hashes: dict[str, Any] = {}
-        self._row_kinds: dict[str, str] = {}
-        self._counts: dict[str, int] = {}
-
-    def add(self, block: StepBlock, names: Iterable[str]) -> None:
-        """Hash the rows of the fields `names` in `block`, after the rows hashed before them."""
-        for name in names:
-            a = np.ascontiguousarray(block[name])
-            if name not in self._hashes:
-                self._hashes[name], self._counts[name] = hashlib.blake2b(digest_size=32), 0
-            kind = f"\0{a.dtype.str}\0{a.shape[1:]}\0"
-            if self._row_kinds.get(name) != kind:  # once per field, unless a block changes its dtype or row shape
-                self._row_kinds[name] = kind
-                self._hashes[name].update(kind.encode())
-            self._hashes[name].update(a.reshape(-1).view(np.uint8) if a.size else b"")
-            self._counts[name] += len(a)
-
-    def digests(self) -> dict[str, str]:
-        """Field name -> the hex digest of its rows and row count, by name."""
-        return {name: hashlib.blake2b(f"\0{name}\0{self._counts[name]}\0".encode() + h.digest(),
-                                      digest_size=32).hexdigest()
-                for name, h in sorted(self._hashes.items())}
-
-
-class HashedRows(PassedRows):
-    """An episode's rows (under new metadata, when given), hashed as a reader passes through them: the reset row
-    first, then the steps in order, as `EpisodeWriter.write_rows` reads them. `digest()`, once every row has
-    passed, is BLAKE2b-256 of the metadata and of every array's `FieldHashes` digest: equal digests mean equal
-    episodes, however the rows were split in blocks."""
-
-    def __init__(self, rows: EpisodeRows, meta: EpisodeMeta | None = None) -> None:
-        super().__init__(rows, meta)
-        self._fields = FieldHashes()
-        self._next: int | None = None
-        """The next step to hash; None before the reset row."""
-
-    def passed_reset(self, block: StepBlock) -> StepBlock:
-        if self._next is None:
-            self._fields.add(block, [f.name for f in self.fields if f.per_state])
-            self._next = 0
-        return block
-
-    def passed(self, start: int, block: StepBlock) -> StepBlock:
-        if start != self._next:
-            raise RuntimeError(f"episode {self.meta.index}: steps {start}.. read before step {self._next} was hashed")
-        self._fields.add(block, [f.name for f in self.fields])
-        self._next = start + block.rows
-        return block
-
-    def field_digests(self) -> dict[str, str]:
-        """`FieldHashes.digests` of the episode's arrays, once every row has passed."""
-        if self._next != self.length:
-            raise RuntimeError(f"episode {self.meta.index}: digest taken at step {self._next} of {self.length}")
-        return self._fields.digests()
-
-    def digest(self) -> bytes:
-        h = hashlib.blake2b(_canonical(self.meta.to_json()), digest_size=32)
-        for name, field_digest in self.field_digests().items():
-            h.update(f"\0{name}\0{field_digest}".encode())
-        return h.digest()
-
-
-def episode_digest(rows: EpisodeRows) -> bytes:
-    """`HashedRows.digest` of an episode, read a block at a time."""
-    hashed = HashedRows(rows)
-    hashed.read_through()
-    return hashed.digest()
-
-
-def field_digests(rows: EpisodeRows) -> dict[str, str]:
-    """`HashedRows.field_digests` of an episode (its arrays, not its metadata), read a block at a time."""
-    hashed = HashedRows(rows)
-    hashed.read_through()
-    return hashed.field_digests()
 
 
 # ---------------------------------------------------------------------------------------------------- the plan
@@ -681,7 +589,7 @@ def _check(output: StagedOutput, sources: Sequence[_Source], options: DatasetOpt
     Messages name the output by its final name."""
     name, digests = output.final.path, output.digests
     with open_reader(output.staged.path) as reader:
-        if _canonical(reader.meta.to_json()) != _canonical(output.final.meta.to_json()):
+        if canonical_json(reader.meta.to_json()) != canonical_json(output.final.meta.to_json()):
             raise OutputCheckError(f"{name}: the recording metadata read back is not the one written")
         indices = [m.index for m in reader.episodes]
         if indices != list(range(len(digests))):
@@ -799,75 +707,6 @@ def _episode_meta(source: _Source, index: int) -> EpisodeMeta:
             return m
     have = ", ".join(str(m.index) for m in source.episodes[:20]) or "none"
     raise RecordingFileError(source.label, f"no episode {index} (episodes: {have}{', ...' if len(source.episodes) > 20 else ''})")
-
-
-def describe_provenance(provenance: Mapping[str, Any]) -> str:
-    """One line saying what made a recording from others (`RecordingMeta.provenance`), for `simreel inspect`."""
-    if provenance.get("operation") == "convert":
-        return _describe_conversion(provenance)
-    if provenance.get("operation") == "replay":
-        return _describe_replay(provenance)
-    inputs = provenance.get("inputs") or []
-    names = ", ".join(f"{Path(i.get('path', '?')).name} ({i.get('episodes', '?')} episode(s))" for i in inputs[:5])
-    names += f", ... ({len(inputs)} files)" if len(inputs) > 5 else ""
-    line = f"{provenance.get('operation', '?')} of {names or 'nothing'}"
-    criteria = provenance.get("criteria")
-    if criteria:
-        line += "; criteria " + ", ".join(f"{k} {json.dumps(v)}" for k, v in criteria.items())
-    if provenance.get("part"):
-        line += f"; the episodes {'kept' if provenance['part'] == 'kept' else 'not kept'}"
-    return line
-
-
-def _describe_conversion(provenance: Mapping[str, Any]) -> str:
-    """``convert of /data/demos.h5 (episodes 0, 1): control_mode pd_joint_pos -> pd_ee_delta_pose; kept: verified``."""
-    conversion = provenance.get("conversion") or {}
-    changed = [f"{k} {v[0]} -> {v[1]}" for k, v in conversion.items() if isinstance(v, list) and len(v) == 2]
-    episodes = ", ".join(str(i) for i in provenance.get("source_episodes", []))
-    keep = (provenance.get("filters") or {}).get("keep")
-    return (f"convert of {provenance.get('source')} (episodes {episodes}): {'; '.join(changed)}"
-            + (f"; kept: {', '.join(keep)}" if keep else ""))
-
-
-def _describe_replay(provenance: Mapping[str, Any]) -> str:
-    """``replay of /data/demos.h5 (simreel replay --mode step; pos 0.1 instead of its defaults), each episode's
-    verdict kept; the input: convert of ...``."""
-    run, judged = _replay_command(provenance), provenance_tolerances(provenance)
-    changed = judged[0].overrides(judged[2]) if judged else ""
-    if changed:
-        run += f"; {changed} instead of its defaults"
-    line = f"replay of {provenance.get('source')} ({run}), each episode's verdict kept"
-    of = provenance.get("input")
-    return line + (f"; the input: {describe_provenance(of)}" if of else "")
-
-
-def _replay_command(made: Mapping[str, Any]) -> str:
-    """``simreel replay --mode actions --resync 5``: the replay of provenance `made`, its options that chose its
-    tolerances' defaults."""
-    resync = made.get("resync")
-    return f"simreel replay --mode {made.get('mode')}" + (f" --resync {resync}" if resync else "")
-
-
-def provenance_tolerances(made: Mapping[str, Any]) -> tuple[Tolerances, str, str] | None:
-    """The tolerances the replay (``simreel replay -o``) or conversion of provenance `made` judged its file with, the
-    command that did (``simreel replay --mode step``), and the mode whose defaults it started from; None where it
-    holds none this simreel can read (a control-mode conversion's tracking tolerances, another operation)."""
-    stored = made.get("tolerances")
-    if made.get("operation") == "replay":
-        base, run = ("resync" if made.get("resync") else made.get("mode")), _replay_command(made)
-    elif made.get("operation") == "convert":
-        base, run = "states", "simreel convert"
-    else:
-        return None
-    try:
-        return Tolerances.for_mode(base, groups=stored), run, base
-    except (TypeError, ValueError):  # no tolerances, or not these groups
-        return None
-
-
-def describe_origin(origin: Mapping[str, Any]) -> str:
-    """``file.h5#3``: where an episode was copied from (`EpisodeMeta.origin`); empty for a recorded one."""
-    return f"{Path(origin['file']).name}#{origin['index']}" if origin.get("file") else ""
 
 
 def report_verdicts(path: str | Path, verdicts: Mapping[tuple[str, int], str],

@@ -115,7 +115,7 @@ def test_episodes_of_many_blocks_merge_and_filter_bit_exactly(tmp_path, suffix):
 def test_the_episode_digest_covers_every_byte_however_the_rows_are_split(tmp_path):
     """`HashedRows` hashes an episode as a writer reads it, a block at a time: blocks of any size give one
     digest; one ulp of one reward, or other metadata, give another; rows read out of order are our bug."""
-    from simreel.datasets.dataset import HashedRows, episode_digest
+    from simreel.datasets.digests import HashedRows, episode_digest
 
     a, long = long_sample(tmp_path / "a.h5")
     changed = dataclasses.replace(long[1], rewards=long[1].rewards.copy())

@@ -10,7 +10,7 @@ import h5py
 import pytest
 from support.maniskill_files import record_maniskill
 
-from simreel.datasets.dataset import field_digests
+from simreel.datasets.digests import field_digests
 from simreel.formats import open_reader
 from simreel.formats.base import EpisodeRows
 from simreel.replay.convert.convert import convert_recording
