@@ -1,17 +1,37 @@
-"""What a replay report says about an episode's scene history (`simreel.verdicts.scene_history`, the rule): which predecessors
-were replayed before it, and why its history could not be.
+"""The scene history an episode is replayed after (`simreel.verdicts.scene_history` holds the rule): what a worker's
+scene ran (`SceneRun`), how an episode's scene was given its history (`ReplayedHistory`), what a report says about it
+(`describe_history` and the rest), and, for a replay that restores recorded states, the step before its reset.
+
+The step before an episode's reset, in a replay that restores recorded states (`RESTORING_MODES`): PhysX reports the contacts of the last step its scene simulated until it simulates another, and a reset simulates
+nothing: observations taken at a reset read the contacts of the step before it. ManiSkill's ``is_grasping``, in
+many tasks' observations, is 1 at the reset after a grasping episode (measured: SimreelLiftCube-v1, whose state
+replay of such an episode alone rendered 0 there, and diverged). When recorded, that step was the last step of the
+episode that ran before it in its scene (`simreel.verdicts.scene_history.SceneChains.previous`), or none (a scene just built).
+A restoring replay re-runs it (`SceneBefore`), so that the observations it compares or writes at a reset do not
+depend on which episode its process happened to replay before.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
+import numpy as np
+
+from simreel.errors import EPISODE_DATA_ERRORS, RecordingFileError
+from simreel.formats import EpisodeReader
+from simreel.model.fields import field_group
 from simreel.model.meta import EpisodeMeta
-from simreel.verdicts.scene_history import recorded_scene
+from simreel.replay.report.report import EpisodeReport
+from simreel.replay.run.engine import SceneBefore
+from simreel.replay.run.worklist import WorkItem
+from simreel.verdicts.scene_history import SceneChains, recorded_scene
 
 __all__ = ["describe_history", "describe_missing_history", "describe_missing_step_before", "describe_unreadable_history",
-           "SHIPPED_HISTORY"]
+           "SHIPPED_HISTORY", "SceneRun", "ReplayedHistory", "restoring_history", "has_history", "StepBefore",
+           "step_before"]
 
 _MAY_DIVERGE = "PhysX results depend on the scene's history: a divergence may come from that alone"
 SHIPPED_HISTORY = ("replayed without the episodes that ran before it in the recorder's scene (sent without its file); "
@@ -55,7 +75,7 @@ def describe_unreadable_history(index: int, error: Exception) -> str:
 
 def describe_missing_step_before(why: str) -> str:
     """The limit of an episode whose restoring replay could not re-run the step before its reset
-    (`simreel.replay.run.last_step`), for `why`."""
+    (`step_before`), for `why`."""
     return (f"its observations at the reset read the contacts of whatever step its replaying scene ran last, not of "
             f"the one its recorder's scene ran before it ({why}): contact-based values there (is_grasped) may differ")
 
@@ -65,3 +85,126 @@ def _span(indices: Sequence[int]) -> str:
     if len(indices) > 1 and list(indices) == list(range(indices[0], indices[-1] + 1)):
         return f"{indices[0]}–{indices[-1]}"
     return ", ".join(map(str, indices))
+
+
+@dataclass(frozen=True)
+class SceneRun:
+    """What a worker's scene ran since it was built: the first `ran` episodes (places 0 to `ran` - 1) of chain
+    `chain` of the file at `path` (`simreel.verdicts.scene_history.SceneChains`); ``SceneRun()``: nothing, a scene fresh
+    from ``gym.make`` or rebuilt. In a restoring mode, only its last step counts: that of the one at place `ran` - 1
+    (`step_before`)."""
+
+    path: str | None = None
+    chain: str | None = None
+    ran: int = 0
+
+    @classmethod
+    def after(cls, path: str, chains: SceneChains, index: int) -> SceneRun:
+        """The scene that ran episode `index` of the file at `path` last, after its history."""
+        return cls(path, chains.key[index], (chains.ran_before[index] or 0) + 1)
+
+    def ran_of(self, path: str, chains: SceneChains, index: int) -> int | None:
+        """How many episodes of episode `index`'s history (in the file at `path`) this scene has run already; None
+        when it ran something else (another file, chain or episode): it must be rebuilt first."""
+        if not self.ran:
+            return 0
+        same = self.path == path and self.chain == chains.key[index]
+        return self.ran if same and self.ran <= (chains.ran_before[index] or 0) else None
+
+
+@dataclass
+class ReplayedHistory:
+    """How a worker gave an episode's scene its recorded history (`ReplayWorker._replay_history`)."""
+
+    replayed: list[int] = field(default_factory=list)
+    """The predecessors replayed for it just now (the scene had run the others)."""
+    ran: list[int] = field(default_factory=list)
+    """Its whole history, which the scene has now run (listed where some of it was `replayed`, for the note)."""
+    lost: str | None = None
+    """Why its history could not be replayed (it is then replayed without), for its report's limits; in a restoring
+    mode, why the step before its reset could not be re-run."""
+    before: SceneBefore | None = None
+    """In a restoring mode, the step before its reset, which its replay re-runs first (`step_before`)."""
+
+    def tell(self, report: EpisodeReport, index: int) -> None:
+        """Add to episode `index`'s `report` what was replayed before it, or what could not be."""
+        if self.replayed:
+            report.notes.append(describe_history(index, self.ran, self.replayed))
+        if self.lost:
+            report.notes.append(self.lost)
+            report.limits.append(self.lost)
+
+
+def restoring_history(reader: EpisodeReader, chains: SceneChains, item: WorkItem,
+                      scene: SceneRun | None) -> ReplayedHistory:
+    """What a restoring replay of `item` (of `reader`'s file, whose chains are `chains`) runs before it, on a scene
+    that ran `scene` (None: unknown): the step before its reset (`step_before`), or why it cannot."""
+    ran = scene.ran_of(item.path, chains, item.index) if scene is not None else None
+    found = step_before(reader, chains, item.index, ran)
+    return ReplayedHistory(lost=found.lost, before=found.run)
+
+
+def has_history(episode: EpisodeMeta) -> bool:
+    """Whether episodes may have run in `episode`'s scene before it (told by its metadata alone: where a copy says
+    where it ran, that; else whether its reset kept the scene and it is not its file's first)."""
+    scene = recorded_scene(episode)
+    if scene is not None:
+        return scene["position"] > 0
+    return not episode.reconfigured and episode.index > 0
+
+
+class StepBefore(NamedTuple):
+    """What a restoring replay of an episode re-runs before its reset (`SceneBefore`; None: nothing, the scene's
+    last step is that one already), and why it cannot (`lost`, for the report's limits; `run` is then None)."""
+
+    run: SceneBefore | None
+    lost: str | None = None
+
+
+def step_before(reader: EpisodeReader, chains: SceneChains, index: int, ran: int | None) -> StepBefore:
+    """The step episode `index` of `reader`'s file (whose chains are `chains`) had before its reset when recorded.
+    `ran`: how many episodes of its chain the replaying scene ran, the last of them last (`SceneRun.ran_of`; None:
+    unknown): when that is the one before it, nothing is re-run."""
+    place = chains.ran_before[index]
+    unknown = _unknown_place(reader, place)
+    if unknown:
+        return StepBefore(None, describe_missing_step_before(unknown))
+    if place == ran:
+        return StepBefore(None)
+    previous = chains.previous(index)
+    while previous is not None and not previous.length:  # an episode of no step simulated nothing
+        place = chains.ran_before[previous.index]
+        previous = chains.previous(previous.index)
+    if not place:
+        return StepBefore(SceneBefore())
+    if previous is None:
+        return StepBefore(None, describe_missing_step_before("the episode that ran before it is not in this file"))
+    try:
+        return StepBefore(_last_step(reader, previous))
+    except EPISODE_DATA_ERRORS as e:
+        return StepBefore(None, describe_missing_step_before(f"episode {previous.index} ran before it: {e}"))
+
+
+def _unknown_place(reader: EpisodeReader, place: int | None) -> str | None:
+    """Why the place of an episode of `reader`'s file in its chain (`place`) is unknown, if it is: a copy that does
+    not say, or a file of parallel envs that does not say which one ran each episode (ManiSkill's)."""
+    if place is None:
+        return "where it ran when recorded is unknown"
+    if reader.meta.num_envs > 1 and "env_idx" in reader.meta.unknown:
+        return "the file does not say which of its parallel envs ran each episode"
+    return None
+
+
+def _last_step(reader: EpisodeReader, episode: EpisodeMeta) -> SceneBefore:
+    """`episode`'s last step: the state row before it, and its action (`RecordingFileError` if it holds NaN, or the
+    state before is not in the file: the row 0 of an episode whose `initial_state_known` is False)."""
+    rows, length = reader.open_episode(episode.index), episode.length
+    action = rows.steps(length - 1, length)["actions"][0]
+    if np.isnan(action).any():
+        raise RecordingFileError(reader.path, f"the last action of episode {episode.index} holds NaN")
+    if length == 1 and not episode.initial_state_known:
+        raise RecordingFileError(reader.path, f"the state before the one step of episode {episode.index} is not in "
+                                              "the file (its row 0 is the state after it)")
+    before = rows.reset() if length == 1 else rows.steps(length - 2, length - 1)
+    state = {path: a[-1:] for path, a in field_group(before.arrays, "env_states").items()}
+    return SceneBefore(rows.meta, state, action, length - 1)

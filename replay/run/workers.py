@@ -46,16 +46,17 @@ from simreel.replay.run.engine import (
     EpisodeReplayer,
     ReplayedEpisode,
     ReplayerOptions,
-    SceneBefore,
 )
 from simreel.replay.run.history import (
     SHIPPED_HISTORY,
-    describe_history,
+    ReplayedHistory,
+    SceneRun,
     describe_missing_history,
     describe_missing_step_before,
     describe_unreadable_history,
+    has_history,
+    restoring_history,
 )
-from simreel.replay.run.last_step import step_before
 from simreel.replay.run.output import (
     EpisodeStream,
     RecordedContacts,
@@ -67,10 +68,10 @@ from simreel.replay.run.output import (
 from simreel.replay.run.worklist import WorkItem, chain_groups, next_item
 from simreel.sim.user_code import resolve_task_imports
 from simreel.verdicts.compare import BlockComparison, CompareScope, EpisodeComparison
-from simreel.verdicts.scene_history import SceneChains, recorded_scene
+from simreel.verdicts.scene_history import SceneChains
 
 __all__ = ["ReplayJob", "ReplayWorker", "EpisodeResult", "VerifySink", "run_pool", "start_pool", "Lanes",
-           "pool_closing", "WorkerDiedError", "SceneRun", "ReplayedHistory", "restoring_history"]
+           "pool_closing", "WorkerDiedError"]
 
 _OPEN_READERS = 8
 """Recordings a worker keeps open (the work list visits files in turn, so few are ever needed again)."""
@@ -202,54 +203,6 @@ class ReaderCache:
             self._readers.popitem()[1].close()
 
 
-@dataclass(frozen=True)
-class SceneRun:
-    """What a worker's scene ran since it was built: the first `ran` episodes (places 0 to `ran` - 1) of chain
-    `chain` of the file at `path` (`simreel.verdicts.scene_history.SceneChains`); ``SceneRun()``: nothing, a scene fresh
-    from ``gym.make`` or rebuilt. In a restoring mode, only its last step counts: that of the one at place `ran` - 1
-    (`simreel.replay.run.last_step`)."""
-
-    path: str | None = None
-    chain: str | None = None
-    ran: int = 0
-
-    @classmethod
-    def after(cls, path: str, chains: SceneChains, index: int) -> SceneRun:
-        """The scene that ran episode `index` of the file at `path` last, after its history."""
-        return cls(path, chains.key[index], (chains.ran_before[index] or 0) + 1)
-
-    def ran_of(self, path: str, chains: SceneChains, index: int) -> int | None:
-        """How many episodes of episode `index`'s history (in the file at `path`) this scene has run already; None
-        when it ran something else (another file, chain or episode): it must be rebuilt first."""
-        if not self.ran:
-            return 0
-        same = self.path == path and self.chain == chains.key[index]
-        return self.ran if same and self.ran <= (chains.ran_before[index] or 0) else None
-
-
-@dataclass
-class ReplayedHistory:
-    """How a worker gave an episode's scene its recorded history (`ReplayWorker._replay_history`)."""
-
-    replayed: list[int] = field(default_factory=list)
-    """The predecessors replayed for it just now (the scene had run the others)."""
-    ran: list[int] = field(default_factory=list)
-    """Its whole history, which the scene has now run (listed where some of it was `replayed`, for the note)."""
-    lost: str | None = None
-    """Why its history could not be replayed (it is then replayed without), for its report's limits; in a restoring
-    mode, why the step before its reset could not be re-run."""
-    before: SceneBefore | None = None
-    """In a restoring mode, the step before its reset, which its replay re-runs first (`simreel.replay.run.last_step`)."""
-
-    def tell(self, report: EpisodeReport, index: int) -> None:
-        """Add to episode `index`'s `report` what was replayed before it, or what could not be."""
-        if self.replayed:
-            report.notes.append(describe_history(index, self.ran, self.replayed))
-        if self.lost:
-            report.notes.append(self.lost)
-            report.limits.append(self.lost)
-
-
 class ReplayWorker:
     """Replays work items of any file of a run: one process's readers and its one env (per env key)."""
 
@@ -303,7 +256,7 @@ class ReplayWorker:
         episode = reader.episode_meta(item.index)
         if shipped:
             replayer.forget_scene()  # a rebuilt scene at least: the same replay on every actor
-            return ReplayedHistory(lost=SHIPPED_HISTORY if _has_history(episode) else None)
+            return ReplayedHistory(lost=SHIPPED_HISTORY if has_history(episode) else None)
         chains = self._chains_of(item.path, reader)
         if not chains.complete(item.index):
             replayer.forget_scene()
@@ -327,7 +280,7 @@ class ReplayWorker:
     def _step_before(self, reader: EpisodeReader, replayer: EpisodeReplayer, item: WorkItem, scene: SceneRun | None,
                      *, shipped: bool) -> ReplayedHistory:
         """In a restoring mode, the step `item`'s recorder's scene ran before its reset, for the observations there
-        (`simreel.replay.run.last_step`): none to re-run when no observation is replayed or the scene ran it last."""
+        (`simreel.replay.run.history.step_before`): none to re-run when no observation is replayed or the scene ran it last."""
         if not replayer.need_obs:
             return ReplayedHistory()
         if shipped:
@@ -450,29 +403,11 @@ class ReplayWorker:
         self._readers.close()
 
 
-def restoring_history(reader: EpisodeReader, chains: SceneChains, item: WorkItem,
-                      scene: SceneRun | None) -> ReplayedHistory:
-    """What a restoring replay of `item` (of `reader`'s file, whose chains are `chains`) runs before it, on a scene
-    that ran `scene` (None: unknown): the step before its reset (`simreel.replay.run.last_step`), or why it cannot."""
-    ran = scene.ran_of(item.path, chains, item.index) if scene is not None else None
-    found = step_before(reader, chains, item.index, ran)
-    return ReplayedHistory(lost=found.lost, before=found.run)
-
-
 def _replayed_meta(meta: EpisodeMeta, report: EpisodeReport, ran_in: dict[str, Any] | None) -> EpisodeMeta:
     """The metadata `-o` writes with a replayed episode: the recorded one's, with the replay's verdict and where the
     replay ran (`ReplayWorker._ran_in`)."""
     provenance = {**meta.provenance, "scene": ran_in} if ran_in is not None else meta.provenance
     return dataclasses.replace(meta, verification=report.verification(), provenance=provenance)
-
-
-def _has_history(episode: EpisodeMeta) -> bool:
-    """Whether episodes may have run in `episode`'s scene before it (told by its metadata alone: where a copy says
-    where it ran, that; else whether its reset kept the scene and it is not its file's first)."""
-    scene = recorded_scene(episode)
-    if scene is not None:
-        return scene["position"] > 0
-    return not episode.reconfigured and episode.index > 0
 
 
 _WORKER: Any = None

@@ -28,7 +28,7 @@ the scene: a copy, a conversion, a replay's output) it is not.
 `simreel.replay.run.workers.ReplayWorker` replays the history before an episode in mode ``actions`` (actions only,
 nothing compared). The other modes restore recorded states and have tolerances of their own; they replay none, but
 re-run the last step of the episode before (`SceneChains.previous`): the observations at a reset read its contacts
-(`simreel.replay.run.last_step`).
+(`simreel.replay.run.history.step_before`).
 """
 
 from __future__ import annotations

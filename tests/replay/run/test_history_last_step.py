@@ -1,4 +1,4 @@
-"""The step before an episode's reset (`simreel.replay.run.last_step`): observations at a reset read the contacts of the
+"""The step before an episode's reset (`simreel.replay.run.history.step_before`): observations at a reset read the contacts of the
 step the scene ran last, so a replay that restores states re-runs the recorded episode's predecessor's last step
 first. The recording: SimreelLiftCube-v1's scripted grasp and lift from seed 3, three episodes, with observations;
 its is_grasped (obs/state[26]) is 1 at the resets of episodes 1 and 2 (the step before grasped the cube), 0 at
