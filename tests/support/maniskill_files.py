@@ -121,7 +121,9 @@ def record_maniskill(folder: Path, env_id: str, *, name: str = "demos", episodes
     import mani_skill.envs  # noqa: F401
     from mani_skill.utils.wrappers.record import RecordEpisode
 
-    import simreel  # noqa: F401  (points SAPIEN at the software Vulkan driver on a CPU machine)
+    from simreel.sim.make import prepare_plain_gym_make
+
+    prepare_plain_gym_make()  # points SAPIEN at the software Vulkan driver on a CPU machine
 
     env = gym.make(env_id, obs_mode=options.get("obs_mode", "none"),
                    control_mode=options.get("control_mode", "pd_joint_pos"), **options.get("env_kwargs", {}))

@@ -1,4 +1,4 @@
-"""simreel.compare: per-leaf errors, quaternion-aware comparison, tolerances and the first divergence (pure numpy)."""
+"""simreel.verdicts.compare (and simreel.model.components): per-leaf errors, quaternion-aware comparison, tolerances and the first divergence (pure numpy)."""
 
 from __future__ import annotations
 

@@ -57,7 +57,7 @@ def step_ns_of(meta: RecordingMeta) -> int:
 
 
 def record_kind(name: str) -> str:
-    """The record name without its episode index: ``simreel.episode.3`` → ``simreel.model``."""
+    """The record name without its episode index: ``simreel.episode.3`` → ``simreel.episode``."""
     return name if name == RecordingRecord.NAME else name.rsplit(".", 1)[0]
 
 
