@@ -6,10 +6,11 @@ STAMP  := $(VENV)/.simreel-setup
 MESA   := $(VENV)/share/simreel/mesa
 DEMO   := demo_out
 PYTEST_ARGS ?=
-# One worker per core, each test file on one worker (module fixtures are built once; README blocks run in order).
+# One worker per core, each test file on one worker (module fixtures are built once; the code blocks of README.md
+# and docs/ run in order, page by page).
 PARALLEL := -n auto --dist loadfile
 
-.PHONY: setup demo test test-all test-gpu lint bench clean
+.PHONY: setup demo test test-all test-gpu lint bench docs clean
 
 NODE_TOOL := tools/mcap_ts
 
@@ -62,5 +63,11 @@ bench: setup
 	$(BIN)/python benchmarks/bench_convert.py
 	$(BIN)/python benchmarks/bench_convert.py --what rgb
 
+# The documentation site, strictly (a broken link, a missing anchor or a page left out of the nav fails it), into
+# site/. mkdocs comes with the test extra; the docs extra installs it where setup ran before it did.
+docs: setup
+	@$(BIN)/python -c "import mkdocs, material" 2>/dev/null || $(BIN)/pip install -q -e '.[docs]'
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 clean:
-	rm -rf $(DEMO) .pytest_cache .ruff_cache
+	rm -rf $(DEMO) site .pytest_cache .ruff_cache
