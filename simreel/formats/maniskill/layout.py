@@ -92,7 +92,7 @@ def maniskill_tools(meta: RecordingMeta, *, hdf5: bool) -> list[str]:
     """What ManiSkill's own tools can do with a recording of `meta` (one line each), and why not where not."""
     if not hdf5:
         return ["ManiSkill's tools read HDF5 only: `simreel convert FILE.mcap FILE.h5` writes one they read"]
-    lines = ["mani_skill.trajectory.replay_trajectory replays it (it needs a Vulkan device: see the README)"]
+    lines = ["mani_skill.trajectory.replay_trajectory replays it (it needs a Vulkan device: see docs/setup.md)"]
     if meta.obs_layout:
         lines.append("ManiSkillTrajectoryDataset loads it with its observations (ManiSkill's layout)")
     else:
