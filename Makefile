@@ -46,7 +46,7 @@ lint: setup
 	$(BIN)/ruff check simreel recorders replay viewers tests benchmarks
 
 test: lint
-	$(BIN)/python -m pytest $(PARALLEL) $(PYTEST_ARGS)
+	$(BIN)/python -m pytest $(PARALLEL) --durations=25 $(PYTEST_ARGS)
 
 test-all: lint
 	$(BIN)/python -m pytest $(PARALLEL) -m "not gpu" $(PYTEST_ARGS)

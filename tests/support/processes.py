@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import selectors
+import signal
 import socket
 import subprocess
 import sys
@@ -12,7 +13,8 @@ import time
 from collections.abc import Iterator, Mapping
 from contextlib import ExitStack, contextmanager
 
-__all__ = ["DISPLAY_VARS", "answering_display", "free_port", "free_ports", "read_line", "simreel_command", "without_display"]
+__all__ = ["DISPLAY_VARS", "answering_display", "free_port", "free_ports", "read_line", "simreel_command", "stop_ray_node",
+           "without_display"]
 
 DISPLAY_VARS = ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")
 """The variables through which a process finds an X11 or Wayland display."""
@@ -84,3 +86,17 @@ def read_line(process: subprocess.Popen[str], timeout: float) -> str:
             if process.poll() is not None:
                 raise AssertionError(f"exited with {process.returncode}: {process.stderr.read()[-3000:]}")
     raise AssertionError(f"no line on stdout in {timeout} s")
+
+
+def stop_ray_node(node: subprocess.Popen, timeout: float = 60) -> None:
+    """Stop a `ray start --block` node started in a session of its own: SIGTERM to `ray start` alone, which stops its
+    node's processes and exits within seconds (SIGTERM to the whole group took 30 s: the raylet and the GCS, stopped
+    under it, leave it waiting), then SIGKILL to whatever of the group is left."""
+    node.terminate()
+    try:
+        node.wait(timeout=timeout)
+    finally:
+        try:
+            os.killpg(node.pid, signal.SIGKILL)
+        except ProcessLookupError:  # nothing left
+            pass

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from support.processes import free_port
+from support.processes import free_port, stop_ray_node
 
 ray = pytest.importorskip("ray", reason="Ray is the optional extra simreel[ray] (make setup installs it)")
 
@@ -50,6 +50,8 @@ class Cluster:
     env: dict[str, str]
     """The environment of every process of the cluster, and of a driver joining it: its token (Ray turns token
     authentication on for clusters started where a token exists; this one always has its own)."""
+    nodes: tuple[int, ...]
+    """The `ray start` processes of its nodes, of which its actors' processes descend."""
 
 
 @pytest.fixture(scope="module")
@@ -68,12 +70,10 @@ def cluster():
         time.sleep(3)
         nodes.append(_start("--address", address, "--node-ip-address", "127.0.0.1", env=env))
         _nodes_alive(address, 2, env)
-        yield Cluster(address, env)
+        yield Cluster(address, env, tuple(node.pid for node in nodes))
     finally:
         for node in reversed(nodes):
-            os.killpg(node.pid, signal.SIGTERM)
-        for node in nodes:
-            node.wait(timeout=60)
+            stop_ray_node(node)
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +127,16 @@ def test_a_two_node_cluster_verifies_recordings(cluster, recordings, tmp_path, s
     assert sent == [ship] * 10  # a node that sees the file (here: all) reads it in place, unless --ship
 
 
-def _actor_pids() -> list[int]:
+def _parent(pid: int) -> int:
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[1])
+    except OSError:  # it ended
+        return 0
+
+
+def _actor_pids(cluster: Cluster) -> list[int]:
+    """The actor processes of `cluster`'s nodes: not those of another Ray instance on this machine (another test
+    file's, running at the same time on another worker)."""
     pids = []
     for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
         try:
@@ -135,7 +144,11 @@ def _actor_pids() -> list[int]:
         except OSError:
             continue
         if text.startswith("ray::_Actor"):
-            pids.append(int(cmdline.parent.name))
+            pid = ancestor = int(cmdline.parent.name)
+            while ancestor > 1 and ancestor not in cluster.nodes:
+                ancestor = _parent(ancestor)
+            if ancestor in cluster.nodes:
+                pids.append(pid)
     return pids
 
 
@@ -149,7 +162,7 @@ def test_a_worker_killed_mid_run_has_its_episodes_replayed_elsewhere_once(cluste
     path = record("PickCube-v1", 16, 30, *_OWN_SCENES)
     report = tmp_path / "r.json"
     proc = _replay_until_two_verdicts(cluster, report, path)
-    actors = _actor_pids()
+    actors = _actor_pids(cluster)
     assert len(actors) == 2, actors
     os.kill(actors[0], signal.SIGKILL)
     out, err = proc.communicate(timeout=600)
@@ -167,7 +180,7 @@ def test_the_chain_of_a_killed_worker_goes_on_in_one_worker_its_history_replayed
     paths = [record("PickCube-v1", 8, 30), record("PickCube-v1", 8, 30, "--seed", "40")]  # a chain each
     report = tmp_path / "r.json"
     proc = _replay_until_two_verdicts(cluster, report, *paths)
-    os.kill(_actor_pids()[0], signal.SIGKILL)
+    os.kill(_actor_pids(cluster)[0], signal.SIGKILL)
     out, err = proc.communicate(timeout=600)
     assert proc.returncode == 0, err
     assert "note: 1 Ray worker(s) died during the run" in out, out

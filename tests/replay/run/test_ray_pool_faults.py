@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from support.processes import free_port
+from support.processes import free_port, stop_ray_node
 
 pytest.importorskip("ray", reason="Ray is the optional extra simreel[ray] (make setup installs it)")
 
@@ -64,8 +64,7 @@ def running_cluster():
             time.sleep(0.5)
         yield env
     finally:
-        os.killpg(head.pid, signal.SIGTERM)
-        head.wait(timeout=60)
+        stop_ray_node(head)
 
 
 def test_plain_ray_starts_its_own_instance_beside_a_running_cluster(record, running_cluster):
