@@ -27,7 +27,7 @@ from simreel.io.targets import staged_output
 from simreel.model.components import Tolerances
 from simreel.model.episode import Episode
 from simreel.model.meta import RecordingMeta
-from simreel.options.checks import is_whole_number, options_with
+from simreel.options.checks import check_flag, is_whole_number, options_with
 from simreel.sim.rebuild import GYM_MAKE_SEED, UNSEEDED_WITHOUT_STATES, reset_to_episode
 from simreel.sim.state import check_rebuilt_layout, read_state
 from simreel.sim.user_code import import_specs
@@ -92,6 +92,8 @@ class ViewOptions:
         block_steps: steps per block read from the files, compared and sent with `send_columns` (bounds the memory of
             observations and derived data); None: `simreel.formats.base.block_rows` of the recording (~4 MiB).
         imports: ``--import`` specs that register the task, used instead of those the recording names.
+        trust_recorded_imports: import the code the recording names (``--trust-recorded-imports``); without it, or
+            `imports`, only modules installed in this Python are (`simreel.sim.user_code.refuse_untrusted_imports`).
     """
 
     episode: int | None = None
@@ -102,9 +104,11 @@ class ViewOptions:
     tolerances: dict[str, float] | None = None
     block_steps: int | None = None
     imports: tuple[str, ...] = ()
+    trust_recorded_imports: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "imports", import_specs(self.imports))
+        check_flag("trust_recorded_imports", self.trust_recorded_imports)
 
     def check(self) -> Tolerances | None:
         """The tolerances asked for (None: none were; `judging_tolerances` then chooses); `UsageError` for a bad
@@ -129,18 +133,18 @@ class ViewOptions:
 
 
 def rebuild_env(meta: RecordingMeta, *, geometry: str = "auto", imports: Sequence[str] = (),
-                recording: str | Path | None = None) -> Any:
+                recording: str | Path | None = None, trust_recorded_imports: bool = False) -> Any:
     """The recorded env rebuilt for viewing: CPU sim, one sub-scene, state observations, no render mode.
 
     A render device is used when there is one (for visual meshes and colours) unless `geometry` is
     ``"collision"``, which builds the env without rendering (faster). The task's code is imported first:
-    `imports` (``--import``) if given, else the recorded imports, found also beside `recording` (its path)
-    (`simreel.sim.user_code.resolve_task_imports`).
+    `imports` (``--import``) if given, else the recorded imports with the user's word (`trust_recorded_imports`),
+    found also beside `recording` (its path) (`simreel.sim.user_code.resolve_task_imports`).
     """
     from simreel.sim.rebuild import env_from_meta, state_only_kwargs
     from simreel.sim.user_code import resolve_task_imports
 
-    found = resolve_task_imports(meta.imports, explicit=imports, recording=recording)
+    found = resolve_task_imports(meta.imports, explicit=imports, recording=recording, trust=trust_recorded_imports)
     return env_from_meta(
         dataclasses.replace(meta, imports=found),
         num_envs=1,
@@ -159,7 +163,6 @@ def check_rrd_target(path: str | Path, *, overwrite: bool, shown: Sequence[str |
     refuses (an existing file without `overwrite`, a missing folder unless `make_folder` makes it). Returns `path`."""
     from simreel.formats import recording_files
     from simreel.io.targets import check_distinct, check_output
-    from simreel.options.checks import check_flag
 
     check_flag("overwrite", overwrite)
     if Path(path).suffix.lower() != ".rrd":  # a name, not what Path makes of it: Path("") is "."
@@ -525,7 +528,8 @@ def _session(source: Source, env: Any, opts: ViewOptions, runs: tuple[EpisodeRun
     owns = env is None
     t1 = time.perf_counter()
     if env is None:
-        env = rebuild_env(runs[0].meta, geometry=opts.geometry, imports=opts.imports, recording=_source_path(source))
+        env = rebuild_env(runs[0].meta, geometry=opts.geometry, imports=opts.imports, recording=_source_path(source),
+                          trust_recorded_imports=opts.trust_recorded_imports)
     timings["env_s"] = time.perf_counter() - t1
     try:
         return _prepare(env, owns, opts, runs, timings)

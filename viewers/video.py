@@ -37,7 +37,7 @@ from simreel.model.episode import Episode
 from simreel.model.meta import RecordingMeta
 from simreel.model.selection import EpisodeSelection
 from simreel.options.checks import check_flag, options_with, whole_number_pair
-from simreel.sim.user_code import import_specs
+from simreel.sim.user_code import import_specs, refuse_untrusted_imports
 from simreel.viewers.compare import ViewComparison, compare_for_view, compared_role, judging_tolerances
 from simreel.viewers.session import states_by_stepping
 from simreel.viewers.sources import read_compare, read_run
@@ -69,6 +69,8 @@ class VideoOptions:
         overwrite: replace existing videos.
         imports: ``--import`` specs registering the task, used instead of the recorded ones (else those are found
             where `simreel.sim.user_code.resolve_task_imports` looks, beside the recording too).
+        trust_recorded_imports: import the code the recording names (``--trust-recorded-imports``); without it, or
+            `imports`, only modules installed in this Python are (`simreel.sim.user_code.refuse_untrusted_imports`).
     """
 
     episodes: EpisodeSelection | Sequence[int] | None = None
@@ -79,6 +81,7 @@ class VideoOptions:
     mode: str | None = None
     overwrite: bool = False
     imports: tuple[str, ...] = ()
+    trust_recorded_imports: bool = False
 
     def __post_init__(self) -> None:
         # ranges, whatever the numbers, as replay and convert keep them; text such as "0,3-7" is parsed
@@ -88,6 +91,7 @@ class VideoOptions:
     def check(self) -> None:
         """`UsageError` for options no recording could make work: a size, rate, mode or flag of the wrong kind."""
         check_flag("overwrite", self.overwrite)
+        check_flag("trust_recorded_imports", self.trust_recorded_imports)
         whole_number_pair("size", self.size, "(width, height), two even ints such as (256, 256)")
         if self.camera is not None and not isinstance(self.camera, str):
             raise UsageError(f"camera={self.camera!r}: give the name of a camera whose rgb images the recording holds")
@@ -163,6 +167,8 @@ class VideoRun:
                              f"{', '.join(have) or 'none'}); leave --camera out to render the recorded states")
         self._check_targets()
         if opts.camera is None:
+            refuse_untrusted_imports(self.meta.imports, explicit=opts.imports, trust=opts.trust_recorded_imports,
+                                     source=self.path)
             _check_render_device(path, have)
 
     def _check_targets(self) -> None:
@@ -307,7 +313,8 @@ class _FrameSource:
         self.close()
         kwargs = state_only_kwargs(self.meta)
         kwargs.update(render_mode="rgb_array", human_render_camera_configs={"width": size[0], "height": size[1]})
-        found = resolve_task_imports(self.meta.imports, explicit=self.options.imports, recording=self.path)
+        found = resolve_task_imports(self.meta.imports, explicit=self.options.imports, recording=self.path,
+                                     trust=self.options.trust_recorded_imports)
         self.env = env_from_meta(dataclasses.replace(self.meta, imports=found), num_envs=1, sim_backend="physx_cpu",
                                  obs_mode="none", render_backend="auto", env_kwargs=kwargs)
         self.size, self.scene_seed = size, GYM_MAKE_SEED

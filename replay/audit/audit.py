@@ -305,7 +305,8 @@ def _config(env_id: str | None, opts: AuditOptions) -> tuple[str, Any]:
         if env_id is not None and env_id != meta.env_id:
             raise UsageError(f"--trajectory {opts.trajectory} is a recording of {meta.env_id}, not of {env_id}")
         # the task's code as a replay finds it: an explicit --import wins, else the recorded specs, looked for
-        env_id, imports = meta.env_id, resolve_task_imports(meta.imports, explicit=imports, recording=opts.trajectory)
+        env_id, imports = meta.env_id, resolve_task_imports(meta.imports, explicit=imports, recording=opts.trajectory,
+                                                               trust=opts.trust_recorded_imports)
         env_kwargs = {k: v for k, v in meta.env_kwargs.items() if k != "render_mode"}
         config = EnvConfig.from_meta(meta).with_overrides(num_envs=1, obs_mode=opts.obs_mode, sim_backend="physx_cpu",
                                                           env_kwargs=env_kwargs)

@@ -13,7 +13,7 @@ from simreel.model.selection import EpisodeSelection
 from simreel.options.checks import function, mapping, parse_json_kwargs, path_text, text, whole
 from simreel.options.declare import check_options, documented, option
 from simreel.sim.seeds import check_seed_span
-from simreel.sim.user_code import IMPORTS, import_specs
+from simreel.sim.user_code import IMPORTS, TRUST_IMPORTS, import_specs
 
 __all__ = ["AuditOptions"]
 
@@ -31,6 +31,7 @@ class AuditOptions:
     ``--episodes`` either `episodes` (with a policy) or `trajectory_episodes` (with a trajectory)."""
 
     imports: tuple[str, ...] = option(default_factory=tuple, spec=IMPORTS, check=lambda name, value: import_specs(value))
+    trust_recorded_imports: bool = option(False, spec=TRUST_IMPORTS)
     steps: int = option(20, metavar="N", parse=int, help="random steps before the restore (default 20)",
                         check=whole("the number of random steps before the restore, an int >= 1"))
     seed: int = option(0, metavar="S", parse=int, help="seed of the first instance; the second uses S+1",

@@ -81,7 +81,7 @@ from simreel.replay.run.workers import (
     run_pool,
 )
 from simreel.replay.run.worklist import WorkItem
-from simreel.sim.user_code import resolve_task_imports
+from simreel.sim.user_code import refuse_untrusted_imports, resolve_task_imports
 from simreel.verdicts.compare import CompareScope
 from simreel.verdicts.scene_history import SceneChains, run_scenes
 
@@ -103,6 +103,8 @@ class ConvertJob:
     tolerances: Tolerances
     sim_backend: str | None = None
     imports: tuple[str, ...] = ()
+    trust_imports: bool = False
+    """``--trust-recorded-imports``: the input's recorded imports may be imported (`resolve_task_imports`)."""
     converter: Callable[..., Any] | None = None
     keep: tuple[str, ...] = ()
     output: ReplayOutput | None = None
@@ -154,8 +156,9 @@ class ConvertWorker:
         try:
             meta = self.reader.meta
             self.meta = dataclasses.replace(meta, imports=resolve_task_imports(meta.imports, explicit=job.imports,
-                                                                               recording=job.path))
-            self.replayer = ConvertingReplayer(meta, self._replayer_options())
+                                                                               recording=job.path,
+                                                                               trust=job.trust_imports))
+            self.replayer = ConvertingReplayer(self.meta, self._replayer_options())
             self.converter = self._converter() if job.control_mode else None
         except BaseException:
             self.close()
@@ -538,6 +541,8 @@ class ConversionRun:
 
     def _check_input(self, meta: RecordingMeta) -> None:
         opts = self.options
+        refuse_untrusted_imports(meta.imports, explicit=opts.imports, trust=opts.trust_recorded_imports,
+                                 source=self.path)
         if not meta.state_layout:
             raise UsageError(f"{self.path} holds no env_states: a conversion restores or is checked against the "
                              f"recorded states; {WITH_ENV_STATES}")
@@ -586,7 +591,8 @@ class ConversionRun:
         opts = self.options
         return ConvertJob(path=self.path, obs_mode=opts.obs_mode, control_mode=opts.control_mode,
                           env_kwargs=opts.env_kwargs(), tolerances=self.tolerances, sim_backend=opts.sim_backend,
-                          imports=tuple(opts.imports), converter=opts.converter, keep=tuple(opts.keep),
+                          imports=tuple(opts.imports), trust_imports=opts.trust_recorded_imports,
+                          converter=opts.converter, keep=tuple(opts.keep),
                           output=output, scratch=scratch, block_rows=opts.block_rows, scenes=self._scenes)
 
     @functools.cached_property

@@ -22,7 +22,7 @@ from simreel.options.checks import (
     whole_number_pair,
 )
 from simreel.options.declare import GivenOnce, check_options, documented, option
-from simreel.sim.user_code import IMPORTS, import_specs
+from simreel.sim.user_code import IMPORTS, TRUST_IMPORTS, import_specs
 from simreel.verdicts.options import TOL, parse_group_tolerance
 
 __all__ = ["ConvertOptions", "KEEP", "TRACKING_GROUPS"]
@@ -102,6 +102,7 @@ class ConvertOptions:
                           check=whole("the number of processes converting episodes, an int >= 1"))
     imports: tuple[str, ...] = option(default_factory=tuple, spec=IMPORTS,
                                       check=lambda name, value: import_specs(value))  # as given: a worker reads them
+    trust_recorded_imports: bool = option(False, spec=TRUST_IMPORTS)
     sim_backend: str | None = option(
         None, help="convert on this sim backend (physx_cpu for a GPU recording)",
         check=text('a sim backend as a string, e.g. "physx_cpu", or None (the recorded one)', optional=True))

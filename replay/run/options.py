@@ -13,7 +13,7 @@ from simreel.model.components import Tolerances
 from simreel.model.selection import EpisodeSelection, parse_index_ranges
 from simreel.options.checks import flag, mapping, path, text, whole
 from simreel.options.declare import GivenOnce, check_options, documented, names_tagged, option
-from simreel.sim.user_code import IMPORTS
+from simreel.sim.user_code import IMPORTS, TRUST_IMPORTS
 from simreel.verdicts.options import ATOL, TOL, mode_choices
 
 __all__ = ["ReplayOptions", "MODES", "VERDICT_OPTIONS", "json_value"]
@@ -64,6 +64,7 @@ class ReplayOptions:
                           check=whole("the number of processes (Ray actors with ray) replaying episodes, an int "
                                       ">= 1"))
     imports: tuple[str, ...] = option(default_factory=tuple, spec=IMPORTS, tags=["verdict"])
+    trust_recorded_imports: bool = option(False, spec=TRUST_IMPORTS, tags=["execution"])
     sim_backend: str | None = option(None, tags=["verdict"],
                                      help="replay on another sim backend than the recorded one (physx_cpu, "
                                           "physx_cuda); a GPU recording on a machine without CUDA: physx_cpu "

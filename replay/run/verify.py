@@ -61,7 +61,7 @@ from simreel.replay.run.worklist import (
     build_worklist,
     chain_groups,
 )
-from simreel.sim.user_code import import_user_code, recorded_spec
+from simreel.sim.user_code import import_user_code, recorded_spec, refuse_untrusted_imports
 
 __all__ = ["ReplayOptions", "ReplayRun", "verify_recording"]
 
@@ -111,6 +111,7 @@ class ReplayRun:
             raise UsageError(f"{self.inputs[0]}: the recording has no episodes to replay")
         if opts.episodes and logged is None and self.worklist.readable and not self.worklist.items:
             raise UsageError(f"--episodes {opts.episodes}: none of the recordings has any of these episodes")
+        self._refuse_untrusted_imports()
         for spec in opts.imports:  # a bad --import is one line now, not an error for every episode
             import_user_code(spec)
 
@@ -118,7 +119,7 @@ class ReplayRun:
     def resume(cls, report: str | Path, **execution: Any) -> ReplayRun:
         """Continue the run that wrote `report`, with its inputs and verdict options; `execution` may change how it
         runs (workers, ray, ship, command), not what decides a verdict."""
-        allowed = {"workers", "ray", "ship", "command"}
+        allowed = {"workers", "ray", "ship", "trust_recorded_imports", "command"}
         if set(execution) - allowed:
             raise UsageError(f"a resumed run takes its options from the report; only {', '.join(sorted(allowed))} "
                              f"may change, not {', '.join(sorted(set(execution) - allowed))}")
@@ -173,6 +174,16 @@ class ReplayRun:
             check_report_writable(self.report_json, overwrite=opts.overwrite, side_paths=[self.report_log],
                                   option="--report")
 
+    def _refuse_untrusted_imports(self) -> None:
+        """One line before any work where this run would import code that came with its data without the user's
+        word: the imports of a report it resumes, or those a recording names (`refuse_untrusted_imports`)."""
+        opts = self.options
+        trust = opts.trust_recorded_imports
+        if opts.resume:
+            refuse_untrusted_imports(opts.imports, trust=trust, source=self.report_json, what="report")
+        for f in self.worklist.readable:
+            refuse_untrusted_imports(f.meta.imports, explicit=opts.imports, trust=trust, source=f.path)
+
     def _check_unchanged(self, logged: LoggedRun) -> None:
         """A resumed run must replay the files the report began with, every one of them, not newer versions."""
         for path, then in logged.files.items():
@@ -203,7 +214,8 @@ class ReplayRun:
     def _job(self, scratch: str | None = None) -> ReplayJob:
         opts = self.options
         return ReplayJob(mode=opts.mode, resync=opts.resync, tolerances=self.tolerances, obs_mode=opts.obs_mode,
-                         sim_backend=opts.sim_backend, output=opts.output, imports=opts.imports, scratch=scratch)
+                         sim_backend=opts.sim_backend, output=opts.output, imports=opts.imports,
+                         trust_imports=opts.trust_recorded_imports, scratch=scratch)
 
     def execute(self, progress: Progress | None = None) -> RunTally:
         """Replay every episode of the work list, calling `progress` as each finishes; returns the run's tally
@@ -256,8 +268,9 @@ class ReplayRun:
             return f"run it again{advice} (with --report, a stopped run keeps its verdicts for --resume)"
         if not self._report_begun:  # stopped while it started: a file there now is not this run's
             return f"{self.report_json} was not begun (no episode had its verdict yet): run it again{advice}"
+        trust = " --trust-recorded-imports" if self.options.imports or self.options.trust_recorded_imports else ""
         return (f"{self.tally.total} of {self.tally.planned} episodes have their verdict in {self.report_json}; "
-                f"finish with: simreel replay --resume {self.report_json}{advice}")
+                f"finish with: simreel replay --resume {self.report_json}{trust}{advice}")
 
     def _write_report(self, ended: bool) -> None:
         """Write REPORT.json from the lines. When the run ended well, a storage error doing so is the run's one line

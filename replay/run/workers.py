@@ -95,6 +95,8 @@ class ReplayJob:
     None: such an episode is collected whole and returned (a Ray actor, which may not share this file system)."""
     imports: tuple[str, ...] = ()
     """`--import` specs given now: used instead of the recorded ones (`resolve_task_imports`)."""
+    trust_imports: bool = False
+    """``--trust-recorded-imports``: the recorded ones may be imported (`resolve_task_imports`)."""
     block_rows: int | None = None
     """Steps read, replayed and compared at a time (None: the reader's `simreel.formats.base.block_rows`)."""
 
@@ -109,7 +111,7 @@ class ReplayJob:
         """The metadata of the recording at `path` with its task's code found: the job's `--import`s, else the
         recorded ones, looked for where `resolve_task_imports` looks."""
         return dataclasses.replace(meta, imports=resolve_task_imports(meta.imports, explicit=self.imports,
-                                                                      recording=path))
+                                                                      recording=path, trust=self.trust_imports))
 
     def open_worker(self) -> ReplayWorker:
         """The worker a pool process runs this job in (`run_pool` calls it in each process)."""

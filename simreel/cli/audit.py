@@ -44,7 +44,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace the --json file if it exists")
     add_arguments(p, AuditOptions, only=["control_mode", "obs_mode", "reward_mode", "env_kwargs"])
     p.add_argument("-q", "--quiet", action="store_true", help="print only the findings")
-    add_arguments(p, AuditOptions, only=["imports"])
+    add_arguments(p, AuditOptions, only=["imports", "trust_recorded_imports"])
     p.set_defaults(run=run)
 
 

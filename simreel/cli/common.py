@@ -11,7 +11,7 @@ from simreel.errors import UsageError
 from simreel.model.selection import parse_index_ranges
 from simreel.options.checks import parse_json_kwargs, parse_size
 from simreel.options.declare import GivenOnce, add_option
-from simreel.sim.user_code import IMPORTS
+from simreel.sim.user_code import IMPORTS, TRUST_IMPORTS
 from simreel.verdicts.options import ATOL, TOL, mode_choices, parse_group_tolerance, parse_tolerance
 
 __all__ = ["add_env_options", "env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
@@ -62,8 +62,12 @@ class _LogLines:
         self._stream.flush()
 
 
-def add_import_option(p: argparse.ArgumentParser) -> None:
+def add_import_option(p: argparse.ArgumentParser, *, reads_recordings: bool = False) -> None:
+    """``--import``; with `reads_recordings` (a command that rebuilds a recording's env) ``--trust-recorded-imports``
+    too."""
     add_option(p, "imports", IMPORTS, [])
+    if reads_recordings:
+        add_option(p, "trust_recorded_imports", TRUST_IMPORTS, False)
 
 
 def add_env_options(p: argparse.ArgumentParser) -> None:

@@ -42,11 +42,11 @@ def add_parser(sub: Any) -> None:
     add_arguments(g, ConvertOptions, only=[n for n in cli_names(ConvertOptions) if n not in _EVERY_CONVERT])
     g.add_argument("--report", default=None, metavar="REPORT.json", help="write the JSON report here (per-step errors)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    add_arguments(p, ConvertOptions, only=["imports"])
+    add_arguments(p, ConvertOptions, only=["imports", "trust_recorded_imports"])
     p.set_defaults(run=run)
 
 
-_EVERY_CONVERT = ("overwrite", "imports")
+_EVERY_CONVERT = ("overwrite", "imports", "trust_recorded_imports")
 """The `ConvertOptions` a lossless copy takes too (the rest are the conversion's group)."""
 _COPY_IGNORES = ("workers",)
 """A conversion option a copy takes without a word (it runs in one process)."""
@@ -86,7 +86,8 @@ def _link_poses(args: argparse.Namespace) -> Callable[[Any], Any]:
         from simreel.datasets.poses import LinkPoses
         from simreel.sim.user_code import resolve_task_imports
 
-        found = resolve_task_imports(meta.imports, explicit=args.imports, recording=args.input)
+        found = resolve_task_imports(meta.imports, explicit=args.imports, recording=args.input,
+                                     trust=args.trust_recorded_imports)
         poses = LinkPoses(dataclasses.replace(meta, imports=found))
         poses.meta.imports = list(meta.imports)  # OUT keeps what IN recorded, as a copy does
         return poses

@@ -54,9 +54,9 @@ def _build_run(args: argparse.Namespace) -> Any:
         if args.paths or changed:
             what = "PATH" if args.paths else changed[0]
             raise UsageError(f"--resume takes the recordings and options from the report; drop {what} (only "
-                             "--workers, --ray, --ship and -q may change)")
+                             "--workers, --ray, --ship, --trust-recorded-imports and -q may change)")
         return ReplayRun.resume(args.resume, workers=args.workers, ray=args.ray, ship=args.ship,
-                                command=args.command_line)
+                                trust_recorded_imports=args.trust_recorded_imports, command=args.command_line)
     if not args.paths:
         raise UsageError("name the recordings to replay (files, folders, patterns), or --resume REPORT.json")
     options = from_arguments(ReplayOptions, args, command=args.command_line)

@@ -46,7 +46,7 @@ def add_parser(sub: Any) -> None:
                         "it was written, any other file with actions'")
     p.add_argument("--overwrite", action="store_true", help="replace existing videos")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    add_import_option(p)
+    add_import_option(p, reads_recordings=True)
     p.set_defaults(run=run)
 
 
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     size = args.size or ((512, 256) if args.compare else (256, 256))
     options = VideoOptions(episodes=episodes, compare=args.compare, size=size,
                            camera=args.camera, fps=args.fps, mode=args.mode, overwrite=args.overwrite,
-                           imports=tuple(args.imports))
+                           imports=tuple(args.imports), trust_recorded_imports=args.trust_recorded_imports)
     videos = VideoRun(args.path, args.output, options)  # bad files, episodes and targets fail here
     try:
         with progress_bar(quiet=args.quiet, total=videos.frames, unit="frame", desc="video") as bar:

@@ -53,7 +53,7 @@ def add_parser(sub: Any) -> None:
                    help="steps read and logged per block; bounds memory on long episodes (default: about 4 MiB of "
                         "rows)")
     p.add_argument("--overwrite", action="store_true", help="replace the .rrd file if it exists")
-    add_import_option(p)
+    add_import_option(p, reads_recordings=True)
     p.set_defaults(run=run)
 
 
@@ -237,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
 
     options = ViewOptions(episode=episode, compare=args.compare, geometry=args.geometry, mode=args.mode,
                           atol=args.atol, tolerances=dict(args.tol) or None, block_steps=args.block_steps,
-                          imports=tuple(args.imports))
+                          imports=tuple(args.imports), trust_recorded_imports=args.trust_recorded_imports)
     t0 = time.perf_counter()
     with build_session(args.path, options) as session:
         if args.geometry == "visual" and session.geometry_source != "visual":

@@ -74,9 +74,11 @@ def state_only_kwargs(meta: RecordingMeta) -> dict[str, Any]:
 
 
 def import_task_code(meta: RecordingMeta) -> None:
-    """Import ``meta.imports`` (the user code registering the recorded task), as `env_from_meta` does first."""
-    from simreel.sim.user_code import import_user_code
+    """Import ``meta.imports`` (the user code registering the recorded task), as `env_from_meta` does first: only
+    specs the user gave their word for (`simreel.sim.user_code.refuse_unvetted_imports`)."""
+    from simreel.sim.user_code import import_user_code, refuse_unvetted_imports
 
+    refuse_unvetted_imports(meta.imports)
     for spec in meta.imports:
         import_user_code(spec)
 

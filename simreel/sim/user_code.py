@@ -2,9 +2,13 @@
 quietly; find a recording's imports again wherever it is replayed.
 
 A recording stores its ``--import`` specs (`recorded_spec`: a file by its absolute path, a module by its name).
-Rebuilding its env imports them again (`resolve_task_imports`): an ``--import`` given now wins; otherwise each
-recorded spec is looked for at its absolute path, beside the recording, in the current folder and as a module,
-and a spec found nowhere is one error line naming every place tried.
+Rebuilding its env imports them again (`resolve_task_imports`) only with the user's word, since a recording is data
+that may come from anywhere and its code runs as the user: an ``--import`` given now wins; a recorded module
+installed in this Python (found on ``sys.path``, not in the current folder nor beside the recording) is imported
+as installed code is; any other recorded spec needs ``--trust-recorded-imports`` (or ``SIMREEL_TRUST_RECORDED_IMPORTS=1``),
+and without it the command stops with one line naming what the recording asks to import. Trusted, each recorded
+spec is looked for at its absolute path, beside the recording, in the current folder and as a module, and a spec
+found nowhere is one error line naming every place tried.
 
 mani_skill (~3 s to import) and sapien are imported inside the functions here, never at module level.
 """
@@ -13,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import importlib.machinery
 import importlib.util
 import os
 import sys
@@ -26,15 +31,24 @@ from typing import Any
 from simreel.errors import EnvBuildError, TaskCodeError, UsageError
 from simreel.io.durable import deferred_signals
 from simreel.io.paths import SYMLINK_LOOP, is_symlink_loop, real_path
-from simreel.options.checks import text_tuple
+from simreel.options.checks import flag, text_tuple
 from simreel.options.declare import Option
 from simreel.sim.render_device import configure_vulkan
 
 __all__ = ["import_specs", "found_spec", "import_user_code", "imported_user_code", "import_mani_skill", "native_import",
-           "recorded_spec", "resolve_task_imports", "task_code_error"]
+           "recorded_spec", "resolve_task_imports", "refuse_untrusted_imports", "refuse_unvetted_imports",
+           "trusts_recorded_imports",
+           "task_code_error", "IMPORTS", "TRUST_IMPORTS", "TRUST_VARIABLE"]
 
 _IMPORTED: dict[str, str] = {}
 """Every spec `import_user_code` imported in this process, in order, and the name of the module it gave."""
+
+_ADDED_TO_SYS_PATH: set[str] = set()
+"""The folders simreel put on ``sys.path`` (an imported file's, a recording's): not where installed modules are."""
+
+_VETTED: set[str] = set()
+"""The specs `resolve_task_imports` returned in this process: the user's ``--import``, or recorded ones the user
+trusts; `refuse_unvetted_imports` lets a rebuilt env import these."""
 
 
 def import_mani_skill() -> None:
@@ -120,6 +134,59 @@ IMPORTS = Option(
 resumed run, or a worker, may work in another folder)."""
 
 
+TRUST_VARIABLE = "SIMREEL_TRUST_RECORDED_IMPORTS"
+"""Set to 1: every command trusts the code recordings and reports name, as ``--trust-recorded-imports`` does."""
+
+TRUST_IMPORTS = Option(
+    help="import the task code a recording (or a resumed report) names, without an --import of your own: only for "
+         f"data you trust, since that code runs as you (or set {TRUST_VARIABLE}=1). Modules installed in this Python "
+         "are imported without it",
+    flags=("--trust-recorded-imports",), action="store_true", check=flag())
+"""``--trust-recorded-imports``, declared once for every command that rebuilds a recording's env."""
+
+
+def trusts_recorded_imports(given: bool = False) -> bool:
+    """Whether the code a recording names may be imported: `given` (``--trust-recorded-imports``), or
+    `TRUST_VARIABLE` set to anything but empty or 0."""
+    return bool(given) or os.environ.get(TRUST_VARIABLE, "").strip() not in ("", "0")
+
+
+def refuse_untrusted_imports(recorded: Sequence[str], *, explicit: Sequence[str] = (), trust: bool = False,
+                             source: str | Path | None = None, what: str = "recording") -> None:
+    """`UsageError` (one line, exit 2) where `recorded` (the specs a recording or a report at `source` names) would
+    be imported without the user's word: no ``--import`` given now (`explicit`), no trust given
+    (`trusts_recorded_imports`), and a spec that is not a module installed in this Python (`_installed_module`)."""
+    if explicit or trusts_recorded_imports(trust):
+        return
+    folder = Path(source).absolute().parent if source is not None else None
+    asked = [spec for spec in recorded if not _installed_module(spec, folder)]
+    if asked:
+        where = f"{source}: the {what}" if source is not None else f"the {what}"
+        raise UsageError(f"{where} asks to import {', '.join(asked)}, code that came with the data and would run as "
+                         f"you; pass --import with the task code you trust (e.g. --import {asked[0]}), or "
+                         f"--trust-recorded-imports (or {TRUST_VARIABLE}=1) if you trust where it came from")
+
+
+def _installed_module(spec: str, folder: Path | None) -> bool:
+    """Whether `spec` names a module installed in this Python: found on ``sys.path`` leaving out the current folder
+    and `folder` (the recording's), where anybody's data can put a file of that name."""
+    if _is_path(spec) or not all(part.isidentifier() for part in spec.split(".")):
+        return False
+    top = spec.partition(".")[0]
+    if top in sys.builtin_module_names:
+        return True
+    untrusted = {os.path.realpath(p) for p in [os.getcwd(), *_ADDED_TO_SYS_PATH, *([folder] if folder else [])]}
+    installed = [p for p in sys.path if p and os.path.realpath(p) not in untrusted]
+    for finder in sys.meta_path:  # the path finder, and those installed packages bring (an editable install's)
+        if finder is importlib.machinery.PathFinder:
+            found = finder.find_spec(top, installed)
+        else:
+            found = getattr(finder, "find_spec", lambda *_: None)(top, None)
+        if found is not None:
+            return True
+    return False
+
+
 def recorded_spec(spec: str, *, base: str | Path | None = None) -> str:
     """An ``--import`` spec as a recording stores it: a file by its absolute path (a relative path would name
     the file only from the folder it was recorded in), a module by its name. `base`: the folder a relative path
@@ -145,19 +212,32 @@ def found_spec(spec: str) -> str:
 
 
 def resolve_task_imports(recorded: Sequence[str], *, explicit: Sequence[str] = (),
-                         recording: str | Path | None = None) -> list[str]:
+                         recording: str | Path | None = None, trust: bool = False) -> list[str]:
     """The ``--import`` specs that register a recording's task here, each importable as it is.
 
-    `explicit` (``--import`` given now) wins: when there is any, the recorded specs are not used. Otherwise each
-    recorded spec is found: a file at its recorded path if absolute, else beside `recording` (the recording's
+    `explicit` (``--import`` given now) wins: when there is any, the recorded specs are not used. Otherwise the
+    recorded specs are used only with the user's word (`refuse_untrusted_imports`: `trust`, or installed modules),
+    and each is found: a file at its recorded path if absolute, else beside `recording` (the recording's
     path), under its own name beside `recording`, in the current folder, or as the module named after it; a
     module on ``sys.path``, in the current folder or beside `recording`. Raises `EnvBuildError` for a spec found
     nowhere, naming every place tried and the ``--import`` that fixes it.
     """
     if explicit:
-        return [recorded_spec(spec) for spec in explicit]
-    folder = Path(recording).absolute().parent if recording is not None else None
-    return [_find_file(spec, folder) if _is_path(spec) else _find_module(spec, folder) for spec in recorded]
+        found = [recorded_spec(spec) for spec in explicit]
+    else:
+        refuse_untrusted_imports(recorded, trust=trust, source=recording)
+        folder = Path(recording).absolute().parent if recording is not None else None
+        found = [_find_file(spec, folder) if _is_path(spec) else _find_module(spec, folder) for spec in recorded]
+    _VETTED.update(found)
+    return found
+
+
+def refuse_unvetted_imports(specs: Sequence[str]) -> None:
+    """`UsageError` where a recording's env would be rebuilt importing a spec the user gave no word for: not found
+    by `resolve_task_imports` in this process (the user's ``--import``, or trusted recorded imports), not a module
+    installed in this Python, and `TRUST_VARIABLE` not set. The last guard of every rebuilt env
+    (`simreel.sim.rebuild.import_task_code`), for a caller that passes a recording's metadata as it was read."""
+    refuse_untrusted_imports([spec for spec in specs if spec not in _VETTED])
 
 
 def _is_path(spec: str) -> bool:
@@ -187,7 +267,7 @@ def _find_module(spec: str, folder: Path | None) -> str:
     top = spec.partition(".")[0]
     beside = [folder / f"{top}.py", folder / top / "__init__.py"] if folder is not None else []
     if any(p.is_file() for p in beside):
-        sys.path.append(str(folder))
+        _add_to_sys_path(str(folder), first=False)
         return spec
     raise _not_found(spec, [f"module {spec} on sys.path and in {os.getcwd()}", *map(str, beside[:1])],
                      f"{top}.py")
@@ -207,6 +287,16 @@ def _module_found(name: str) -> bool:
         return False
     except Exception:  # noqa: BLE001 - a parent package that fails to import: import_user_code says how
         return True
+
+
+def _add_to_sys_path(folder: str, *, first: bool) -> None:
+    _ADDED_TO_SYS_PATH.add(folder)
+    if folder in sys.path:
+        return
+    if first:
+        sys.path.insert(0, folder)
+    else:
+        sys.path.append(folder)
 
 
 def _cwd_on_sys_path() -> None:
@@ -246,9 +336,7 @@ def _import_file(path: Path) -> ModuleType:
     module_spec = importlib.util.spec_from_file_location(name, path)
     if module_spec is None or module_spec.loader is None:
         raise EnvBuildError(f"--import {path}: cannot be imported as a Python module")
-    folder = str(path.parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
+    _add_to_sys_path(str(path.parent), first=True)
     module = importlib.util.module_from_spec(module_spec)
     sys.modules[name] = module
     try:

@@ -50,7 +50,7 @@ def test_a_custom_task_recording_replays_from_another_folder(recorded, tmp_path)
     """The recording names its task file by its absolute path, so it replays from anywhere on this machine."""
     done = _simreel(tmp_path, "inspect", str(recorded))
     assert f"imports    {recorded.parent / 'my_tasks.py'}" in done.stdout
-    done = _simreel(tmp_path, "replay", str(recorded), "-q")
+    done = _simreel(tmp_path, "replay", str(recorded), "-q", "--trust-recorded-imports")
     assert done.returncode == 0, done.stderr
     assert "1 of 1 episode(s) verified (1 exact" in done.stdout
 
@@ -68,11 +68,11 @@ def moved(recorded, tmp_path) -> Path:
 def test_a_moved_recording_finds_its_task_beside_it_or_is_told_where(recorded, moved, tmp_path):
     """Recording and task moved together: found beside the recording. Task moved elsewhere: one line naming
     what was tried, exit 2; an explicit --import, which wins over the recorded one, makes it replay."""
-    done = _simreel(tmp_path, "replay", "moved/run.h5", "-q")
+    done = _simreel(tmp_path, "replay", "moved/run.h5", "-q", "--trust-recorded-imports")
     assert done.returncode == 0, done.stderr
     (tmp_path / "lib").mkdir()
     (moved / "my_tasks.py").rename(tmp_path / "lib" / "my_tasks.py")
-    done = _simreel(tmp_path, "replay", "moved/run.h5", "-q")
+    done = _simreel(tmp_path, "replay", "moved/run.h5", "-q", "--trust-recorded-imports")
     assert done.returncode == 2
     assert done.stderr.splitlines() == [
         f"simreel replay: error: the recording's --import {recorded.parent}/my_tasks.py is not found here "

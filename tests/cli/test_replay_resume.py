@@ -94,7 +94,7 @@ def test_resume_from_another_folder_imports_what_the_run_imported(folder, tmp_pa
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)
-    assert main(["replay", "--resume", str(report), "-q"]) == 0, capsys.readouterr()
+    assert main(["replay", "--resume", str(report), "-q", "--trust-recorded-imports"]) == 0, capsys.readouterr()
     doc = json.loads(report.read_text())
     assert doc["ok"] is True and {e["verdict"] for e in doc["episodes"]} == {"exact"}
 

@@ -125,7 +125,8 @@ def test_a_task_whose_code_changed_since_the_recording_is_named(tmp_path):
     assert main(["record", "SimreelTestScaledReward-v1", "--import", str(task), "-n", "1", "--max-steps", "5",
                  "-o", str(recording), "-q"]) == 0
     task.write_text(REWARD_TASK.format(scale=1.5))
-    done = subprocess.run([sys.executable, "-m", "simreel", "replay", str(recording), "-q"], capture_output=True,
+    done = subprocess.run([sys.executable, "-m", "simreel", "replay", str(recording), "-q",
+                           "--trust-recorded-imports"], capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 1, done.stdout + done.stderr
     assert "why: the replaying scene differs from the recorded one (task code ScaledReward: source file hash" \

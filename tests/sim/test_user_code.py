@@ -99,18 +99,18 @@ def layout(tmp_path, monkeypatch):
 )
 def test_recorded_files_are_found_from_another_folder(layout, recorded, found):
     spec = recorded.format(t=layout)
-    assert resolve_task_imports([spec], recording=layout / "rec" / "run.h5") == [found.format(t=layout)]
+    assert resolve_task_imports([spec], recording=layout / "rec" / "run.h5", trust=True) == [found.format(t=layout)]
 
 
 def test_a_recorded_file_found_nowhere_may_be_a_module_on_sys_path(layout, monkeypatch):
     monkeypatch.syspath_prepend(str(layout / "lib"))
-    assert resolve_task_imports([f"{layout}/gone/other_tasks.py"], recording=layout / "rec" / "run.h5") == [
-        "other_tasks"]
+    assert resolve_task_imports([f"{layout}/gone/other_tasks.py"], recording=layout / "rec" / "run.h5",
+                                trust=True) == ["other_tasks"]
 
 
 def test_a_recorded_module_is_found_beside_the_recording(layout, monkeypatch):
     monkeypatch.setattr(sys, "path", list(sys.path))
-    assert resolve_task_imports(["my_tasks"], recording=layout / "rec" / "run.h5") == ["my_tasks"]
+    assert resolve_task_imports(["my_tasks"], recording=layout / "rec" / "run.h5", trust=True) == ["my_tasks"]
     assert str(layout / "rec") in sys.path  # so that import_user_code("my_tasks") finds it
 
 
@@ -123,17 +123,66 @@ def test_an_explicit_import_wins_over_the_recorded_ones(layout):
 
 def test_a_recorded_import_found_nowhere_names_every_place_tried(layout):
     with pytest.raises(EnvBuildError) as caught:
-        resolve_task_imports([f"{layout}/gone/lost_tasks.py"], recording=layout / "rec" / "run.h5")
+        resolve_task_imports([f"{layout}/gone/lost_tasks.py"], recording=layout / "rec" / "run.h5", trust=True)
     assert str(caught.value) == (
         f"the recording's --import {layout}/gone/lost_tasks.py is not found here (tried {layout}/gone/lost_tasks.py, "
         f"{layout}/rec/lost_tasks.py, module lost_tasks on sys.path); pass --import with where it is now, e.g. "
         "--import PATH/TO/lost_tasks.py")
     with pytest.raises(EnvBuildError) as caught:
-        resolve_task_imports(["lost_tasks_module"], recording=layout / "rec" / "run.h5")
+        resolve_task_imports(["lost_tasks_module"], recording=layout / "rec" / "run.h5", trust=True)
     assert str(caught.value) == (
         f"the recording's --import lost_tasks_module is not found here (tried module lost_tasks_module on sys.path "
         f"and in {layout}/elsewhere, {layout}/rec/lost_tasks_module.py); pass --import with where it is now, e.g. "
         "--import PATH/TO/lost_tasks_module.py")
+
+
+def test_a_recordings_code_is_imported_only_with_the_users_word(layout, monkeypatch):
+    """A recording is data that may come from anywhere: the code it names (a file, or a module beside it or in the
+    current folder, where anybody's dataset can put one) was imported by every command that rebuilt its env. Now
+    only with an --import, --trust-recorded-imports or SIMREEL_TRUST_RECORDED_IMPORTS=1; otherwise one line."""
+    monkeypatch.delenv("SIMREEL_TRUST_RECORDED_IMPORTS", raising=False)
+    recording = layout / "rec" / "run.h5"
+    (layout / "elsewhere" / "cwd_tasks.py").write_text("")
+    for recorded in ([str(layout / "rec" / "my_tasks.py")], ["my_tasks"], ["cwd_tasks"],
+                     [f"{layout}/gone/my_tasks.py"]):
+        with pytest.raises(UsageError) as refused:
+            resolve_task_imports(recorded, recording=recording)
+        assert str(refused.value) == (
+            f"{recording}: the recording asks to import {recorded[0]}, code that came with the data and would run as "
+            f"you; pass --import with the task code you trust (e.g. --import {recorded[0]}), or "
+            "--trust-recorded-imports (or SIMREEL_TRUST_RECORDED_IMPORTS=1) if you trust where it came from")
+    assert resolve_task_imports(["my_tasks"], recording=recording, trust=True) == ["my_tasks"]
+    monkeypatch.setenv("SIMREEL_TRUST_RECORDED_IMPORTS", "1")
+    assert resolve_task_imports(["cwd_tasks"], recording=recording) == ["cwd_tasks"]
+    monkeypatch.setenv("SIMREEL_TRUST_RECORDED_IMPORTS", "0")
+    with pytest.raises(UsageError):
+        resolve_task_imports(["cwd_tasks"], recording=recording)
+
+
+def test_a_module_installed_in_this_python_is_imported_as_installed_code_is(layout, monkeypatch):
+    """Installing a package was the user's word; a module of the same name planted beside the recording is not."""
+    monkeypatch.delenv("SIMREEL_TRUST_RECORDED_IMPORTS", raising=False)
+    recording = layout / "rec" / "run.h5"
+    assert resolve_task_imports(["simreel.tasks", "json"], recording=recording) == ["simreel.tasks", "json"]
+    monkeypatch.syspath_prepend(str(layout / "lib"))  # as PYTHONPATH or an installed package would put it
+    assert resolve_task_imports(["other_tasks"], recording=recording) == ["other_tasks"]
+    monkeypatch.syspath_prepend(str(layout / "rec"))  # the recording's folder on sys.path does not make it installed
+    with pytest.raises(UsageError, match="asks to import my_tasks,"):
+        resolve_task_imports(["my_tasks"], recording=recording)
+
+
+def test_a_rebuilt_env_imports_only_code_the_user_gave_their_word_for(tmp_path, monkeypatch):
+    """The last guard, for Python callers that pass a recording's metadata as read (`env_from_meta`)."""
+    from simreel.model.meta import RecordingMeta
+    from simreel.sim.rebuild import env_from_meta
+
+    monkeypatch.delenv("SIMREEL_TRUST_RECORDED_IMPORTS", raising=False)
+    planted = tmp_path / "planted_tasks.py"
+    planted.write_text(f"open({str(tmp_path / 'ran')!r}, 'w').close()\n")
+    meta = RecordingMeta(env_id="PickCube-v1", imports=[str(planted)])
+    with pytest.raises(UsageError, match=f"the recording asks to import {planted}, code that came with the data"):
+        env_from_meta(meta)
+    assert not (tmp_path / "ran").exists()
 
 
 def test_a_relative_import_is_kept_from_the_folder_it_was_given_in(tmp_path):
@@ -185,10 +234,10 @@ def test_an_error_raised_in_the_users_task_code_is_one_line_naming_its_line_not_
     assert clean.returncode == 0, clean.stderr
     for args in (("record", env_id, "--import", str(task), "-o", "b.h5", "--max-steps", "6", "-q"),
                  ("audit", env_id, "--import", str(task)),
-                 ("replay", "ds/a.h5", "-q")):
+                 ("replay", "ds/a.h5", "--trust-recorded-imports", "-q")):
         done = run(*args)
         assert (done.returncode, done.stderr.splitlines()[-1]) == (2, f"simreel {args[0]}: error: {said}"), args
-    dataset = run("replay", "ds", "-q")
+    dataset = run("replay", "ds", "--import", str(task), "-q")
     assert dataset.returncode == 2, dataset.stderr
     assert dataset.stdout.count(f"error             {said}") == 2
     assert "2 could not be replayed" in dataset.stdout

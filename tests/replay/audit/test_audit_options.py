@@ -66,7 +66,7 @@ def _policy(env, obs):
         ({"every": True, "policy": _policy}, "every=True: give the number of steps between two restores along a "
                                              "trajectory, an int >= 1"),  # was: taken as 1
         ({"every": 3}, "--every 3 restores along a trajectory: give one (--trajectory or --policy)"),  # was: ignored
-        ({"bogus": 1}, "bogus=1: give only the options AuditOptions has: imports, steps, seed, control_mode, obs_mode, "
+        ({"bogus": 1}, "bogus=1: give only the options AuditOptions has: imports, trust_recorded_imports, steps, seed, control_mode, obs_mode, "
                        "reward_mode, env_kwargs, trajectory, trajectory_episodes, policy, policy_name, episodes, "
                        "every"),  # was: TypeError AuditOptions.__init__() got an unexpected keyword argument
     ],

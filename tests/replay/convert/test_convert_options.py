@@ -57,7 +57,7 @@ def test_an_option_of_the_wrong_type_is_one_usage_error_when_the_options_are_bui
                                   'e.g. ConversionRun(src, dst, obs_mode="rgb")'),  # was: TypeError from replace()
         (None, {"obs_mode": "rgb", "camera": 5}, "camera=5: give only the options ConvertOptions has: obs_mode, "
                                                  "control_mode, camera_size, shader, episodes, count, keep, "
-                                                 "group_tolerances, workers, imports, sim_backend, overwrite, command, "
+                                                 "group_tolerances, workers, imports, trust_recorded_imports, sim_backend, overwrite, command, "
                                                  "converter, block_rows"),  # was: TypeError naming its __init__
     ],
     ids=["options-dict", "unknown"],

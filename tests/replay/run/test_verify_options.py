@@ -99,7 +99,7 @@ def test_a_keyword_that_is_no_option_is_one_usage_error_naming_the_options(tmp_p
     with pytest.raises(UsageError) as refused:  # was: TypeError ReplayOptions.__init__() got an unexpected keyword
         ReplayRun("a.h5", atoll=0.1)
     assert str(refused.value) == ("atoll=0.1: give only the options ReplayOptions has: mode, resync, episodes, atol, "
-                                  "group_tolerances, output, overwrite, obs_mode, workers, imports, sim_backend, "
+                                  "group_tolerances, output, overwrite, obs_mode, workers, imports, trust_recorded_imports, sim_backend, "
                                   "command, report, resume, ray, ship")
     assert list(tmp_path.iterdir()) == []
 
