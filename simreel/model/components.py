@@ -185,13 +185,12 @@ def _rows(a: np.ndarray) -> np.ndarray:
 
 
 def abs_diff(rec: np.ndarray, rep: np.ndarray) -> np.ndarray:
-    """|rec - rep|, 0 where both hold the same value (the same infinity included) or both NaN, inf where only one
-    is NaN or the infinities differ."""
+    """|rec - rep|; inf where either side is not finite (NaN or an infinity), whatever the other holds: no simulated
+    quantity is, and a NaN restored into a static or kinematic body reads back as the same NaN, which is no proof
+    that the replay reproduces anything."""
     with np.errstate(invalid="ignore"):
         d = np.abs(rec - rep)
-    same = (rec == rep) | (np.isnan(rec) & np.isnan(rep))
-    d = np.where(same, 0.0, d)
-    return np.where(np.isnan(d), np.inf, d)
+    return np.where(np.isfinite(rec) & np.isfinite(rep), d, np.inf)
 
 
 def component_error(recorded: np.ndarray, replayed: np.ndarray, comp: Component | None = None) -> np.ndarray:
@@ -222,11 +221,13 @@ def _off_unit(norms: np.ndarray) -> np.ndarray:
 
 
 def identical_error(rows: np.ndarray, comp: Component) -> np.ndarray:
-    """Per-row error of `comp` where both sides hold `rows`: 0, but inf where a quaternion is no rotation (what
-    `component_error` gives there, without comparing anything)."""
-    if not comp.quat:
-        return np.zeros(rows.shape[0])
-    return np.where(not_rotations(_rows(rows)[:, comp.start : comp.stop]), np.inf, 0.0)
+    """Per-row error of `comp` where both sides hold `rows`: 0, but inf where a value is not finite or a quaternion
+    is no rotation (what `component_error` gives there, without comparing anything)."""
+    part = _rows(rows)[:, comp.start : comp.stop]
+    bad = ~np.isfinite(part).all(axis=1)
+    if comp.quat:
+        bad |= not_rotations(part)
+    return np.where(bad, np.inf, 0.0)
 
 
 def _quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -159,15 +159,22 @@ def test_flags_and_integer_info_are_exact():
     assert (cmp.first_divergence.key, cmp.first_divergence.step, cmp.first_divergence.tolerance) == ("success", 1, 0.0)
 
 
-def test_nan_in_the_replay_diverges_but_nan_on_both_sides_does_not():
+def test_a_value_that_is_not_finite_fails_the_check_even_on_both_sides():
+    """NaN on both sides was "exact": a NaN restored into a static body reads back as the same NaN."""
     ep = _episode()
     rep = _copy(ep)
     rep.env_states["goal_height"][2] = np.nan
     cmp = compare_episode(ep, rep, TOL)
     assert cmp.first_divergence.key == "env_states/goal_height" and math.isinf(cmp.first_divergence.error)
     assert cmp.first_divergence.to_json()["error"] == "inf"
-    ep.env_states["goal_height"][2] = np.nan
-    assert compare_episode(ep, rep, TOL).verdict == "exact"
+    step = cmp.first_divergence.step
+    for bad in (np.nan, np.inf):
+        ep.env_states["goal_height"][2] = rep.env_states["goal_height"][2] = bad
+        cmp = compare_episode(ep, rep, TOL)  # identical arrays: the cheap path checks them too
+        assert (cmp.verdict, cmp.first_divergence.key, cmp.first_divergence.step) == (
+            "diverged", "env_states/goal_height", step)
+        rep.env_states["goal_height"][2] = 0.5  # one side only: the comparison path
+        assert compare_episode(ep, rep, TOL).first_divergence.step == step
 
 
 def test_contact_channels_are_named():
