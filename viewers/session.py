@@ -50,6 +50,7 @@ from simreel.viewers.scene_geometry import (
     scene_geometry,
 )
 from simreel.viewers.sources import EpisodeRun, Source, read_compare, read_run
+from simreel.viewers.web_server import LOCALHOST, reached_at
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -186,20 +187,21 @@ def viewer_executable() -> str | None:
     return str(beside) if beside.is_file() else shutil.which("rerun")
 
 
-def web_viewer_url(web_port: int, grpc_url: str) -> str:
+def web_viewer_url(web_port: int, grpc_url: str, host: str = "localhost") -> str:
     """The web viewer's address with the gRPC server to open (``?url=rerun%2Bhttp://...``: a ``+`` left as it is
     would reach the viewer as a space)."""
     from urllib.parse import quote
 
-    return f"http://localhost:{web_port}/?url={quote(grpc_url, safe=':/')}"
+    return f"http://{host}:{web_port}/?url={quote(grpc_url, safe=':/[]')}"
 
 
-def _listening(port: int) -> bool:
-    """Whether something accepts connections on ``port`` of this machine (the spawned viewer's gRPC server)."""
+def _listening(port: int, host: str = LOCALHOST) -> bool:
+    """Whether something accepts connections on ``port`` of this machine (the spawned viewer's gRPC server, or the
+    one `ViewSession.serve` started, at `host`)."""
     import socket
 
     try:
-        with socket.create_connection(("127.0.0.1", port), timeout=1.0) as s:
+        with socket.create_connection((host, port), timeout=1.0) as s:
             return s.getsockname() != s.getpeername()  # a free port in the ephemeral range can connect to itself
     except OSError:
         return False
@@ -248,7 +250,7 @@ def _refused(port: int, why: str) -> ViewError:
                      "that dropped the connection; use --grpc-port with a free port, or --save OUT.rrd")
 
 
-def _flush_to_viewer(rec: rr.RecordingStream, port: int, *, wait_s: float = 1.0) -> None:
+def _flush_to_viewer(rec: rr.RecordingStream, port: int, *, wait_s: float = 1.0, host: str = LOCALHOST) -> None:
     """Send everything logged to the viewer on ``port``, giving up once the viewer stops listening or the
     connection fails.
 
@@ -267,12 +269,12 @@ def _flush_to_viewer(rec: rr.RecordingStream, port: int, *, wait_s: float = 1.0)
             failed_at_once = time.monotonic() - started < wait_s / 2
             if failed_at_once:
                 time.sleep(wait_s / 2)  # a viewer that is closing can still listen for a moment
-            if not _listening(port):
+            if not _listening(port, host):
                 raise _viewer_gone(first_line(e)) from e
             if failed_at_once:
                 raise _refused(port, first_line(e)) from e
             continue
-        if not _listening(port):
+        if not _listening(port, host):
             raise _viewer_gone(f"nothing listens on port {port} any more")
         return
 
@@ -327,7 +329,7 @@ class ViewSession:
     """``recorded`` (body poses read from the file) or ``restored`` (states restored into the env), after logging."""
     timings: dict[str, float] = field(default_factory=dict)
     served: Any = field(default=None, repr=False)
-    """The recording stream `serve` serves (its gRPC server stops with it), until `close`."""
+    """The servers `serve` started (`simreel.viewers.web_server.WebServer`), until `close`."""
 
     # ------------------------------------------------------------------ identity and layout
     @property
@@ -427,22 +429,30 @@ class ViewSession:
         self.log_to(rec)
         _flush_to_viewer(rec, port)
 
-    def serve(self, *, web_port: int = 9090, grpc_port: int = 9876, open_browser: bool = False) -> str:
-        """Serve the session: a gRPC server holding it, and the web viewer (HTML + Wasm) that connects to it.
+    def serve(self, *, web_port: int = 9090, grpc_port: int = 9876, bind: str = LOCALHOST,
+              open_browser: bool = False) -> str:
+        """Serve the session: a gRPC server holding it, and the web viewer (HTML + Wasm) that connects to it, both
+        listening on `bind` only (default: this machine; `simreel.viewers.web_server`).
 
         Returns the web viewer's URL, whose ``url`` parameter names the gRPC server. Both serve until this session
-        is closed (or the process ends): Rerun shuts a gRPC server down with its recording stream, so the session
-        keeps the stream. The server keeps everything logged, so viewers that connect later see the whole episode.
+        is closed (or the process ends). The server keeps everything logged, so viewers that connect later see the
+        whole episode.
         """
-        import rerun as rr
+        import webbrowser
 
+        from simreel.viewers.web_server import start_web_server
+
+        server = start_web_server(bind=bind, web_port=web_port, grpc_port=grpc_port)
+        self.served = server
         rec = self.new_stream()
-        grpc_url = rec.serve_grpc(grpc_port=grpc_port, default_blueprint=self.blueprint())
-        self.served = rec
-        rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=grpc_url)
+        rec.connect_grpc(server.grpc_url, default_blueprint=self.blueprint())
         self.log_to(rec)
-        rec.flush()
-        return web_viewer_url(web_port, grpc_url)
+        _flush_to_viewer(rec, grpc_port, host=reached_at(bind).strip("[]"))
+        host = "localhost" if bind == LOCALHOST else reached_at(bind)
+        url = web_viewer_url(web_port, server.grpc_url, host=host)
+        if open_browser:
+            webbrowser.open(url)
+        return url
 
     # ------------------------------------------------------------------ logging
     def log_to(self, rec: rr.RecordingStream) -> None:
@@ -458,7 +468,7 @@ class ViewSession:
         if self.compared is not None:
             self.compared.close()
         if self.served is not None:
-            self.served.disconnect()
+            self.served.close()
             self.served = None
         if self.owns_env and self.env is not None:
             self.env.close()

@@ -45,6 +45,9 @@ def add_parser(sub: Any) -> None:
     sink.add_argument("--serve", action="store_true",
                       help="serve the episode to the web viewer (for a remote machine) until Ctrl-C or SIGTERM")
     p.add_argument("--web-port", type=int, default=None, help=f"web viewer port for --serve (default {_PORTS['web']})")
+    p.add_argument("--bind", default=None, metavar="ADDRESS",
+                   help="the address --serve listens on (default 127.0.0.1: this machine only, reached from another "
+                        "through ssh -L; 0.0.0.0: every interface, for anyone who can reach this machine)"),
     p.add_argument("--grpc-port", type=int, default=None,
                    help=f"gRPC port for --serve/--spawn (default {_PORTS['grpc']})")
     p.add_argument("--geometry", default="auto", choices=("auto", "visual", "collision"),
@@ -185,6 +188,9 @@ def _refuse_unused(args: argparse.Namespace, mode: str) -> None:
     if unused:
         shown = "--save" if args.save else "the default --save (no viewer can open here)"
         raise UsageError(f"{unused}: ports of --serve and --spawn; with {shown} no server runs, so leave {unused} out")
+    if args.bind is not None and mode != "serve":
+        raise UsageError(f"--bind {args.bind}: the address --serve listens on; with --{mode} it would be ignored, "
+                         "so leave it out")
     args.web_port = _PORTS["web"] if args.web_port is None else args.web_port
     args.grpc_port = _PORTS["grpc"] if args.grpc_port is None else args.grpc_port
 
@@ -214,15 +220,18 @@ def _check_ports(args: argparse.Namespace) -> None:
     """`--serve`'s ports must be free: Rerun reports a busy gRPC port only in its log, and serves nothing."""
     import socket
 
+    from simreel.viewers.web_server import LOCALHOST, check_bind_address
+
+    args.bind = check_bind_address(LOCALHOST if args.bind is None else args.bind)
     if args.web_port == args.grpc_port:
         raise UsageError(f"--web-port and --grpc-port are both {args.web_port}; the two servers need two ports")
     for option, port in (("--web-port", args.web_port), ("--grpc-port", args.grpc_port)):
         if not 0 < port < 65536:
             raise UsageError(f"{option} {port}: a port is a number from 1 to 65535")
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        with socket.socket(socket.AF_INET6 if ":" in args.bind else socket.AF_INET, socket.SOCK_STREAM) as probe:
             probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as servers bind: TIME_WAIT is no obstacle
             try:
-                probe.bind(("0.0.0.0", port))  # Rerun's servers listen on every interface
+                probe.bind((args.bind, port))  # where the servers will listen
             except OSError as e:
                 raise UsageError(f"{option} {port}: the port is taken ({e.strerror}); choose a free one with "
                                  f"{option} N") from None
@@ -255,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
             session.spawn(port=args.grpc_port)
             print(f"sent {session.recording_id} to the Rerun viewer")
         else:
-            url = session.serve(web_port=args.web_port, grpc_port=args.grpc_port)
+            url = session.serve(web_port=args.web_port, grpc_port=args.grpc_port, bind=args.bind)
             print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)")
         for note in session.episode.meta.notes:
             print(f"note: {note}")

@@ -8,6 +8,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from urllib.parse import parse_qs, urlparse
@@ -380,6 +381,7 @@ def test_serve_serves_the_episode_until_stopped(pickcube_h5, tmp_path, rrd_reade
         served = read_served(grpc_url, tmp_path / "served",
                              lambda c: c.steps("/world/cube", "Transform3D:translation") == list(range(-1, STEPS)))
         assert child.poll() is None  # still serving
+        assert _listening_on(web) == _listening_on(grpc) == ["127.0.0.1"]  # not every interface: this machine only
         child.send_signal(stop)
         out, err = child.communicate(timeout=60)
     finally:
@@ -413,6 +415,40 @@ def test_serve_on_a_taken_port_is_refused_before_building_the_env(pickcube_h5, m
         assert main(["view", str(pickcube_h5), "--serve", option, str(port), other, str(free_port())]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{option} {port}: the port is taken" in err and f"{option} N" in err
+
+
+def _listening_on(port: int) -> list[str]:
+    """The addresses TCP sockets listen on `port` at, as Linux lists them (/proc/net/tcp, tcp6)."""
+    import ipaddress
+
+    found = []
+    for table, size in (("/proc/net/tcp", 4), ("/proc/net/tcp6", 16)):
+        for line in Path(table).read_text().splitlines()[1:]:
+            local, state = line.split()[1], line.split()[3]
+            address, _, hex_port = local.partition(":")
+            if state == "0A" and int(hex_port, 16) == port:  # 0A: LISTEN
+                raw = bytes.fromhex(address)
+                words = b"".join(raw[i:i + 4][::-1] for i in range(0, size, 4))  # each 32-bit word in host order
+                found.append(str(ipaddress.ip_address(words)))
+    return found
+
+
+@pytest.mark.parametrize(("args", "said"), [
+    (["--serve", "--bind", "10.255.255.254"], "--bind 10.255.255.254: not an address this machine can listen on"),
+    (["--serve", "--bind", "localhost:80"], "--bind localhost:80: not an address this machine can listen on"),
+    (["--save", "x.rrd", "--bind", "0.0.0.0"], "--bind 0.0.0.0: the address --serve listens on; with --save it would "
+                                               "be ignored, so leave it out"),
+], ids=["no-interface", "not-an-address", "with-save"])
+def test_a_bind_address_that_cannot_work_is_one_line(pickcube_h5, monkeypatch, capsys, args, said):
+    import simreel.viewers.session as session
+
+    monkeypatch.setattr(session, "rebuild_env", _no_env)
+    tmp_path = Path(tempfile.mkdtemp())
+    monkeypatch.chdir(tmp_path)
+    assert main(["view", str(pickcube_h5), *args]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"simreel view: error: {said}"), err
+    assert list(tmp_path.iterdir()) == []
 
 
 def _write_replay(src, dst, *, index=0, steps=None):

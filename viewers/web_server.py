@@ -1,0 +1,146 @@
+"""The servers ``simreel view --serve`` runs: Rerun's web viewer (HTTP) and the gRPC server holding the session, in
+one ``rerun --serve-web`` process listening on one address — this machine only (``127.0.0.1``) unless the user
+names another (``--bind``). Rerun's Python servers (`rerun.serve_grpc`, `rerun.serve_web_viewer`) listen on every
+interface and take no address, so the session is streamed into this process instead.
+
+The process ends with the session (`WebServer.close`), and with this process if it is killed (Linux's
+parent-death signal)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+from simreel.errors import UsageError, ViewError
+
+__all__ = ["LOCALHOST", "WebServer", "start_web_server", "check_bind_address", "reached_at"]
+
+LOCALHOST = "127.0.0.1"
+"""Where ``--serve`` listens by default: a remote browser reaches it through ``ssh -L``."""
+
+_START_TIMEOUT = 60.0
+"""Seconds the server may take to listen on both ports (it starts in well under one)."""
+
+
+def check_bind_address(address: str) -> str:
+    """`address` if this machine can listen on it (an IPv4 or IPv6 address of one of its interfaces, or
+    ``0.0.0.0`` / ``::`` for all of them), else `UsageError` naming it."""
+    try:
+        family = socket.AF_INET6 if ":" in address else socket.AF_INET
+        socket.inet_pton(family, address)
+        with socket.socket(family, socket.SOCK_STREAM) as probe:
+            probe.bind((address, 0))
+    except OSError as e:
+        raise UsageError(f"--bind {address}: not an address this machine can listen on ({e.strerror or e}); give "
+                         f"an IP address of one of its interfaces, e.g. {LOCALHOST} (this machine only, the "
+                         "default) or 0.0.0.0 (every interface)") from None
+    return address
+
+
+def reached_at(address: str) -> str:
+    """The host this machine reaches a server bound to `address` at, as a URL spells it."""
+    host = {"0.0.0.0": LOCALHOST, "::": "::1"}.get(address, address)
+    return f"[{host}]" if ":" in host else host
+
+
+@dataclass
+class WebServer:
+    """A running ``rerun --serve-web`` process and where it listens."""
+
+    process: subprocess.Popen
+    bind: str
+    web_port: int
+    grpc_port: int
+    log: IO[bytes] = field(repr=False)
+    """What the server printed (its last line names why it stopped, if it did)."""
+
+    @property
+    def grpc_url(self) -> str:
+        """The gRPC server's address, as the web viewer and ``rerun.RecordingStream.connect_grpc`` take it."""
+        return f"rerun+http://{reached_at(self.bind)}:{self.grpc_port}/proxy"
+
+    def close(self) -> None:
+        """Stop the server (SIGTERM, then SIGKILL after 10 s) and forget its log."""
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self.log.close()
+
+
+def start_web_server(*, bind: str = LOCALHOST, web_port: int = 9090, grpc_port: int = 9876) -> WebServer:
+    """Start the servers on `bind` and wait until both ports answer; `ViewError` naming why when the process
+    stops first (or does not listen within a minute)."""
+    log = tempfile.TemporaryFile()
+    command = [_server_executable(), "--serve-web", "--bind", bind, "--port", str(grpc_port),
+               "--web-viewer-port", str(web_port)]
+    process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                               preexec_fn=_end_with_parent)
+    server = WebServer(process, bind, web_port, grpc_port, log)
+    try:
+        _wait_listening(server)
+    except BaseException:
+        server.close()
+        raise
+    return server
+
+
+def _wait_listening(server: WebServer) -> None:
+    deadline = time.monotonic() + _START_TIMEOUT
+    host = reached_at(server.bind).strip("[]")
+    while not all(_answers(host, port) for port in (server.web_port, server.grpc_port)):
+        if server.process.poll() is not None or time.monotonic() > deadline:
+            raise ViewError(f"the Rerun web server did not start ({_last_line(server.log)}); use --save OUT.rrd "
+                            "and open it elsewhere")
+        time.sleep(0.05)
+
+
+def _answers(host: str, port: int) -> bool:
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.settimeout(1.0)
+        return s.connect_ex((host, port)) == 0
+
+
+def _last_line(log: IO[bytes]) -> str:
+    log.seek(0)
+    lines = [line.strip() for line in log.read().decode(errors="replace").splitlines() if line.strip()]
+    return lines[-1] if lines else "it printed nothing"
+
+
+def _server_executable() -> str:
+    """The Rerun binary itself (the ``rerun`` script beside Python runs it as a child, which a signal to the script
+    would leave running), else the viewer executable."""
+    with contextlib.suppress(ImportError):
+        import rerun_cli
+
+        binary = Path(rerun_cli.__file__).parent / "rerun"
+        if binary.is_file() and os.access(binary, os.X_OK):
+            return str(binary)
+    from simreel.viewers.session import viewer_executable
+
+    found = viewer_executable()
+    if found is None:
+        raise ViewError("no Rerun executable found (it comes with rerun-sdk); use --save OUT.rrd")
+    return found
+
+
+def _end_with_parent() -> None:
+    """In the server's process before it runs: SIGTERM when simreel's process ends, even by kill -9 (Linux)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    os.setpgrp()  # Ctrl-C in the terminal reaches simreel, which stops the server itself
