@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from simreel.errors import EnvBuildError, RenderUnavailableError
 from simreel.model.env_config import EnvConfig
+from simreel.sim.modes import check_modes, control_mode_error
 from simreel.sim.render_device import (
     configure_vulkan,
     device_expected,
@@ -113,6 +114,7 @@ def make_env(env_id: str, config: EnvConfig | None = None, **overrides: Any) -> 
     if cfg.render_backend == "auto":
         start_render_probe()  # runs in a child process while mani_skill imports here
     gym = _registered(env_id)
+    _check_modes(env_id, cfg)
     backend = _prepare_render(env_id, cfg)
     kwargs = _gym_kwargs(cfg, backend)
     try:
@@ -134,6 +136,12 @@ def _check_sim_backend(env_id: str, sim_backend: Any) -> None:
     if name not in SIM_BACKENDS or (device and not device.isdigit()):
         raise EnvBuildError(f"{env_id}: sim backend {sim_backend!r} is none of ManiSkill's: {', '.join(SIM_BACKENDS)} "
                             "(a CUDA device as physx_cuda:N)")
+
+
+def _check_modes(env_id: str, cfg: EnvConfig) -> None:
+    from mani_skill.utils.registration import REGISTERED_ENVS
+
+    check_modes(env_id, REGISTERED_ENVS[env_id].cls, cfg.obs_mode, cfg.control_mode, cfg.env_kwargs)
 
 
 def time_limit(env_id: str) -> int | None:
@@ -346,8 +354,11 @@ def _build_error(env_id: str, exc: Exception, *, backend: str, cfg: EnvConfig) -
 
 
 def _failed_outside_maniskill(env_id: str, exc: Exception, message: str) -> Exception | None:
-    """The error for a build that failed in SAPIEN fetching its PhysX GPU library, or in the user's task code (its
-    scene building or first reset: `task_code_error`); None otherwise."""
+    """The error for a build that failed on a control mode the robot lacks (ManiSkill's check, where `check_modes`
+    could not tell), in SAPIEN fetching its PhysX GPU library, or in the user's task code (its scene building or
+    first reset: `task_code_error`); None otherwise."""
+    if isinstance(exc, AssertionError) and control_mode_error(env_id, message) is not None:
+        return control_mode_error(env_id, message)
     missing = _missing_physx_gpu_library(exc)
     if missing is not None:
         return EnvBuildError(f"{env_id}: {missing} ({type(exc).__name__}: {message})")
