@@ -84,6 +84,22 @@ def _hz(freq: float | None) -> str:
     return "?" if freq is None else f"{freq:g}"  # files written through the API may lack frequencies
 
 
+def _reward_mode(meta: Any) -> str:
+    """The reward mode the env used: the recorded one, else (a RecordEpisode file made without one) the task's
+    default, which ManiSkill takes when none is given, said to be that, with whether the file holds rewards."""
+    if meta.reward_mode is not None:
+        return meta.reward_mode
+    from simreel.errors import SimreelError
+    from simreel.sim.make import reward_modes
+
+    try:
+        default = reward_modes(meta.env_id)[0]
+    except (SimreelError, IndexError):  # a task not registered here: its default is not known
+        default = "?"
+    held = "not in the file" if "rewards" in meta.unknown else "recorded"
+    return f"{default} (the task's default: the file names none; rewards {held})"
+
+
 def _print_header(reader: Any) -> None:
     m = reader.meta
     print(f"{reader.path}  ({reader.kind})")
@@ -93,7 +109,7 @@ def _print_header(reader: Any) -> None:
         from simreel.datasets.provenance import describe_provenance
 
         print(f"  made by    {describe_provenance(m.provenance)}")
-    print(f"  env        {m.env_id}  obs={m.obs_mode} control={m.control_mode} reward={m.reward_mode}")
+    print(f"  env        {m.env_id}  obs={m.obs_mode} control={m.control_mode} reward={_reward_mode(m)}")
     print(f"  sim        {m.sim_backend}, num_envs={m.num_envs}, {_hz(m.sim_freq)} Hz sim / {_hz(m.control_freq)} Hz control,"
           f" render={m.render_backend}, max_episode_steps={m.max_episode_steps}")
     if m.env_kwargs:

@@ -72,3 +72,12 @@ def test_only_the_first_episodes_are_opened_and_it_says_so(ms_dir, tmp_path, cap
     assert [e["initial_state_known"] for e in episodes] == [False, True]
     assert ("note: the first 1 of 2 episodes were opened for what only their data shows (a first state off by one, "
             "an episode every command refuses); `simreel replay` opens every one\n") in text
+
+
+def test_a_file_that_names_no_reward_mode_shows_the_one_the_env_used(ms_dir, capsys):
+    """A RecordEpisode file made without reward_mode showed reward=None, though it holds rewards and replay compares
+    them: ManiSkill used the task's default."""
+    assert main(["inspect", str(ms_dir / "demos.h5")]) == 0
+    out = capsys.readouterr().out
+    assert "reward=normalized_dense (the task's default: the file names none; rewards recorded)" in out
+    assert "reward=None" not in out
