@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.simreel-setup
+TEST_STAMP := $(VENV)/.simreel-test-extras
 MESA   := $(VENV)/share/simreel/mesa
 DEMO   := demo_out
 PYTEST_ARGS ?=
@@ -10,11 +11,19 @@ PYTEST_ARGS ?=
 # and docs/ run in order, page by page).
 PARALLEL := -n auto --dist loadfile
 
-.PHONY: setup demo test test-all test-gpu lint bench docs clean
+.PHONY: setup test-setup demo test test-all test-gpu lint bench docs clean
+
+# setuptools' "Editable installation" banner (a warning about folders named like the package) says nothing to a user
+# of `make`: kept out of the output.
+QUIET_PIP := PYTHONWARNINGS="ignore:Editable installation"
 
 NODE_TOOL := tools/mcap_ts
 
-setup: $(STAMP) $(NODE_TOOL)/node_modules/.package-lock.json
+# What `make demo` needs: simreel and its dependencies (torch as a CPU build where there is no GPU), and software
+# Vulkan. `make test` adds the test and Ray extras (test-setup).
+setup: $(STAMP)
+
+test-setup: $(TEST_STAMP) $(NODE_TOOL)/node_modules/.package-lock.json
 
 # The TypeScript MCAP reader Foxglove uses, for the tests that read simreel's files with it (skipped without npm).
 $(NODE_TOOL)/node_modules/.package-lock.json: $(NODE_TOOL)/package-lock.json
@@ -26,11 +35,16 @@ $(STAMP): pyproject.toml tools/install_torch.sh tools/fetch_lavapipe.sh
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip setuptools wheel
 	tools/install_torch.sh $(BIN)/pip
-	$(BIN)/pip install -q -e '.[test,ray]'
+	$(QUIET_PIP) $(BIN)/pip install -q -e .
 	@# Software Vulkan for SAPIEN where no GPU renders; without it simreel still runs state-only.
 	@if command -v nvidia-smi >/dev/null 2>&1; then echo "NVIDIA GPU: no software Vulkan needed"; \
 	 else tools/fetch_lavapipe.sh $(MESA) || echo "warning: no software Vulkan fetched; simreel will run state-only"; fi
 	@touch $(STAMP)
+
+# pytest, ruff, the docs site's tools, Foxglove's schemas and Ray (the tests run `replay --ray`).
+$(TEST_STAMP): $(STAMP)
+	$(QUIET_PIP) $(BIN)/pip install -q -e '.[test,ray]'
+	@touch $(TEST_STAMP)
 
 # Record a few PickCube-v1 episodes, show what the file holds, replay and verify every step (writing
 # the replay and a JSON report), and build a Rerun session of episode 0 beside its replay. Everything goes
@@ -42,7 +56,7 @@ demo: setup
 	$(BIN)/simreel replay $(DEMO)/pickcube.h5 -o $(DEMO)/pickcube.replayed.h5 --overwrite --report $(DEMO)/report.json
 	$(BIN)/simreel view $(DEMO)/pickcube.h5 --episode 0 --compare $(DEMO)/pickcube.replayed.h5 --save $(DEMO)/pickcube.rrd --overwrite
 
-lint: setup
+lint: test-setup
 	$(BIN)/ruff check simreel recorders replay viewers tests benchmarks
 
 test: lint
@@ -51,10 +65,10 @@ test: lint
 test-all: lint
 	$(BIN)/python -m pytest $(PARALLEL) -m "not gpu" $(PYTEST_ARGS)
 
-test-gpu: setup
+test-gpu: test-setup
 	$(BIN)/python -m pytest -m gpu $(PYTEST_ARGS)
 
-bench: setup
+bench: test-setup
 	$(BIN)/python benchmarks/record_overhead.py
 	$(BIN)/python benchmarks/record_overhead.py --format mcap
 	$(BIN)/python benchmarks/bench_formats.py
@@ -66,7 +80,7 @@ bench: setup
 # The documentation site, strictly (a broken link, a missing anchor or a page left out of the nav fails it), into
 # site/. mkdocs comes with the test extra; the docs extra installs it where setup ran before it did.
 docs: setup
-	@$(BIN)/python -c "import mkdocs, material" 2>/dev/null || $(BIN)/pip install -q -e '.[docs]'
+	@$(BIN)/python -c "import mkdocs, material" 2>/dev/null || $(QUIET_PIP) $(BIN)/pip install -q -e '.[docs]'
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 clean:

@@ -98,7 +98,8 @@ def _import_ray() -> Any:
     try:
         import ray
     except ImportError:
-        raise UsageError("--ray needs Ray: pip install 'simreel[ray]' (make setup installs it)") from None
+        raise UsageError("--ray needs Ray: pip install 'simreel[ray]' (in simreel's repository: "
+                         ".venv/bin/pip install -e '.[ray]')") from None
     return ray
 
 

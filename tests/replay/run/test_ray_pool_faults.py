@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from support.processes import free_port, stop_ray_node
 
-pytest.importorskip("ray", reason="Ray is the optional extra simreel[ray] (make setup installs it)")
+pytest.importorskip("ray", reason="Ray is the optional extra simreel[ray] (make test installs it)")
 
 RAY = Path(sys.executable).with_name("ray")
 
