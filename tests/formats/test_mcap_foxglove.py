@@ -1,5 +1,5 @@
 """simreel's MCAP files read by the TypeScript reader Foxglove opens files with (`@mcap/core`, installed by
-`make setup` into tools/mcap_ts where npm exists): every message streamed with its CRCs checked, and every message
+`make test` into tools/mcap_ts where npm exists): every message streamed with its CRCs checked, and every message
 through the indexed reader, which Foxglove uses for a seekable file."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ TOOL = Path(__file__).resolve().parents[2] / "tools" / "mcap_ts"
 
 pytestmark = pytest.mark.skipif(
     shutil.which("node") is None or not (TOOL / "node_modules" / "@mcap" / "core").is_dir(),
-    reason="needs node and tools/mcap_ts/node_modules (`make setup` installs them where npm exists)")
+    reason="needs node and tools/mcap_ts/node_modules (`make test` installs them where npm exists)")
 
 
 def _read_with_typescript(path: Path) -> dict:
