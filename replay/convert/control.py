@@ -6,6 +6,7 @@ computed from where the robot is now, closed-loop, as ManiSkill's own converters
 (`mani_skill.trajectory.utils.actions.conversion`, whose per-step formulas are reused here):
 
     pd_joint_pos        -> pd_joint_delta_pos     delta = recorded joint target - current qpos, normalized
+    pd_joint_pos        -> pd_joint_vel           velocity = (recorded joint target - current qpos) x control rate
     pd_joint_pos        -> pd_ee_delta_pos/pose   the end-effector pose of the recorded joint target (forward
                                                   kinematics), as a delta from the current end-effector pose
     pd_joint_delta_pos  -> pd_joint_pos           current qpos + the recorded delta
@@ -30,7 +31,7 @@ from simreel.errors import UsageError
 __all__ = ["SUPPORTED", "ActionConverter", "ConvertedAction", "check_pair", "converter_for"]
 
 SUPPORTED: dict[str, tuple[str, ...]] = {
-    "pd_joint_pos": ("pd_joint_delta_pos", "pd_ee_delta_pos", "pd_ee_delta_pose"),
+    "pd_joint_pos": ("pd_joint_delta_pos", "pd_joint_vel", "pd_ee_delta_pos", "pd_ee_delta_pose"),
     "pd_joint_delta_pos": ("pd_joint_pos",),
 }
 """Source control mode -> the target modes simreel converts it to."""
@@ -87,8 +88,8 @@ def converter_for(source: str, target: str, unwrapped: Any, source_controller: A
     _check_controllers(unwrapped, source_controller, unwrapped.agent.controller, (source, target))
     if target.startswith("pd_ee_"):
         return EePoseFromJointPos(target, source_controller)
-    if target == "pd_joint_delta_pos":
-        return JointDeltaFromJointPos(target, source_controller)
+    if source == "pd_joint_pos":
+        return JointFromJointPos(target, source_controller)
     return JointPosFromJointDelta(target, source_controller)
 
 
@@ -121,8 +122,9 @@ def _check_controllers(unwrapped: Any, source: Any, target: Any, modes: tuple[st
 
 
 def _arm_fits(mode: str, config: Any) -> bool:
-    """Whether an arm controller config is what `mode`'s converter computes for: joint positions, absolute or
-    normalized deltas; end-effector deltas in the root frame, not relative to a kept target."""
+    """Whether an arm controller config is what `mode`'s converter computes for: joint positions, normalized joint
+    velocities, normalized joint deltas from the current positions; end-effector deltas in the root frame, from the
+    current pose (not from a kept target: a mode that keeps one adds controller state the recording lacks)."""
     use_delta, use_target = getattr(config, "use_delta", None), getattr(config, "use_target", None)
     normalized = getattr(config, "normalize_action", None)
     if mode.startswith("pd_ee_"):
@@ -130,7 +132,11 @@ def _arm_fits(mode: str, config: Any) -> bool:
         return bool(use_delta and not use_target and normalized and frame.startswith("root_translation"))
     if not hasattr(config, "lower") or hasattr(config, "frame"):
         return False
-    return bool(not use_delta) if mode == "pd_joint_pos" else bool(use_delta and not use_target and normalized)
+    if mode == "pd_joint_vel":
+        return use_delta is None and bool(normalized)
+    if mode == "pd_joint_pos":
+        return use_delta is False
+    return bool(use_delta and not use_target and normalized)
 
 
 def _clip(action: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -185,21 +191,28 @@ class _Converter:
         if self.tcp is None:
             return None
         target = getattr(self.arm, "_target_pose", None)
+        joints = getattr(self.arm, "_target_qpos", None)  # none for a velocity controller: no pose commanded
         if target is not None and hasattr(self.arm.config, "frame"):
             pose = self.robot.pose.sp * target.sp
+        elif joints is not None:
+            pose = self._tool_pose(joints.cpu().numpy()[0])
         else:
-            pose = self._tool_pose(self.arm._target_qpos.cpu().numpy()[0])
+            return None
         return np.r_[pose.p, pose.q]
 
 
-class JointDeltaFromJointPos(_Converter):
-    """pd_joint_pos -> pd_joint_delta_pos: the recorded joint target minus the current joint positions."""
+class JointFromJointPos(_Converter):
+    """pd_joint_pos -> pd_joint_delta_pos or pd_joint_vel: ManiSkill's formula of the target mode (the recorded joint
+    target minus the current joint positions, or that difference times the control rate), normalized and
+    clipped."""
 
     def __call__(self, action: np.ndarray) -> ConvertedAction:
-        from mani_skill.trajectory.utils.actions.conversion import qpos_to_pd_joint_delta_pos
+        from mani_skill.trajectory.utils.actions import conversion
 
+        formula = {"pd_joint_delta_pos": conversion.qpos_to_pd_joint_delta_pos,
+                   "pd_joint_vel": conversion.qpos_to_pd_joint_vel}[self.target_mode]
         parts = self.source.to_action_dict(np.asarray(action))
-        arm, clipped = _clip(np.asarray(qpos_to_pd_joint_delta_pos(self.arm, parts["arm"]), np.float64))
+        arm, clipped = _clip(np.asarray(formula(self.arm, parts["arm"]), np.float64))
         return ConvertedAction(self._join(parts, arm), clipped, self._wanted(parts["arm"]))
 
 

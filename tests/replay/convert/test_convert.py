@@ -272,3 +272,28 @@ def test_workers_convert_the_same_episodes_to_the_same_verdicts(demos, tmp_path)
     assert [e.index for e in two.episodes] == [e.index for e in one.episodes] and two.ok
     with open_reader(tmp_path / "two.h5") as r:
         assert [m.index for m in r.episodes] == [0, 1]
+
+
+def test_a_conversion_to_joint_velocities_is_checked_like_any_other(demos, tmp_path, capsys):
+    """pd_joint_pos -> pd_joint_vel (ManiSkill converts it; simreel refused it): a velocity controller follows the
+    joint path less closely, which the check measures and says; with the tolerance loosened it verifies, and the
+    converted file replays exact in its own mode."""
+    src = demos("PickCube-v1")
+    assert main(["convert", str(src), str(tmp_path / "strict.h5"), "--control-mode", "pd_joint_vel", "-q"]) == 1
+    assert "0 of 2 episode(s) verified" in capsys.readouterr().out
+    out = tmp_path / "vel.h5"
+    assert main(["convert", str(src), str(out), "--control-mode", "pd_joint_vel", "--tol", "ee_pos=0.02",
+                 "--tol", "obj_pos=0.005", "-q"]) == 0
+    assert "2 of 2 episode(s) verified; 2 written" in capsys.readouterr().out
+    with open_reader(out) as r:
+        assert r.meta.control_mode == "pd_joint_vel" and r.meta.action_space["shape"] == [8]
+    assert main(["replay", str(out), "-q"]) == 0
+
+
+@pytest.mark.parametrize("mode", ["pd_joint_target_delta_pos", "pd_ee_target_delta_pose"])
+def test_a_mode_that_keeps_a_target_is_refused_in_one_line(demos, tmp_path, capsys, mode):
+    assert main(["convert", str(demos("PickCube-v1")), str(tmp_path / "x.h5"), "--control-mode", mode, "-q"]) == 2
+    [line] = capsys.readouterr().err.splitlines()
+    assert line.startswith(f"simreel convert: error: cannot convert control mode pd_joint_pos to {mode}: simreel "
+                           "converts pd_joint_pos -> pd_joint_delta_pos, pd_joint_vel, pd_ee_delta_pos,")
+    assert list(tmp_path.iterdir()) == []
