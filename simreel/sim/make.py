@@ -26,6 +26,7 @@ from simreel.sim.render_device import (
     probe_render_device,
     start_render_probe,
 )
+from simreel.sim.upstream_noise import quiet_upstream_noise
 from simreel.sim.user_code import import_mani_skill, native_import, task_code_error
 
 if TYPE_CHECKING:
@@ -168,9 +169,11 @@ def prepare_plain_gym_make() -> None:
     Points Vulkan at the software driver `make setup` fetched (`configure_vulkan`); where no render device is
     expected (no NVIDIA GPU, no fetched driver) it asks the probe (a child process, ~0.3 s), and when there is
     no device installs the no-render layer, so ``gym.make(env_id, obs_mode="state", render_backend="none")``
-    builds (ManiSkill itself needs ``render_backend="none"`` there). Call it before ``gym.make``;
-    importing `simreel.recorders` does.
+    builds (ManiSkill itself needs ``render_backend="none"`` there). Known upstream messages that ask nothing of
+    the user are hidden from then on (`simreel.sim.upstream_noise`). Call it before ``gym.make`` (and before
+    importing mani_skill or sapien, for SAPIEN's libvulkan warning); importing `simreel.recorders` does.
     """
+    quiet_upstream_noise()
     configure_vulkan()
     if device_expected() or probe_render_device().backend != "none":
         return
