@@ -115,7 +115,7 @@ def test_a_line_nested_too_deeply_is_named(tmp_path):
     _log(path)
     body = b'{"type":"note","text":"x","deep":' + b"[" * 100_000 + b"]" * 100_000 + b"}"
     path.write_bytes(path.read_bytes() + body[:-1] + b',"crc32":"%08x"}\n' % zlib.crc32(body))
-    with pytest.raises(ReportFileError, match=re.escape(f"{path}: line 2 is nested too deeply to be read")):
+    with pytest.raises(ReportFileError, match=re.escape(f"{path}: line 2 is nested more than 100 levels deep")):
         load_log(path)
 
 
