@@ -16,7 +16,17 @@ from simreel.verdicts.options import ATOL, TOL, mode_choices, parse_group_tolera
 
 __all__ = ["add_env_options", "env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
            "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar", "mode_choices",
-           "GivenOnce", "LOG_LINE_SECONDS"]
+           "GivenOnce", "LOG_LINE_SECONDS", "STOPPED_THEN", "stopped_saying"]
+
+
+STOPPED_THEN = "simreel_then"
+"""The attribute of a Ctrl-C/SIGTERM (`KeyboardInterrupt`) that holds what the stopped command kept and how to
+finish, which its one line ends with (`stopped_saying`)."""
+
+
+def stopped_saying(stop: KeyboardInterrupt, then: str) -> None:
+    """Make the one line of the command `stop` stops ("interrupted", "terminated (SIGTERM)") go on with `then`."""
+    setattr(stop, STOPPED_THEN, then)
 
 
 LOG_LINE_SECONDS = 60.0
