@@ -18,7 +18,7 @@ import numpy as np
 
 from simreel.errors import RecordingFileError, StorageError, ViewError
 from simreel.formats import EpisodeReader, open_reader
-from simreel.formats.base import EpisodeRows, block_rows, recover_hint
+from simreel.formats.base import EpisodeRows, block_rows
 from simreel.model.blocks import StepBlock, join_blocks
 from simreel.model.episode import Episode
 from simreel.model.fields import FieldSpec
@@ -171,4 +171,4 @@ def _check_comparable(run: EpisodeRun, recorded: EpisodeRun) -> None:
 
 def _damaged_episode(reader: EpisodeReader, index: int, problem: str) -> RecordingFileError:
     """The error for episode `index` of `reader`, whose data is damaged (`problem`: what is wrong), and what to do."""
-    return RecordingFileError(reader.path, f"episode {index} is damaged ({problem}); {recover_hint(reader.path)}")
+    return RecordingFileError(reader.path, f"episode {index} is damaged ({problem}); {reader.recover_hint()}")

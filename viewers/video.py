@@ -28,7 +28,6 @@ import numpy as np
 
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader, recording_files
-from simreel.formats.base import recover_hint
 from simreel.io.durable import STORAGE_ERRNOS, raise_if_stopped, storage_error
 from simreel.io.paths import refuse_empty
 from simreel.io.targets import check_distinct, check_output, staged_output
@@ -151,6 +150,7 @@ class VideoRun:
             self.lengths = {i: r.episode_meta(i).length for i in self.indices}
             self.damaged: list[str] = list(r.damaged) if opts.episodes is None else []
             """What is wrong with each episode that got no video because it is damaged."""
+            self._recover_hint = r.recover_hint()
         self.compared: dict[int, int] = {}
         """Episode index → the index of the episode of `options.compare` drawn beside it."""
         self.compared_as = ""
@@ -211,7 +211,7 @@ class VideoRun:
         if not self.damaged:
             return None
         return RecordingFileError(self.path, f"damaged, no video of: {'; '.join(self.damaged)}; the other videos "
-                                             f"were written; {recover_hint(self.path)}")
+                                             f"were written; {self._recover_hint}")
 
     def _episode(self, frames: _FrameSource, index: int, progress: Callable[[int], None] | None) -> EpisodeVideo:
         """One video. The episodes are read without their observations; recorded camera frames are read a block

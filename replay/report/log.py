@@ -14,6 +14,11 @@ interrupted. The lines, in order::
     {"type": "note", ...}     what happened on the way ("text": a Ray worker died, its episodes were replayed again)
     {"type": "end"}           the run replayed every episode it had to
 
+Each line ends with its own checksum (``"crc32"``, of the line's text before it), so a line changed since it was
+written — one byte of a verdict — is found when the report is read: `read_log` refuses the report, naming the line,
+as it does a line of an unknown kind, a verdict that is not one of `VERDICTS`, or a field of the wrong type. A
+report written before lines carried checksums is refused too (its verdicts cannot be checked): replay again.
+
 An episode listed twice (a retried Ray task) counts once: the first line wins. ``REPORT.json`` is
 `RunTally.head` (totals, one entry per file) with an ``"episodes"`` list of the episode lines.
 """
@@ -23,7 +28,9 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import time
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -34,7 +41,8 @@ from simreel.errors import ReportFileError, StorageError, UsageError
 from simreel.io.durable import is_storage_error, storage_error
 from simreel.io.lock import lock_file
 from simreel.io.targets import open_text_atomic
-from simreel.replay.report.report import EpisodeReport
+from simreel.model.json_input import parse_json
+from simreel.replay.report.report import VERDICTS, EpisodeReport
 from simreel.replay.report.tally import FileTally, RunTally
 
 __all__ = ["ReportLog", "LoggedRun", "report_paths", "read_log", "load_log", "tally_of_log", "write_report",
@@ -90,7 +98,7 @@ class ReportLog:
         self._fh.seek(0, os.SEEK_END)
 
     def write(self, record: dict[str, Any]) -> None:
-        data = (json.dumps(record, separators=(",", ":")) + "\n").encode("utf-8")
+        data = signed_line(record)
         try:
             while data:
                 data = data[self._fh.write(data):]
@@ -152,23 +160,87 @@ class ReportLog:
             self.close()
 
 
-def read_log(path: str | Path) -> Iterator[dict[str, Any]]:
-    """The lines of REPORT.jsonl as objects, in order. A last line cut short (a killed run) is skipped; a damaged
-    line before it raises `ReportFileError`."""
+_CHECKSUM = re.compile(rb',"crc32":"([0-9a-f]{8})"}\n\Z')
+"""The end of a line: its checksum, the CRC-32 of the line's text without it (`signed_line`)."""
+_FIELDS: dict[str, dict[str, tuple[type, ...]]] = {
+    "run": {"options": (dict,), "tolerances": (dict,), "inputs": (list,)},
+    "file": {"path": (str,), "episodes": (int,), "error": (str, type(None))},
+    "episode": {"file": (str,), "index": (int,), "length": (int,), "verdict": (str,)},
+    "note": {"text": (str,)},
+    "end": {},
+}
+"""Each kind of line, and the types of the fields the reader relies on."""
+_JSON_TYPES = {dict: "an object", list: "an array", str: "text", int: "a whole number", float: "a number",
+               bool: "true or false", type(None): "null"}
+
+
+def signed_line(record: dict[str, Any]) -> bytes:
+    """`record` as a line of REPORT.jsonl: compact JSON ending with its checksum."""
+    body = json.dumps(record, separators=(",", ":")).encode("utf-8")
+    return body[:-1] + b',"crc32":"%08x"}\n' % zlib.crc32(body)
+
+
+def _checked_body(line: bytes) -> bytes | None:
+    """The line's JSON without its checksum, or None when it has none or its checksum does not match its text."""
+    found = _CHECKSUM.search(line)
+    if found is None:
+        return None
+    body = line[: found.start()] + b"}"
+    return body if b"%08x" % zlib.crc32(body) == found.group(1) else None
+
+
+def _unchecked_problem(path: Path, line: bytes, number: int) -> str:
+    """Why a line without a valid checksum is refused: a report of an earlier simreel, something else, damage."""
+    if number == 1 and not _CHECKSUM.search(line):
+        first = parse_json(line, path, what="line 1", error=ReportFileError)
+        if isinstance(first, dict) and first.get("type") == "run":
+            return ("was written by an earlier simreel, whose report lines carry no checksum, so its verdicts "
+                    "cannot be checked; replay again with --report (--overwrite replaces it)")
+        return "line 1 is not a report line: not a simreel replay report"
+    return (f"line {number} is damaged (its checksum does not match its text: it changed since it was written), so "
+            "no verdict of the report can be trusted; replay again with --report (--overwrite replaces it)")
+
+
+def _line_problem(record: Any) -> str | None:
+    """What is wrong with a line's fields (its kind, a field's type, its verdict), or None."""
+    kind = record.get("type") if isinstance(record, dict) else None
+    if kind not in _FIELDS:
+        return "is not a report line (no known \"type\")"
+    for name, types in _FIELDS[kind].items():
+        value = record.get(name)
+        if not isinstance(value, types) or (isinstance(value, bool) and bool not in types):
+            return (f"has {_JSON_TYPES.get(type(value), 'a value')} as \"{name}\", which in {kind} lines is "
+                    f"{_JSON_TYPES[types[0]]}")
+    if kind == "episode" and record["verdict"] not in VERDICTS:
+        return f"gives the verdict {json.dumps(record['verdict'])[:40]}, which is none of {', '.join(VERDICTS)}"
+    return None
+
+
+def numbered_lines(path: str | Path) -> Iterator[tuple[int, dict[str, Any]]]:
+    """(line number, object) of each line of REPORT.jsonl, checked (`read_log`), in order."""
     p = Path(path)
     if not p.is_file():
         raise ReportFileError(p, "no such report (a run with --report REPORT.json streams into REPORT.jsonl)")
-    with open(p, encoding="utf-8") as fh:
+    with open(p, "rb") as fh:
         for number, line in enumerate(fh, 1):
-            if not line.endswith("\n"):
+            if not line.endswith(b"\n"):
                 return  # cut mid-write: that episode had not finished writing; a resumed run replays it
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError as e:
-                raise ReportFileError(p, f"line {number} is not JSON ({e.msg}): the report is damaged") from None
-            if not isinstance(record, dict) or "type" not in record:
-                raise ReportFileError(p, f"line {number} is not a report line: not a simreel replay report")
-            yield record
+            body = _checked_body(line)
+            if body is None:
+                raise ReportFileError(p, _unchecked_problem(p, line, number))
+            record = parse_json(body, p, what=f"line {number}", error=ReportFileError)
+            problem = _line_problem(record)
+            if problem is not None:
+                raise ReportFileError(p, f"line {number} {problem}: the report is damaged or not a replay report")
+            yield number, record
+
+
+def read_log(path: str | Path) -> Iterator[dict[str, Any]]:
+    """The lines of REPORT.jsonl as objects (without their checksums), in order. A last line cut short (a killed
+    run) is skipped; a line before it that is damaged (its checksum does not match), not JSON, or not a report
+    line of the right types raises `ReportFileError` naming it."""
+    for _, record in numbered_lines(path):
+        yield record
 
 
 @dataclass
@@ -177,24 +249,35 @@ class LoggedRun:
 
     run: dict[str, Any]
     files: dict[str, dict[str, Any]] = field(default_factory=dict)
-    done: set[tuple[str, int]] = field(default_factory=set)
+    file_lines: dict[str, int] = field(default_factory=dict)
+    """Path → the number of the line that lists it."""
+    done: dict[tuple[str, int], int] = field(default_factory=dict)
+    """(path, index) of each episode with a verdict → the number of its line."""
     ended: bool = False
+
+    def add(self, path: Path, number: int, record: dict[str, Any]) -> None:
+        """Take the report's line `number`; `ReportFileError` for a verdict on a file no line before it lists."""
+        kind = record["type"]
+        if kind == "file":
+            self.files.setdefault(record["path"], record)
+            self.file_lines.setdefault(record["path"], number)
+        elif kind == "episode":
+            if record["file"] not in self.files:
+                raise ReportFileError(path, f"line {number} gives a verdict on {record['file']}, which no line before "
+                                            "it lists as a file of the run: the report is damaged")
+            self.done.setdefault((record["file"], record["index"]), number)
+        self.ended = kind == "end" or (self.ended and kind != "run")
 
 
 def load_log(path: str | Path) -> LoggedRun:
-    """Read a report's lines for `--resume`; `ReportFileError` when it is not a replay report."""
+    """Read a report's lines for `--resume`; `ReportFileError` when it is not a replay report or a line is damaged."""
     logged: LoggedRun | None = None
-    for record in read_log(path):
-        kind = record["type"]
+    for number, record in numbered_lines(path):
         if logged is None:
-            if kind != "run":
+            if record["type"] != "run":
                 raise ReportFileError(path, "does not start with a run line: not a simreel replay report")
             logged = LoggedRun(record)
-        elif kind == "file":
-            logged.files.setdefault(record["path"], record)
-        elif kind == "episode":
-            logged.done.add((record["file"], int(record["index"])))
-        logged.ended = kind == "end" or (logged.ended and kind != "run")
+        logged.add(Path(path), number, record)
     if logged is None:
         raise ReportFileError(path, "is empty: the run that made it wrote nothing; start a new one")
     return logged
@@ -270,16 +353,20 @@ _REPLAY_REPORT = "--verified and --diverged take the report that `simreel replay
 def _document_records(json_path: Path) -> list[dict[str, Any]]:
     """The file and episode entries of the report document `json_path`; `ReportFileError` saying what the file is
     instead (not JSON, a conversion's report, another JSON document) and which report to give."""
-    try:
-        doc = json.loads(json_path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise ReportFileError(json_path, f"not a simreel replay report (not a JSON document); {_REPLAY_REPORT}") from None
+    doc = parse_json(json_path.read_bytes(), json_path, what="it", error=ReportFileError,
+                     then=f"not a simreel replay report; {_REPLAY_REPORT}")
     try:
         files = [{"type": "file", **f, "path": str(f["path"])} for f in doc["files"]]
-        return files + [{"type": "episode", **e, "file": str(e["file"]), "index": int(e["index"]),
-                         "verdict": str(e["verdict"])} for e in doc["episodes"]]
+        episodes = [{"type": "episode", **e, "file": str(e["file"]), "index": int(e["index"]),
+                     "verdict": str(e["verdict"])} for e in doc["episodes"]]
     except (KeyError, TypeError, ValueError):
         raise ReportFileError(json_path, f"{_what_document(doc)}, not a replay report; {_REPLAY_REPORT}") from None
+    for e in episodes:
+        if e["verdict"] not in VERDICTS:
+            raise ReportFileError(json_path, f"episode {e['index']} of {e['file']} has the verdict "
+                                             f"{json.dumps(e['verdict'])[:40]}, which is none of {', '.join(VERDICTS)}: "
+                                             "the report is damaged")
+    return files + episodes
 
 
 def _what_document(doc: Any) -> str:

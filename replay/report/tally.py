@@ -15,7 +15,7 @@ from typing import Any
 
 from simreel.datasets.inputs import shown_path
 from simreel.model.components import format_number
-from simreel.replay.report.report import CHECK_ORDER, VERIFIED, EpisodeReport, episode_lines
+from simreel.replay.report.report import CHECK_ORDER, VERDICTS, EpisodeReport, episode_lines
 
 __all__ = ["FileTally", "RunTally", "ReplayReport", "SHOWN_ROWS", "LISTED"]
 
@@ -23,7 +23,6 @@ SHOWN_ROWS = 200
 """A run of at most this many episodes prints a row for each; a larger one only those that did not verify."""
 LISTED = 500
 """Episodes that did not verify kept for the summary; the report file lists every one."""
-_OUTCOMES = (*VERIFIED, "diverged", "error")
 
 
 @dataclass
@@ -51,7 +50,7 @@ class FileTally:
     def to_json(self) -> dict[str, Any]:
         return {"path": self.path, "env_id": self.env_id, "size": self.size, "mtime_ns": self.mtime_ns,
                 "episodes": self.planned, "error": self.error, "warnings": list(self.warnings),
-                "limits": list(self.limits), "counts": {v: self.counts.get(v, 0) for v in _OUTCOMES},
+                "limits": list(self.limits), "counts": {v: self.counts.get(v, 0) for v in VERDICTS},
                 "steps": self.steps}
 
     @classmethod
@@ -148,7 +147,7 @@ class RunTally:
 
     def head(self) -> dict[str, Any]:
         """The report document without its ``episodes`` list."""
-        totals = {v: self.count(v) for v in _OUTCOMES}
+        totals = {v: self.count(v) for v in VERDICTS}
         totals.update(files=len(self.files), unreadable_files=len(self.unreadable), episodes=self.total,
                       planned=self.planned, steps=sum(f.steps for f in self.files.values()))
         return {"ok": self.ok, "complete": self.complete, "mode": self.mode, "resync": self.resync,
@@ -246,7 +245,7 @@ class RunTally:
                         for text, n in limits.items()]
 
     def _verdict_line(self) -> str:
-        exact, within, diverged, errors = (self.count(v) for v in _OUTCOMES)
+        exact, within, diverged, errors = (self.count(v) for v in VERDICTS)
         verified = exact + within
         extra = [f"{errors} could not be replayed"] if errors else []
         # "all verified" only when nothing was left unchecked: an episode that could not be replayed (a corrupt

@@ -27,7 +27,7 @@ from typing import Any
 
 from simreel import __version__
 from simreel.datasets.inputs import file_identity
-from simreel.errors import FileProblemError, ReplayError, StorageError, UsageError
+from simreel.errors import FileProblemError, ReplayError, ReportFileError, StorageError, UsageError
 from simreel.formats import check_report_writable, check_writable, format_of, recording_files
 from simreel.io.durable import is_storage_error, raise_if_stopped, storage_error
 from simreel.io.targets import check_distinct
@@ -102,6 +102,8 @@ class ReplayRun:
         self.worklist: WorkList = build_worklist(self._recordings(logged), episodes=opts.episodes,
                                                  restores=restores, done=logged.done if logged else (),
                                                  chains=opts.mode == "actions")
+        if logged is not None:
+            self._check_logged_episodes(logged)
         self._check_outputs()
         self.tally = self._tally(logged)
         self._new_files = [f for f in self.worklist.files if logged is None or f.path not in logged.files]
@@ -197,6 +199,20 @@ class ReplayRun:
             if (then.get("size"), then.get("mtime_ns")) != now:
                 raise UsageError(f"{path} changed since {self.report_json} began (size or modification time "
                                  "differ): its verdicts would mix two recordings; start a new report (--overwrite)")
+
+    def _check_logged_episodes(self, logged: LoggedRun) -> None:
+        """Every verdict of the report is on an episode this run replays, and every file it lists plans the
+        episodes the file has: else the report is damaged, and a resumed run would count verdicts of nothing."""
+        planned = {f.path: f.episodes for f in self.worklist.files if f.meta is not None}
+        for (path, index), number in logged.done.items():
+            if index not in planned.get(path, {}):
+                raise ReportFileError(self.report_log, f"line {number} gives a verdict on episode {index} of {path}, "
+                                                       "which the run does not replay: the report is damaged")
+        for path, number in logged.file_lines.items():
+            listed = logged.files[path]["episodes"]
+            if path in planned and listed != len(planned[path]):
+                raise ReportFileError(self.report_log, f"line {number} plans {listed} episode(s) of {path}, and the run "
+                                                       f"replays {len(planned[path])}: the report is damaged")
 
     def _tally(self, logged: LoggedRun | None) -> RunTally:
         opts = self.options

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 from typing import Any
 
-from simreel.cli.common import GivenOnce, parse_index_ranges
+from simreel.cli.common import GivenOnce, parse_index_ranges, write_json_report
 from simreel.errors import UsageError
 from simreel.io.durable import raise_if_stopped
 from simreel.options.declare import add_arguments, from_arguments
@@ -90,7 +89,6 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--steps must be >= 1, got {args.steps}")
     if args.env_id is None and args.trajectory is None:
         raise UsageError("name the task to audit (ENV_ID), or a recording with --trajectory")
-    from simreel.io.targets import write_text_atomic
     from simreel.replay.audit.audit import audit_task
 
     if args.json is not None:
@@ -103,5 +101,6 @@ def run(args: argparse.Namespace) -> int:
         text = "\n".join(line for line in text.splitlines() if not line.lstrip().startswith(("checked:", "note:")))
     print(text)
     if args.json:
-        write_text_atomic(args.json, json.dumps(report.to_json(), indent=2) + "\n")
+        write_json_report(args.json, report.to_json(), kept="its findings are the lines above",
+                          again="audit again")
     return 0 if report.ok else 1

@@ -16,7 +16,38 @@ from simreel.verdicts.options import ATOL, TOL, mode_choices, parse_group_tolera
 
 __all__ = ["add_env_options", "env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
            "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar", "mode_choices",
-           "GivenOnce", "LOG_LINE_SECONDS"]
+           "GivenOnce", "LOG_LINE_SECONDS", "STOPPED_THEN", "stopped_saying", "write_json_report"]
+
+
+STOPPED_THEN = "simreel_then"
+"""The attribute of a Ctrl-C/SIGTERM (`KeyboardInterrupt`) that holds what the stopped command kept and how to
+finish, which its one line ends with (`stopped_saying`)."""
+
+
+def stopped_saying(stop: KeyboardInterrupt, then: str) -> None:
+    """Make the one line of the command `stop` stops ("interrupted", "terminated (SIGTERM)") go on with `then`."""
+    setattr(stop, STOPPED_THEN, then)
+
+
+def write_json_report(path: str, doc: Any, *, kept: str, again: str) -> None:
+    """Write the JSON document `doc` to `path` (whole or not at all: `write_text_atomic`). A write the storage
+    refuses (a full disk) is one line naming `path`, saying what the command wrote and kept (`kept`) and how to
+    have the report (`again`)."""
+    import json
+    from pathlib import Path
+
+    from simreel.errors import StorageError
+    from simreel.io.durable import is_storage_error, storage_error
+    from simreel.io.targets import write_text_atomic
+
+    try:
+        write_text_atomic(path, json.dumps(doc, indent=2) + "\n")
+    except OSError as e:
+        if not is_storage_error(e):
+            raise
+        error = storage_error(Path(path), e)
+        raise StorageError(path, error.reason, f"{error.fix}, then {again}", f": the report was not written; {kept}") \
+            from None
 
 
 LOG_LINE_SECONDS = 60.0

@@ -7,13 +7,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import progress_bar
+from simreel.cli.common import progress_bar, write_json_report
 from simreel.errors import UsageError
 from simreel.options.declare import add_arguments, changed_on_command_line, cli_names, from_arguments
 from simreel.replay.convert.options import ConvertOptions
@@ -127,7 +126,7 @@ def _options(args: argparse.Namespace) -> Any:
 
 def _convert(args: argparse.Namespace) -> int:
     from simreel.formats import check_report_writable, recording_files
-    from simreel.io.targets import check_distinct, write_text_atomic
+    from simreel.io.targets import check_distinct
     from simreel.replay.convert.convert import ConversionRun
 
     options = _options(args)
@@ -149,5 +148,6 @@ def _convert(args: argparse.Namespace) -> int:
         sys.stderr.write(f"simreel convert: warning: {line}\n")
     print(report.summary())
     if args.report:
-        write_text_atomic(args.report, json.dumps(report.to_json(), indent=2) + "\n")
+        write_json_report(args.report, report.to_json(), kept=f"{args.output} was written and kept",
+                          again="convert again with --overwrite for the report")
     return 0 if report.ok else 1

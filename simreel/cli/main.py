@@ -22,6 +22,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from simreel import __version__
+from simreel.cli.common import STOPPED_THEN
 from simreel.errors import SimreelError, Terminated
 from simreel.io.durable import stop_raised, stopping_signals
 
@@ -170,11 +171,14 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _stopped(prog: str, stop: KeyboardInterrupt) -> int:
-    """The exit status and one line of a command stopped by SIGTERM (`Terminated`) or Ctrl-C."""
+    """The exit status and one line of a command stopped by SIGTERM (`Terminated`) or Ctrl-C, ending with what the
+    command kept and how to finish (`stopped_saying`), where it says."""
+    then = getattr(stop, STOPPED_THEN, "")
+    then = f"; {then}" if then else ""
     if isinstance(stop, Terminated):
-        sys.stderr.write(f"{prog}: terminated (SIGTERM)\n")
+        sys.stderr.write(f"{prog}: terminated (SIGTERM){then}\n")
         return 143
-    sys.stderr.write(f"{prog}: interrupted\n")
+    sys.stderr.write(f"{prog}: interrupted{then}\n")
     return 130
 
 

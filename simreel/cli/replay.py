@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import progress_bar
+from simreel.cli.common import progress_bar, stopped_saying
 from simreel.errors import UsageError
 from simreel.options.declare import (
     add_arguments,
@@ -82,9 +82,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         with bar:
             tally = replay.execute(progress)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as stop:
         if replay.report_json is not None or replay.options.output is not None:
-            sys.stderr.write(f"simreel replay: {replay.how_to_finish()}\n")
+            stopped_saying(stop, replay.how_to_finish())
         raise
     _print(tally, replay)
     return tally.exit_status()

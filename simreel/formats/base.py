@@ -439,7 +439,12 @@ class EpisodeReader(ABC):
         "audited along") every episode never leaves one out silently, nor calls the rest all of it."""
         if self.damaged:
             raise RecordingFileError(self.path, f"damaged, cannot be {doing}: {'; '.join(self.damaged)}; name the "
-                                                "others with --episodes, or `simreel recover` the file")
+                                                f"others with --episodes; {self.recover_hint()}")
+
+    def recover_hint(self) -> str:
+        """What to do with the file when it has damaged episodes: the `simreel recover` command that keeps the intact
+        ones."""
+        return f"`simreel recover {self.path}` keeps its intact episodes"
 
     def episode_meta(self, index: int) -> EpisodeMeta:
         """The metadata of episode `index`; `RecordingFileError` naming the episodes there are, and where the file has
@@ -453,7 +458,7 @@ class EpisodeReader(ABC):
         have = ", ".join(str(m.index) for m in self.episodes) or "none"
         if self.damaged:
             raise RecordingFileError(self.path, f"no readable episode {index} (readable: {have}); damaged: "
-                                                f"{'; '.join(self.damaged)}; {recover_hint(self.path)}")
+                                                f"{'; '.join(self.damaged)}; {self.recover_hint()}")
         raise RecordingFileError(self.path, f"no episode {index} (episodes: {have})")
 
     def named_episodes(self, episodes: Iterable[int]) -> list[int]:
@@ -484,8 +489,3 @@ def closed_reader(path: str | Path) -> UsageError:
     """The error for a read through a closed reader, or an episode it opened: the file may be fine (a failed read of a
     closed file would otherwise be taken for a damaged one)."""
     return UsageError(f"{path}: this reader is closed; open_reader the file again")
-
-
-def recover_hint(path: str | Path) -> str:
-    """What to do with a file that has damaged episodes."""
-    return f"`simreel recover {path}` keeps its intact episodes"

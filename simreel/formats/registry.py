@@ -3,7 +3,6 @@ beside a recording."""
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -14,6 +13,7 @@ from simreel.formats.base import EpisodeReader, EpisodeWriter
 from simreel.formats.maniskill.layout import refuse_replacing_sidecar, sidecar_owners
 from simreel.io.paths import read_head, refuse_empty
 from simreel.io.targets import check_output
+from simreel.model.json_input import json_value
 from simreel.model.meta import RecordingMeta
 from simreel.options.checks import path_text
 
@@ -173,7 +173,7 @@ def _json_document(path: Path, head: bytes) -> dict[str, Any]:
     if not head.lstrip().startswith(b"{") or path.stat().st_size > _JSON_READ_LIMIT:
         return {}
     try:
-        document = json.loads(path.read_bytes())
+        document = json_value(path.read_bytes(), "it")
     except (OSError, ValueError):
         return {}
     return document if isinstance(document, dict) else {}

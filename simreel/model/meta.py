@@ -20,6 +20,7 @@ import numpy as np
 
 from simreel import FORMAT_VERSION
 from simreel.errors import MetadataError
+from simreel.model.json_input import json_value
 from simreel.model.state_tree import LeafSpec
 
 
@@ -225,7 +226,7 @@ def _unpack_json(d: Any, what: str) -> dict[str, Any]:
     if set(d) != {_PACKED}:
         return d
     try:
-        out = json.loads(zlib.decompress(base64.b64decode(d[_PACKED], validate=True)))
+        out = json_value(zlib.decompress(base64.b64decode(d[_PACKED], validate=True)), "the packed JSON")
     except (binascii.Error, zlib.error, ValueError, TypeError) as exc:
         raise MetadataError(f"{what}: the packed JSON does not decode ({exc}); the file's metadata is damaged") from exc
     if not isinstance(out, dict):

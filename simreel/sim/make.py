@@ -9,11 +9,12 @@ mani_skill (~3 s to import) is imported inside the functions here, never at modu
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import difflib
 import os
 import traceback
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -119,11 +120,36 @@ def make_env(env_id: str, config: EnvConfig | None = None, **overrides: Any) -> 
     backend = _prepare_render(env_id, cfg)
     kwargs = _gym_kwargs(cfg, backend)
     try:
-        return gym.make(env_id, **kwargs)
+        with _maniskill_log_held():
+            return gym.make(env_id, **kwargs)
     except SystemExit as exc:  # ManiSkill calls exit() when asked for assets it cannot get
         raise EnvBuildError(f"{env_id}: ManiSkill exited while building the env ({exc.code})") from exc
     except Exception as exc:
         raise _build_error(env_id, exc, backend=backend, cfg=cfg) from exc
+
+
+@contextlib.contextmanager
+def _maniskill_log_held() -> Iterator[None]:
+    """ManiSkill's log lines while it builds an env, held: written once the env is built, dropped when the build
+    fails, whose one line says what went wrong (ManiSkill's WARNING of an unknown robot, then its error, would be
+    two)."""
+    import logging
+
+    from mani_skill import logger
+
+    held: list[logging.LogRecord] = []
+
+    class _Hold(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            held.append(record)
+
+    handlers, logger.handlers = logger.handlers, [_Hold()]
+    try:
+        yield
+    finally:
+        logger.handlers = handlers
+    for record in held:  # only when the block ended well
+        logger.handle(record)
 
 
 SIM_BACKENDS = ("auto", "physx_cpu", "cpu", "physx_cuda", "gpu", "cuda")

@@ -7,6 +7,7 @@ from pathlib import Path
 import h5py
 import pytest
 from support.mcap_samples import assert_same_episode, long_sample, synthetic_episode, synthetic_meta, write
+from support.small_disk import fill, small_disk
 
 from simreel.cli.main import main
 from simreel.formats import open_reader
@@ -176,3 +177,20 @@ def test_the_help_says_count_is_applied_before_keep(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert ("convert only the first N of those episodes; --keep then chooses which of them are written (N converted, "
             "at most N written)") in text
+
+
+def test_a_full_disk_under_the_report_alone_names_the_report_and_keeps_the_output(record, tmp_path, capsys):
+    """Regression: it said "writing the output: the disk is full", though the output was written and kept."""
+    out = tmp_path / "out.mcap"
+    with small_disk(tmp_path, 256) as disk:
+        report = disk / "r.json"
+        fill(disk, 0)
+        capsys.readouterr()
+        assert main(["convert", str(record("PickCube-v1", 1, 5)), str(out), "--obs-mode", "state",
+                     "--report", str(report), "-q"]) == 2
+        captured = capsys.readouterr()
+        assert captured.err == (f"simreel convert: error: {report}: the disk is full: the report was not written; "
+                                f"{out} was written and kept; free some space or write to another disk, then convert "
+                                "again with --overwrite for the report\n")
+        assert sorted(p.name for p in disk.iterdir() if not p.name.startswith("filler")) == []
+    assert open_reader(out).meta.env_id == "PickCube-v1"

@@ -35,7 +35,7 @@ def test_a_conversions_report_is_named_as_such(converted, tmp_path, capsys):
     ('{"env_info": {}, "episodes": []}', "a recording's JSON sidecar (ManiSkill's trajectory JSON), not a replay report"),
     ('{"files": [], "episodes": [{"index": 0}]}', "a JSON document without a replay report's files and episodes, "
                                                   "not a replay report"),
-    ("[1, 2", "not a simreel replay report (not a JSON document)"),
+    ("[1, 2", "it is not JSON (Expecting ',' delimiter at line 1 column 6): not a simreel replay report"),
 ])
 def test_other_json_is_named_for_what_it_is(converted, tmp_path, capsys, text, what):
     src, _ = converted

@@ -7,6 +7,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import h5py
@@ -292,3 +294,16 @@ def test_a_file_that_holds_only_flags_is_refused_never_called_exact(tmp_path, ca
         "flags (terminated, truncated, success), which do not tell whether the trajectory reproduced" in err, err
     report = _replay(tmp_path / "data", tmp_path, 2)
     assert [(Path(e["file"]).name, e["verdict"]) for e in report["episodes"]] == [("full.h5", "exact")], report
+
+
+def test_a_sidecar_naming_an_unknown_robot_is_one_line(altered_dir, tmp_path):
+    """Regression: ManiSkill's WARNING ("nobot is not in the task's list of supported robots") came before the
+    run's own line; a build that fails drops the log lines ManiSkill wrote while building."""
+    path = copy_recording(altered_dir, "flat", tmp_path)
+    edit_sidecar(path, lambda d: d["env_info"]["env_kwargs"].update(robot_uids="nobot"))
+    done = subprocess.run([sys.executable, "-m", "simreel", "replay", str(path), "-q"], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr == ("simreel replay: error: PickCube-v1: could not build the env: RuntimeError: Agent nobot not "
+                           "found in the dict of registered agents. If the id is not a typo then make sure to apply "
+                           "the @register_agent() decorator.\n")

@@ -85,3 +85,23 @@ def test_a_simreel_recording_made_from_a_maniskill_file_is_recovered_in_place(tm
     assert done.returncode == 0, done.stderr
     with open_reader(converted) as r:
         assert [m.index for m in r.episodes] == [0, 2] and r.meta.source["format"] == "maniskill"
+
+
+def test_the_hint_for_a_damaged_maniskill_episode_is_a_recover_that_works(tmp_path):
+    """Regression: the hint said `simreel recover demos.h5`, which refuses a ManiSkill file without -o."""
+    import shlex
+
+    from support.maniskill_files import record_maniskill
+
+    path = record_maniskill(tmp_path, "PickCube-v1", episodes=2, steps=5)
+    with h5py.File(path, "a") as f:
+        del f["traj_1/actions"]
+    copy = tmp_path / "demos.recovered.h5"
+    refused = simreel("view", str(path), "--episode", "1", "--save", str(tmp_path / "v.rrd"))
+    assert refused.returncode == 2, refused.stderr
+    hint = f"`simreel recover {path} -o {copy}` copies its intact episodes (a ManiSkill file is recovered with -o)"
+    assert refused.stderr.count("\n") == 1 and refused.stderr.endswith(f"; {hint}\n"), refused.stderr
+    done = simreel(*shlex.split(hint.split("`")[1])[1:])
+    assert done.returncode == 0, done.stderr
+    with open_reader(copy) as r:
+        assert [m.index for m in r.episodes] == [0]

@@ -17,6 +17,7 @@ import pytest
 from support.small_disk import fill, small_disk
 
 from simreel.cli.main import main
+from simreel.replay.report.log import signed_line
 
 
 @pytest.fixture
@@ -73,12 +74,14 @@ def test_a_recording_gone_since_the_report_began_refuses_the_resume(folder, tmp_
 
 
 def _as_an_older_report(report: Path) -> None:
-    """Make the run line name its --import files as given, relative to its folder (simreel kept them so before)."""
+    """Make the run line name its --import files as given, relative to its folder (simreel kept them so before),
+    with the checksum of its new text."""
     log = report.with_name(report.name + "l")
     first, rest = log.read_text().split("\n", 1)
     run = json.loads(first)
+    del run["crc32"]
     run["options"]["imports"] = [os.path.relpath(spec, run["cwd"]) for spec in run["options"]["imports"]]
-    log.write_text(json.dumps(run) + "\n" + rest)
+    log.write_bytes(signed_line(run) + rest.encode())
 
 
 @pytest.mark.parametrize("older", [False, True], ids=["kept-absolute", "older-report-relative"])

@@ -51,6 +51,7 @@ from simreel.io.paths import read_head, read_problem
 from simreel.io.staging import replacement_note
 from simreel.model.blocks import StepBlock
 from simreel.model.fields import FieldSpec, episode_fields
+from simreel.model.json_input import json_value
 from simreel.model.meta import EpisodeMeta, RecordingMeta, json_default
 
 __all__ = ["Hdf5Reader", "Hdf5Rows", "open_hdf5", "holds_simreel_metadata", "unlisted_datasets_problem", "datasets_below",
@@ -168,7 +169,7 @@ class Hdf5Reader(EpisodeReader):
                 f"format version {version} is newer than this simreel reads ({FORMAT_VERSION}); upgrade simreel",
             )
         try:
-            return RecordingMeta.from_json(json.loads(text))
+            return RecordingMeta.from_json(json_value(text, "its simreel metadata"))
         except (ValueError, TypeError) as e:  # MetadataError and JSONDecodeError are ValueErrors
             raise RecordingFileError(self.path, f"bad simreel metadata ({e})") from None
 
@@ -206,7 +207,7 @@ class Hdf5Reader(EpisodeReader):
             if EPISODE_ATTR not in attrs:
                 found = ", ".join(sorted(attrs)) or "none"
                 raise ValueError(f"no {EPISODE_ATTR} attribute (attributes found: {found}); half written or damaged")
-            meta = EpisodeMeta.from_json(json.loads(decode_text(attrs[EPISODE_ATTR])))
+            meta = EpisodeMeta.from_json(json_value(decode_text(attrs[EPISODE_ATTR]), f"its {EPISODE_ATTR}"))
         except (RecordingFileError, ValueError):
             raise
         except H5PY_ERRORS as e:
@@ -323,10 +324,10 @@ def _sidecar_disagreement(path: Path, meta: RecordingMeta, episodes: list[Episod
     (`sidecar_document`), so a sidecar left from another recording, one that lags, or an edited one is told apart
     from a current one by the writer's own rule."""
     try:
-        found = json.loads(sidecar_path(path).read_text())
+        found = json_value(sidecar_path(path).read_bytes(), "it")
     except FileNotFoundError:
         return None
-    except (OSError, UnicodeDecodeError, ValueError) as e:
+    except (OSError, ValueError) as e:
         return f"cannot be read ({e})"
     want = sidecar_document(meta, episodes)
     if not isinstance(found, dict) or not isinstance(found.get("episodes"), list) \
@@ -438,7 +439,7 @@ def _running_episodes(folder: Path, committed: set[int]) -> dict[int, dict[str, 
     running: dict[int, dict[str, Any]] = {}
     for text in lines:
         try:
-            line = json.loads(text)
+            line = json_value(text, "a line")
             if "began" in line:
                 running[int(line["began"])] = line
             else:

@@ -105,6 +105,12 @@ class ManiskillReader(EpisodeReader):
     """Reads a ManiSkill trajectory file (``traj_N`` groups + JSON sidecar). Raises `RecordingFileError` for a
     missing or mismatching sidecar, and for an HDF5 file that is no trajectory file at all."""
 
+    def recover_hint(self) -> str:
+        """`simreel recover` keeps the intact episodes of a ManiSkill file in a copy only (`-o`): in place it would
+        replace it by a simreel recording."""
+        copy = self.path.with_name(f"{self.path.stem}.recovered.h5")
+        return f"`simreel recover {self.path} -o {copy}` copies its intact episodes (a ManiSkill file is recovered with -o)"
+
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         if not self.path.is_file():

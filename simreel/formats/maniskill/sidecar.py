@@ -30,6 +30,7 @@ from typing import Any
 from simreel.errors import RecordingFileError
 from simreel.formats.maniskill.layout import sidecar_path
 from simreel.io.targets import write_text_atomic
+from simreel.model.json_input import json_value
 from simreel.model.meta import EpisodeMeta, RecordingMeta, json_default
 
 __all__ = ["Sidecar", "SidecarFile", "sidecar_document", "write_sidecar"]
@@ -160,8 +161,8 @@ class Sidecar:
                 "(ManiSkill's RecordEpisode and replay_trajectory write it beside the .h5; copy it along)"
             )
         try:
-            doc = json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, ValueError) as e:
+            doc = json_value(path.read_bytes(), "it")
+        except (OSError, ValueError) as e:
             raise RecordingFileError(path, f"unreadable ManiSkill sidecar ({e})") from None
         return cls._from_document(path, doc)
 

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from simreel.model.fields import FieldSpec, episode_fields
+from simreel.model.json_input import json_value
 from simreel.model.meta import RecordingMeta
 
 __all__ = [
@@ -79,7 +80,7 @@ def fields_to_schema(fields: list[WireField]) -> bytes:
 
 
 def fields_from_schema(data: bytes) -> list[WireField]:
-    doc = json.loads(data)
+    doc = json_value(data, "the step schema")
     return [WireField(str(f["name"]), str(f["dtype"]), tuple(int(s) for s in f["shape"])) for f in doc["fields"]]
 
 

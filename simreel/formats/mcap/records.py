@@ -19,6 +19,7 @@ import zlib
 from dataclasses import dataclass
 from typing import Any
 
+from simreel.model.json_input import json_value
 from simreel.model.meta import EpisodeMeta, RecordingMeta
 
 __all__ = [
@@ -98,9 +99,9 @@ class RecordingRecord:
         return cls(
             format_version=int(d.get("format_version", "0")),
             simreel_version=d.get("simreel_version", ""),
-            meta=RecordingMeta.from_json(json.loads(d["recording_meta"])),
+            meta=RecordingMeta.from_json(json_value(d["recording_meta"], "its recording_meta")),
             step_ns=int(d.get("step_ns", "0")),
-            channels={k: int(v) for k, v in json.loads(d["channels"]).items()},
+            channels={k: int(v) for k, v in json_value(d["channels"], "its channels").items()},
             reset_schema=d["reset_fields"].encode(),
             step_schema=d["step_fields"].encode(),
         )
@@ -144,7 +145,7 @@ class EpisodeRecord:
 
     @classmethod
     def from_metadata(cls, d: dict[str, str]) -> EpisodeRecord:
-        return cls(EpisodeMeta.from_json(json.loads(d["episode"])), int(d["start_ns"]), int(d["end_ns"]),
+        return cls(EpisodeMeta.from_json(json_value(d["episode"], "its episode")), int(d["start_ns"]), int(d["end_ns"]),
                    int(d["steps"]))
 
 

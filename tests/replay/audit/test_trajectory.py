@@ -86,5 +86,6 @@ def test_an_audit_along_a_file_with_a_damaged_episode_names_it_instead_of_skippi
     assert main(["audit", "--trajectory", str(path), "--steps", "2"]) == 2
     assert capsys.readouterr().err.splitlines() == [
         f"simreel audit: error: {path}: damaged, cannot be audited along: record simreel.episode.1: the record does not "
-        "match its checksum (damaged); name the others with --episodes, or `simreel recover` the file"]
+        f"match its checksum (damaged); name the others with --episodes; `simreel recover {path}` keeps its intact "
+        "episodes"]
     assert main(["audit", "--trajectory", str(path), "--steps", "2", "--episodes", "0"]) == 0

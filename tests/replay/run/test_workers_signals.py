@@ -52,7 +52,7 @@ _SIGTERM_AS_A_WORKER_IS_FORKED = textwrap.dedent("""
 """)
 
 
-_NOT_BEGUN = "simreel replay: {report} was not begun (no episode had its verdict yet): run it again"
+_NOT_BEGUN = "simreel replay: {stop}; {report} was not begun (no episode had its verdict yet): run it again"
 
 _SIGTERM_AT_IMPORT = textwrap.dedent("""
     import os, signal, sys
@@ -126,7 +126,7 @@ def test_ctrl_c_of_the_terminal_while_a_worker_starts_is_the_runs_one_line(two_c
         os.killpg(driver.pid, signal.SIGINT)
         _, err = driver.communicate(timeout=60)
         assert driver.returncode == 130, err
-        assert err.splitlines() == [_NOT_BEGUN.format(report=report), "simreel replay: interrupted"]
+        assert err.splitlines() == [_NOT_BEGUN.format(stop="interrupted", report=report)]
         wait_ended(children, timeout=10)
     finally:
         kill_all(driver, children)
@@ -140,7 +140,7 @@ def test_sigterm_while_a_worker_process_is_forked_is_the_runs_one_line(two_chain
                            "--workers", "2", "--report", str(report), "-q"], capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 143, done.stderr
-    assert done.stderr.splitlines() == [_NOT_BEGUN.format(report=report), "simreel replay: terminated (SIGTERM)"]
+    assert done.stderr.splitlines() == [_NOT_BEGUN.format(stop="terminated (SIGTERM)", report=report)]
 
 
 def test_a_run_stopped_before_its_report_began_says_to_run_it_again(two_chains, tmp_path):
@@ -149,6 +149,6 @@ def test_a_run_stopped_before_its_report_began_says_to_run_it_again(two_chains, 
     report = tmp_path / "r.json"
     done = subprocess.run([sys.executable, "-c", _SIGTERM_AT_IMPORT, "mani_skill.envs", "replay", str(two_chains),
                            "--report", str(report), "-q"], capture_output=True, text=True, timeout=300)
-    assert (done.returncode, done.stderr.splitlines()) == (143, [_NOT_BEGUN.format(report=report),
-                                                                 "simreel replay: terminated (SIGTERM)"])
+    assert (done.returncode, done.stderr.splitlines()) == (143, [_NOT_BEGUN.format(stop="terminated (SIGTERM)",
+                                                                                    report=report)])
     assert not report.exists() and not report.with_name("r.jsonl").exists()
