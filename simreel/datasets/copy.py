@@ -2,8 +2,9 @@
 can be read of a recording whose process was killed or whose file is damaged.
 
 Both write a new file through `open_writer`, check their output with the one output rule first
-(`simreel.io.targets`), and leave no half-written output behind when they fail: a copy that fails is
-dropped, and an output it was to replace stays as it was (`simreel.io.staging`).
+(`simreel.io.targets`), write it under a staging name beside its final one and move it there only once it is
+complete (`simreel.datasets.staged`): a copy that fails or is killed leaves no part of it at the output's name, and
+an output it was to replace stays as it was.
 """
 
 from __future__ import annotations
@@ -13,8 +14,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, TypeVar
 
+from simreel.datasets.staged import StagedOutput, Target, clear_stale, publish_outputs
 from simreel.errors import RecordingFileError, StorageError, UsageError
-from simreel.formats import check_writable, format_of, open_reader, open_writer, recording_files
+from simreel.formats import (
+    check_writable,
+    format_of,
+    open_reader,
+    open_writer,
+    recording_files,
+    remove_recording,
+)
 from simreel.formats.base import EpisodeReader, EpisodeRows, EpisodeWriter
 from simreel.io.durable import raise_if_stopped
 from simreel.io.paths import real_path, refuse_empty
@@ -88,15 +97,6 @@ def convert(
         return CopyReport(len(reader.episodes), copied.steps, meta, list(reader.unfinished))
 
 
-@dataclass(frozen=True)
-class Target:
-    """A recording a copy writes: where, with what metadata, and whether it may replace a file."""
-
-    path: Path
-    meta: RecordingMeta
-    overwrite: bool
-
-
 def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, EpisodeRows]]) -> list[int]:
     """Write each (target number, episode) of `episodes` to `targets[number]`, all of them new recordings; returns
     the steps written to each. Each episode is copied a block of rows at a time. Every target is created before
@@ -134,8 +134,9 @@ class _Copied:
 
 def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target,
           change: EpisodeTransform | None = None, *, salvage: bool = False) -> _Copied:
-    """Write `episodes` of `reader` (through `change`, when given) to a new recording `target`. A failure drops the
-    new recording (an output it was to replace stays); with `salvage`, an episode that cannot be read is named in
+    """Write `episodes` of `reader` (through `change`, when given) to a new recording `target`: under a staging name
+    beside it, moved there once complete (`simreel.datasets.staged`), so `target` never holds part of a copy, even
+    after a kill -9. A failure drops the new recording (an output it was to replace stays); with `salvage`, an episode that cannot be read is named in
     `lost` and the copy goes on.
 
     An episode is copied a block of rows at a time (memory bounded whatever its length); `salvage` reads each one
@@ -158,10 +159,16 @@ def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target
             copied.episodes += 1
             yield 0, episode
 
+    output = StagedOutput.of(target)
     try:
-        copied.steps = write_episodes([target], read())[0]
-    except StorageError as e:
-        raise _nothing_written(e, target, reader) from None
+        copied.steps = write_episodes([output.staged], read())[0]
+        publish_outputs([output])
+    except BaseException as e:
+        remove_recording(output.staged.path)
+        if isinstance(e, StorageError):
+            raise _nothing_written(e, target, reader) from None
+        raise
+    clear_stale(target.path)
     return copied
 
 
