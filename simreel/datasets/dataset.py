@@ -37,7 +37,7 @@ from simreel.errors import OutputCheckError, RecordingFileError, StorageError, U
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
 from simreel.formats.base import not_a_file
 from simreel.io.durable import raise_if_stopped
-from simreel.io.paths import real_path, refuse_empty
+from simreel.io.paths import file_key, real_path, refuse_empty
 from simreel.io.targets import check_distinct
 from simreel.model.episode import Episode
 from simreel.model.meta import EpisodeMeta, RecordingMeta, new_recording_id
@@ -579,8 +579,8 @@ def merge(inputs: str | Path | Iterable[str | Path], output: str | Path, options
     output = _output_path("output", output)
     if not inputs:
         raise UsageError("no input to merge")
-    resolved = [real_path(p) for p in inputs]
-    twice = next((p for k, p in enumerate(inputs) if resolved[k] in resolved[:k]), None)
+    keys = [file_key(p) for p in inputs]  # a hard link, a symbolic link or another spelling of one file: the same
+    twice = next((p for k, p in enumerate(inputs) if keys[k] in keys[:k]), None)
     if twice is not None:
         raise UsageError(f"{twice} is given twice; each input is merged once")
     _check_outputs([output], inputs, opts)

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import IO
 
 from simreel.errors import UsageError
-from simreel.io.paths import SYMLINK_LOOP, is_symlink_loop, real_path
+from simreel.io.paths import SYMLINK_LOOP, file_key, is_symlink_loop, real_path
 from simreel.options.checks import check_flag
 
 __all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output",
@@ -120,19 +120,20 @@ def _name_max(folder: Path) -> int:
 
 def check_distinct(outputs: Mapping[str, Iterable[str | Path]], input_files: Sequence[str | Path], *,
                    input_label: str = "the input") -> None:
-    """Raise `UsageError` when two outputs are one file, or an output is one of the input's files.
+    """Raise `UsageError` when two outputs are one file, or an output is one of the input's files (`file_key`: a hard
+    link of it too).
 
     `outputs` maps an option (``-o``, ``--report``) to the files it writes (a recording: the file and its side
     files); `input_files` are the input and the files beside it (`simreel.formats.recording_files`)."""
-    seen: dict[Path, str] = {}
+    seen: dict[tuple[int, int] | Path, str] = {}
     for k, p in enumerate(input_files):
-        seen[real_path(p)] = input_label if k == 0 else f"a file of {input_label}"
+        seen[file_key(p)] = input_label if k == 0 else f"a file of {input_label}"
     for option, paths in outputs.items():
         for path in paths:
-            resolved = real_path(path)
-            if resolved in seen:
-                raise UsageError(f"{option} {path} is {seen[resolved]}; write it to another file")
-            seen[resolved] = f"also written by {option}"
+            key = file_key(path)
+            if key in seen:
+                raise UsageError(f"{option} {path} is {seen[key]}; write it to another file")
+            seen[key] = f"also written by {option}"
 
 
 @contextmanager
