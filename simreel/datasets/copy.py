@@ -59,6 +59,9 @@ class CopyReport:
     """The output's metadata."""
     skipped: list[str] = field(default_factory=list)
     """Episodes of the input that were never committed (a killed recording), hence not copied."""
+    notes: list[str] = field(default_factory=list)
+    """What the input's reader says of it as a whole (`EpisodeReader.notes`: groups of a ManiSkill file its sidecar
+    does not list, which are not copied either)."""
 
 
 def _no_bar(items: Iterable[_T]) -> Iterable[_T]:
@@ -94,7 +97,7 @@ def convert(
         finally:
             if change is not None:
                 change.close()
-        return CopyReport(len(reader.episodes), copied.steps, meta, list(reader.unfinished))
+        return CopyReport(len(reader.episodes), copied.steps, meta, list(reader.unfinished), list(reader.notes))
 
 
 def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, EpisodeRows]]) -> list[int]:

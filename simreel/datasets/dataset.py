@@ -312,6 +312,9 @@ class _Source:
     identity: dict[str, Any] = field(default_factory=dict)
     unfinished: list[str] = field(default_factory=list)
     """Episodes the file holds that were never committed (a killed recording): not listed, not copied."""
+    notes: list[str] = field(default_factory=list)
+    """What its reader says of the file as a whole (`EpisodeReader.notes`): groups of a ManiSkill file its sidecar
+    does not list, which are not copied either, a sidecar that disagrees with its .h5."""
     chains: SceneChains | None = None
     """Its episodes' scene chains (`simreel.verdicts.scene_history`), for each copy to keep where it ran."""
 
@@ -331,6 +334,7 @@ class _Source:
                 "created_utc": m.created_utc, "command": m.command, "source": m.source, "provenance": m.provenance,
             }
             source.unfinished = list(getattr(reader, "unfinished", []))
+            source.notes = list(reader.notes)
             source.chains = SceneChains(source.episodes)
         return source
 
@@ -591,7 +595,8 @@ def merge(inputs: str | Path | Iterable[str | Path], output: str | Path, options
     outputs, items = _run(sources, [target], everything, opts)
     taken = [sum(1 for i in items if i.source == k) for k in range(len(sources))]
     return DatasetReport("merge", outputs, [(s.path, len(s.episodes), n) for s, n in zip(sources, taken, strict=True)],
-                         outputs[0].episodes, unfinished=_unfinished(sources), notes=_neutral_differences(sources))
+                         outputs[0].episodes, unfinished=_unfinished(sources),
+                         notes=[*_reader_notes(sources), *_neutral_differences(sources)])
 
 
 def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCriteria,
@@ -627,8 +632,14 @@ def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCrit
     return DatasetReport(
         "filter", written, [(source.path, len(source.episodes), written[0].episodes)], sum(o.episodes for o in written),
         no_success=criteria.no_success(source.episodes), uncovered=criteria.uncovered(source.episodes),
-        criteria=criteria.describe(), unfinished=_unfinished([source]),
+        criteria=criteria.describe(), unfinished=_unfinished([source]), notes=_reader_notes([source]),
     )
+
+
+def _reader_notes(sources: Sequence[_Source]) -> list[str]:
+    """What the readers of `sources` said of each file, named by it, for the summary (as `inspect` and `replay` say
+    it): a group a ManiSkill file's sidecar does not list is never left out without a word."""
+    return [f"{s.label}: {note}" for s in sources for note in s.notes]
 
 
 def _unfinished(sources: Sequence[_Source]) -> list[str]:
