@@ -27,6 +27,7 @@ from simreel.formats import (
 from simreel.formats.base import EpisodeReader, EpisodeRows, EpisodeWriter
 from simreel.io.durable import raise_if_stopped
 from simreel.io.paths import real_path, refuse_empty
+from simreel.io.replacement import finish as finish_replacement
 from simreel.io.staging import replacement_note
 from simreel.io.targets import check_distinct
 from simreel.model.meta import EpisodeMeta, RecordingMeta
@@ -200,6 +201,8 @@ class RecoveryReport:
     """What else the reader noticed (a sidecar that lagged, a staged replacement left behind)."""
     live: bool = False
     """A recording was still writing the file: its running episodes were not copied, and not lost either."""
+    finished: str | None = None
+    """A replacement of the file that a killed command left half done, finished first (`simreel.io.replacement`)."""
 
 
 def _open_for_recovery(src: Path) -> EpisodeReader:
@@ -232,7 +235,8 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
     """Rewrite every intact committed episode of the recording `path` into `output` (default: `path` itself, which
     is replaced only once the new file is complete) and report what was lost: episodes that never finished,
     damaged ones, damaged records and bytes. A recording with nothing to repair (read through: every episode's data
-    intact) is left as it is."""
+    intact) is left as it is. A replacement of `path` that a command killed between its renames left half done is
+    finished first (`RecoveryReport.finished`)."""
     path = path_text("path", path, "the recording to recover, a str or pathlib.Path")
     refuse_empty(path, what="recording", instead="name the recording to recover")
     if output is not None:
@@ -249,13 +253,14 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
         format_of(output)
         check_distinct({"-o": recording_files(output)}, recording_files(src), input_label="the recording to recover")
         check_writable(output, overwrite=overwrite)  # refuse OUT before reading PATH front to back
+    finished = finish_replacement(src)  # a kill between two renames: the renames left, done first
     with _open_for_recovery(src) as reader:
         damaged = [*reader.damaged, *getattr(reader, "skipped", [])]
         report = RecoveryReport(
             complete=not (getattr(reader, "recovered", False) or reader.unfinished or damaged or reader.notes)
             and (output is not None or _all_intact(reader)),
             episodes=0, steps=0, unfinished=list(reader.unfinished), lost_bytes=getattr(reader, "lost_bytes", 0),
-            damaged=damaged, notes=list(reader.notes), live=bool(getattr(reader, "live", False)),
+            damaged=damaged, notes=list(reader.notes), live=bool(getattr(reader, "live", False)), finished=finished,
         )
         if report.complete and output is None:
             report.episodes, report.steps = len(reader.episodes), sum(e.length for e in reader.episodes)

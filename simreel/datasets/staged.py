@@ -8,10 +8,7 @@ removes (`clear_stale`). `convert`, `recover`, `merge`, `filter`, `replay -o` an
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import os
-import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +17,7 @@ from typing import Any
 from simreel.errors import UsageError
 from simreel.formats import check_writable, recording_files, remove_recording
 from simreel.io.durable import deferred_signals, raise_if_stopped
+from simreel.io.replacement import replacing, sync_path
 from simreel.io.staging import staging_path, stale_staging
 from simreel.io.targets import OVERWRITE_HINT, move_into_place
 from simreel.model.meta import RecordingMeta
@@ -70,53 +68,46 @@ class StagedOutput:
                 raise self._taken(dst)
         check_writable(self.final.path, overwrite=self.final.overwrite)
 
-    def publish(self) -> None:
-        """Move the complete recording and its side files to their final names, the recording made durable first
-        (`_sync`). Only then do the files of an old recording there that the new one lacks go (its `.partial/`
-        folder, which may hold the journal of a killed recording's lost episodes): with `overwrite` only, as the
-        output rule checked at the start. A name taken since the start (a file made after `check_free`) is never
-        replaced."""
-        pairs = [(src, dst) for src, dst in self._pairs() if src.exists()]
-        lacking = [dst for src, dst in self._pairs() if not src.exists()] if self.final.overwrite else []
-        _sync(self.staged.path)
-        for src, dst in pairs:
-            try:
-                move_into_place(src, dst, overwrite=self.final.overwrite)
-            except FileExistsError:
-                raise self._taken(dst) from None
-        _sync(self.final.path.parent)
-        for dst in lacking:
-            if dst.is_dir() and not dst.is_symlink():
-                shutil.rmtree(dst)
-            else:
-                dst.unlink(missing_ok=True)
-        remove_recording(self.staged.path)  # what is left of it: the side folder its writer used
+    def moves(self) -> list[tuple[Path, Path]]:
+        """(staged file, final name) of each file of the staged recording: its side files first, the recording last."""
+        return [(src, dst) for src, dst in self._pairs() if src.exists()]
+
+    def removals(self) -> list[Path]:
+        """Files of an old recording at the final name that the new one lacks (its `.partial/` folder, which may hold
+        the journal of a killed recording's lost episodes): removed once the new one is in place, with `overwrite`
+        only, as the output rule checked at the start."""
+        return [dst for src, dst in self._pairs() if not src.exists()] if self.final.overwrite else []
+
+    def move(self, src: Path, dst: Path) -> None:
+        """Move one staged file to its final name; a name taken since the start (a file made after `check_free`)
+        is never replaced without `overwrite`."""
+        try:
+            move_into_place(src, dst, overwrite=self.final.overwrite)
+        except FileExistsError:
+            raise self._taken(dst) from None
 
     def _taken(self, dst: Path) -> UsageError:
         return UsageError(f"{self.final.path} was written by another command while this one ran ({dst.name} is there "
                           f"now); it is left as it is and nothing was written ({OVERWRITE_HINT})")
 
 
-def _sync(path: Path) -> None:
-    """`os.fsync` the file or folder `path`: its data (a file) or its names (a folder) reach the disk, not only the
-    kernel, before what depends on them is changed. A file system that cannot sync one costs nothing more."""
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
 def publish_outputs(outputs: Sequence[StagedOutput]) -> None:
-    """Publish every output or none: each is checked (`check_free`) before any is moved, and SIGINT and SIGTERM are
-    held until every file is moved."""
+    """Publish every output or none, as one unit (`simreel.io.replacement`): each recording's files and every
+    output's are replaced together, another command replacing the same names waits, a kill between two renames
+    leaves a list that readers refuse and `simreel recover` finishes. Each output is checked (`check_free`) before
+    any is moved, each staged recording made durable first, and SIGINT and SIGTERM are held until every file is
+    moved."""
     raise_if_stopped()  # a Ctrl-C that landed in a finalizer (h5py's) was printed and dropped by Python
-    for output in outputs:
-        output.check_free()
-    with deferred_signals():
+    by_name = {dst: output for output in outputs for _, dst in output.moves()}
+    moves = [pair for output in outputs for pair in output.moves()]
+    with replacing([o.final.path for o in outputs], moves, [p for o in outputs for p in o.removals()]) as run:
         for output in outputs:
-            output.publish()
+            output.check_free()
+            sync_path(output.staged.path)
+        with deferred_signals():
+            run(lambda src, dst: by_name[dst].move(src, dst))
+    for output in outputs:
+        remove_recording(output.staged.path)  # what is left of it: the side folder its writer used
 
 
 def clear_stale(final: Path) -> list[Path]:
