@@ -14,6 +14,7 @@ from support.children import simreel
 from support.damage import stored_bytes
 from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
 
+from simreel.cli.main import main
 from simreel.formats import open_reader
 
 
@@ -126,3 +127,26 @@ def test_an_interrupted_in_place_recovery_keeps_the_journal_of_the_lost_episode(
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
     with open_reader(path) as r:
         assert [m.index for m in r.episodes] == [0, 1, 2] and r.unfinished == []
+
+
+def test_an_in_place_recovery_the_disk_cannot_hold_keeps_the_journal_of_the_lost_episode(tmp_path, capsys):
+    """A full disk stops `recover X.h5` in place while it copies: one line, exit 2, and X.h5 with X.h5.partial/ (the
+    journal of the killed recording's lost episode) as they were."""
+    from support.mcap_samples import long_sample
+    from support.small_disk import fill, small_disk
+
+    long, _ = long_sample(tmp_path / "long.h5")
+    with small_disk(tmp_path, 6 << 10) as disk:
+        path = disk / "rec.h5"
+        path.write_bytes(long.read_bytes())
+        partial = disk / "rec.h5.partial"
+        partial.mkdir()
+        (partial / "running.jsonl").write_text('{"began": 9, "env_idx": 0, "seed": 9}\n')
+        before = {p.relative_to(disk): p.read_bytes() for p in disk.rglob("*") if p.is_file()}
+        fill(disk, 256)  # room for a few episodes of the copy, not all of them
+        assert main(["recover", str(path)]) == 2
+        [line] = capsys.readouterr().err.splitlines()
+        assert line.startswith(f"simreel recover: error: {path}: the disk is full"), line
+        after = {p.relative_to(disk): p.read_bytes() for p in disk.rglob("*") if p.is_file()
+                 and not p.name.startswith("filler")}
+        assert after == before
