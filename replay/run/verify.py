@@ -8,7 +8,8 @@ verdicts in a `RunTally` (`simreel.replay.report.tally`): ``exact``, ``within_to
 divergence (step, key path, error, tolerance) and the largest error per key — or ``error`` (the episode could not
 be replayed). With ``report`` the verdicts stream into REPORT.jsonl as they come and REPORT.json is written at the
 end (`simreel.replay.report.log`); ``resume`` continues such a report. With ``output`` the replayed episodes of one
-recording are written as a simreel recording (`simreel.replay.run.output`).
+recording are written as a simreel recording (`simreel.replay.run.output`), in the run's scratch folder, and moved
+to their name once the run is done: a run that stops or is killed leaves no part of itself there.
 
 A run with one recording file is strict: an env that does not build for it raises (the CLI's one line, exit 2).
 A dataset run (several files, a folder, a pattern) reports such errors per file and episode and goes on.
