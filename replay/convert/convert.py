@@ -671,7 +671,8 @@ class ConversionRun:
         chains = None if self.options.control_mode else self._chains  # a re-render's, found for `_scenes`
         worker = ConvertWorker(self._job(), self.reader, chains)  # closes the reader
         try:
-            report.warnings = _fingerprint_warnings(worker) + self._one_process_note()
+            said = [f"{self.path}: {note}" for note in self.reader.notes]  # as a copy says them: groups not converted
+            report.warnings = said + _fingerprint_warnings(worker) + self._one_process_note()
             spec = self._output_spec(worker, staged)
             with published(ReplayedWriter(spec, self.reader.meta, list(self.indices)),
                            keep=lambda: bool(report.written), final=self.output) as writer:

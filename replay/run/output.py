@@ -23,7 +23,7 @@ import numpy as np
 
 from simreel.errors import SimreelError, StorageError, UsageError
 from simreel.formats import EpisodeSink, format_of
-from simreel.io.durable import deferred_signals, raise_if_stopped
+from simreel.io.durable import raise_if_stopped
 from simreel.io.lock import WriterLock, being_written
 from simreel.model.blocks import StepBlock
 from simreel.model.episode import Episode
@@ -108,18 +108,12 @@ def staged_path(scratch: ScratchFolder) -> Path:
 
 def publish_checked(staged: Path, final: str | Path, meta: RecordingMeta, *, overwrite: bool) -> None:
     """Move the complete, checked recording `staged` and its side files to `final`, as `simreel merge` publishes its
-    outputs (`simreel.datasets.dataset`, one copy of the rule): its side files first, without `overwrite` never over a
+    outputs (`simreel.datasets.staged`, one copy of the rule): its side files first, without `overwrite` never over a
     file that appeared there meanwhile, never over a recording another process is writing now, and with SIGINT and
     SIGTERM held until every file is moved. An old recording at `final` stays whole until then."""
-    from simreel.datasets.copy import Target
-    from simreel.datasets.dataset import StagedOutput
-    from simreel.formats import check_writable
+    from simreel.datasets.staged import StagedOutput, Target, publish_outputs
 
-    output = StagedOutput(Target(Path(final), meta, overwrite), Target(staged, meta, True))
-    output.check_free()
-    check_writable(final, overwrite=overwrite)  # a recording begun there since the run started is not replaced
-    with deferred_signals():
-        output.publish()
+    publish_outputs([StagedOutput(Target(Path(final), meta, overwrite), Target(staged, meta, True))])
 
 
 def output_pose_bodies(meta: RecordingMeta, output: str | Path | None) -> tuple[str, ...]:

@@ -8,7 +8,8 @@ verdicts in a `RunTally` (`simreel.replay.report.tally`): ``exact``, ``within_to
 divergence (step, key path, error, tolerance) and the largest error per key — or ``error`` (the episode could not
 be replayed). With ``report`` the verdicts stream into REPORT.jsonl as they come and REPORT.json is written at the
 end (`simreel.replay.report.log`); ``resume`` continues such a report. With ``output`` the replayed episodes of one
-recording are written as a simreel recording (`simreel.replay.run.output`).
+recording are written as a simreel recording (`simreel.replay.run.output`), in the run's scratch folder, and moved
+to their name once the run is done: a run that stops or is killed leaves no part of itself there.
 
 A run with one recording file is strict: an env that does not build for it raises (the CLI's one line, exit 2).
 A dataset run (several files, a folder, a pattern) reports such errors per file and episode and goes on.
@@ -42,7 +43,14 @@ from simreel.replay.report.log import LoggedRun, ReportLog, load_log, report_pat
 from simreel.replay.report.report import EpisodeReport, recording_limits
 from simreel.replay.report.tally import FileTally, ReplayReport, RunTally
 from simreel.replay.run.options import ReplayOptions, json_value
-from simreel.replay.run.output import ReplayedWriter, ReplayOutput, ScratchFolder, published
+from simreel.replay.run.output import (
+    ReplayedWriter,
+    ReplayOutput,
+    ScratchFolder,
+    publish_checked,
+    published,
+    staged_path,
+)
 from simreel.replay.run.workers import (
     EpisodeResult,
     Lanes,
@@ -237,29 +245,30 @@ class ReplayRun:
         """Replay every episode of the work list, calling `progress` as each finishes; returns the run's tally
         (a resumed run's includes the verdicts it found in the report). Raises the user errors (`SimreelError`)
         a strict run meets; Ctrl-C stops it with every verdict reached so far in the report."""
-        with self._scratch() as scratch:
-            return self._execute(ReplayWorker(self._job(scratch)), progress)
+        with self._scratch() as folder:
+            shared = None if folder is None or self.options.ray is not None else str(folder.path)
+            return self._execute(ReplayWorker(self._job(shared)), progress, folder)
 
     @contextlib.contextmanager
-    def _scratch(self) -> Iterator[str | None]:
-        """The run's scratch folder for `-o` (`ScratchFolder`), removed when the run ends, however it ends: the pool
-        is shut down inside it, so no worker writes there after. None without `-o`, and on Ray (its actors need not
-        share this file system: they return their episodes whole)."""
-        opts = self.options
-        if opts.output is None or opts.ray is not None:
+    def _scratch(self) -> Iterator[ScratchFolder | None]:
+        """The run's scratch folder for `-o` (`ScratchFolder`), removed when the run ends, however it ends: `-o` is
+        written there until the run is done (`_sink`), and a pool's workers write their episodes there (not on Ray:
+        its actors need not share this file system, they return their episodes whole); the pool is shut down inside
+        it, so no worker writes there after. None without `-o`."""
+        if self.options.output is None:
             yield None
             return
-        with ScratchFolder(opts.output) as folder:
-            yield str(folder.path)
+        with ScratchFolder(self.options.output) as folder:
+            yield folder
 
-    def _execute(self, worker: ReplayWorker, progress: Progress | None) -> RunTally:
+    def _execute(self, worker: ReplayWorker, progress: Progress | None, folder: ScratchFolder | None) -> RunTally:
         ended = False
         try:
             with pool_closing(self._start_pool(worker.job)) as pool:
                 if self.strict and self.worklist.items and self.options.ray is None:
                     worker.prepare(self.worklist.items[0])  # a bad env fails before anything is written
                 with self._log() as log:
-                    with self._sink() as sink:  # -o is published (or fails) as this block ends, before the end line
+                    with self._sink(folder) as sink:  # -o is published (or fails) as this block ends, before the end line
                         worker.output = sink if self.options.ray is None else None  # replayed here: streamed into -o
                         self._dispatch(worker, self._collector(log, sink, progress), log, pool)
                     if log is not None:
@@ -325,17 +334,24 @@ class ReplayRun:
                 "tolerances": self.tolerances.to_json(), "output": opts.output, "command": opts.command}
 
     @contextlib.contextmanager
-    def _sink(self) -> Iterator[ReplayedWriter | None]:
+    def _sink(self, folder: ScratchFolder | None) -> Iterator[ReplayedWriter | None]:
+        """The writer of `-o`, which writes it in the run's scratch `folder` and moves it to its name once every
+        episode is in it (`publish_checked`): `-o` never holds part of a run, even after a kill -9, and an old file
+        there stays as it was until then. None without `-o`."""
         opts = self.options
-        if opts.output is None:
+        if opts.output is None or folder is None:
             yield None
             return
         f = self.worklist.files[0]
         job = self._job()
-        spec = ReplayOutput(opts.output, opts.overwrite, opts.obs_mode, job.replayer_options(f.meta).pose_bodies,
+        staged = staged_path(folder)
+        spec = ReplayOutput(str(staged), True, opts.obs_mode, job.replayer_options(f.meta).pose_bodies,
                             opts.command, changes={"provenance": self._provenance(f.path, f.meta)})
-        with published(ReplayedWriter(spec, f.meta, list(f.episodes))) as sink:
+        writer = ReplayedWriter(spec, f.meta, list(f.episodes))
+        with published(writer, final=opts.output) as sink:
             yield sink
+        if staged.is_file():
+            publish_checked(staged, opts.output, f.meta, overwrite=opts.overwrite)
 
     def _provenance(self, path: str | Path, meta: RecordingMeta) -> dict[str, Any]:
         """What `-o` writes says of where it came from (`RecordingMeta.provenance`): the replay of the recording

@@ -103,6 +103,8 @@ def _copy(args: argparse.Namespace) -> int:
                      progress=lambda eps: progress_bar(eps, quiet=args.quiet, unit="ep", desc=f"convert {src.name}"))
     for note in report.skipped:
         sys.stderr.write(f"simreel convert: warning: {src}: {note} was never committed and is not copied\n")
+    for note in report.notes:
+        sys.stderr.write(f"simreel convert: warning: {src}: {note}\n")
     size = Path(args.output).stat().st_size
     print(f"converted {report.episodes} episode(s), {report.steps} steps, {args.input} → {args.output} "
           f"({size / 1024:.0f} KiB)")

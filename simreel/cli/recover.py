@@ -38,6 +38,8 @@ def run(args: argparse.Namespace) -> int:
     from simreel.datasets.copy import recover
 
     r = recover(args.path, args.output, overwrite=args.overwrite)
+    if r.finished:
+        print(r.finished)
     if r.complete and r.output is None:
         print(f"{args.path} is complete ({r.episodes} episode(s), {r.steps} steps): nothing to recover")
         return 0

@@ -2,8 +2,9 @@
 can be read of a recording whose process was killed or whose file is damaged.
 
 Both write a new file through `open_writer`, check their output with the one output rule first
-(`simreel.io.targets`), and leave no half-written output behind when they fail: a copy that fails is
-dropped, and an output it was to replace stays as it was (`simreel.io.staging`).
+(`simreel.io.targets`), write it under a staging name beside its final one and move it there only once it is
+complete (`simreel.datasets.staged`): a copy that fails or is killed leaves no part of it at the output's name, and
+an output it was to replace stays as it was.
 """
 
 from __future__ import annotations
@@ -13,11 +14,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, TypeVar
 
+from simreel.datasets.staged import StagedOutput, Target, clear_stale, publish_outputs
 from simreel.errors import RecordingFileError, StorageError, UsageError
-from simreel.formats import check_writable, format_of, open_reader, open_writer, recording_files
+from simreel.formats import (
+    check_writable,
+    format_of,
+    open_reader,
+    open_writer,
+    recording_files,
+    remove_recording,
+)
 from simreel.formats.base import EpisodeReader, EpisodeRows, EpisodeWriter
 from simreel.io.durable import raise_if_stopped
 from simreel.io.paths import real_path, refuse_empty
+from simreel.io.replacement import finish as finish_replacement
 from simreel.io.staging import replacement_note
 from simreel.io.targets import check_distinct
 from simreel.model.meta import EpisodeMeta, RecordingMeta
@@ -50,6 +60,9 @@ class CopyReport:
     """The output's metadata."""
     skipped: list[str] = field(default_factory=list)
     """Episodes of the input that were never committed (a killed recording), hence not copied."""
+    notes: list[str] = field(default_factory=list)
+    """What the input's reader says of it as a whole (`EpisodeReader.notes`: groups of a ManiSkill file its sidecar
+    does not list, which are not copied either)."""
 
 
 def _no_bar(items: Iterable[_T]) -> Iterable[_T]:
@@ -85,16 +98,7 @@ def convert(
         finally:
             if change is not None:
                 change.close()
-        return CopyReport(len(reader.episodes), copied.steps, meta, list(reader.unfinished))
-
-
-@dataclass(frozen=True)
-class Target:
-    """A recording a copy writes: where, with what metadata, and whether it may replace a file."""
-
-    path: Path
-    meta: RecordingMeta
-    overwrite: bool
+        return CopyReport(len(reader.episodes), copied.steps, meta, list(reader.unfinished), list(reader.notes))
 
 
 def write_episodes(targets: Sequence[Target], episodes: Iterable[tuple[int, EpisodeRows]]) -> list[int]:
@@ -134,8 +138,9 @@ class _Copied:
 
 def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target,
           change: EpisodeTransform | None = None, *, salvage: bool = False) -> _Copied:
-    """Write `episodes` of `reader` (through `change`, when given) to a new recording `target`. A failure drops the
-    new recording (an output it was to replace stays); with `salvage`, an episode that cannot be read is named in
+    """Write `episodes` of `reader` (through `change`, when given) to a new recording `target`: under a staging name
+    beside it, moved there once complete (`simreel.datasets.staged`), so `target` never holds part of a copy, even
+    after a kill -9. A failure drops the new recording (an output it was to replace stays); with `salvage`, an episode that cannot be read is named in
     `lost` and the copy goes on.
 
     An episode is copied a block of rows at a time (memory bounded whatever its length); `salvage` reads each one
@@ -158,10 +163,16 @@ def _copy(reader: EpisodeReader, episodes: Iterable[EpisodeMeta], target: Target
             copied.episodes += 1
             yield 0, episode
 
+    output = StagedOutput.of(target)
     try:
-        copied.steps = write_episodes([target], read())[0]
-    except StorageError as e:
-        raise _nothing_written(e, target, reader) from None
+        copied.steps = write_episodes([output.staged], read())[0]
+        publish_outputs([output])
+    except BaseException as e:
+        remove_recording(output.staged.path)
+        if isinstance(e, StorageError):
+            raise _nothing_written(e, target, reader) from None
+        raise
+    clear_stale(target.path)
     return copied
 
 
@@ -190,6 +201,8 @@ class RecoveryReport:
     """What else the reader noticed (a sidecar that lagged, a staged replacement left behind)."""
     live: bool = False
     """A recording was still writing the file: its running episodes were not copied, and not lost either."""
+    finished: str | None = None
+    """A replacement of the file that a killed command left half done, finished first (`simreel.io.replacement`)."""
 
 
 def _open_for_recovery(src: Path) -> EpisodeReader:
@@ -222,7 +235,8 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
     """Rewrite every intact committed episode of the recording `path` into `output` (default: `path` itself, which
     is replaced only once the new file is complete) and report what was lost: episodes that never finished,
     damaged ones, damaged records and bytes. A recording with nothing to repair (read through: every episode's data
-    intact) is left as it is."""
+    intact) is left as it is. A replacement of `path` that a command killed between its renames left half done is
+    finished first (`RecoveryReport.finished`)."""
     path = path_text("path", path, "the recording to recover, a str or pathlib.Path")
     refuse_empty(path, what="recording", instead="name the recording to recover")
     if output is not None:
@@ -239,13 +253,14 @@ def recover(path: str | Path, output: str | Path | None = None, *, overwrite: bo
         format_of(output)
         check_distinct({"-o": recording_files(output)}, recording_files(src), input_label="the recording to recover")
         check_writable(output, overwrite=overwrite)  # refuse OUT before reading PATH front to back
+    finished = finish_replacement(src)  # a kill between two renames: the renames left, done first
     with _open_for_recovery(src) as reader:
         damaged = [*reader.damaged, *getattr(reader, "skipped", [])]
         report = RecoveryReport(
             complete=not (getattr(reader, "recovered", False) or reader.unfinished or damaged or reader.notes)
             and (output is not None or _all_intact(reader)),
             episodes=0, steps=0, unfinished=list(reader.unfinished), lost_bytes=getattr(reader, "lost_bytes", 0),
-            damaged=damaged, notes=list(reader.notes), live=bool(getattr(reader, "live", False)),
+            damaged=damaged, notes=list(reader.notes), live=bool(getattr(reader, "live", False)), finished=finished,
         )
         if report.complete and output is None:
             report.episodes, report.steps = len(reader.episodes), sum(e.length for e in reader.episodes)

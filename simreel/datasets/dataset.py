@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import hashlib
-import shutil
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import groupby, islice
@@ -29,17 +28,17 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from simreel import FORMAT_VERSION
-from simreel.datasets.copy import Target, write_episodes
+from simreel.datasets.copy import write_episodes
 from simreel.datasets.digests import HashedRows, canonical_json, episode_digest
 from simreel.datasets.inputs import file_identity, shown_path
 from simreel.datasets.same_env import PHYSICS_NEUTRAL_ENV_KWARGS, PHYSICS_NEUTRAL_VERSIONS, check_same_env
+from simreel.datasets.staged import StagedOutput, Target, clear_stale, publish_outputs
 from simreel.errors import OutputCheckError, RecordingFileError, StorageError, UsageError
 from simreel.formats import check_writable, format_of, open_reader, recording_files, remove_recording
 from simreel.formats.base import not_a_file
-from simreel.io.durable import deferred_signals, raise_if_stopped
-from simreel.io.paths import real_path, refuse_empty
-from simreel.io.staging import staging_path, stale_staging
-from simreel.io.targets import OVERWRITE_HINT, check_distinct, move_into_place
+from simreel.io.durable import raise_if_stopped
+from simreel.io.paths import file_key, real_path, refuse_empty
+from simreel.io.targets import check_distinct
 from simreel.model.episode import Episode
 from simreel.model.meta import EpisodeMeta, RecordingMeta, new_recording_id
 from simreel.model.selection import EpisodeSelection
@@ -57,7 +56,7 @@ from simreel.verdicts.compare import VERDICTS
 from simreel.verdicts.scene_history import SceneChains
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
-           "VERIFIED", "DIVERGED", "report_verdicts", "StagedOutput"]
+           "VERIFIED", "DIVERGED", "report_verdicts"]
 
 VERIFIED = ("exact", "within_tolerance")
 """The verdicts `filter --verified` keeps: the episodes a replay verified."""
@@ -313,6 +312,9 @@ class _Source:
     identity: dict[str, Any] = field(default_factory=dict)
     unfinished: list[str] = field(default_factory=list)
     """Episodes the file holds that were never committed (a killed recording): not listed, not copied."""
+    notes: list[str] = field(default_factory=list)
+    """What its reader says of the file as a whole (`EpisodeReader.notes`): groups of a ManiSkill file its sidecar
+    does not list, which are not copied either, a sidecar that disagrees with its .h5."""
     chains: SceneChains | None = None
     """Its episodes' scene chains (`simreel.verdicts.scene_history`), for each copy to keep where it ran."""
 
@@ -332,6 +334,7 @@ class _Source:
                 "created_utc": m.created_utc, "command": m.command, "source": m.source, "provenance": m.provenance,
             }
             source.unfinished = list(getattr(reader, "unfinished", []))
+            source.notes = list(reader.notes)
             source.chains = SceneChains(source.episodes)
         return source
 
@@ -489,58 +492,6 @@ def _check_outputs(outputs: Sequence[str | Path], inputs: Sequence[str | Path], 
         check_writable(path, overwrite=options.overwrite)
 
 
-@dataclass
-class StagedOutput:
-    """One output while it is made: written under a staging name beside its final one, checked, then moved
-    (`publish`: merge and filter, and `simreel.replay.run.output.publish_checked` for convert)."""
-
-    final: Target
-    staged: Target
-    items: list[_Item] = field(default_factory=list)
-    """The episodes it receives, in order."""
-    digests: list[bytes] = field(default_factory=list)
-    """`episode_digest` of each episode as read from its source (renumbered, with its origin)."""
-
-    @classmethod
-    def of(cls, target: Target) -> StagedOutput:
-        return cls(target, dataclasses.replace(target, path=staging_path(target.path), overwrite=True))
-
-    def _pairs(self) -> list[tuple[Path, Path]]:
-        """(staged file, final name) of the recording's side files, then of the recording (a reader that finds it
-        finds its sidecar)."""
-        pairs = list(zip(recording_files(self.staged.path), recording_files(self.final.path), strict=True))
-        return pairs[1:] + pairs[:1]
-
-    def check_free(self) -> None:
-        """`UsageError` when the staged recording is gone (another command removed it) or, without `overwrite`, a
-        final name is taken by now (another command writing the same OUT), before any output is published."""
-        if not self.staged.path.is_file():
-            raise UsageError(f"{self.final.path}: its output, written as {self.staged.path.name}, was removed by "
-                             "another command while this one ran; nothing was written")
-        for src, dst in self._pairs():
-            if not self.final.overwrite and src.exists() and (dst.exists() or dst.is_symlink()):
-                raise self._taken(dst)
-
-    def publish(self) -> None:
-        """Move the checked recording and its side files to their final names. Files of an old recording there that
-        the new one lacks (its `.partial/` scratch folder) go: with `overwrite` only, as the output rule checked at
-        the start. A name taken since the start (a file made after `check_free`) is never replaced."""
-        for src, dst in self._pairs():
-            if src.exists():
-                try:
-                    move_into_place(src, dst, overwrite=self.final.overwrite)
-                except FileExistsError:
-                    raise self._taken(dst) from None
-            elif self.final.overwrite and dst.is_dir():
-                shutil.rmtree(dst)
-            elif self.final.overwrite:
-                dst.unlink(missing_ok=True)
-
-    def _taken(self, dst: Path) -> UsageError:
-        return UsageError(f"{self.final.path} was written by another command while this one ran ({dst.name} is there "
-                          f"now); it is left as it is and nothing was written ({OVERWRITE_HINT})")
-
-
 def _run(sources: Sequence[_Source], targets: Sequence[Target], selection: _Selection,
          options: DatasetOptions) -> tuple[list[OutputSummary], list[_Item]]:
     """Plan, copy, check and publish: the work both operations share. The outputs are written under staging names
@@ -558,12 +509,7 @@ def _run(sources: Sequence[_Source], targets: Sequence[Target], selection: _Sele
         steps = write_episodes([o.staged for o in outputs], episodes)
         for output in outputs:
             _check(output, sources, options)
-        raise_if_stopped()
-        for output in outputs:
-            output.check_free()  # every output or none: OUT is not published when --rest can no longer be
-        with deferred_signals():  # nor when a Ctrl-C lands between the two
-            for output in outputs:
-                output.publish()
+        publish_outputs(outputs)  # every output or none: OUT is not published when --rest can no longer be
     except BaseException as e:
         for output in outputs:
             remove_recording(output.staged.path)
@@ -571,16 +517,8 @@ def _run(sources: Sequence[_Source], targets: Sequence[Target], selection: _Sele
             out = next((o.final.path for o in outputs if Path(e.path) == o.staged.path), e.path)
             raise e.dropped("; nothing was written and the inputs are unchanged", out) from None
         raise
-    return [OutputSummary(o.final.path, len(o.items), n, _clear_stale(o.final.path))
+    return [OutputSummary(o.final.path, len(o.items), n, clear_stale(o.final.path))
             for o, n in zip(outputs, steps, strict=True)], items
-
-
-def _clear_stale(final: Path) -> list[Path]:
-    """Remove what killed commands left beside the published `final` (`stale_staging`), with its files beside it."""
-    stale = stale_staging(final)
-    for path in stale:
-        remove_recording(path)
-    return stale
 
 
 # ---------------------------------------------------------------------------------------------------- the check
@@ -645,8 +583,8 @@ def merge(inputs: str | Path | Iterable[str | Path], output: str | Path, options
     output = _output_path("output", output)
     if not inputs:
         raise UsageError("no input to merge")
-    resolved = [real_path(p) for p in inputs]
-    twice = next((p for k, p in enumerate(inputs) if resolved[k] in resolved[:k]), None)
+    keys = [file_key(p) for p in inputs]  # a hard link, a symbolic link or another spelling of one file: the same
+    twice = next((p for k, p in enumerate(inputs) if keys[k] in keys[:k]), None)
     if twice is not None:
         raise UsageError(f"{twice} is given twice; each input is merged once")
     _check_outputs([output], inputs, opts)
@@ -657,7 +595,8 @@ def merge(inputs: str | Path | Iterable[str | Path], output: str | Path, options
     outputs, items = _run(sources, [target], everything, opts)
     taken = [sum(1 for i in items if i.source == k) for k in range(len(sources))]
     return DatasetReport("merge", outputs, [(s.path, len(s.episodes), n) for s, n in zip(sources, taken, strict=True)],
-                         outputs[0].episodes, unfinished=_unfinished(sources), notes=_neutral_differences(sources))
+                         outputs[0].episodes, unfinished=_unfinished(sources),
+                         notes=[*_reader_notes(sources), *_neutral_differences(sources)])
 
 
 def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCriteria,
@@ -693,8 +632,14 @@ def filter_recording(path: str | Path, output: str | Path, criteria: EpisodeCrit
     return DatasetReport(
         "filter", written, [(source.path, len(source.episodes), written[0].episodes)], sum(o.episodes for o in written),
         no_success=criteria.no_success(source.episodes), uncovered=criteria.uncovered(source.episodes),
-        criteria=criteria.describe(), unfinished=_unfinished([source]),
+        criteria=criteria.describe(), unfinished=_unfinished([source]), notes=_reader_notes([source]),
     )
+
+
+def _reader_notes(sources: Sequence[_Source]) -> list[str]:
+    """What the readers of `sources` said of each file, named by it, for the summary (as `inspect` and `replay` say
+    it): a group a ManiSkill file's sidecar does not list is never left out without a word."""
+    return [f"{s.label}: {note}" for s in sources for note in s.notes]
 
 
 def _unfinished(sources: Sequence[_Source]) -> list[str]:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from simreel.errors import UsageError
 from simreel.formats import HDF5_SUFFIXES, MCAP_SUFFIXES, recording_files
-from simreel.io.paths import is_symlink_loop, real_path, refuse_empty
+from simreel.io.paths import file_key, is_symlink_loop, refuse_empty
 from simreel.io.staging import is_staging_path
 
 __all__ = ["RECORDING_SUFFIXES", "expand_inputs", "file_identity", "shown_path"]
@@ -74,8 +74,9 @@ def expand_inputs(specs: Sequence[str | Path]) -> list[tuple[Path, bool]]:
     """(absolute path, named explicitly) for every input file: a file as given; a folder or glob as the
     recordings it holds (`UsageError` when it holds none), without the staged outputs of a merge or filter, which
     are named once on stderr. Each file once, in the order given. A path that names no readable file (missing, a
-    symbolic link loop) is kept for its reader to say why; an empty one is `UsageError`."""
-    out: dict[Path, tuple[Path, bool]] = {}
+    symbolic link loop) is kept for its reader to say why; an empty one is `UsageError`. One file reached by two paths
+(a hard or symbolic link, another spelling: `file_key`) is read once."""
+    out: dict[tuple[int, int] | Path, tuple[Path, bool]] = {}
     skipped: dict[Path, None] = {}
     for spec in map(str, specs):
         refuse_empty(spec, what="recording", instead="name the files, folders or patterns to read")
@@ -86,9 +87,9 @@ def expand_inputs(specs: Sequence[str | Path]) -> list[tuple[Path, bool]]:
                 _say_skipped(list(skipped))
                 kind = "folder" if Path(spec).is_dir() else "pattern"
                 raise UsageError(f"{spec}: no recordings (.h5, .hdf5, .mcap) found in this {kind}")
-            out.update((real_path(f), (Path(os.path.abspath(f)), False)) for f in found if real_path(f) not in out)
+            out.update((file_key(f), (Path(os.path.abspath(f)), False)) for f in found if file_key(f) not in out)
         else:
-            out.setdefault(real_path(spec), (Path(os.path.abspath(spec)), True))
+            out.setdefault(file_key(spec), (Path(os.path.abspath(spec)), True))
     _say_skipped(list(skipped))
     return list(out.values())
 

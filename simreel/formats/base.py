@@ -30,6 +30,7 @@ from simreel.errors import EpisodeLayoutError, MetadataError, RecordingFileError
 from simreel.io.durable import is_storage_error, storage_error
 from simreel.io.lock import being_written
 from simreel.io.paths import is_symlink_loop, read_problem
+from simreel.io.replacement import refuse_interrupted
 from simreel.io.staging import refuse_kept_recording
 from simreel.io.targets import check_output
 from simreel.model.blocks import StepBlock, join_blocks
@@ -164,6 +165,7 @@ class EpisodeWriter(ABC):
         """Raise `UsageError` if a new recording cannot go to `path` (`simreel.io.targets.check_output`,
         with this format's side paths, or another writer holds it). Cheap: touches nothing."""
         check_output(path, overwrite=overwrite, side_paths=cls.side_paths(path))
+        refuse_interrupted(path)
         if being_written(path):
             raise UsageError(f"{path} is being written by another recording; choose another file, or wait until "
                              "that recording has finished")

@@ -12,6 +12,7 @@ from simreel.errors import RecordingFileError, UsageError
 from simreel.formats.base import EpisodeReader, EpisodeWriter
 from simreel.formats.maniskill.layout import refuse_replacing_sidecar, sidecar_owners
 from simreel.io.paths import read_head, refuse_empty
+from simreel.io.replacement import INTERRUPTED, interrupted
 from simreel.io.targets import check_output
 from simreel.model.json_input import json_value
 from simreel.model.meta import RecordingMeta
@@ -114,7 +115,8 @@ def records_poses_by_default(path: str | Path) -> bool:
 
 
 def open_reader(path: str | Path) -> EpisodeReader:
-    """A reader for `path`, chosen by the file's magic bytes, whatever its suffix."""
+    """A reader for `path`, chosen by the file's magic bytes, whatever its suffix. `RecordingFileError` when a
+    command replacing `path` was stopped between its renames (`simreel.io.replacement`)."""
     from simreel.formats.hdf5.layout import HDF5_MAGIC
     from simreel.formats.mcap.records import MCAP_MAGIC
 
@@ -122,6 +124,8 @@ def open_reader(path: str | Path) -> EpisodeReader:
         raise UsageError(f"{path!r}: give a recording's path, a str or Path")
     refuse_empty(path, what="recording", instead="name the recording to read")
     p = Path(path)
+    if interrupted(p):  # before the file is looked for: a replacement of a new name may have moved its sidecar only
+        raise RecordingFileError(p, f"{INTERRUPTED}; `simreel recover {p}` finishes that replacement")
     if not p.is_file():
         from simreel.formats.base import not_a_file
 

@@ -18,7 +18,8 @@ from typing import BinaryIO
 from simreel.errors import RecordingFileError
 from simreel.options.checks import refuse_empty
 
-__all__ = ["SYMLINK_LOOP", "refuse_empty", "is_symlink_loop", "real_path", "read_problem", "open_for_reading", "read_head"]
+__all__ = ["SYMLINK_LOOP", "refuse_empty", "is_symlink_loop", "real_path", "file_key", "read_problem", "open_for_reading",
+           "read_head"]
 
 SYMLINK_LOOP = "a symbolic link loop (following its links never reaches a file); fix or remove the link"
 """What a path that runs into a symbolic link loop is, in the one line a command prints for it."""
@@ -39,6 +40,17 @@ def real_path(path: str | os.PathLike[str]) -> Path:
     runs into a symbolic link loop, the path as far as it resolves, where `Path.resolve` raises. What asks whether
     two paths are one file must not fail on a loop: the command says what the loop is where it reads or writes it."""
     return Path(os.path.realpath(path))
+
+
+def file_key(path: str | os.PathLike[str]) -> tuple[int, int] | Path:
+    """What two paths share when they name one file: its device and inode where it exists (a hard link, a symbolic
+    link and another spelling of its path all give the same), else the path as far as it resolves (`real_path`: a
+    file not written yet, a link loop). What decides that a file is "given twice", or that an output is an input."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return real_path(path)
+    return (st.st_dev, st.st_ino)
 
 
 def read_problem(code: int | None) -> str | None:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from simreel.errors import UsageError
 from simreel.io.lock import WriterLock, being_written
+from simreel.io.replacement import refuse_interrupted, replacing
 from simreel.io.targets import check_output, made_by_gone_process, process_alive, process_tag, short_name
 
 __all__ = ["RecordingTarget", "side_folder", "replacement_note", "refuse_kept_recording", "staging_path",
@@ -84,6 +85,7 @@ class RecordingTarget:
         removed once the name is locked; a staged recording one left there (stopped before it was complete, or
         killed: its committed episodes are in it) is never removed, `overwrite` or not: `UsageError` saying so."""
         check_output(path, overwrite=overwrite, side_paths=side_paths)
+        refuse_interrupted(path)
         existing = overwrite and (path.exists() or path.is_symlink())
         target = cls(path, path, side_folder(path), [WriterLock.acquire(path, create=not existing)], not existing)
         try:
@@ -113,8 +115,10 @@ class RecordingTarget:
         readers of the old one are told about it (`replacement_note`), and the old one as it is.
 
         The side files go first and the recording last (a reader that finds the new recording finds its sidecar),
-        with SIGINT and SIGTERM held until all are moved: a signal between two moves left the new recording beside
-        the old one's sidecar, which ManiSkill's loader reads (other seeds, other episodes)."""
+        with SIGINT and SIGTERM held until all are moved (a signal between two moves left the new recording beside
+        the old one's sidecar, which ManiSkill's loader reads: other seeds, other episodes), as one unit
+        (`simreel.io.replacement`: a kill -9 between two moves leaves a list that readers refuse and `simreel
+        recover` finishes)."""
         from simreel.io.durable import deferred_signals
 
         if self.staged and not replace:
@@ -122,12 +126,9 @@ class RecordingTarget:
             return
         try:
             if self.staged:
-                with deferred_signals():
-                    for name in side_files:
-                        staged = self.folder / name
-                        if staged.exists():
-                            os.replace(staged, self.path.parent / name)
-                    os.replace(self.write_path, self.path)
+                moves = [(self.folder / n, self.path.parent / n) for n in side_files if (self.folder / n).exists()]
+                with replacing([self.path], [*moves, (self.write_path, self.path)]) as run, deferred_signals():
+                    run(os.replace)
             self.remove_folder_if_empty()
         finally:
             self.release()

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import IO
 
 from simreel.errors import UsageError
-from simreel.io.paths import SYMLINK_LOOP, is_symlink_loop, real_path
+from simreel.io.paths import SYMLINK_LOOP, file_key, is_symlink_loop, real_path
 from simreel.options.checks import check_flag
 
 __all__ = ["check_output", "check_distinct", "write_text_atomic", "open_text_atomic", "staged_output",
@@ -120,19 +120,20 @@ def _name_max(folder: Path) -> int:
 
 def check_distinct(outputs: Mapping[str, Iterable[str | Path]], input_files: Sequence[str | Path], *,
                    input_label: str = "the input") -> None:
-    """Raise `UsageError` when two outputs are one file, or an output is one of the input's files.
+    """Raise `UsageError` when two outputs are one file, or an output is one of the input's files (`file_key`: a hard
+    link of it too).
 
     `outputs` maps an option (``-o``, ``--report``) to the files it writes (a recording: the file and its side
     files); `input_files` are the input and the files beside it (`simreel.formats.recording_files`)."""
-    seen: dict[Path, str] = {}
+    seen: dict[tuple[int, int] | Path, str] = {}
     for k, p in enumerate(input_files):
-        seen[real_path(p)] = input_label if k == 0 else f"a file of {input_label}"
+        seen[file_key(p)] = input_label if k == 0 else f"a file of {input_label}"
     for option, paths in outputs.items():
         for path in paths:
-            resolved = real_path(path)
-            if resolved in seen:
-                raise UsageError(f"{option} {path} is {seen[resolved]}; write it to another file")
-            seen[resolved] = f"also written by {option}"
+            key = file_key(path)
+            if key in seen:
+                raise UsageError(f"{option} {path} is {seen[key]}; write it to another file")
+            seen[key] = f"also written by {option}"
 
 
 @contextmanager
@@ -168,12 +169,13 @@ def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[
     (``.NAME.PID@HOST.XXXXXXXX.partial.EXT``, the extension kept for writers that go by it, `_temporary_file`), moved
     to `path` when the block ends without error and removed when it raises (an error, a full disk, Ctrl-C, SIGTERM;
     after a kill -9, by the next run writing `path` on this machine). So `path` is never a
-    part of a file, and an old one stays as it was until a whole new one replaces it. Without `overwrite`, a file
+    part of a file, and an old one stays as it was until a whole new one replaces it. A symbolic link at `path` is
+    replaced by the new file, as every writer of simreel replaces one: the file it leads to (another recording, say)
+    stays as it was. Without `overwrite`, a file
     that appeared at `path` meanwhile (another run's) is not replaced: `UsageError`. `option` names the CLI option
     in messages (``--save``)."""
     from simreel.io.durable import is_storage_error, storage_error
 
-    real = path.resolve()  # a symbolic link is written through: its file is replaced, the link kept
     try:
         fd, name = _temporary_file(path, f".partial{path.suffix}")
     except OSError as e:
@@ -184,7 +186,7 @@ def staged_output(path: Path, *, overwrite: bool, option: str = "") -> Iterator[
     try:
         os.fchmod(fd, 0o666 & ~_umask())  # as open() would make it: mkstemp's 0600 hides it from other users
         yield partial
-        _publish(partial, real, overwrite=overwrite, option=option)
+        _publish(partial, path, overwrite=overwrite, option=option)
     finally:
         partial.unlink(missing_ok=True)
         os.close(fd)  # and with it the file's lock (`_temporary_file`)
@@ -196,7 +198,7 @@ def _temporary_file(path: Path, suffix: str) -> tuple[int, str]:
     caller holds the descriptor. First the ones runs of this machine left there for the same `path` and `suffix`
     and never removed (a kill -9 runs no cleanup) are removed: those whose process is gone and whose lock is free
     (a PID another container reuses, which shares the host name, leaves its live file locked)."""
-    prefix, folder = f".{short_name(path.name)}.", path.resolve().parent
+    prefix, folder = f".{short_name(path.name)}.", path.absolute().parent  # beside `path`, a link's too
     for leftover in folder.glob(glob.escape(prefix) + "*@*" + glob.escape(suffix)):
         tag, _, random = leftover.name[len(prefix):len(leftover.name) - len(suffix)].rpartition(".")
         if len(random) == _MKSTEMP_RANDOM and made_by_gone_process(tag):

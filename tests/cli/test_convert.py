@@ -194,3 +194,37 @@ def test_a_full_disk_under_the_report_alone_names_the_report_and_keeps_the_outpu
                                 "again with --overwrite for the report\n")
         assert sorted(p.name for p in disk.iterdir() if not p.name.startswith("filler")) == []
     assert open_reader(out).meta.env_id == "PickCube-v1"
+
+
+SUPPORT = Path(__file__).resolve().parents[1] / "support"
+
+
+@pytest.mark.parametrize("command", [["convert", "{src}", "{out}"], ["recover", "{src}", "-o", "{out}"]],
+                         ids=["convert", "recover-o"])
+@pytest.mark.parametrize("suffix", [".h5", ".mcap"])
+def test_kill_9_mid_copy_leaves_nothing_at_out_and_the_next_copy_clears_what_it_left(tmp_path, command, suffix):
+    """OUT is written under a hidden staging name beside it and moved there complete: a copy killed with -9 after
+    two of its three episodes were written leaves no OUT (it once left a file holding those two, which inspected
+    clean and merged as if whole); the next copy to OUT removes the killed one's staging file."""
+    import signal
+    import subprocess
+    import sys
+
+    src, episodes = _source(tmp_path, ".h5")
+    out = tmp_path / f"out{suffix}"
+    args = [a.format(src=src, out=out) for a in command]
+    child = subprocess.Popen([sys.executable, str(SUPPORT / "paused_copy.py"), *args], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "copying"
+        child.send_signal(signal.SIGKILL)
+        child.wait(timeout=60)
+    finally:
+        child.kill()
+        child.communicate()
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == ["src.h5", "src.json"]
+    assert [p for p in tmp_path.iterdir() if p.name.startswith(".out.")]  # the killed copy's, under a hidden name
+    assert main([*args, "-q"] if command[0] == "convert" else args) == 0
+    with open_reader(out) as r:
+        assert len(r.episodes) == len(episodes)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

@@ -307,3 +307,23 @@ def test_a_sidecar_naming_an_unknown_robot_is_one_line(altered_dir, tmp_path):
     assert done.stderr == ("simreel replay: error: PickCube-v1: could not build the env: RuntimeError: Agent nobot not "
                            "found in the dict of registered agents. If the id is not a typo then make sure to apply "
                            "the @register_agent() decorator.\n")
+
+
+def test_a_group_the_sidecar_does_not_list_is_named_by_convert_merge_and_filter(altered_dir, tmp_path, capsys):
+    """`convert` (a copy or a verified conversion), `merge` and `filter` leave out a group the sidecar does not list, as ManiSkill's tools, `inspect` and
+    `replay` do; they left it out without a word, and now say so as those do."""
+    path = copy_recording(altered_dir, "auto", tmp_path)
+    with h5py.File(path, "a") as f:
+        f.copy("traj_0", "traj_7")
+    said = "1 group(s) the sidecar does not list (traj_7) are skipped, as ManiSkill's tools skip them"
+    assert main(["convert", str(path), str(tmp_path / "c.h5"), "-q"]) == 0
+    assert f"simreel convert: warning: {path}: {said}\n" in capsys.readouterr().err
+    assert main(["convert", str(path), str(tmp_path / "v.h5"), "--obs-mode", "state", "-q"]) == 0  # verified
+    assert f"simreel convert: warning: {path}: {said}\n" in capsys.readouterr().err
+    assert main(["merge", str(path), "-o", str(tmp_path / "m.h5"), "-q"]) == 0
+    assert f"note: {path}: {said}\n" in capsys.readouterr().out
+    assert main(["filter", str(path), "--episodes", "0", "-o", str(tmp_path / "f.h5"), "-q"]) == 0
+    assert f"note: {path}: {said}\n" in capsys.readouterr().out
+    for out, held in (("c.h5", 2), ("m.h5", 2), ("f.h5", 1)):
+        with open_reader(tmp_path / out) as r:
+            assert len(r.episodes) == held

@@ -224,3 +224,13 @@ def test_an_output_of_a_long_name_the_file_system_takes_is_written(inputs, tmp_p
         assert len(r) == (2 if command == "filter" else 3)
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["a.h5", "a.json", "b.mcap", out.name,
                                                                  out.with_suffix(".json").name])
+
+
+def test_a_hard_link_of_an_input_is_the_same_input_given_twice(inputs, tmp_path, capsys):
+    """`merge a.h5 h.h5` where h.h5 is a hard link of a.h5 merged a.h5's episodes twice (exit 0); one file under two
+    names is refused as a symbolic link or a `./` spelling of it is: by its device and inode."""
+    hard = tmp_path / "h.h5"
+    hard.hardlink_to(inputs[0])
+    assert main(["merge", str(inputs[0]), str(hard), "-o", str(tmp_path / "out.h5"), "-q"]) == 2
+    assert capsys.readouterr().err == f"simreel merge: error: {hard} is given twice; each input is merged once\n"
+    assert not (tmp_path / "out.h5").exists()

@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
 
 import h5py
+import pytest
 from support.children import simreel
 from support.damage import stored_bytes
-from support.mcap_samples import assert_same_episode
+from support.mcap_samples import assert_same_episode, synthetic_episode, synthetic_meta, write
 
+from simreel.cli.main import main
 from simreel.formats import open_reader
 
 
@@ -105,3 +111,62 @@ def test_the_hint_for_a_damaged_maniskill_episode_is_a_recover_that_works(tmp_pa
     assert done.returncode == 0, done.stderr
     with open_reader(copy) as r:
         assert [m.index for m in r.episodes] == [0]
+
+
+SUPPORT = Path(__file__).resolve().parents[1] / "support"
+
+
+@pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGINT, signal.SIGTERM], ids=["kill-9", "ctrl-c", "sigterm"])
+def test_an_interrupted_in_place_recovery_keeps_the_journal_of_the_lost_episode(tmp_path, stop):
+    """`recover X.h5` in place writes the recovered file under a hidden staging name and touches X.h5.partial/ (the
+    journal naming the killed recording's running episode, its streamed scratch file) only once the recovered file
+    has replaced X.h5: interrupted while it copies, X.h5 and the record of the lost episode stay as they were (it
+    once removed them first, and a recovery run after said nothing was lost)."""
+    meta = synthetic_meta()
+    path = write(tmp_path / "rec.h5", meta, [synthetic_episode(meta, i, 4) for i in range(3)])
+    partial = tmp_path / "rec.h5.partial"
+    partial.mkdir()
+    (partial / "running.jsonl").write_text('{"began": 3, "env_idx": 0, "seed": 3}\n')
+    write(partial / "traj_3.h5", meta, [synthetic_episode(meta, 3, 2)])  # a scratch file of 2 steps
+    before = {p.relative_to(tmp_path): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    child = subprocess.Popen([sys.executable, str(SUPPORT / "paused_copy.py"), "recover", str(path)],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "copying"
+        child.send_signal(stop)
+        child.communicate(timeout=60)
+    finally:
+        child.kill()
+    assert child.returncode == {signal.SIGKILL: -9, signal.SIGINT: 130, signal.SIGTERM: 143}[stop]
+    after = {p.relative_to(tmp_path): p.read_bytes() for p in tmp_path.rglob("*")
+             if p.is_file() and not p.relative_to(tmp_path).parts[0].startswith(".")}
+    assert after == before
+    done = simreel("recover", str(path))
+    assert done.returncode == 0, done.stderr
+    assert "episode 3" in done.stdout and not partial.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    with open_reader(path) as r:
+        assert [m.index for m in r.episodes] == [0, 1, 2] and r.unfinished == []
+
+
+def test_an_in_place_recovery_the_disk_cannot_hold_keeps_the_journal_of_the_lost_episode(tmp_path, capsys):
+    """A full disk stops `recover X.h5` in place while it copies: one line, exit 2, and X.h5 with X.h5.partial/ (the
+    journal of the killed recording's lost episode) as they were."""
+    from support.mcap_samples import long_sample
+    from support.small_disk import fill, small_disk
+
+    long, _ = long_sample(tmp_path / "long.h5")
+    with small_disk(tmp_path, 6 << 10) as disk:
+        path = disk / "rec.h5"
+        path.write_bytes(long.read_bytes())
+        partial = disk / "rec.h5.partial"
+        partial.mkdir()
+        (partial / "running.jsonl").write_text('{"began": 9, "env_idx": 0, "seed": 9}\n')
+        before = {p.relative_to(disk): p.read_bytes() for p in disk.rglob("*") if p.is_file()}
+        fill(disk, 256)  # room for a few episodes of the copy, not all of them
+        assert main(["recover", str(path)]) == 2
+        [line] = capsys.readouterr().err.splitlines()
+        assert line.startswith(f"simreel recover: error: {path}: the disk is full"), line
+        after = {p.relative_to(disk): p.read_bytes() for p in disk.rglob("*") if p.is_file()
+                 and not p.name.startswith("filler")}
+        assert after == before

@@ -135,7 +135,7 @@ def _ctrl_c_once_scratch_is_written(proc: subprocess.Popen, out: Path) -> str:
     """Ctrl-C `proc` once its scratch folder holds an episode and its output is being written: it stops (130) and
     nothing of the folder stays. Returns what it said on stderr."""
     _wait_for_scratch(proc, scratch_folder(out))
-    _wait_for_output(proc, out)
+    _wait_for_output(proc, scratch_folder(out) / "output.h5")  # -o is written there until the run is done
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
@@ -193,3 +193,26 @@ def test_a_scratch_folder_left_by_kill_9_is_cleared_by_the_next_run(long_run, tm
     assert not scratch_folder(out).exists()
     with open_reader(out) as reader:
         assert [m.index for m in reader.episodes] == list(range(24))
+
+
+def test_kill_9_of_a_run_writing_replays_leaves_no_part_of_it_at_the_output_name(long_run, tmp_path):
+    """`-o` is written in the run's scratch folder and moved to its name once every episode is in it: a run killed
+    with -9 after some episodes were written leaves no file at OUT (it once left them there, the recording's
+    provenance saying it was a replay of the input, with no word that the others were missing), and the next run
+    writing OUT clears what the killed one left."""
+    out = tmp_path / "out.h5"
+    proc = _replay(str(long_run), "-o", str(out), "--report", str(tmp_path / "r.json"), "-q")
+    _wait_for_verdicts(proc, tmp_path / "r.jsonl", 2)
+    proc.kill()
+    proc.wait()
+    assert len(_episode_lines(tmp_path / "r.jsonl")) < 24, "the run ended before it could be killed"
+    assert not out.exists() and not out.with_suffix(".json").exists()
+    assert (scratch_folder(out) / "output.h5").is_file()  # the killed run's episodes, never under the output's name
+    with open_reader(long_run) as r:
+        first = r.episodes[0].index
+    done = subprocess.run([sys.executable, "-m", "simreel", "replay", str(long_run), "-o", str(out), "--episodes",
+                           str(first), "-q"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert not scratch_folder(out).exists()
+    with open_reader(out) as r:
+        assert [m.index for m in r.episodes] == [first]

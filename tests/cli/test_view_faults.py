@@ -237,3 +237,16 @@ def test_an_option_that_would_be_ignored_is_one_line_before_any_work(pickcube_h5
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_save_over_a_link_replaces_the_link_and_not_the_recording_it_leads_to(pickcube_h5, tmp_path, capsys):
+    """`--save X --overwrite` where X is a link to a recording this view does not read: the link is replaced by the
+    session, as every writer replaces one; the recording was once replaced by the .rrd."""
+    import shutil
+
+    other = Path(shutil.copy(pickcube_h5, tmp_path / "other.h5"))
+    before = other.read_bytes()
+    out = tmp_path / "session.rrd"
+    out.symlink_to(other.name)
+    assert main(["view", str(pickcube_h5), "--save", str(out), "--geometry", "collision", "--overwrite"]) == 0
+    assert not out.is_symlink() and out.stat().st_size > 0 and other.read_bytes() == before

@@ -500,8 +500,7 @@ def test_a_merge_the_disk_cannot_hold_names_its_output_and_leaves_nothing(tmp_pa
 def test_an_output_whose_staged_recording_another_command_removed_is_not_published(tmp_path):
     """Regression (a race a review reproduced): a merge removing another's staged output while that one checked it
     (holding no writer lock then) made the other publish nothing, or with --overwrite delete the old OUT, and exit 0."""
-    from simreel.datasets.copy import Target
-    from simreel.datasets.dataset import StagedOutput
+    from simreel.datasets.staged import StagedOutput, Target
 
     meta = synthetic_meta()
     old = write(tmp_path / "out.h5", meta, [synthetic_episode(meta, 0, 3)])

@@ -163,3 +163,13 @@ def test_the_next_filter_of_the_same_output_removes_what_a_killed_one_left(tmp_p
     assert all(path.exists() for path in kept) and not legacy.exists() and (data / "kept.h5").is_file()
     assert f"note: removed {shown_path(leftover)}: the unchecked output of a merge or filter of kept.h5 killed " \
            "before it finished" in out
+
+
+def test_a_hard_link_of_a_file_given_or_found_is_read_once(tmp_path, monkeypatch):
+    """A file reached under two names (a hard link beside it, or named once and found again in a folder) is one
+    input, as a symbolic link to it is: `replay` and `inspect` read it once."""
+    monkeypatch.chdir(tmp_path)
+    _touch(tmp_path / "data/a.h5")
+    (tmp_path / "data/b.h5").hardlink_to(tmp_path / "data/a.h5")
+    found = expand_inputs(["data/a.h5", "data"])
+    assert [(os.path.relpath(p), explicit) for p, explicit in found] == [("data/a.h5", True)]

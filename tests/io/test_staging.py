@@ -140,7 +140,7 @@ def test_a_signal_while_a_staged_hdf5_is_published_never_pairs_it_with_the_old_s
 
     def replace_then_signal(src, dst, *args, **kwargs):
         real_replace(src, dst, *args, **kwargs)
-        if os.path.dirname(dst) == str(tmp_path):  # a move to a final name, not one inside the side folder
+        if os.path.dirname(dst) == str(tmp_path) and os.path.basename(dst) in ("OUT.h5", "OUT.json"):  # a final name
             moves.append(os.path.basename(dst))
             if len(moves) == 1:
                 os.kill(os.getpid(), signal.SIGTERM)

@@ -154,20 +154,22 @@ def test_a_file_written_atomically_has_the_permissions_open_would_give_it(tmp_pa
         assert stat.S_IMODE((tmp_path / "s.json").stat().st_mode) == mode
 
 
-def test_a_staged_output_through_a_symbolic_link_replaces_the_linked_file_and_keeps_the_link(tmp_path):
-    """Regression: the temporary file went beside the link's target and was renamed onto the link itself (another
-    file system: a traceback; the same one: the link replaced, its file left stale)."""
+def test_a_staged_output_at_a_symbolic_link_replaces_the_link_and_leaves_the_linked_file(tmp_path):
+    """A link named as an output is replaced by the new file, as every recording writer replaces one: `view --save
+    X --overwrite` and `video --overwrite` wrote through it, replacing the file it led to (a recording became an
+    .rrd, then an mp4). The temporary file goes beside the link, so the rename never crosses file systems."""
     from simreel.io.targets import staged_output
 
     (tmp_path / "elsewhere").mkdir()
-    real = tmp_path / "elsewhere" / "real.rrd"
-    real.write_text("old")
+    real = tmp_path / "elsewhere" / "real.h5"
+    real.write_text("a recording")
     link = tmp_path / "link.rrd"
     link.symlink_to(real)
     with staged_output(link, overwrite=True) as partial:
+        assert partial.parent == tmp_path
         partial.write_text("new")
-    assert link.is_symlink() and link.read_text() == "new" == real.read_text()
-    assert sorted(p.name for p in tmp_path.rglob("*")) == ["elsewhere", "link.rrd", "real.rrd"]
+    assert not link.is_symlink() and link.read_text() == "new" and real.read_text() == "a recording"
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["elsewhere", "link.rrd", "real.h5"]
 
 
 _KILLED_WRITER = """

@@ -1,7 +1,7 @@
-"""Child process of tests that need `simreel merge` or `simreel filter` paused in the middle of its copy (Ctrl-C,
-another command writing the same output meanwhile).
+"""Child process of tests that need `simreel merge`, `filter`, `convert` or `recover` paused in the middle of its copy
+(Ctrl-C, kill -9, another command writing the same output meanwhile).
 
-Usage: python paused_copy.py COMMAND ARGS... Runs `simreel COMMAND ARGS -q`; when the copy opens its third episode
+Usage: python paused_copy.py COMMAND ARGS... Runs `simreel COMMAND ARGS -q` (`recover` has no -q); when the copy opens its third episode
 it prints `copying` (the first two are written by then) and waits for a line on its standard input (the parent
 sends SIGINT meanwhile, or a line to go on). Exits with the command's status.
 """
@@ -26,7 +26,7 @@ def main(argv: list[str]) -> int:
         return open_episode(self, index)
 
     Hdf5Reader.open_episode = paused
-    return simreel([*argv, "-q"])
+    return simreel([*argv] if argv[0] == "recover" else [*argv, "-q"])
 
 
 if __name__ == "__main__":

@@ -360,3 +360,18 @@ def test_no_render_device_says_to_take_the_frames_from_a_recorded_camera(tmp_pat
     assert f"fix or unset VK_ICD_FILENAMES={tmp_path / 'no_icd.json'}" in line
     assert line.endswith("; or take the frames from a recorded camera with --camera NAME (cam)")
     assert not list(tmp_path.glob("*.mp4"))
+
+
+def test_overwrite_replaces_a_link_named_as_a_video_and_not_the_file_it_leads_to(tmp_path, capsys):
+    """A video path that is a link to a recording this command does not read: `--overwrite` replaces the link by
+    the video, as every writer replaces one; the recording it led to stays as it was (it once became the mp4)."""
+    recording = _camera_recording(tmp_path / "cam.h5")
+    other = _camera_recording(tmp_path / "other.h5", (3,))
+    before = other.read_bytes()
+    videos = tmp_path / "videos"
+    videos.mkdir()
+    (videos / "cam_ep0.mp4").symlink_to(other)
+    assert main(["video", str(recording), "-o", str(videos), "--camera", "cam", "--episodes", "0", "--overwrite",
+                 "-q"]) == 0
+    assert not (videos / "cam_ep0.mp4").is_symlink() and other.read_bytes() == before
+    assert _leftovers(videos) == []
