@@ -28,13 +28,17 @@ def _read(path):
 
 @pytest.fixture
 def camera_recording(tmp_path):
-    """A recording whose observations hold a 40 x 30 camera: a block that moves one pixel a step."""
+    """A recording whose observations hold a 40 x 30 camera: a block that moves one pixel a step; its states finite
+    (a NaN or an infinity fails every check, even against itself)."""
     meta = dataclasses.replace(synthetic_meta(), obs_layout={"sensor_data/cam/rgb": LeafSpec((30, 40, 3), "uint8")})
     episodes = []
     for index, T in enumerate((7, 12)):
         ep = synthetic_episode(meta, index, T)
         for leaf in ("actors/cube", "articulations/robot"):  # rotations (a replay checks them), not random numbers
             ep.env_states[leaf][:, 3:7] = (1.0, 0.0, 0.0, 0.0)
+        finite = {k: np.nan_to_num(v, posinf=1.0, neginf=-1.0) for k, v in ep.env_states.items()}
+        ep = dataclasses.replace(ep, env_states=finite, rewards=np.nan_to_num(ep.rewards, posinf=1.0, neginf=-1.0),
+                                 contact_forces=np.nan_to_num(ep.contact_forces, posinf=1.0, neginf=-1.0))
         frames = np.zeros((T + 1, 30, 40, 3), np.uint8)
         for row in range(T + 1):
             frames[row, 10:20, row : row + 8] = 255
