@@ -82,3 +82,29 @@ def test_maniskill_vector_env_auto_resets_replay_exact(tmp_path):
     vec.close()
     report = verify_recording(tmp_path / "v.h5")
     assert [(e.index, e.verdict) for e in report.episodes] == [(0, "exact"), (1, "exact"), (2, "exact")]
+
+
+@pytest.mark.parametrize("change", ["damaged", "written before"])
+def test_damaged_or_absent_generator_states(tmp_path, change):
+    """Damaged generator states are an `error` of that episode naming them, never replayed from others; a file
+    written before simreel kept them replays its unseeded episode from the recorded initial state, as then."""
+    import h5py
+
+    from simreel.formats.hdf5.layout import EPISODE_ATTR
+
+    path = rl_rollout(("PickCube-v1", "pd_joint_pos"), tmp_path / "d.h5", shape=(2, 5))
+    with h5py.File(path, "a") as f:
+        name = next(n for n in f if n.endswith("_1"))
+        episode = json.loads(f[name].attrs[EPISODE_ATTR])
+        if change == "damaged":
+            episode["reset_generators"]["torch"] = "AAAA"
+        else:
+            del episode["reset_generators"]
+        f[name].attrs[EPISODE_ATTR] = json.dumps(episode)
+    report = verify_recording(path)
+    first, second = report.episodes
+    assert first.verdict == "exact"
+    if change == "damaged":
+        assert second.verdict == "error" and "reset_generators['torch'] does not decode" in second.error
+    else:
+        assert "actions replayed from the recorded initial state" in second.limits
