@@ -206,4 +206,4 @@ def another_episode(episode: EpisodeMeta) -> EpisodeMeta | None:
         return None  # unknown whether the reset rebuilt the scene (ManiSkill's files), or it was built unseeded
     scene_seed = episode.seed if episode.reconfigured else episode.scene_seed
     return dataclasses.replace(episode, seed=(episode.seed or 0) + OTHER_EPISODE_OFFSET, reconfigured=False,
-                               scene_seed=scene_seed)
+                               scene_seed=scene_seed, reset_generators={})
