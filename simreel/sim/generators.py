@@ -56,12 +56,12 @@ def _numpy_state() -> bytes:
 
 
 def _set_numpy(raw: bytes) -> None:
-    np.random.set_state(_random_state_tuple(raw))
+    np.random.set_state(_random_state_dict(raw))
 
 
 def _python_state() -> bytes:
     version, words, gauss = random.getstate()
-    return struct.pack("<i", version) + np.asarray(words, "<u4").tobytes() + _PYTHON_TAIL.pack(
+    return struct.pack(f"<i{len(words)}I", version, *words) + _PYTHON_TAIL.pack(
         gauss is not None, gauss or 0.0)
 
 
@@ -74,14 +74,16 @@ def _set_python(raw: bytes) -> None:
 
 def _random_state_bytes(rng: Any) -> bytes:
     """The state of a numpy `RandomState` (or of the `np.random` module, whose `get_state` is its global one's)."""
-    _, keys, pos, has_gauss, gauss = rng.get_state()
-    return np.asarray(keys, "<u4").tobytes() + _NUMPY_TAIL.pack(pos, has_gauss, gauss)
+    state = rng.get_state(legacy=False)
+    tail = _NUMPY_TAIL.pack(state["state"]["pos"], state["has_gauss"], state["gauss"])
+    return np.asarray(state["state"]["key"], "<u4").tobytes() + tail
 
 
-def _random_state_tuple(raw: bytes) -> tuple[Any, ...]:
+def _random_state_dict(raw: bytes) -> dict[str, Any]:
     keys, tail = raw[: -_NUMPY_TAIL.size], raw[-_NUMPY_TAIL.size :]
     pos, has_gauss, gauss = _NUMPY_TAIL.unpack(tail)
-    return ("MT19937", np.frombuffer(keys, "<u4").astype(np.uint32), pos, has_gauss, gauss)
+    return {"bit_generator": "MT19937", "state": {"key": np.frombuffer(keys, "<u4").astype(np.uint32), "pos": pos},
+            "has_gauss": has_gauss, "gauss": gauss}
 
 
 def _env_generator(env: Any, name: str) -> np.random.RandomState | None:
@@ -112,7 +114,7 @@ def consumed_generators(before: Mapping[str, bytes], env: Any = None) -> dict[st
     """The generators a reset of `env` drew from, each with its state `before` it (`capture_generators`),
     compressed and base64-encoded for an episode's metadata: only those whose state the reset changed."""
     now = capture_generators(env)
-    return {name: base64.b64encode(zlib.compress(raw, 9)).decode("ascii")
+    return {name: base64.b64encode(zlib.compress(raw, 1)).decode("ascii")
             for name, raw in before.items() if now.get(name) != raw}
 
 
@@ -159,7 +161,7 @@ def _set_recorded(name: str, value: bytes, env: Any) -> None:
             return
         rng = _env_generator(env, name)
         if rng is not None:
-            rng.set_state(_random_state_tuple(value))
+            rng.set_state(_random_state_dict(value))
     except (ValueError, TypeError, RuntimeError, struct.error) as exc:
         raise MetadataError(f"episode metadata: reset_generators[{name!r}] is not a state of that generator "
                             f"({exc}); the file's metadata is damaged") from exc
