@@ -40,6 +40,7 @@ from simreel.sim.actions import ActionCheck
 from simreel.sim.contacts import ContactSampler, contact_channels, contacts_spec
 from simreel.sim.describe import flatten_obs, recording_meta
 from simreel.sim.fingerprint import fingerprint_changes, scene_fingerprint
+from simreel.sim.generators import capture_generators, consumed_generators
 from simreel.sim.poses import pose_body_names, sample_body_poses
 from simreel.sim.seeds import SEED_LIMIT, is_seed
 from simreel.sim.state import FastStateReader, check_same_layout, read_state
@@ -206,7 +207,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._buffer.rows and all(s is None for s in self._sinks):
             self._buffer.rewind()
         self._writer.checkpoint()  # a writer process commits the episodes just ended while the env resets
+        before = capture_generators(self._u) if self._captures_generators(seed) else None
         obs, info = self.env.reset(seed=seed, options=options or None)
+        generators = consumed_generators(before, self._u) if before is not None else {}
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
         state = read_state(self._u)
         packed = self._bind_fast_reader(state, reconfigured)
@@ -223,7 +226,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 self._scene_seed[i] = seed_i
             meta = EpisodeMeta(index=self._next_index, seed=seed_i, reset_options=stored_options, env_idx=i,
                                reconfigured=reconfigured, scene_seed=self._scene_seed[i],
-                               scene_changes=self._scene_changes[i], chain=self._chain_of(i, reconfigured))
+                               scene_changes=self._scene_changes[i], chain=self._chain_of(i, reconfigured),
+                               reset_generators=dict(generators))
             self._start(i, meta, StepBlock({k: a[i : i + 1] for k, a in reset_rows.items()}, 1, captured))
         self._settle()
         return obs, info
@@ -532,6 +536,12 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if len(drawn) == len(idxs):
             return [int(x) for x in drawn]
         return [None] * len(idxs)
+
+    def _captures_generators(self, seed: Any) -> bool:
+        """Whether a reset with `seed` draws its episode from generators that are not reseeded, in a way a replay can
+        repeat once it has their states (`simreel.sim.generators`): one without a seed, enhanced determinism off, in
+        a one-env recording (a replay resets one env at a time; with several, one draw serves them all)."""
+        return seed is None and self._n == 1 and not getattr(self._u, "_enhanced_determinism", False)
 
     def _bind_fast_reader(self, state: dict[str, np.ndarray], reconfigured: bool) -> bytes | None:
         """Bind a fast state reader to the scene after a reset (a reconfiguring reset builds new bodies); the reader's

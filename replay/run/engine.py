@@ -452,18 +452,30 @@ class EpisodeReplayer:
         return out
 
     def _start_unseeded(self, source: EpisodeRows, recorded: StepBlock) -> list[str]:
-        """Start an episode without a seed from its recorded initial state (`recorded`: its reset row): no replay can
-        remake an unseeded reset (ManiSkill drew it from the global RNG), so the reset goes unchecked; the limit that
-        says so (none for a seeded episode). `RecordingFileError` where the recording holds no states to start from:
-        where the episode began is then unknown, and stepping from another start would judge another trajectory."""
+        """Start an episode without a seed where it began (`recorded`: its reset row). Where the recording holds the
+        random generators its reset drew from (`EpisodeMeta.reset_generators`), the replay's reset drew from them
+        too (`reset_for`): a reset that remade the recorded initial state bit for bit is kept, with everything PhysX
+        and the controllers keep beside the state. Otherwise the recorded initial state is restored: the limit that
+        says so, and why (none for a seeded episode, or a remade reset). `RecordingFileError` where the recording
+        holds no states to start from: where the episode began is then unknown, and stepping from another start would
+        judge another trajectory."""
         if source.meta.seed is not None:
             return []
         row = _States(recorded).row(0)
         if not row:
             raise RecordingFileError(getattr(source, "path", None) or "the recording",
                                      f"episode {source.meta.index}: {UNSEEDED_WITHOUT_STATES}: it cannot be replayed")
+        if source.meta.reset_generators:
+            differing = _differing_leaves(row, self._state())
+            if not differing:
+                return []
         restore_state(self.u, row, elapsed_steps=0)
-        return ["actions replayed from the recorded initial state"]
+        restored = ["actions replayed from the recorded initial state"]
+        if not source.meta.reset_generators:
+            return restored
+        return [f"the reset from the recorded generator states did not remake the recorded initial state "
+                f"({', '.join(differing[:3])} differ: the reset drew from something else too, or another engine "
+                "replays it)", *restored]
 
     def _replay(self, run: _Run) -> ReplayedEpisode:
         meta = run.source.meta
@@ -493,8 +505,10 @@ class EpisodeReplayer:
         if run.mode == "states":
             restore_state(self.u, states.row(0), elapsed_steps=0)
         elif run.mode == "actions" and source.meta.seed is None:
-            out.limits += self._start_unseeded(source, recorded)
-            out.restored_at.append(0)
+            limits = self._start_unseeded(source, recorded)
+            out.limits += limits
+            if limits:
+                out.restored_at.append(0)
         run.sink.reset(recorded, self._reset_row(recorded))
         self._stepped = self._stepped or source.length > 0
         step = {"actions": self._step_actions, "states": self._step_states, "step": self._step_restored}[run.mode]
@@ -638,6 +652,12 @@ def task_code_errors() -> Iterator[None]:
         if error is None:
             raise
         raise error from exc
+
+
+def _differing_leaves(recorded: dict[str, np.ndarray], live: dict[str, np.ndarray]) -> list[str]:
+    """The leaves of state row `recorded` that the `live` state does not hold bit for bit (in the recorded dtype)."""
+    return [path for path, a in recorded.items()
+            if path not in live or not np.array_equal(np.asarray(live[path], a.dtype).reshape(a.shape), a)]
 
 
 def without_nan(source: EpisodeRows, first: int, actions: np.ndarray) -> np.ndarray:

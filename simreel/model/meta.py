@@ -280,6 +280,11 @@ class EpisodeMeta:
     verification: dict[str, Any] = field(default_factory=dict)
     """In a file written by ``simreel replay -o``: the replay's verdict on this episode (verdict, first divergence,
     scene differences, explanation: `simreel.replay.report.report.EpisodeReport.verification`); empty elsewhere."""
+    reset_generators: dict[str, str] = field(default_factory=dict)
+    """For an episode reset without a seed in a one-env recording: the state, just before that reset, of each
+    process-wide random generator the reset drew from (``{"torch": ..., "numpy": ..., "python": ...}``, each
+    compressed and base64-encoded: `simreel.sim.generators`), so that a replay's reset remakes the episode bit for bit;
+    empty for a seeded episode (and in files of earlier simreel versions, whose readers ignore the field)."""
 
     def to_json(self) -> dict[str, Any]:
         """Its fields as JSON values, new objects throughout (the JSON round trip copies; `dataclasses.asdict`'s deep

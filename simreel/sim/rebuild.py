@@ -2,7 +2,9 @@
 
 Every room that needs the recorded scene again (replay, convert, view) calls `env_from_meta`; it is the
 one place that maps metadata fields back to `simreel.sim.make.make_env` arguments. `reset_to_episode` is the
-one place that reproduces an episode's reset (its scene, seed and options) from its `EpisodeMeta`.
+one place that reproduces an episode's reset (its scene, seed and options) from its `EpisodeMeta`; an episode reset
+without a seed is reset with the process's random generators set to the states its reset drew from, where the
+recording holds them (`EpisodeMeta.reset_generators`, `simreel.sim.generators`).
 mani_skill is imported only when a function runs.
 
 Reproducing a reset: an episode whose reset rebuilt the scene (``reconfigured``) is reset with
@@ -25,6 +27,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 from simreel.errors import RenderUnavailableError
 from simreel.model.meta import EpisodeMeta, RecordingMeta
 from simreel.model.state_tree import to_numpy
+from simreel.sim.generators import recorded_generators
 
 if TYPE_CHECKING:
     import gymnasium as gym
@@ -132,13 +135,17 @@ def reset_to_episode(env: Any, episode: EpisodeMeta, *, scene_seed: int | None =
     if episode.reconfigured is None:
         _reset_as_given(env, episode, options, out)
     elif episode.reconfigured:
-        env.reset(seed=episode.seed, options={**options, "reconfigure": True})
+        with recorded_generators(episode.reset_generators, env.unwrapped):
+            env.reset(seed=episode.seed, options={**options, "reconfigure": True})
         out.scene_seed = episode.seed
         out.scene_builds += 1
     else:
         _reset_in_its_scene(env, episode, options, out)
-    if episode.seed is None:
+    if episode.seed is None and not episode.reset_generators:
         out.limits.append("the episode has no seed: its reset cannot be reproduced")
+    elif episode.seed is None:
+        out.notes.append(f"reset without a seed, its random generators ({', '.join(episode.reset_generators)}) set "
+                         "to their recorded states")
     return out
 
 
@@ -152,7 +159,8 @@ def _reset_as_given(env: Any, episode: EpisodeMeta, options: dict[str, Any], out
     ``gym.make`` built the recorder's (its scene seed, else `GYM_MAKE_SEED` + sub-scene index)."""
     if out.scene_seed is None:
         _rebuild_scene(env, episode, out)
-    _, info = env.reset(seed=episode.seed, options=options or None)
+    with recorded_generators(episode.reset_generators, env.unwrapped):
+        _, info = env.reset(seed=episode.seed, options=options or None)
     if _reconfigured(info):
         out.scene_seed = episode.seed
         out.scene_builds += 1
@@ -165,7 +173,8 @@ def _reset_in_its_scene(env: Any, episode: EpisodeMeta, options: dict[str, Any],
         _rebuild_scene(env, episode, out)
     if getattr(u, "reconfiguration_freq", 0) and getattr(u, "_reconfig_counter", 1) == 0:
         u._reconfig_counter = 1  # the recorded reset did not reconfigure; hold ManiSkill's periodic one off
-    _, info = env.reset(seed=episode.seed, options=options or None)
+    with recorded_generators(episode.reset_generators, env.unwrapped):
+        _, info = env.reset(seed=episode.seed, options=options or None)
     if _reconfigured(info):
         out.scene_seed = episode.seed
         out.scene_builds += 1
@@ -197,4 +206,4 @@ def another_episode(episode: EpisodeMeta) -> EpisodeMeta | None:
         return None  # unknown whether the reset rebuilt the scene (ManiSkill's files), or it was built unseeded
     scene_seed = episode.seed if episode.reconfigured else episode.scene_seed
     return dataclasses.replace(episode, seed=(episode.seed or 0) + OTHER_EPISODE_OFFSET, reconfigured=False,
-                               scene_seed=scene_seed)
+                               scene_seed=scene_seed, reset_generators={})

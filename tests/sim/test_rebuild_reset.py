@@ -80,3 +80,29 @@ def test_render_fallback_corrects_only_a_default_of_none():
 
     with pytest.raises(RenderUnavailableError, match="no device for auto"):
         build_with_render_fallback(no_device, "auto")  # not retried
+
+
+def test_an_unseeded_reset_runs_with_its_generators_and_another_episode_drops_them():
+    """The episode's own reset runs with its recorded generator states set (the process's put back after); the
+    other episode `another_episode` makes is seeded, so it carries none."""
+    import torch
+
+    from simreel.sim.generators import capture_generators, consumed_generators
+    from simreel.sim.rebuild import another_episode
+
+    before = capture_generators()
+    drawn = torch.rand(2).tolist()
+    states = consumed_generators(before)
+    seen = []
+
+    class Drawing(FakeEnv):
+        def reset(self, *, seed=None, options=None):
+            seen.append(torch.rand(2).tolist())
+            return super().reset(seed=seed, options=options)
+
+    ours = capture_generators()
+    done = reset_to_episode(Drawing(), EpisodeMeta(1, seed=None, reset_generators=states), scene_seed=GYM_MAKE_SEED)
+    assert seen == [drawn] and capture_generators() == ours
+    assert done.limits == [] and done.notes == ["reset without a seed, its random generators (torch) set to their "
+                                                "recorded states"]
+    assert another_episode(EpisodeMeta(1, seed=None, reset_generators=states)).reset_generators == {}
