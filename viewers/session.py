@@ -50,7 +50,7 @@ from simreel.viewers.scene_geometry import (
     scene_geometry,
 )
 from simreel.viewers.sources import EpisodeRun, Source, read_compare, read_run
-from simreel.viewers.web_server import LOCALHOST, reached_at
+from simreel.viewers.web_server import LOCALHOST, listening, reached_at
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -195,18 +195,6 @@ def web_viewer_url(web_port: int, grpc_url: str, host: str = "localhost") -> str
     return f"http://{host}:{web_port}/?url={quote(grpc_url, safe=':/[]')}"
 
 
-def _listening(port: int, host: str = LOCALHOST) -> bool:
-    """Whether something accepts connections on ``port`` of this machine (the spawned viewer's gRPC server, or the
-    one `ViewSession.serve` started, at `host`)."""
-    import socket
-
-    try:
-        with socket.create_connection((host, port), timeout=1.0) as s:
-            return s.getsockname() != s.getpeername()  # a free port in the ephemeral range can connect to itself
-    except OSError:
-        return False
-
-
 _HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
 """What an HTTP/2 client sends first: the connection preface and an empty SETTINGS frame."""
 _ANSWER_S = 5.0
@@ -269,12 +257,12 @@ def _flush_to_viewer(rec: rr.RecordingStream, port: int, *, wait_s: float = 1.0,
             failed_at_once = time.monotonic() - started < wait_s / 2
             if failed_at_once:
                 time.sleep(wait_s / 2)  # a viewer that is closing can still listen for a moment
-            if not _listening(port, host):
+            if not listening(port, host):
                 raise _viewer_gone(first_line(e)) from e
             if failed_at_once:
                 raise _refused(port, first_line(e)) from e
             continue
-        if not _listening(port, host):
+        if not listening(port, host):
             raise _viewer_gone(f"nothing listens on port {port} any more")
         return
 
@@ -415,14 +403,14 @@ class ViewSession:
         import rerun as rr
 
         rec = self.new_stream()
-        if _listening(port):  # Rerun would take whatever listens there for an open viewer: refused before it does
+        if listening(port):  # Rerun would take whatever listens there for an open viewer: refused before it does
             _refuse_unless_grpc(port)
         try:
             rr.spawn(port=port, connect=False, recording=rec, executable_path=viewer_executable())
         except RuntimeError as e:
             raise ViewError(f"could not start the Rerun viewer ({first_line(e)}); use --save OUT.rrd and open it "
                             "elsewhere") from e
-        if not _listening(port):
+        if not listening(port):
             raise _viewer_gone(f"nothing listens on port {port}")
         _refuse_unless_grpc(port)
         rec.connect_grpc(f"rerun+http://127.0.0.1:{port}/proxy", default_blueprint=self.blueprint())

@@ -22,7 +22,7 @@ from typing import IO
 
 from simreel.errors import UsageError, ViewError
 
-__all__ = ["LOCALHOST", "WebServer", "start_web_server", "check_bind_address", "reached_at"]
+__all__ = ["LOCALHOST", "WebServer", "start_web_server", "check_bind_address", "reached_at", "listening"]
 
 LOCALHOST = "127.0.0.1"
 """Where ``--serve`` listens by default: a remote browser reaches it through ``ssh -L``."""
@@ -100,17 +100,20 @@ def start_web_server(*, bind: str = LOCALHOST, web_port: int = 9090, grpc_port: 
 def _wait_listening(server: WebServer) -> None:
     deadline = time.monotonic() + _START_TIMEOUT
     host = reached_at(server.bind).strip("[]")
-    while not all(_answers(host, port) for port in (server.web_port, server.grpc_port)):
+    while not all(listening(port, host) for port in (server.web_port, server.grpc_port)):
         if server.process.poll() is not None or time.monotonic() > deadline:
             raise ViewError(f"the Rerun web server did not start ({_last_line(server.log)}); use --save OUT.rrd "
                             "and open it elsewhere")
         time.sleep(0.05)
 
 
-def _answers(host: str, port: int) -> bool:
-    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.settimeout(1.0)
-        return s.connect_ex((host, port)) == 0
+def listening(port: int, host: str = LOCALHOST) -> bool:
+    """Whether something accepts connections on `port` of this machine at `host` (a viewer's or a server's)."""
+    try:
+        with socket.create_connection((host, port), timeout=1.0) as s:
+            return s.getsockname() != s.getpeername()  # a free port in the ephemeral range can connect to itself
+    except OSError:
+        return False
 
 
 def _last_line(log: IO[bytes]) -> str:

@@ -178,10 +178,15 @@ def components_of(path: str, shape: tuple[int, ...], *, prefix: str = "env_state
     return [Component(base, "custom", 0, width)]
 
 
+def _flat(a: np.ndarray) -> np.ndarray:
+    """(N, ...) → (N, K), in its own dtype (a view where it can be)."""
+    a = np.asarray(a)
+    return a.reshape(a.shape[0], int(np.prod(a.shape[1:], dtype=np.int64)))
+
+
 def _rows(a: np.ndarray) -> np.ndarray:
     """(N, ...) → (N, K) float64."""
-    a = np.asarray(a)
-    return a.reshape(a.shape[0], int(np.prod(a.shape[1:], dtype=np.int64))).astype(np.float64, copy=False)
+    return _flat(a).astype(np.float64, copy=False)
 
 
 def abs_diff(rec: np.ndarray, rep: np.ndarray) -> np.ndarray:
@@ -223,10 +228,10 @@ def _off_unit(norms: np.ndarray) -> np.ndarray:
 def identical_error(rows: np.ndarray, comp: Component) -> np.ndarray:
     """Per-row error of `comp` where both sides hold `rows`: 0, but inf where a value is not finite or a quaternion
     is no rotation (what `component_error` gives there, without comparing anything)."""
-    part = _rows(rows)[:, comp.start : comp.stop]
+    part = _flat(rows)[:, comp.start : comp.stop]  # no float64 copy of the leaf: the common case stays cheap
     bad = ~np.isfinite(part).all(axis=1)
     if comp.quat:
-        bad |= not_rotations(part)
+        bad |= not_rotations(part.astype(np.float64))
     return np.where(bad, np.inf, 0.0)
 
 

@@ -386,8 +386,9 @@ def _failed_outside_maniskill(env_id: str, exc: Exception, message: str) -> Exce
     """The error for a build that failed on a control mode the robot lacks (ManiSkill's check, where `check_modes`
     could not tell), in SAPIEN fetching its PhysX GPU library, or in the user's task code (its scene building or
     first reset: `task_code_error`); None otherwise."""
-    if isinstance(exc, AssertionError) and control_mode_error(env_id, message) is not None:
-        return control_mode_error(env_id, message)
+    mode = control_mode_error(env_id, message) if isinstance(exc, AssertionError) else None
+    if mode is not None:
+        return mode
     missing = _missing_physx_gpu_library(exc)
     if missing is not None:
         return EnvBuildError(f"{env_id}: {missing} ({type(exc).__name__}: {message})")

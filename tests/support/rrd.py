@@ -134,7 +134,8 @@ def running_grpc_server(port: int, log: Path, timeout: float = 60) -> Iterator[s
     import subprocess
     import time
 
-    from simreel.viewers.session import _listening, viewer_executable
+    from simreel.viewers.session import viewer_executable
+    from simreel.viewers.web_server import listening as _listening
 
     with log.open("wb") as out:
         server = subprocess.Popen([viewer_executable(), "--serve-grpc", "--port", str(port)],
