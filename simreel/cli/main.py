@@ -97,12 +97,14 @@ def run() -> None:
     finished, SIGINT and SIGTERM are ignored: the interpreter takes ~0.6 s to exit after an import of torch, and a
     Ctrl-C then killed the process (exit 130, no word; or a KeyboardInterrupt traceback from Python's shutdown) after
     a command that had done all its work. An ignored signal stays ignored through that shutdown, where a handler would
-    not (Python resets those first). In-process callers use `main`, which leaves the signals as it found them."""
-    _open_standard_streams()
-    status = main()
+    not (Python resets those first). They are ignored before `main` begins, which puts back what it found when the
+    command ends: set after `main` returned, a signal that came late (a Ctrl-C held while worker processes started,
+    then handled) met Python's own handler in between and killed the process by SIGINT after the command's one line.
+    In-process callers use `main`, which leaves the signals as it found them."""
     for stop in (signal.SIGINT, signal.SIGTERM):
         signal.signal(stop, signal.SIG_IGN)
-    sys.exit(status)
+    _open_standard_streams()
+    sys.exit(main())
 
 
 def _open_standard_streams() -> None:

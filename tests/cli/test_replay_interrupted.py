@@ -20,13 +20,16 @@ import pytest
 from simreel.formats import open_reader
 from simreel.replay.run.output import scratch_folder
 
+EPISODES = 12
+"""The long run's episodes: at ~0.5 s each on two workers, a run interrupted after its third verdict has most to go."""
+
 
 @pytest.fixture(scope="module")
 def long_run(record) -> Path:
     """Enough episodes that a run is still going when it is interrupted after its first verdicts; every reset
     rebuilds the scene, so each episode is a scene chain of its own and `--workers 2` shares them between two
     processes (one chain is replayed in one: `simreel.replay.run.worklist.chain_groups`)."""
-    return record("PickCube-v1", 24, 30, "--env-kwargs", '{"reconfiguration_freq": 1}')
+    return record("PickCube-v1", EPISODES, 20, "--env-kwargs", '{"reconfiguration_freq": 1}')
 
 
 def _replay(*args: str) -> subprocess.Popen:
@@ -87,13 +90,13 @@ def test_kill_9_of_the_driver_keeps_its_verdicts_ends_its_workers_and_resume_fin
     proc.kill()
     proc.wait()
     before = len(_episode_lines(tmp_path / "r.jsonl"))
-    assert 3 <= before < 24, "the run ended before it could be killed: make the recording longer"
+    assert 3 <= before < EPISODES, "the run ended before it could be killed: make the recording longer"
     deadline = time.monotonic() + 15
     while _alive(workers) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not _alive(workers), "worker processes outlived their killed driver"
     assert not report.exists()  # kill -9 leaves the lines only; the document is written by the next run
-    _resume_and_check(report, 24, before)
+    _resume_and_check(report, EPISODES, before)
 
 
 def test_ctrl_c_writes_the_report_so_far_and_says_how_to_finish(long_run, tmp_path):
@@ -105,11 +108,11 @@ def test_ctrl_c_writes_the_report_so_far_and_says_how_to_finish(long_run, tmp_pa
     assert proc.returncode == 130, err
     doc = json.loads(report.read_text())
     before = len(doc["episodes"])
-    assert doc["complete"] is False and doc["totals"]["planned"] == 24 and 2 <= before < 24
+    assert doc["complete"] is False and doc["totals"]["planned"] == EPISODES and 2 <= before < EPISODES
     # one line (it was two: how to finish, then "interrupted")
-    assert err == (f"simreel replay: interrupted; {before} of 24 episodes have their verdict in {report}; finish with: "
+    assert err == (f"simreel replay: interrupted; {before} of {EPISODES} episodes have their verdict in {report}; finish with: "
                    f"simreel replay --resume {report}\n")
-    _resume_and_check(report, 24, before)
+    _resume_and_check(report, EPISODES, before)
     assert os.path.getsize(report) > 0
 
 
@@ -192,7 +195,7 @@ def test_a_scratch_folder_left_by_kill_9_is_cleared_by_the_next_run(long_run, tm
     assert done.returncode == 0, done.stderr
     assert not scratch_folder(out).exists()
     with open_reader(out) as reader:
-        assert [m.index for m in reader.episodes] == list(range(24))
+        assert [m.index for m in reader.episodes] == list(range(EPISODES))
 
 
 def test_kill_9_of_a_run_writing_replays_leaves_no_part_of_it_at_the_output_name(long_run, tmp_path):
@@ -205,7 +208,7 @@ def test_kill_9_of_a_run_writing_replays_leaves_no_part_of_it_at_the_output_name
     _wait_for_verdicts(proc, tmp_path / "r.jsonl", 2)
     proc.kill()
     proc.wait()
-    assert len(_episode_lines(tmp_path / "r.jsonl")) < 24, "the run ended before it could be killed"
+    assert len(_episode_lines(tmp_path / "r.jsonl")) < EPISODES, "the run ended before it could be killed"
     assert not out.exists() and not out.with_suffix(".json").exists()
     assert (scratch_folder(out) / "output.h5").is_file()  # the killed run's episodes, never under the output's name
     with open_reader(long_run) as r:

@@ -139,7 +139,7 @@ def _pool_workers(pid: int) -> list[int]:
 def test_a_pool_worker_killed_ends_the_run_with_one_line_and_resume_finishes(record, tmp_path):
     report = tmp_path / "r.json"
     own_scenes = ("--env-kwargs", '{"reconfiguration_freq": 1}')  # each episode a chain: two processes replay
-    proc = _replay(str(record("PickCube-v1", 24, 30, *own_scenes)), "--report", str(report), "--workers", "2", "-q")
+    proc = _replay(str(record("PickCube-v1", 12, 20, *own_scenes)), "--report", str(report), "--workers", "2", "-q")
     deadline = time.monotonic() + 300
     while _episode_lines(tmp_path / "r.jsonl") < 2:
         assert proc.poll() is None, proc.communicate()
