@@ -63,7 +63,7 @@ def same_features(chosen: Sequence[FieldSpec], first: Sequence[FieldSpec], *, pa
         if other is None or (other.dtype, other.shape) != (f.dtype, f.shape):
             was = "nothing" if other is None else f"{other.dtype} {other.shape}"
             raise UsageError(f"{path}: {f.name} is {f.dtype} {f.shape}, but {first_path} has {was}: the files of one "
-                             "training set need the same features; load them as separate sets")
+                             "read together need the same features; read them separately")
     missing = sorted(set(theirs) - {f.name for f in chosen})
-    raise UsageError(f"{path} lacks {', '.join(missing)}, which {first_path} has: the files of one training set need "
-                     "the same features; load them as separate sets")
+    raise UsageError(f"{path} lacks {', '.join(missing)}, which {first_path} has: the files read together need "
+                     "the same features; read them separately")

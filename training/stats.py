@@ -8,14 +8,16 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from simreel.errors import UsageError
 from simreel.io.targets import check_output, write_text_atomic
 from simreel.model.json_input import parse_json
-from simreel.training.dataset import RecordingDataset
+
+if TYPE_CHECKING:  # the dataset imports torch; statistics of exported frames need none
+    from simreel.training.dataset import RecordingDataset
 
 __all__ = ["FeatureStats", "RunningStats", "compute_stats"]
 

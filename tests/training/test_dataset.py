@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 import torch
 
-from simreel.cli.main import main
 from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import open_reader, open_writer
 from simreel.training import EpisodeChoice, RecordingDataset
@@ -131,22 +130,6 @@ def test_the_split_is_by_episode_and_seeded(three_tasks, pick_copy):
     assert [(e.path, e.index) for e in again.episodes] == [(e.path, e.index) for e in sides["val"].episodes]
     with pytest.raises(UsageError, match="split='test': give 'train', 'val' or None"):
         EpisodeChoice(split="test")
-
-
-@pytest.fixture(scope="module")
-def nudged(three_tasks, tmp_path_factory) -> tuple[Path, Path]:
-    """A copy of the PickCube recording whose episode 1 had one action nudged, and its replay report (episodes 0
-    and 2 exact, 1 diverged)."""
-    folder = tmp_path_factory.mktemp("verdicts")
-    rec = folder / "nudged.h5"
-    with open_reader(three_tasks["pick"]) as r, open_writer(rec, r.meta) as w:
-        for m in r.episodes:
-            episode = r.read_episode(m.index)
-            episode.actions[5] += 0.5 * (m.index == 1)
-            w.write_episode(episode)
-    report = folder / "report.json"
-    assert main(["replay", str(rec), "--report", str(report), "-q"]) == 1
-    return rec, report
 
 
 def test_a_report_keeps_the_verified_episodes_by_default(nudged):
