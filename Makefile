@@ -11,7 +11,7 @@ PYTEST_ARGS ?=
 # and docs/ run in order, page by page).
 PARALLEL := -n auto --dist loadfile
 
-.PHONY: setup test-setup demo test test-all test-gpu lint bench docs clean
+.PHONY: setup test-setup demo test test-all test-gpu lint bench docs clean lerobot-env
 
 # setuptools' "Editable installation" banner (a warning about folders named like the package) says nothing to a user
 # of `make`: kept out of the output.
@@ -57,7 +57,7 @@ demo: setup
 	$(BIN)/simreel view $(DEMO)/pickcube.h5 --episode 0 --compare $(DEMO)/pickcube.replayed.h5 --save $(DEMO)/pickcube.rrd --overwrite
 
 lint: test-setup
-	$(BIN)/ruff check simreel recorders replay viewers tests benchmarks
+	$(BIN)/ruff check simreel recorders replay training viewers tests benchmarks
 
 test: lint
 	$(BIN)/python -m pytest $(PARALLEL) --durations=25 $(PYTEST_ARGS)
@@ -76,6 +76,14 @@ bench: test-setup
 	$(BIN)/python benchmarks/bench_view.py
 	$(BIN)/python benchmarks/bench_convert.py
 	$(BIN)/python benchmarks/bench_convert.py --what rgb
+
+# LeRobot's own dataset loader (lerobot 0.4.4) in a venv of its own, for the tests that read `simreel export --to
+# lerobot` with it (they are skipped without it): lerobot pins a torch and a rerun-sdk simreel's venv cannot hold.
+LEROBOT_VENV := .cache/lerobot-venv
+lerobot-env: $(LEROBOT_VENV)/.simreel-lerobot
+
+$(LEROBOT_VENV)/.simreel-lerobot: tools/lerobot_env.sh tools/install_torch.sh
+	tools/lerobot_env.sh $(LEROBOT_VENV)
 
 # The documentation site, strictly (a broken link, a missing anchor or a page left out of the nav fails it), into
 # site/. mkdocs comes with the test extra; the docs extra installs it where setup ran before it did.

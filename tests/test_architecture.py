@@ -15,7 +15,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 TESTS = REPO / "tests"
-ROOMS = {"recorders": "simreel.recorders", "replay": "simreel.replay", "viewers": "simreel.viewers"}
+ROOMS = {"recorders": "simreel.recorders", "replay": "simreel.replay", "training": "simreel.training",
+         "viewers": "simreel.viewers"}
 PACKAGE_DIRS = {"simreel": REPO / "simreel", **{room: REPO / room for room in ROOMS}}
 CORE_TOP = {"__init__.py", "__main__.py", "errors.py"}
 """The core's top level: the version and format constants, the one exception hierarchy, `python -m simreel`."""
@@ -110,7 +111,7 @@ def test_the_core_imports_a_room_only_in_the_cli():
 def test_import_simreel_and_the_cli_parser_load_no_simulator_or_viewer():
     script = (
         "import json, sys, simreel, simreel.cli.main as m; m.build_parser(); "
-        "import simreel.viewers, simreel.replay, simreel.formats, simreel.sim.make, simreel.sim.render_device, "
+        "import simreel.viewers, simreel.replay, simreel.training, simreel.formats, simreel.sim.make, simreel.sim.render_device, "
         "simreel.sim.norender, simreel.authoring.custom_state, simreel.authoring.heterogeneous, simreel.datasets.dataset, "
         "simreel.verdicts.compare, simreel.model.episode; "
         "print(json.dumps([n for n in ('rerun', 'mani_skill', 'sapien', 'torch') if n in sys.modules]))"
@@ -126,6 +127,7 @@ PUBLIC_API = {
     "simreel.replay": ["verify_recording", "read_verdicts", "audit_task", "ReplayOptions", "ReplayRun", "MODES",
                        "EpisodeReplayer", "AuditOptions"],
     "simreel.replay.convert.convert": ["convert_recording", "ConvertOptions"],
+    "simreel.training": ["RecordingDataset", "SampleOptions", "EpisodeChoice", "FeatureStats", "compute_stats"],
     "simreel.viewers": ["build_session", "ViewOptions"],
     "simreel.formats": ["open_reader", "open_writer", "EpisodeReader", "EpisodeWriter", "StepBlock"],
     "simreel.model": [],

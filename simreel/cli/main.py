@@ -28,7 +28,8 @@ from simreel.io.durable import stop_raised, stopping_signals
 
 __all__ = ["main", "run", "COMMANDS"]
 
-COMMANDS = ("record", "inspect", "replay", "audit", "convert", "recover", "merge", "filter", "view", "video")
+COMMANDS = ("record", "inspect", "replay", "audit", "convert", "recover", "merge", "filter", "export", "view",
+            "video")
 """Subcommand modules under simreel.cli; each has `add_parser(subparsers)` and `run(args) -> int`."""
 
 

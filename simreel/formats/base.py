@@ -19,7 +19,7 @@ import inspect
 import math
 import shutil
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any, ClassVar
@@ -313,6 +313,12 @@ class EpisodeRows(ABC):
     @abstractmethod
     def steps(self, start: int, stop: int) -> StepBlock:
         """Steps `start`..`stop - 1`: their per-step rows and the per-state rows after them."""
+
+    def steps_of(self, names: Collection[str], start: int, stop: int) -> StepBlock:
+        """`steps(start, stop)` of the fields `names` only: a format that reads a field without the others (HDF5)
+        leaves the rest unread (camera frames, for a window of states)."""
+        block = self.steps(start, stop)
+        return StepBlock.of({n: block[n] for n in names})
 
     def blocks(self, rows: int | None = None) -> Iterator[tuple[int, StepBlock]]:
         """(first step, block) for every block of `rows` steps (None: `block_rows`), in order."""

@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import mmap
 import struct
-from collections.abc import Iterable, Sequence
+from collections.abc import Collection, Iterable, Sequence
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
@@ -297,6 +297,11 @@ class Hdf5Rows(EpisodeRows):
 
     def steps(self, start: int, stop: int) -> StepBlock:
         return StepBlock.of({f.name: self._read(f.name, start + f.per_state, stop + f.per_state) for f in self.fields})
+
+    def steps_of(self, names: Collection[str], start: int, stop: int) -> StepBlock:
+        wanted = set(names)
+        return StepBlock.of({f.name: self._read(f.name, start + f.per_state, stop + f.per_state) for f in self.fields
+                             if f.name in wanted})
 
     def _read(self, name: str, start: int, stop: int) -> np.ndarray:
         ds = self.datasets[name]

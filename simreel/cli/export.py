@@ -1,0 +1,42 @@
+"""`simreel export IN... --to lerobot OUT`: recordings (files, folders, patterns) as a LeRobot dataset v3.0 folder
+(`simreel.training.lerobot.export`), the verified episodes only when a replay report is given."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from simreel.errors import UsageError
+from simreel.options.declare import add_arguments, from_arguments
+from simreel.training.lerobot.options import FORMATS, ExportOptions
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        "export",
+        help="export recordings to a training format: a LeRobot dataset v3.0",
+        description="Write the episodes of the recordings IN (files, folders, glob patterns) as a LeRobot dataset "
+        "v3.0 in the folder OUT: parquet data files of many episodes each, at the env's control frequency, with "
+        "observation.state, action, next.reward, next.success, next.done and the index columns, meta/info.json "
+        "(the source files and the report's verdicts under \"simreel\"), stats.json, tasks and the episodes table. "
+        "With --report, only the episodes the replay verified.",
+    )
+    p.add_argument("inputs", nargs="+", metavar="IN", help="recordings: .h5/.mcap files, folders or glob patterns")
+    p.add_argument("--to", required=True, nargs=2, metavar=("FORMAT", "OUT"),
+                   help=f"the format ({', '.join(FORMATS)}) and the folder to write (a new one, or a dataset of that "
+                        "format with --overwrite)")
+    add_arguments(p, ExportOptions)
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from simreel.training.lerobot.export import export_lerobot
+
+    fmt, output = args.to
+    if fmt not in FORMATS:
+        raise UsageError(f"--to {fmt}: simreel exports to {', '.join(FORMATS)}")
+    options = from_arguments(ExportOptions, args, command=args.command_line)
+    print(export_lerobot(args.inputs, output, options).summary())
+    return 0
