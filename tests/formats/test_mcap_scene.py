@@ -172,6 +172,25 @@ def test_the_writer_writes_a_scene_as_the_next_episode_begins_and_only_when_it_c
             assert_same_episode(r.read_episode(want.meta.index), want)
 
 
+def test_parallel_sub_scenes_are_drawn_on_their_own_frames(tmp_path):
+    pytest.importorskip("foxglove_schemas_protobuf")
+    meta = synthetic_meta()
+    meta.num_envs = 2
+    episodes = [synthetic_episode(meta, i, 2) for i in range(2)]
+    path = tmp_path / "s.mcap"
+    with McapWriter(path, meta) as w:
+        for env, episode in enumerate(episodes):
+            geometry = _hand_made()
+            geometry.env_idx = episode.meta.env_idx = env
+            w.write_scene(geometry)
+            w.write_episode(episode)
+    scenes = [_scene_update(m.data) for _, _, m in _messages(path, TOPICS["scene"])]
+    assert [[(e.id, e.frame_id) for e in u.entities][:2] for u in scenes] == [
+        [(f"env{i}/cube", f"env{i}/cube"), (f"env{i}/robot/arm", f"env{i}/robot/arm")] for i in (0, 1)]
+    robots = [ET.fromstring(_urdf_text(m.data)).get("name") for _, _, m in _messages(path, TOPICS["robot_description"])]
+    assert robots == ["env0", "env1"]  # Rerun puts each under its own entity path
+
+
 def test_the_time_axis_starts_when_the_recording_was_made(tmp_path):
     meta = synthetic_meta()
     meta.created_utc = "2026-12-01T08:30:00+00:00"
