@@ -25,13 +25,14 @@ import gymnasium as gym
 import numpy as np
 
 from simreel.errors import EpisodeLayoutError, SimreelError, StateLayoutError, Terminated, UsageError
-from simreel.formats import check_writer_options, open_writer, records_poses_by_default
+from simreel.formats import check_writer_options, open_writer, records_poses_by_default, writes_scene
 from simreel.io.durable import deferred_signals
 from simreel.model.blocks import StepBlock
 from simreel.model.fields import episode_fields
 from simreel.model.meta import EpisodeMeta, json_default
 from simreel.model.state_tree import LeafSpec, layout_differences, layout_of, to_numpy
 from simreel.options.checks import check_flag, check_text, options_with, path_text, whole_number
+from simreel.recorders.scene_drawing import SceneDrawing
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.recorders.step_scalars import StepScalars, scalar_info
 from simreel.recorders.wrapper_policy import refuse_reshaping_wrappers
@@ -180,6 +181,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """Per sub-scene: the index of its chain's first episode, and the episodes committed in that chain (each
         episode's `EpisodeMeta.chain`; the env is taken as fresh from ``gym.make``, as `simreel.verdicts.scene_history` says)."""
         self._fingerprint_scenes(range(1, self._n))  # sub-scene 0's is the recording's own
+        self._drawing = SceneDrawing(self._writer, u, enabled=writes_scene(path))
+        self._drawing.send(range(self._n))
         self._closed = False
 
     def _describe(self, env: gym.Env, path: str | Path) -> Any:
@@ -221,6 +224,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                                                default=json_default))
         if reconfigured:
             self._fingerprint_scenes(range(self._n))
+            self._drawing.send(range(self._n))
         for i, seed_i in zip(idxs, self._episode_seeds(seed, idxs), strict=True):
             if reconfigured:
                 self._scene_seed[i] = seed_i

@@ -162,6 +162,10 @@ class ProcessWriter:
         self._send(("begin", meta, self.block_parts(reset, meta.index, self.reset_fields)))
         return _ProcessSink(self, meta.index)
 
+    def write_scene(self, geometry: Any) -> None:
+        """The format writer's `write_scene`, in the child (geometry is plain data: it pickles)."""
+        self._send(("scene", geometry))
+
     def checkpoint(self) -> None:
         """Ask the child to answer once it has done everything sent so far, and return at once: the next `settle`
         waits for that answer, which the child sends while the caller works on (the recorder asks once it has sent
@@ -542,6 +546,9 @@ class _Child:
             self._sinks[meta.index] = self._writer.begin_episode(meta, self._block(parts))
 
         self._guarded(begun)
+
+    def _scene(self, geometry: Any) -> None:
+        self._guarded(self._writer.write_scene, geometry)
 
     def _learn(self, number: int, source: Any, forget: int | None) -> None:
         if forget is not None:

@@ -111,6 +111,9 @@ def _copy(args: argparse.Namespace) -> int:
     if format_of(args.output) == "mcap" and not report.meta.pose_bodies:
         print("note: IN has no body poses, so the MCAP transform channel (/tf) shows the actors and articulation "
               "roots of the state dict only; convert with --poses (or record with --poses) for every link")
+    if format_of(args.output) == "mcap":
+        print("note: a copy holds no shapes for Foxglove and Rerun (/scene, /robot_description): only a recording "
+              "made to .mcap draws its scene; `simreel view` draws any recording")
     return 0
 
 

@@ -22,6 +22,7 @@ from simreel.formats.registry import (
     recording_files,
     records_poses_by_default,
     remove_recording,
+    writes_scene,
 )
 from simreel.model.blocks import StepBlock
 
@@ -35,6 +36,7 @@ __all__ = [
     "remove_recording",
     "recording_files",
     "records_poses_by_default",
+    "writes_scene",
     "HDF5_SUFFIXES",
     "MCAP_SUFFIXES",
     "EpisodeReader",

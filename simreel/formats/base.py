@@ -36,6 +36,7 @@ from simreel.io.targets import check_output
 from simreel.model.blocks import StepBlock, join_blocks
 from simreel.model.episode import Episode
 from simreel.model.fields import FieldSpec, episode_fields
+from simreel.model.geometry import SceneGeometry
 from simreel.model.meta import EpisodeMeta, RecordingMeta
 from simreel.options.checks import is_whole_number
 
@@ -117,6 +118,8 @@ class EpisodeWriter(ABC):
 
     records_poses_by_default: ClassVar[bool] = False
     """Whether a recorder writing this format records body poses unless told otherwise."""
+    writes_scene: ClassVar[bool] = False
+    """Whether this format keeps what the scene looks like (`write_scene`)."""
 
     def __init__(self, path: str | Path, meta: RecordingMeta) -> None:
         self.path = Path(path)
@@ -248,6 +251,11 @@ class EpisodeWriter(ABC):
     def _where_readable(self) -> str:
         """How the episodes committed before a failed write stay readable, for its error ("" when as they are)."""
         return ""
+
+    def write_scene(self, geometry: SceneGeometry) -> None:  # noqa: B027 - optional hook
+        """What the bodies of sub-scene `geometry.env_idx` look like, from its next episode on, for viewers that read
+        the file without simreel (the MCAP format draws them; the others keep nothing of it: simreel's own viewer
+        reads the geometry from the rebuilt env)."""
 
     def checkpoint(self) -> None:  # noqa: B027 - optional hook
         """Mark what `settle` waits for: everything handed to the writer so far (a writer that writes elsewhere starts

@@ -19,7 +19,7 @@ from simreel.model.meta import RecordingMeta
 from simreel.options.checks import path_text
 
 __all__ = ["open_writer", "check_writer_options", "open_reader", "format_of", "check_writable", "check_report_writable",
-           "remove_recording", "recording_files", "records_poses_by_default", "HDF5_SUFFIXES", "MCAP_SUFFIXES"]
+           "remove_recording", "recording_files", "records_poses_by_default", "writes_scene", "HDF5_SUFFIXES", "MCAP_SUFFIXES"]
 
 HDF5_SUFFIXES = (".h5", ".hdf5")
 MCAP_SUFFIXES = (".mcap",)
@@ -112,6 +112,12 @@ def records_poses_by_default(path: str | Path) -> bool:
     """Whether a recording to `path` should hold body poses unless told otherwise: True for MCAP (its `/tf`
     channel shows every link only with them), False for HDF5. Raises `UsageError` for an unknown suffix."""
     return _writer_class(path).records_poses_by_default
+
+
+def writes_scene(path: str | Path) -> bool:
+    """Whether a recording to `path` keeps what its scene looks like (`EpisodeWriter.write_scene`): True for MCAP,
+    whose viewers have no other way to draw it. Raises `UsageError` for an unknown suffix."""
+    return _writer_class(path).writes_scene
 
 
 def open_reader(path: str | Path) -> EpisodeReader:

@@ -40,6 +40,14 @@ def test_convert_without_poses_notes_what_tf_shows(tmp_path, capsys):
     assert "shows the actors and articulation roots of the state dict only" in capsys.readouterr().out
 
 
+def test_a_copy_to_mcap_says_it_draws_no_scene(tmp_path, capsys):
+    src, _ = _source(tmp_path, ".h5")
+    assert main(["convert", str(src), str(tmp_path / "out.mcap"), "-q"]) == 0
+    assert "a copy holds no shapes for Foxglove and Rerun (/scene, /robot_description)" in capsys.readouterr().out
+    assert main(["convert", str(src), str(tmp_path / "out.h5"), "-q"]) == 0
+    assert "/scene" not in capsys.readouterr().out
+
+
 def test_progress_bar_counts_episodes_on_a_terminal_only(tmp_path, capsys, monkeypatch):
     src, _ = _source(tmp_path, ".h5")
     assert main(["convert", str(src), str(tmp_path / "piped.mcap")]) == 0

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from support.children import child_pids, wait_ended
+from support.foxglove import descriptor_set
 from support.mcap_samples import assert_same_episode, long_sample, synthetic_episode, synthetic_meta, write
 
 from simreel.datasets.copy import convert, recover
@@ -30,6 +31,15 @@ def messages(path: Path, topic: str) -> list:
 
     with open(path, "rb") as fh:
         return list(make_reader(fh).iter_messages(topics=[topic], log_time_order=False))
+
+
+def time_origin(path: Path) -> int:
+    """The log time of the recording's first row, as its `simreel` record states it."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        record = next(m for m in make_reader(fh).iter_metadata() if m.name == "simreel")
+    return int(record.metadata["time_origin_ns"])
 
 
 def simreel_cli(*args: str) -> subprocess.CompletedProcess:
@@ -118,11 +128,12 @@ def test_rerun_mcap_reader_decodes_transforms_of_every_body(pickcube_mcap):
         bodies = r.meta.pose_bodies
         episodes = [r.read_episode(m.index) for m in r.episodes]
     step_ns = 50_000_000  # PickCube: 20 Hz control
+    origin = time_origin(pickcube_mcap)
     want = {}  # (log time, frame) → pose, episodes laid end to end on the time axis
     for k, ep in enumerate(episodes):
         for row in range(ep.length + 1):
             for b, name in enumerate(bodies):
-                want[((k * (ep.length + 1) + row) * step_ns, name)] = ep.body_poses[row, b]
+                want[(origin + (k * (ep.length + 1) + row) * step_ns, name)] = ep.body_poses[row, b]
     got = {}
     reader = rc.McapReader(pickcube_mcap, include_topic_regex=["^/tf$"], timeline_type="duration_ns")
     for chunk in reader.stream().to_chunks():
@@ -150,7 +161,8 @@ def test_rerun_mcap_reader_decodes_transforms_of_every_body(pickcube_mcap):
 
 def test_time_axis_sequence_and_plots(pickcube_mcap):
     tf = messages(pickcube_mcap, TOPICS["tf"])
-    assert [m.log_time for _, _, m in tf] == [i * 50_000_000 for i in range(32)]  # 2 episodes × 16 rows
+    origin = time_origin(pickcube_mcap)
+    assert [m.log_time - origin for _, _, m in tf] == [i * 50_000_000 for i in range(32)]  # 2 episodes × 16 rows
     assert [m.sequence for _, _, m in tf] == list(range(16)) * 2  # sequence = row (step) index
     plots = [json.loads(m.data) for _, _, m in messages(pickcube_mcap, TOPICS["plots"])]
     assert [(p["episode"], p["step"]) for p in plots] == [(e, s) for e in (0, 1) for s in range(15)]
@@ -168,20 +180,6 @@ def test_foxglove_schemas_are_foxgloves_own_and_messages_decode(pickcube_mcap):
     pytest.importorskip("google.protobuf")
     fgp = pytest.importorskip("foxglove_schemas_protobuf")
     from foxglove_schemas_protobuf import FrameTransforms_pb2, Log_pb2
-    from google.protobuf import descriptor_pb2
-
-    def descriptor_set(desc) -> bytes:
-        files: dict = {}
-
-        def add(fd) -> None:
-            for dep in fd.dependencies:
-                add(dep)
-            if fd.name not in files:
-                files[fd.name] = descriptor_pb2.FileDescriptorProto()
-                fd.CopyToProto(files[fd.name])
-
-        add(desc.file)
-        return descriptor_pb2.FileDescriptorSet(file=list(files.values())).SerializeToString()
 
     assert fgp is not None
     tf = messages(pickcube_mcap, TOPICS["tf"])
@@ -190,11 +188,12 @@ def test_foxglove_schemas_are_foxgloves_own_and_messages_decode(pickcube_mcap):
     assert schema.data == descriptor_set(FrameTransforms_pb2.FrameTransforms.DESCRIPTOR)
     with open_reader(pickcube_mcap) as r:
         bodies, ep = r.meta.pose_bodies, r.read_episode(0)
+    origin = time_origin(pickcube_mcap)
     for row in (0, 7, 15):
         msg = FrameTransforms_pb2.FrameTransforms.FromString(tf[row][2].data)
         assert [t.child_frame_id for t in msg.transforms] == bodies
         for b, t in enumerate(msg.transforms):
-            assert t.timestamp.ToNanoseconds() == row * 50_000_000
+            assert t.timestamp.ToNanoseconds() == origin + row * 50_000_000
             p = ep.body_poses[row, b].astype(np.float64)
             assert [t.translation.x, t.translation.y, t.translation.z] == p[:3].tolist()
             assert [t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w] == p[[4, 5, 6, 3]].tolist()
@@ -321,7 +320,7 @@ def test_parallel_envs_get_their_own_frames_and_time_lanes(tmp_path):
     write(tmp_path / "s.mcap", meta, episodes)
     starts = {}
     for _, _, m in messages(tmp_path / "s.mcap", TOPICS["reset"]):
-        starts[int.from_bytes(m.data[:4], "little")] = m.log_time
+        starts[int.from_bytes(m.data[:4], "little")] = m.log_time - time_origin(tmp_path / "s.mcap")
     assert starts == {0: 0, 1: 0, 2: 4 * 50_000_000}  # env 0: episode 2 follows episode 0's 4 rows
     pytest.importorskip("foxglove_schemas_protobuf")
     from foxglove_schemas_protobuf import FrameTransforms_pb2

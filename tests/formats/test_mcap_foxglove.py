@@ -29,17 +29,19 @@ def _read_with_typescript(path: Path) -> dict:
     return json.loads(done.stdout)
 
 
-def _expected_counts(path: Path) -> dict[str, int]:
+def _expected_counts(path: Path, scenes: int = 0) -> dict[str, int]:
     """Messages per topic simreel wrote: a reset row, and a log line as each episode begins and is committed, a
-    transform per row, a plot per step; and the blocks of exact step data as Python's mcap reader counts them."""
+    transform per row, a plot per step, a scene update and a robot description per scene; and the blocks of exact
+    step data as Python's mcap reader counts them."""
     from mcap.reader import make_reader
 
     with open_reader(path) as r:
         lengths = [m.length for m in r.episodes]
     with path.open("rb") as f:
         blocks = sum(1 for _ in make_reader(f).iter_messages(topics=["/simreel/steps"]))
+    drawn = {"/scene": scenes, "/robot_description": scenes} if scenes else {}
     return {"/simreel/reset": len(lengths), "/simreel/steps": blocks, "/tf": sum(lengths) + len(lengths),
-            "/plots": sum(lengths), "/log": 2 * len(lengths)}
+            "/plots": sum(lengths), "/log": 2 * len(lengths), **drawn}
 
 
 def test_a_recording_reads_whole_in_foxglove_s_reader(tmp_path):
@@ -50,12 +52,34 @@ def test_a_recording_reads_whole_in_foxglove_s_reader(tmp_path):
                  "--render-backend", "none", "-q"]) == 0
     read = _read_with_typescript(path)
     assert "error" not in read["streamed"] and "error" not in read["indexed"], read
-    expected = _expected_counts(path)
+    expected = _expected_counts(path, scenes=1)
     assert read["streamed"]["counts"] == expected and read["indexed"]["counts"] == expected
     assert read["indexed"]["statistics"] == sum(expected.values())
     tf = read["streamed"]["first"]["/tf"]["transforms"]
     assert {t["parent_frame_id"] for t in tf} == {"world"} and "cube" in {t["child_frame_id"] for t in tf}
     assert read["streamed"]["first"]["/plots"]["step"] == 0
+
+
+def test_the_scene_transforms_and_robot_description_decode_with_foxgloves_own_schemas(tmp_path):
+    """/scene and /tf decode with the definitions of `@foxglove/schemas` (what Foxglove's panels are written against)
+    as with the schemas the file carries, and /robot_description with Foxglove's ROS 2 message parser and CDR reader:
+    the entities sit on /tf's frames and the description is the URDF of the same bodies."""
+    import xml.etree.ElementTree as ET
+
+    path = tmp_path / "run.mcap"
+    assert main(["record", "PickCube-v1", "-o", str(path), "-n", "1", "--max-steps", "3", "--seed", "0",
+                 "--render-backend", "none", "-q"]) == 0
+    streamed = _read_with_typescript(path)["streamed"]
+    assert "error" not in streamed, streamed
+    own, carried = streamed["foxglove"], streamed["first"]
+    assert own["/scene"] == carried["/scene"] and own["/tf"] == carried["/tf"] and own["/log"] == carried["/log"]
+    frames = {t["child_frame_id"] for t in own["/tf"]["transforms"]}
+    entities = own["/scene"]["entities"]
+    assert {e["frame_id"] for e in entities} <= frames and all(e["frame_locked"] for e in entities)
+    cube = next(e for e in entities if e["id"] == "cube")["cubes"][0]
+    assert [cube["size"][k] for k in "xyz"] == pytest.approx([0.04] * 3)
+    links = {link.get("name") for link in ET.fromstring(carried["/robot_description"]["data"]).iter("link")}
+    assert links == {"world"} | {e["id"] for e in entities if e["frame_id"] != "world"}
 
 
 def test_a_long_episode_over_many_chunks_reads_through_the_index(tmp_path):

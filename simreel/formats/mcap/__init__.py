@@ -5,6 +5,8 @@ Channels (one schema each)::
     /simreel/reset   simreel.ResetRow    (simreel-fields)  row 0 of state/obs/poses, one message per episode
     /simreel/steps   simreel.StepBlock   (simreel-fields)  every per-step array, one message per block of steps
     /tf              foxglove.FrameTransforms (protobuf)   world pose of every body, one message per row
+    /scene           foxglove.SceneUpdate (protobuf)       every body's shapes on its /tf frame, once per scene
+    /robot_description  std_msgs/msg/String (ros2msg/cdr)  a URDF of the same bodies (Rerun draws it), once per scene
     /plots           simreel.StepScalars (jsonschema/json) reward, flags, info scalars, action per step
     /log             foxglove.Log        (protobuf)        episode begins / is committed / is discarded
 
@@ -20,7 +22,8 @@ steps) once it is committed, or `simreel.episode_discard.<i>` (one name per reco
 of the same name).
 
 Time: `log_time = episode start + row × step_ns`, with `step_ns = 1e9 / control_freq` (the env's control
-period; 1 s if unknown) and row 0 the state after reset. The episodes of one parallel env follow each
+period; 1 s if unknown) and row 0 the state after reset; the first episode starts at the recording's `created_utc`
+(`time_origin_ns` in the `simreel` record; 0 in files written before, which viewers show in 1970). The episodes of one parallel env follow each
 other on the time axis (the next starts one period after the last row of the previous), so Foxglove's
 and Rerun's timelines play the whole recording; each message's `sequence` is its row (step) index, and
 every `/plots` message names its episode. `McapReader.read_episode(i)` reads only the chunks in
@@ -35,9 +38,13 @@ with one line that points to `simreel recover`, which reads it front to back (`M
 recover=True)`), rewrites the committed episodes into a complete file and reports what was lost. The
 writer holds an advisory lock on the file, so a file still being written is not taken for a killed one.
 
+The scene (`McapWriter.write_scene`, from a recorder: `simreel.formats.mcap.scene`) is written as the next episode
+of its sub-scene begins, and only when it differs from the one written before.
+
 Modules: `writer` writes (`channels` puts each message on its channel); `reader` reads; `blocks` owns the
-bytes of the data channels, `foxglove` the Foxglove messages, `records` the metadata records and names
-both sides share, `lock` the writer's lock.
+bytes of the data channels, `foxglove` the Foxglove messages, `scene` the scene's messages, `wire` the protobuf wire
+format both write, `records` the metadata records and names both sides share, `layout` a Foxglove layout for the
+files.
 """
 
 

@@ -2,7 +2,8 @@
 
 It owns the open `mcap.writer.Writer`: it registers the schemas and channels, writes an episode's reset row,
 its blocks of steps (exact data, `/tf` transforms, `/plots` scalars), its `/log` lines and its metadata
-records, and closes chunks when an episode is committed. An episode's place in the file is an `EpisodeLane`
+records, the scene's geometry (`/scene`, `/robot_description`) as the first episode in a new scene begins, and
+closes chunks when an episode is committed. An episode's place in the file is an `EpisodeLane`
 (its index, env, start time and rows so far). `McapWriter` and its sinks call nothing else.
 """
 
@@ -42,8 +43,16 @@ from simreel.formats.mcap.records import (
     record_name,
     seal,
     step_ns_of,
+    time_origin_of,
+)
+from simreel.formats.mcap.scene import (
+    ROBOT_DESCRIPTION_SCHEMA,
+    SCENE_UPDATE_SCHEMA,
+    encode_ros2_string,
+    scene_messages,
 )
 from simreel.model.fields import FLAG_FIELDS
+from simreel.model.geometry import SceneGeometry
 from simreel.model.meta import EpisodeMeta, RecordingMeta
 
 __all__ = ["EpisodeLane", "McapChannels"]
@@ -117,13 +126,20 @@ class McapChannels:
         self._fsync = fsync
         self.meta = meta
         self.step_ns = step_ns_of(meta)
+        self.origin_ns = time_origin_of(meta)
+        """Log time of the first episode's first row (`simreel.formats.mcap.records.time_origin_of`)."""
         self._reset_fields = reset_fields(meta)
         self._step_fields = step_fields(meta)
         self._frames, self._pose_sources = _view_frames(meta)
         self._encoders: dict[int, FrameTransformsEncoder] = {}
+        self._scenes: dict[int, SceneGeometry] = {}
+        """Each sub-scene's geometry given since its last episode began (`scene`), written as its next one begins."""
+        self._scene_written: dict[int, tuple[bytes, tuple[str, ...]]] = {}
+        """Each sub-scene's last scene written: its SceneUpdate bytes and entity ids."""
         self._ids = self._register()
         self._record(RecordingRecord(FORMAT_VERSION, __version__, meta, self.step_ns, self._ids,
-                                     fields_to_schema(self._reset_fields), fields_to_schema(self._step_fields)))
+                                     fields_to_schema(self._reset_fields), fields_to_schema(self._step_fields),
+                                     time_origin_ns=self.origin_ns))
         fh.flush()
 
     def time(self, lane: EpisodeLane, row: int) -> int:
@@ -142,6 +158,10 @@ class McapChannels:
         if self._frames:
             sid = m.register_schema(FRAME_TRANSFORMS_SCHEMA[0], "protobuf", FRAME_TRANSFORMS_SCHEMA[1])
             ids["tf"] = m.register_channel(TOPICS["tf"], "protobuf", sid)
+            sid = m.register_schema(SCENE_UPDATE_SCHEMA[0], "protobuf", SCENE_UPDATE_SCHEMA[1])
+            ids["scene"] = m.register_channel(TOPICS["scene"], "protobuf", sid)
+            sid = m.register_schema(*ROBOT_DESCRIPTION_SCHEMA)
+            ids["robot_description"] = m.register_channel(TOPICS["robot_description"], "cdr", sid)
         sid = m.register_schema("simreel.StepScalars", "jsonschema", json.dumps(self._plots_schema()).encode())
         ids["plots"] = m.register_channel(TOPICS["plots"], "json", sid)
         sid = m.register_schema(LOG_SCHEMA[0], "protobuf", LOG_SCHEMA[1])
@@ -173,6 +193,7 @@ class McapChannels:
         """The episode's begin record, its reset row (exact data and transforms) and a log line."""
         t0 = lane.start_ns
         self._record(EpisodeBeginRecord(meta.index, meta.env_idx, t0, meta.seed))
+        self._write_scene(lane.env, t0)
         data = pack_block(self._reset_fields, reset, episode=meta.index, first_row=0, rows=1)
         self._mcap.add_message(self._ids["reset"], t0, data, t0, 0)
         self._transforms(lane, reset, 0, 1)
@@ -211,6 +232,27 @@ class McapChannels:
         return end
 
     # ---------------------------------------------------------------- viewable channels
+    def scene(self, geometry: SceneGeometry) -> None:
+        """Keep sub-scene `geometry.env_idx`'s geometry until its next episode begins (`begin` writes it then)."""
+        self._scenes[geometry.env_idx] = geometry
+
+    def _prefix(self, env: int) -> str:
+        return f"env{env}/" if self.meta.num_envs > 1 else ""
+
+    def _write_scene(self, env: int, time_ns: int) -> None:
+        """Sub-scene `env`'s geometry given since its last episode began, unless it is what was written last."""
+        geometry = self._scenes.pop(env, None)
+        if geometry is None or not self._frames:
+            return
+        before = self._scene_written.get(env, (b"", ()))
+        messages = scene_messages(geometry, self._frames, prefix=self._prefix(env), world=WORLD_FRAME,
+                                  replaced=before[1])
+        if messages.scene_update == before[0]:
+            return
+        self._scene_written[env] = (messages.scene_update, messages.entity_ids)
+        self._mcap.add_message(self._ids["scene"], time_ns, messages.scene_update, time_ns)
+        self._mcap.add_message(self._ids["robot_description"], time_ns, encode_ros2_string(messages.urdf), time_ns)
+
     def _poses(self, lane: EpisodeLane, arrays: dict[str, np.ndarray]) -> np.ndarray:
         if self._pose_sources is None:
             return np.asarray(arrays["body_poses"])
@@ -221,7 +263,7 @@ class McapChannels:
             return
         encoder = self._encoders.get(lane.env)
         if encoder is None:
-            prefix = f"env{lane.env}/" if self.meta.num_envs > 1 else ""
+            prefix = self._prefix(lane.env)
             encoder = FrameTransformsEncoder([WORLD_FRAME] * len(self._frames), [prefix + n for n in self._frames])
             self._encoders[lane.env] = encoder
         times = [self.time(lane, first_row + j) for j in range(rows)]

@@ -11,10 +11,11 @@ one numpy byte template filled in place, far cheaper than building protobuf obje
 from __future__ import annotations
 
 import base64
-import functools
 from collections.abc import Sequence
 
 import numpy as np
+
+from simreel.formats.mcap.wire import len_field, timestamp, varint
 
 __all__ = [
     "FRAME_TRANSFORMS_SCHEMA",
@@ -60,34 +61,6 @@ LOG_INFO = 2
 LOG_WARNING = 3
 
 
-def _varint(n: int) -> bytes:
-    out = bytearray()
-    while True:
-        b = n & 0x7F
-        n >>= 7
-        if n:
-            out.append(b | 0x80)
-        else:
-            out.append(b)
-            return bytes(out)
-
-
-def _len_field(tag: int, payload: bytes) -> bytes:
-    return bytes([tag]) + _varint(len(payload)) + payload
-
-
-@functools.lru_cache(maxsize=1 << 14)
-def _varint_field(tag: int, n: int) -> bytes:
-    """A varint field, or nothing for 0 (protobuf omits defaults); cached: step times repeat their parts."""
-    return bytes([tag]) + _varint(n) if n else b""
-
-
-def _timestamp(ns: int) -> bytes:
-    """google.protobuf.Timestamp {seconds=1, nanos=2} of `ns` nanoseconds."""
-    sec, nanos = divmod(int(ns), 1_000_000_000)
-    return _varint_field(0x08, sec) + _varint_field(0x10, nanos)
-
-
 # FrameTransform fields 4 (translation: Vector3 {x=1 y=2 z=3}) and 5 (rotation: Quaternion {x=1 y=2 z=3
 # w=4}); every double is a one-byte tag + 8 bytes, so this part has a fixed size and fixed offsets.
 _POSE = (
@@ -116,7 +89,7 @@ class FrameTransformsEncoder:
         if len(parents) != len(children):
             raise ValueError(f"{len(parents)} parent frames for {len(children)} child frames")
         self._names = [
-            _len_field(0x12, p.encode()) + _len_field(0x1A, c.encode()) for p, c in zip(parents, children, strict=True)
+            len_field(0x12, p.encode()) + len_field(0x1A, c.encode()) for p, c in zip(parents, children, strict=True)
         ]
         self._templates: dict[int, tuple[np.ndarray, np.dtype]] = {}
 
@@ -134,9 +107,9 @@ class FrameTransformsEncoder:
         formats: list[str] = []
         offsets: list[int] = []
         for b, frame_names in enumerate(self._names):
-            ts_field = b"\x0a" + _varint(ts_len)
+            ts_field = b"\x0a" + varint(ts_len)
             body = ts_field + bytes(ts_len) + frame_names + _POSE
-            buf += b"\x0a" + _varint(len(body))
+            buf += b"\x0a" + varint(len(body))
             start = len(buf)
             if ts_len:
                 names.append(f"t{b}")
@@ -165,7 +138,7 @@ class FrameTransformsEncoder:
         for j, name in enumerate(_POSE_DTYPE.names):
             doubles[name] = poses[..., _XYZ_XYZW[j]]
         pose_bytes = pose_fields.view(f"V{len(_POSE)}")[..., 0]
-        stamps = [_timestamp(t) for t in times_ns]
+        stamps = [timestamp(t) for t in times_ns]
         stamp_lens = np.fromiter(map(len, stamps), np.intp, k)
         out: list[bytes] = [b""] * k
         for ts_len in np.unique(stamp_lens).tolist():
@@ -189,10 +162,10 @@ class FrameTransformsEncoder:
 def encode_log(time_ns: int, level: int, message: str, name: str) -> bytes:
     """A `foxglove.Log` message."""
     return (
-        _len_field(0x0A, _timestamp(time_ns))
-        + b"\x10" + _varint(level)
-        + _len_field(0x1A, message.encode())
-        + _len_field(0x22, name.encode())
+        len_field(0x0A, timestamp(time_ns))
+        + b"\x10" + varint(level)
+        + len_field(0x1A, message.encode())
+        + len_field(0x22, name.encode())
     )
 
 

@@ -14,7 +14,9 @@ the whole data section whose checksum MCAP keeps.
 
 from __future__ import annotations
 
+import datetime
 import json
+import time
 import zlib
 from dataclasses import dataclass
 from typing import Any
@@ -28,6 +30,7 @@ __all__ = [
     "TOPICS",
     "WORLD_FRAME",
     "step_ns_of",
+    "time_origin_of",
     "RecordingRecord",
     "EpisodeBeginRecord",
     "EpisodeRecord",
@@ -42,7 +45,8 @@ SEAL_KEY = "crc32"
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 COMPRESSIONS = ("zstd", "lz4", "none")
-TOPICS = {"reset": "/simreel/reset", "steps": "/simreel/steps", "tf": "/tf", "plots": "/plots", "log": "/log"}
+TOPICS = {"reset": "/simreel/reset", "steps": "/simreel/steps", "tf": "/tf", "scene": "/scene",
+          "robot_description": "/robot_description", "plots": "/plots", "log": "/log"}
 WORLD_FRAME = "world"
 
 
@@ -55,6 +59,18 @@ def _utf8(text: str) -> str:
 def step_ns_of(meta: RecordingMeta) -> int:
     """Nanoseconds of log time per env step: the control period (1 s when the recording lacks it)."""
     return int(round(1e9 / meta.control_freq)) if meta.control_freq else 1_000_000_000
+
+
+def time_origin_of(meta: RecordingMeta) -> int:
+    """The log time (ns since the Unix epoch) of a recording's first row: when it was made (`created_utc`, else now,
+    to the second), so that viewers show the recording's date rather than 1970 (files written before started at 0)."""
+    try:
+        made = datetime.datetime.fromisoformat(meta.created_utc)
+    except ValueError:
+        return int(time.time()) * 1_000_000_000
+    if made.tzinfo is None:
+        made = made.replace(tzinfo=datetime.timezone.utc)
+    return int(made.timestamp()) * 1_000_000_000
 
 
 def record_kind(name: str) -> str:
@@ -74,6 +90,8 @@ class RecordingRecord:
     channels: dict[str, int]
     reset_schema: bytes
     step_schema: bytes
+    time_origin_ns: int = 0
+    """Log time of the first episode's first row (0 in files written before simreel kept one)."""
 
     def to_metadata(self) -> dict[str, str]:
         m = self.meta
@@ -85,7 +103,9 @@ class RecordingRecord:
             "command": _utf8(m.command),
             "created_utc": _utf8(m.created_utc),
             "step_ns": str(self.step_ns),
-            "time": "log_time = episode start + row x step_ns; row 0 is the state after reset",
+            "time": "log_time = episode start + row x step_ns; row 0 is the state after reset; the first episode "
+                    "starts at time_origin_ns (ns since the Unix epoch: when the recording was made)",
+            "time_origin_ns": str(self.time_origin_ns),
             "pose_source": "recorded body poses" if m.pose_bodies else "state dict (actors, articulation roots)",
             "channels": json.dumps(self.channels),
             "reset_fields": self.reset_schema.decode(),
@@ -104,6 +124,7 @@ class RecordingRecord:
             channels={k: int(v) for k, v in json_value(d["channels"], "its channels").items()},
             reset_schema=d["reset_fields"].encode(),
             step_schema=d["step_fields"].encode(),
+            time_origin_ns=int(d.get("time_origin_ns", "0")),
         )
 
     @staticmethod

@@ -15,6 +15,7 @@ from simreel.formats.mcap.records import COMPRESSIONS
 from simreel.io.durable import deferred_signals, is_storage_error, storage_error
 from simreel.io.staging import RecordingTarget, side_folder
 from simreel.model.blocks import StepBlock
+from simreel.model.geometry import SceneGeometry
 from simreel.model.meta import EpisodeMeta, RecordingMeta
 from simreel.options.checks import check_flag, whole_number
 
@@ -104,6 +105,8 @@ class McapWriter(EpisodeWriter):
 
     records_poses_by_default = True
     """`/tf` shows every link only when the recording has body poses; without them, only root poses."""
+    writes_scene = True
+    """`/scene` and `/robot_description` draw the bodies on their `/tf` frames (`simreel.formats.mcap.scene`)."""
 
     def __init__(self, path: str | Path, meta: RecordingMeta, *, overwrite: bool = False, **options: Any) -> None:
         from mcap.writer import Writer
@@ -163,11 +166,17 @@ class McapWriter(EpisodeWriter):
         if meta.index in self._begun:
             raise UsageError(f"{self.path}: episode {meta.index} was already written; episode indices must be unique")
         arrays = self.reset_arrays(meta, reset)
-        lane = EpisodeLane(meta.index, meta.env_idx, self._lane_next.get(meta.env_idx, 0))
+        lane = EpisodeLane(meta.index, meta.env_idx, self._lane_next.get(meta.env_idx, self._channels.origin_ns))
         self._begun.add(meta.index)
         self._lane_next[meta.env_idx] = lane.start_ns + self._channels.step_ns  # a lane holds one running episode
         self.guard(lambda: self._channels.begin(lane, meta, arrays), f"episode {meta.index} was not committed")
         return _McapSink(self, self._channels, lane)
+
+    def write_scene(self, geometry: SceneGeometry) -> None:
+        """Draw sub-scene `geometry.env_idx`'s bodies from its next episode on (`/scene` and `/robot_description`,
+        written as that episode begins; nothing when it is the geometry written last)."""
+        self._check_usable()
+        self._channels.scene(geometry)
 
     def lane_ended(self, lane: EpisodeLane, end_ns: int) -> None:
         """An episode of env `lane.env` ended at `end_ns`: that env's next episode starts one period later."""
