@@ -22,9 +22,6 @@ from simreel.formats.mcap import TOPICS, McapWriter
 from simreel.formats.mcap.scene import SCENE_UPDATE_SCHEMA, scene_messages
 from simreel.model.geometry import BodyGeometry, MeshPart, Primitive, SceneGeometry
 
-GOLDEN = Path(__file__).parents[1] / "support" / "golden" / "before_scene.mcap"
-"""A synthetic recording (`synthetic_meta`, episode 0 of 3 steps) written by simreel before MCAP files held their
-scene and time origin (main at 141a320)."""
 RED, GREY = (255, 0, 0, 255), (128, 128, 128, 255)
 TURN_Z = (math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5))
 """wxyz: +90° about z."""
@@ -202,18 +199,54 @@ def test_the_time_axis_starts_when_the_recording_was_made(tmp_path):
         int(start) * 1_000_000_000 + row * 50_000_000 for row in range(3)]
 
 
-def test_a_file_written_before_scenes_and_time_origins_reads_as_it_did():
+@pytest.fixture
+def written_before(tmp_path, monkeypatch) -> Path:
+    """A synthetic recording (`synthetic_meta`, episode 0 of 3 steps) as simreel wrote it before MCAP files held
+    their scene and a time origin: no `/scene` or `/robot_description` channel, log times from 0 and no
+    `time_origin_ns` in its record."""
+    from simreel.formats.mcap import channels, records
+
+    to_metadata, register = records.RecordingRecord.to_metadata, channels.McapChannels._register
+
+    def register_without_scene(self):
+        real, skipped = self._mcap, {TOPICS["scene"], TOPICS["robot_description"]}
+
+        class WithoutScene:
+            def __getattr__(self, name):
+                return getattr(real, name)
+
+            def register_channel(self, topic, *args):
+                return -1 if topic in skipped else real.register_channel(topic, *args)
+
+        self._mcap = WithoutScene()
+        try:
+            return register(self)
+        finally:
+            self._mcap = real
+
+    monkeypatch.setattr(channels.McapChannels, "_register", register_without_scene)
+    monkeypatch.setattr(channels, "time_origin_of", lambda meta: 0)
+    monkeypatch.setattr(records.RecordingRecord, "to_metadata",
+                        lambda self: {k: v for k, v in to_metadata(self).items() if k != "time_origin_ns"})
+    path = tmp_path / "before_scene.mcap"
+    meta = synthetic_meta()
+    with McapWriter(path, meta) as w:
+        w.write_episode(synthetic_episode(meta, 0, 3))
+    return path
+
+
+def test_a_file_written_before_scenes_and_time_origins_reads_as_it_did(written_before):
     from mcap.reader import make_reader
 
     meta = synthetic_meta()
-    with open_reader(GOLDEN) as r:
+    with open_reader(written_before) as r:
         assert r.meta.env_id == "Synthetic-v0" and [m.index for m in r.episodes] == [0]
         assert_same_episode(r.read_episode(0), synthetic_episode(meta, 0, 3))
-    with GOLDEN.open("rb") as fh:
+    with written_before.open("rb") as fh:
         summary = make_reader(fh).get_summary()
     assert {c.topic for c in summary.channels.values()} >= {TOPICS["tf"]} and TOPICS["scene"] not in {
         c.topic for c in summary.channels.values()}
-    assert min(m.log_time for _, _, m in _messages(GOLDEN, TOPICS["tf"])) == 0  # the 1970 axis those files have
+    assert min(m.log_time for _, _, m in _messages(written_before, TOPICS["tf"])) == 0  # the 1970 axis those files have
 
 
 # ----------------------------------------------------------------------------------- a real recording
