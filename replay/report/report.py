@@ -16,15 +16,14 @@ from simreel.model.meta import RecordingMeta
 from simreel.sim.fingerprint import SceneDifference
 from simreel.verdicts.compare import Divergence, EpisodeComparison, worst_keys
 from simreel.verdicts.divergence import Explanation
+from simreel.verdicts.report_file import REPORT_VERDICTS, VERIFIED
 
 __all__ = ["EpisodeReport", "VERIFIED", "VERDICTS", "CHECK_ORDER", "WITH_ENV_STATES", "checked_groups", "recording_limits",
            "only_flags_problem", "episode_lines"]
 
-VERIFIED = ("exact", "within_tolerance")
-"""Verdicts of an episode that verified; the others are ``diverged`` and ``error`` (it could not be replayed:
+VERDICTS = REPORT_VERDICTS
+"""Every verdict an episode can have: verified (`VERIFIED`), ``diverged``, or ``error`` (it could not be replayed:
 its data is damaged, or its env does not build here)."""
-VERDICTS = (*VERIFIED, "diverged", "error")
-"""Every verdict an episode can have."""
 CHECK_ORDER = ("env_states", "obs", "contacts", "info", "rewards", "terminated", "truncated", "success", "fail")
 _LIMITS = {
     "env_states": "states not compared: the file holds no env_states (recorded without them); the checks are "

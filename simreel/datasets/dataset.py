@@ -52,19 +52,14 @@ from simreel.options.checks import (
     path_text,
     whole_number,
 )
-from simreel.verdicts.compare import VERDICTS
+from simreel.verdicts.report_file import REPORT_VERDICTS, VERIFIED
 from simreel.verdicts.scene_history import SceneChains
 
 __all__ = ["DatasetOptions", "EpisodeCriteria", "DatasetReport", "OutputSummary", "merge", "filter_recording",
            "VERIFIED", "DIVERGED", "report_verdicts"]
 
-VERIFIED = ("exact", "within_tolerance")
-"""The verdicts `filter --verified` keeps: the episodes a replay verified."""
 DIVERGED = ("diverged",)
 """The verdict `filter --diverged` keeps (an episode that could not be replayed, ``error``, is neither)."""
-REPORT_VERDICTS = (*VERDICTS, "error")
-"""Every verdict a replay report gives an episode: judged, or ``error`` (it could not be replayed)."""
-
 _T = TypeVar("_T")
 Progress = Callable[[Sequence[_T], str], Iterable[_T]]
 """`progress(items, what)` wraps a list of work items ("merge", "filter", "check ...") in a progress bar."""
