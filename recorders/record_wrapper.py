@@ -29,6 +29,7 @@ from simreel.formats import check_writer_options, open_writer, records_poses_by_
 from simreel.io.durable import deferred_signals
 from simreel.model.blocks import StepBlock
 from simreel.model.fields import episode_fields
+from simreel.model.lineage import SceneChain
 from simreel.model.meta import EpisodeMeta, json_default
 from simreel.model.state_tree import LeafSpec, layout_differences, layout_of, to_numpy
 from simreel.options.checks import check_flag, check_text, options_with, path_text, whole_number
@@ -236,7 +237,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._settle()
         return obs, info
 
-    def _chain_of(self, i: int, reconfigured: bool) -> dict[str, int]:
+    def _chain_of(self, i: int, reconfigured: bool) -> SceneChain:
         """`EpisodeMeta.chain` of the episode sub-scene i begins (its reset `reconfigured` the scene or not): a chain
         starts at the first committed episode since the scene was built (an episode of no step, discarded, ran
         nothing)."""
@@ -244,7 +245,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._chain_ran[i] = 0
         if not self._chain_ran[i]:
             self._chain_start[i] = self._next_index
-        return {"start": self._chain_start[i], "position": self._chain_ran[i]}
+        return SceneChain(self._chain_start[i], self._chain_ran[i])
 
     def _envs_to_reset(self, env_idx: Any) -> list[int]:
         """The envs a reset with ``options={"env_idx": env_idx}`` resets (None: all of them); `UsageError`, before

@@ -46,6 +46,7 @@ from simreel.io.durable import raise_if_stopped
 from simreel.io.targets import check_distinct
 from simreel.model.blocks import StepBlock
 from simreel.model.components import Tolerances, format_number
+from simreel.model.lineage import ScenePlace
 from simreel.model.meta import EpisodeMeta, RecordingMeta, new_recording_id
 from simreel.options.checks import (
     options_with,
@@ -113,7 +114,7 @@ class ConvertJob:
     """The run's scratch folder (`ScratchFolder`), where a worker writes an episode that is not next in the output's
     order; None: such an episode comes back whole."""
     block_rows: int | None = None
-    scenes: dict[int, dict[str, Any]] = field(default_factory=dict)
+    scenes: dict[int, ScenePlace] = field(default_factory=dict)
     """Episode index → where its conversion ran, kept in its provenance (``"scene"``, `simreel.verdicts.scene_history`): a
     re-rendered episode is the recorded trajectory, so its scene is the input's; a control-mode conversion steps the
     episodes one after another in one env, so it ran in that run."""
@@ -415,7 +416,7 @@ def _last_flags(success: np.ndarray | None, truncated: np.ndarray) -> tuple[bool
     return (None if success is None else bool(success[-1])), bool(truncated[-1])
 
 
-def _provenance_meta(meta: EpisodeMeta, report: EpisodeReport, scene: dict[str, Any] | None, *,
+def _provenance_meta(meta: EpisodeMeta, report: EpisodeReport, scene: ScenePlace | None, *,
                      clipped: int | None = None) -> EpisodeMeta:
     """The converted episode's metadata: `meta` with the conversion's verdict and where it ran (`scene`,
     `ConvertJob.scenes`) as its provenance."""
@@ -427,7 +428,7 @@ def _provenance_meta(meta: EpisodeMeta, report: EpisodeReport, scene: dict[str, 
         "first_exceeded": None if report.first_divergence is None else report.first_divergence.to_json(),
         "max_error": {k: float(v) if np.isfinite(v) else str(v) for k, v in report.max_abs_error.items()},
         **({"clipped_steps": clipped} if clipped is not None else {}),
-        **({"scene": scene} if scene is not None else {}),
+        **({"scene": scene.to_json()} if scene is not None else {}),
     }
     return meta
 
@@ -596,7 +597,7 @@ class ConversionRun:
                           output=output, scratch=scratch, block_rows=opts.block_rows, scenes=self._scenes)
 
     @functools.cached_property
-    def _scenes(self) -> dict[int, dict[str, Any]]:
+    def _scenes(self) -> dict[int, ScenePlace]:
         """`ConvertJob.scenes` of this conversion."""
         listed = {m.index: m for m in self.reader.episodes}
         if self.options.control_mode:

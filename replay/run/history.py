@@ -51,19 +51,19 @@ def describe_missing_history(episode: EpisodeMeta, ran_before: int | None, recor
     `recording_id`) does not hold the `ran_before` episodes (None: an unknown number) that ran in its scene before it
     when it was recorded: it is replayed on a rebuilt scene without them."""
     scene = recorded_scene(episode)
-    if scene is not None and recording_id and scene.get("recording") == recording_id:
+    if scene is not None and recording_id and scene.recording == recording_id:
         return (f"replayed on a rebuilt scene without the {ran_before} episode(s) that ran in its scene before it when "
-                f"this file's conversion stepped them (from episode {scene['start']}): the conversion left some of "
+                f"this file's conversion stepped them (from episode {scene.start}): the conversion left some of "
                 f"them out of this file (--keep, or a failed episode); {_MAY_DIVERGE}")
-    if scene is None and not episode.origin and episode.chain:
+    if scene is None and episode.origin is None and episode.chain is not None:
         return (f"replayed on a rebuilt scene without the {ran_before} episode(s) that ran in its scene before it when "
-                f"it was recorded (from episode {episode.chain['start']}): this file does not hold them all (left out "
+                f"it was recorded (from episode {episode.chain.start}): this file does not hold them all (left out "
                 f"of a copy, or damaged and lost by recover); {_MAY_DIVERGE}")
     if scene is None:
         return ("replayed on a rebuilt scene: made from another recording (copied, converted or replayed) by a simreel "
                 f"that did not note which episodes ran in its scene before it when it was recorded; {_MAY_DIVERGE}")
     return (f"replayed on a rebuilt scene without the {ran_before} episode(s) that ran in its scene before it when "
-            f"it was recorded ({Path(scene['file']).name}, from episode {scene['start']}): this file, made from "
+            f"it was recorded ({Path(scene.file).name}, from episode {scene.start}): this file, made from "
             f"another by simreel filter, merge or convert, does not hold them all; {_MAY_DIVERGE}")
 
 
@@ -149,7 +149,7 @@ def has_history(episode: EpisodeMeta) -> bool:
     where it ran, that; else whether its reset kept the scene and it is not its file's first)."""
     scene = recorded_scene(episode)
     if scene is not None:
-        return scene["position"] > 0
+        return scene.position > 0
     return not episode.reconfigured and episode.index > 0
 
 

@@ -36,6 +36,7 @@ from simreel.io.durable import deferred_signals
 from simreel.model.blocks import StepBlock
 from simreel.model.components import Tolerances
 from simreel.model.episode import Episode
+from simreel.model.lineage import ScenePlace
 from simreel.model.meta import ContactChannel, EpisodeMeta, RecordingMeta
 from simreel.replay.explain.explain import ExplainContext, explain_divergence
 from simreel.replay.report.report import EpisodeReport
@@ -314,19 +315,19 @@ class ReplayWorker:
             self._key, self._scene = key, SceneRun()
         return self._replayer
 
-    def _ran_in(self, item: WorkItem, reader: EpisodeReader, history: ReplayedHistory) -> dict[str, Any] | None:
+    def _ran_in(self, item: WorkItem, reader: EpisodeReader, history: ReplayedHistory) -> ScenePlace | None:
         """For `-o`, where the replay of `item` ran (``provenance["scene"]`` of the replayed episode,
         `simreel.verdicts.scene_history`): in an actions replay after its recorded history, the recorded episode's scene;
         without it (a rebuilt scene), a chain of its own in the output. None: not written, or states restored."""
         if self.job.output is None or self.job.mode != "actions":
             return None
         if history.lost is not None:
-            return {"file": str(Path(self.job.output).resolve()), "start": item.index, "position": 0}
+            return ScenePlace(str(Path(self.job.output).resolve()), item.index, 0)
         chains = self._chains_of(item.path, reader)
         return chains.copied_scene(item.index, str(Path(item.path).resolve()), reader.meta.recording_id)
 
     def _replay(self, reader: EpisodeReader, replayer: EpisodeReplayer, index: int, history: ReplayedHistory,
-                ran_in: dict[str, Any] | None = None) -> tuple[EpisodeReport, Episode | Path | None]:
+                ran_in: ScenePlace | None = None) -> tuple[EpisodeReport, Episode | Path | None]:
         """Replay episode `index` block by block, comparing each block as it is replayed (and, for `-o`, writing it
         where `_stream` says); only the per-key error curves outlive a block. `history`: how its scene's history was
         replayed just before (`_replay_history`), which its report notes. Returns the report and, for `-o`, the scratch
@@ -405,10 +406,10 @@ class ReplayWorker:
         self._readers.close()
 
 
-def _replayed_meta(meta: EpisodeMeta, report: EpisodeReport, ran_in: dict[str, Any] | None) -> EpisodeMeta:
+def _replayed_meta(meta: EpisodeMeta, report: EpisodeReport, ran_in: ScenePlace | None) -> EpisodeMeta:
     """The metadata `-o` writes with a replayed episode: the recorded one's, with the replay's verdict and where the
     replay ran (`ReplayWorker._ran_in`)."""
-    provenance = {**meta.provenance, "scene": ran_in} if ran_in is not None else meta.provenance
+    provenance = {**meta.provenance, "scene": ran_in.to_json()} if ran_in is not None else meta.provenance
     return dataclasses.replace(meta, verification=report.verification(), provenance=provenance)
 
 

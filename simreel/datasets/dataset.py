@@ -40,6 +40,7 @@ from simreel.io.durable import raise_if_stopped
 from simreel.io.paths import file_key, real_path, refuse_empty
 from simreel.io.targets import check_distinct
 from simreel.model.episode import Episode
+from simreel.model.lineage import EpisodeOrigin
 from simreel.model.meta import EpisodeMeta, RecordingMeta, new_recording_id
 from simreel.model.selection import EpisodeSelection
 from simreel.options.checks import (
@@ -381,17 +382,12 @@ def _plan(sources: Sequence[_Source], decide: Decide, n_targets: int) -> list[_I
     return items
 
 
-def _origin(source: _Source, meta: EpisodeMeta) -> dict[str, Any]:
+def _origin(source: _Source, meta: EpisodeMeta) -> EpisodeOrigin:
     """`EpisodeMeta.origin` of a copy of `meta`: where it was copied from, and where it ran when it was recorded
     (``scene``, for a replay to find its history: `simreel.verdicts.scene_history`)."""
-    origin: dict[str, Any] = {"file": str(source.path), "index": meta.index}
     chains = source.chains
     scene = chains.copied_scene(meta.index, str(source.path), source.meta.recording_id) if chains is not None else None
-    if scene is not None:
-        origin["scene"] = scene
-    if meta.origin:
-        origin["origin"] = meta.origin
-    return origin
+    return EpisodeOrigin(str(source.path), meta.index, scene, meta.origin)
 
 
 def _read(items: Sequence[_Item], sources: Sequence[_Source], decide: Decide,

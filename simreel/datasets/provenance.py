@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from simreel.model.components import Tolerances
+from simreel.model.lineage import EpisodeOrigin
 
 __all__ = ["describe_provenance", "describe_origin", "provenance_tolerances"]
 
@@ -77,6 +78,6 @@ def provenance_tolerances(made: Mapping[str, Any]) -> tuple[Tolerances, str, str
         return None
 
 
-def describe_origin(origin: Mapping[str, Any]) -> str:
+def describe_origin(origin: EpisodeOrigin | None) -> str:
     """``file.h5#3``: where an episode was copied from (`EpisodeMeta.origin`); empty for a recorded one."""
-    return f"{Path(origin['file']).name}#{origin['index']}" if origin.get("file") else ""
+    return f"{Path(origin.file).name}#{origin.index}" if origin is not None else ""

@@ -21,6 +21,7 @@ import numpy as np
 from simreel import FORMAT_VERSION
 from simreel.errors import MetadataError
 from simreel.model.json_input import json_value
+from simreel.model.lineage import EpisodeOrigin, SceneChain, ScenePlace
 from simreel.model.state_tree import LeafSpec
 
 
@@ -46,6 +47,8 @@ def _accepts(annotation: Any) -> tuple[type, ...]:
         return (type(None),)
     if origin is float:
         return (int, float)
+    if isinstance(origin, type) and hasattr(origin, "from_json"):
+        return (dict,)  # a record, as its JSON object (checked by its `from_json`)
     return (origin,) if isinstance(origin, type) else (object,)
 
 
@@ -253,11 +256,11 @@ class EpisodeMeta:
     scene_changes: dict[str, Any] = field(default_factory=dict)
     """Where this episode's scene differs from `RecordingMeta.scene_fingerprint` (a rebuilt scene, another
     sub-scene): the changed fingerprint entries (`simreel.sim.fingerprint.fingerprint_changes`); empty: the same."""
-    chain: dict[str, int] = field(default_factory=dict)
-    """Where its recorder's scene ran it: ``{"start": <index of the first episode that scene ran since it was built>,
-    "position": <episodes it ran before this one>}`` (`simreel.verdicts.scene_history`), so that an episode its file lacks
-    (damaged, lost by recover) is noticed; of the recording it was recorded in (a copy's `origin` says which).
-    Empty where unknown (ManiSkill's files, simreel's from before it noted it): the file's order then tells."""
+    chain: SceneChain | None = None
+    """Where its recorder's scene ran it (`SceneChain`: the index of the first episode that scene ran since it was
+    built, and the episodes it ran before this one; `simreel.verdicts.scene_history`), so that an episode its file
+    lacks (damaged, lost by recover) is noticed; of the recording it was recorded in (a copy's `origin` says which).
+    None where unknown (ManiSkill's files, simreel's from before it noted it): the file's order then tells."""
     length: int = 0
     success: bool | None = None
     """Final `info["success"]` (None if the task reports none)."""
@@ -268,15 +271,14 @@ class EpisodeMeta:
     notes: list[str] = field(default_factory=list)
     """What the recorder noted about this episode (``cut short: ...`` when a stop ended the recording before the
     episode ended) and what the reader found about it in the file (quirks, mismatches), for reports."""
-    origin: dict[str, Any] = field(default_factory=dict)
-    """Where a merged or filtered episode was copied from: ``{"file": <absolute path>, "index": <its index
-    there>}``, where it ran when it was recorded, ``"scene": {"file": <the recording>, "recording": <its
-    `RecordingMeta.recording_id`, where it has one>, "start": <index there of the first episode of its scene chain>,
-    "position": <episodes of that chain before it>}`` (`simreel.verdicts.scene_history`; absent where unknown), and that episode's own ``"origin"`` when it had one (empty for a recorded episode)."""
+    origin: EpisodeOrigin | None = None
+    """Where a merged or filtered episode was copied from (`EpisodeOrigin`: the file and the index there, where it ran
+    when it was recorded, and that episode's own origin when it was a copy too); None for a recorded episode."""
     provenance: dict[str, Any] = field(default_factory=dict)
     """For an episode of a converted recording: ``{"source_episode": index in the source, "verdict", "checked",
     "first_exceeded", "max_error"}`` as the conversion judged it (see `RecordingMeta.provenance`), and ``"scene"``,
-    where it ran (as in `origin`; `simreel.replay.convert.convert.ConvertJob.scenes`)."""
+    where it ran (a `ScenePlace`'s JSON; `simreel.replay.convert.convert.ConvertJob.scenes`); for an episode of a
+    replay's output, the ``"scene"`` the replay ran it in."""
     verification: dict[str, Any] = field(default_factory=dict)
     """In a file written by ``simreel replay -o``: the replay's verdict on this episode (verdict, first divergence,
     scene differences, explanation: `simreel.replay.report.report.EpisodeReport.verification`); empty elsewhere."""
@@ -286,10 +288,20 @@ class EpisodeMeta:
     compressed and base64-encoded: `simreel.sim.generators`), so that a replay's reset remakes the episode bit for bit;
     empty for a seeded episode (and in files of earlier simreel versions, whose readers ignore the field)."""
 
+    def __post_init__(self) -> None:
+        """The chain and origin as their records, also where given as their JSON (``chain={"start": 0, "position":
+        2}``), checked as a file's are."""
+        if self.chain is None or isinstance(self.chain, Mapping):
+            self.chain = SceneChain.from_json(self.chain or {})
+        if self.origin is None or isinstance(self.origin, Mapping):
+            self.origin = EpisodeOrigin.from_json(self.origin or {})
+
     def to_json(self) -> dict[str, Any]:
         """Its fields as JSON values, new objects throughout (the JSON round trip copies; `dataclasses.asdict`'s deep
         copy before it doubled the cost, and every writer does this several times an episode)."""
         fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        fields["chain"] = {} if self.chain is None else self.chain.to_json()
+        fields["origin"] = {} if self.origin is None else self.origin.to_json()
         return json.loads(json.dumps(fields, default=json_default))
 
     @classmethod
@@ -299,37 +311,10 @@ class EpisodeMeta:
         for name in ("index", "length", "env_idx"):
             if kw.get(name, 0) < 0:
                 raise MetadataError(f"episode metadata: {name} is {kw[name]}, expected >= 0")
-        _check_chain(kw.get("chain") or {})
-        _check_scene(kw.get("origin") or {}, "origin")
-        _check_scene(kw.get("provenance") or {}, "provenance")
+        ScenePlace.held_by(kw.get("provenance") or {}, "provenance")
         return cls(**kw)
-
 
 
 def new_recording_id() -> str:
     """A new `RecordingMeta.recording_id`: 32 random hex digits."""
     return uuid.uuid4().hex
-
-
-def _check_chain(chain: dict[str, Any]) -> None:
-    """`MetadataError` unless `chain` (`EpisodeMeta.chain`, not empty) holds a start and a position (other keys, of a
-    later simreel, are kept)."""
-    if chain and not all(type(chain.get(k)) is int and chain[k] >= 0 for k in ("start", "position")):
-        raise MetadataError(f"episode metadata: chain is {json.dumps(chain, default=str)[:200]}, expected "
-                            '{"start": <index>, "position": <count>}')
-
-
-def _check_scene(holder: dict[str, Any], name: str) -> None:
-    """`MetadataError` unless ``holder["scene"]`` (of `EpisodeMeta` field `name`), where given, is what
-    `EpisodeMeta.origin` describes."""
-    scene = holder.get("scene")
-    if scene is None:
-        return
-    ok = isinstance(scene, dict) and isinstance(scene.get("file"), str) and all(
-        type(scene.get(k)) is int and scene[k] >= 0 for k in ("start", "position")) and isinstance(
-        scene.get("recording", ""), str)
-    if not ok:
-        raise MetadataError(f"episode metadata: {name}.scene is {json.dumps(scene, default=str)[:200]}, expected "
-                            '{"file": <path>, "recording": <id>, "start": <index>, "position": <count>}')
-
-

@@ -15,7 +15,7 @@ predecessor too many costs time, one too few gives a wrong verdict); episodes of
 simreel's recorder notes each episode's chain and place (`EpisodeMeta.chain`), so that one its file lacks (damaged,
 or lost by ``recover``) leaves a gap that is noticed; in files without it, the order of the episodes held tells.
 
-An episode copied by ``simreel filter`` or ``merge`` keeps where it ran (``EpisodeMeta.origin["scene"]``,
+An episode copied by ``simreel filter`` or ``merge`` keeps where it ran (``EpisodeMeta.origin.scene``,
 `SceneChains.copied_scene`): its recording (by its `RecordingMeta.recording_id`: a moved file is the same recording,
 a new one recorded at the same path is not; by its path where it has none), the index there of its chain's first
 episode and its place in that chain; so does a converted one (``provenance["scene"]``: the input's chain for a
@@ -34,43 +34,33 @@ re-run the last step of the episode before (`SceneChains.previous`): the observa
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
+from simreel.model.lineage import ScenePlace
 from simreel.model.meta import EpisodeMeta
 
 __all__ = ["SceneChains", "recorded_scene", "run_scenes"]
 
 
-def recorded_scene(episode: EpisodeMeta) -> dict[str, Any] | None:
+def recorded_scene(episode: EpisodeMeta) -> ScenePlace | None:
     """Where `episode` says it ran, if it was made from another recording: ``provenance["scene"]`` of a converted
-    episode (first: a control-mode conversion of a copy ran in its own run), else ``origin["scene"]`` of a copy
+    episode (first: a control-mode conversion of a copy ran in its own run), else ``origin.scene`` of a copy
     (filter, merge); None for an episode recorded in its file (or a copy that does not say)."""
-    return (episode.provenance or {}).get("scene") or (episode.origin or {}).get("scene")
+    converted = ScenePlace.held_by(episode.provenance or {}, "provenance")
+    return converted or (episode.origin.scene if episode.origin is not None else None)
 
 
-def run_scenes(episodes: Sequence[EpisodeMeta], path: str, recording_id: str) -> dict[int, dict[str, Any]]:
+def run_scenes(episodes: Sequence[EpisodeMeta], path: str, recording_id: str) -> dict[int, ScenePlace]:
     """Where each of `episodes` ran when a run (a control-mode conversion writing the recording at `path`, whose
     `RecordingMeta.recording_id` is `recording_id`) stepped them one after another, in this order, in one env: its
     scene, as `recorded_scene` reads it. A reset that rebuilt the scene starts a chain."""
-    scenes: dict[int, dict[str, Any]] = {}
+    scenes: dict[int, ScenePlace] = {}
     start, ran = None, 0
     for ep in episodes:
         if start is None or ep.reconfigured:
             start, ran = ep.index, 0
-        scenes[ep.index] = {**_recording(path, recording_id), "start": start, "position": ran}
+        scenes[ep.index] = ScenePlace(path, start, ran, recording_id)
         ran += 1
     return scenes
-
-
-def _recording(path: str, recording_id: str) -> dict[str, str]:
-    """How a scene names its recording: its path, and its `RecordingMeta.recording_id` where it has one."""
-    return {"file": path, "recording": recording_id} if recording_id else {"file": path}
-
-
-def _chain(scene: dict[str, Any]) -> str:
-    """The chain a scene (`recorded_scene`) names: its recording's id (its path where it has none), and the index
-    there of the chain's first episode."""
-    return f"{scene.get('recording') or scene['file']}#{scene['start']}"
 
 
 class SceneChains:
@@ -86,20 +76,19 @@ class SceneChains:
         its path), ``?<index>`` for a copy whose chain is unknown."""
         self.ran_before: dict[int, int | None] = {}
         """Episode index → the episodes that ran in its scene before it when it was recorded (None: unknown)."""
-        self._recorded: dict[int, tuple[dict[str, str] | None, int]] = {}
-        """Episode index → (its recording (`_recording`), None for this file; the index there of its chain's first
-        episode)."""
+        self._recorded: dict[int, tuple[tuple[str, str] | None, int]] = {}
+        """Episode index → (its recording: (path, `RecordingMeta.recording_id`), None for this file; the index there
+        of its chain's first episode)."""
         self._at: dict[str, dict[int, list[EpisodeMeta]]] = {}
         """Chain → place → its episodes in this file at that place, in index order."""
         current: dict[int, tuple[int, int]] = {}  # sub-scene → (its chain's first episode, episodes in it so far)
-        inferred = _inferred_scenes([ep for ep in episodes if ep.origin])
+        inferred = _inferred_scenes([ep for ep in episodes if ep.origin is not None])
         placed = _places_by_index([ep for ep in episodes if not (ep.origin or ep.chain) and _made_elsewhere(ep)])
         for ep in sorted(episodes, key=lambda e: e.index):
             scene = recorded_scene(ep) or inferred.get(ep.index)
             if scene is not None:
-                where = _recording(scene["file"], scene.get("recording", ""))
-                self._note(ep, _chain(scene), scene["position"], (where, scene["start"]))
-            elif ep.origin:
+                self._note(ep, scene.chain_key, scene.position, ((scene.file, scene.recording), scene.start))
+            elif ep.origin is not None:
                 self._note(ep, f"?{ep.index}", None, (None, ep.index))
             elif ep.chain or not _made_elsewhere(ep):
                 start, ran = _own_place(ep, current)
@@ -113,7 +102,7 @@ class SceneChains:
         """Chain → its first place this file holds no episode at: the chain is whole here up to it."""
 
     def _note(self, ep: EpisodeMeta, key: str, ran_before: int | None,
-              recorded: tuple[dict[str, str] | None, int]) -> None:
+              recorded: tuple[tuple[str, str] | None, int]) -> None:
         self.key[ep.index], self.ran_before[ep.index], self._recorded[ep.index] = key, ran_before, recorded
         if ran_before is not None:
             self._at.setdefault(key, {}).setdefault(ran_before, []).append(ep)
@@ -139,15 +128,16 @@ class SceneChains:
         copies = self._at[self.key[index]].get(ran - 1) if ran else None
         return _nearest_before(copies, index) if copies else None
 
-    def copied_scene(self, index: int, path: str, recording_id: str) -> dict[str, Any] | None:
-        """``EpisodeMeta.origin["scene"]`` of a copy of episode `index` of this file, at `path` (absolute), whose
+    def copied_scene(self, index: int, path: str, recording_id: str) -> ScenePlace | None:
+        """``EpisodeMeta.origin.scene`` of a copy of episode `index` of this file, at `path` (absolute), whose
         `RecordingMeta.recording_id` is `recording_id`: its recording, the index there of its chain's first episode,
         and the episodes of that chain that ran before it. None where that is unknown (a copy by a simreel that did
         not note it)."""
         ran, (recording, start) = self.ran_before[index], self._recorded[index]
         if ran is None:
             return None
-        return {**(recording or _recording(path, recording_id)), "start": start, "position": ran}
+        file, recording_id = recording or (path, recording_id)
+        return ScenePlace(file, start, ran, recording_id)
 
 
 def _made_elsewhere(ep: EpisodeMeta) -> bool:
@@ -155,7 +145,7 @@ def _made_elsewhere(ep: EpisodeMeta) -> bool:
     ``provenance``) or a replay's output (its ``verification``). Where such an episode says neither where it ran nor
     its place (a simreel older than those notes wrote it), the order of its file does not tell its place: ``convert
     --episodes 0,2`` wrote episode 2 right after 0."""
-    return bool(ep.origin or ep.provenance or ep.verification)
+    return bool(ep.origin is not None or ep.provenance or ep.verification)
 
 
 def _places_by_index(made: Sequence[EpisodeMeta]) -> dict[int, tuple[int, int]]:
@@ -167,14 +157,14 @@ def _places_by_index(made: Sequence[EpisodeMeta]) -> dict[int, tuple[int, int]]:
     if not all(ep.env_idx == 0 for ep in made):
         return {}
     walked = _walk("", sorted(((ep.index, ep) for ep in made), key=lambda x: x[0]))
-    return {index: (scene["start"], scene["position"]) for index, scene in walked.items()}
+    return {index: (scene.start, scene.position) for index, scene in walked.items()}
 
 
 def _own_place(ep: EpisodeMeta, current: dict[int, tuple[int, int]]) -> tuple[int, int]:
     """(its chain's first episode, its place there) of `ep`, recorded in the file being read: as its recorder noted
     (`EpisodeMeta.chain`), else by the file's order, `current` holding each sub-scene's chain so far."""
-    if ep.chain:
-        return ep.chain["start"], ep.chain["position"]
+    if ep.chain is not None:
+        return ep.chain.start, ep.chain.position
     start, ran = (ep.index, 0) if ep.reconfigured or ep.env_idx not in current else current[ep.env_idx]
     current[ep.env_idx] = (start, ran + 1)
     return start, ran
@@ -185,7 +175,7 @@ def _nearest_before(copies: list[EpisodeMeta], index: int) -> EpisodeMeta:
     return before[-1] if before else copies[0]
 
 
-def _inferred_scenes(copies: Sequence[EpisodeMeta]) -> dict[int, dict[str, Any]]:
+def _inferred_scenes(copies: Sequence[EpisodeMeta]) -> dict[int, ScenePlace]:
     """Where copies made by a simreel that did not note it (no scene, `recorded_scene`) ran, where their metadata
     tells: the recording's episodes they were copied from (the innermost ``origin``), in their order there, from one
     whose reset rebuilt the scene, that was the recording's first, or whose copy says where it ran, each copied from
@@ -193,25 +183,24 @@ def _inferred_scenes(copies: Sequence[EpisodeMeta]) -> dict[int, dict[str, Any]]
     envs interleave their sub-scenes' episodes. The others are unknown (left out)."""
     by_recording: dict[str, list[tuple[int, EpisodeMeta]]] = {}
     for ep in copies:
-        root = _innermost(ep.origin)
-        if isinstance(root.get("file"), str) and type(root.get("index")) is int:
-            by_recording.setdefault(root["file"], []).append((root["index"], ep))
-    scenes: dict[int, dict[str, Any]] = {}
+        root = ep.origin.innermost
+        by_recording.setdefault(root.file, []).append((root.index, ep))
+    scenes: dict[int, ScenePlace] = {}
     for recording, listed in by_recording.items():
         if all(ep.env_idx == 0 for _, ep in listed):
             scenes.update(_walk(recording, sorted(listed, key=lambda x: x[0])))
     return scenes
 
 
-def _walk(recording: str, listed: list[tuple[int, EpisodeMeta]]) -> dict[int, dict[str, Any]]:
+def _walk(recording: str, listed: list[tuple[int, EpisodeMeta]]) -> dict[int, ScenePlace]:
     """`_inferred_scenes` of the copies of one recording, (index there, copy) in that index order."""
-    scenes: dict[int, dict[str, Any]] = {}
+    scenes: dict[int, ScenePlace] = {}
     chain: tuple[int, int] | None = None  # (its first episode there, the place of the last one)
     last = None
     for at, ep in listed:
         noted = recorded_scene(ep)
         if noted is not None:
-            chain = (noted["start"], noted["position"])
+            chain = (noted.start, noted.position)
         elif ep.reconfigured or at == 0:
             chain = (at, 0)
         elif chain is not None and last is not None and at == last + 1:
@@ -220,11 +209,5 @@ def _walk(recording: str, listed: list[tuple[int, EpisodeMeta]]) -> dict[int, di
             chain = None
         last = at
         if chain is not None and noted is None:
-            scenes[ep.index] = {"file": recording, "start": chain[0], "position": chain[1]}
+            scenes[ep.index] = ScenePlace(recording, chain[0], chain[1])
     return scenes
-
-
-def _innermost(origin: dict[str, Any]) -> dict[str, Any]:
-    while isinstance(origin.get("origin"), dict) and origin["origin"]:
-        origin = origin["origin"]
-    return origin

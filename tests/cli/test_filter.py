@@ -37,7 +37,7 @@ def _files(folder: Path) -> dict[str, bytes]:
 
 def _origins(path: Path) -> list[int]:
     with open_reader(path) as r:
-        return [m.origin["index"] for m in r.episodes]
+        return [m.origin.index for m in r.episodes]
 
 
 def test_a_split_by_success_says_what_went_where(src, tmp_path, capsys):

@@ -170,7 +170,7 @@ def test_two_merges_to_one_new_out_keep_the_first_and_refuse_the_second_in_one_l
                                              "one ran (m.json is there now); it is left as it is and nothing was written "
                                              "(pass --overwrite to replace it (overwrite=True from Python))\n")
     with open_reader(out) as r:
-        assert [m.origin["file"] for m in r.episodes] == [str(inputs[1])] * 2
+        assert [m.origin.file for m in r.episodes] == [str(inputs[1])] * 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "a.json", "b.mcap", "m.h5", "m.json"]
 
 

@@ -49,11 +49,11 @@ def assert_copied(got: list[Episode], sources: list[tuple[Path, Episode]]) -> No
     assert [e.meta.index for e in got] == list(range(len(sources)))
     for ep, (path, want) in zip(got, sources, strict=True):
         origin = {"file": str(path.resolve()), "index": want.meta.index}
-        origin["scene"] = want.meta.origin.get("scene") or {"file": str(path.resolve()), "start": 0,
-                                                            "position": want.meta.index}
-        if want.meta.origin:
-            origin["origin"] = want.meta.origin
-        assert ep.meta.origin == origin
+        before = want.meta.origin.to_json() if want.meta.origin is not None else {}
+        origin["scene"] = before.get("scene") or {"file": str(path.resolve()), "start": 0, "position": want.meta.index}
+        if before:
+            origin["origin"] = before
+        assert ep.meta.origin.to_json() == origin
         assert_same_episode(dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, index=want.meta.index,
                                                                                origin=want.meta.origin)), want)
 
@@ -107,8 +107,8 @@ def test_episodes_of_many_blocks_merge_and_filter_bit_exactly(tmp_path, suffix):
     filter_recording(merged, tmp_path / f"long{suffix}", EpisodeCriteria(min_steps=100))
     [got] = _episodes(tmp_path / f"long{suffix}")
     ran = {"file": str(a.resolve()), "start": 0, "position": 1}  # where it ran: episode 1 of a.h5's one chain
-    assert got.meta.origin == {"file": str(merged.resolve()), "index": 1, "scene": ran,
-                               "origin": {"file": str(a.resolve()), "index": 1, "scene": ran}}
+    assert got.meta.origin.to_json() == {"file": str(merged.resolve()), "index": 1, "scene": ran,
+                                         "origin": {"file": str(a.resolve()), "index": 1, "scene": ran}}
     assert_same_episode(dataclasses.replace(got, meta=long[1].meta), long[1])
 
 
@@ -151,8 +151,8 @@ def test_filter_and_its_rest_split_the_input_and_keep_each_origin(synthetic, tmp
     assert_copied(_episodes(kept), [(merged, source[k]) for k in (0, 3)])
     assert_copied(_episodes(rest), [(merged, source[k]) for k in (1, 2, 4)])
     # the chain of origins: kept episode 1 was episode 3 of merged.h5, which was episode 0 of b.mcap
-    assert _episodes(kept)[1].meta.origin["origin"] == {"file": str(synthetic[1]), "index": 0,
-                                                         "scene": {"file": str(synthetic[1]), "start": 0, "position": 0}}
+    assert _episodes(kept)[1].meta.origin.origin.to_json() == {
+        "file": str(synthetic[1]), "index": 0, "scene": {"file": str(synthetic[1]), "start": 0, "position": 0}}
     with open_reader(kept) as k, open_reader(rest) as r:
         assert k.meta.provenance["criteria"] == {"min_steps": 2, "max_steps": 100}
         assert (k.meta.provenance["part"], r.meta.provenance["part"]) == ("kept", "rest")
@@ -179,8 +179,8 @@ def test_criteria_combine_with_and_and_episodes_without_success_meet_neither(tmp
                                             for i, (T, s) in enumerate(zip((3, 4, 5, 1), successes, strict=True))])
     out, rest = tmp_path / "out.h5", tmp_path / "rest.mcap"
     report = filter_recording(src, out, criteria, rest=rest)
-    assert [e.meta.origin["index"] for e in _episodes(out)] == kept
-    assert [e.meta.origin["index"] for e in _episodes(rest)] == [i for i in range(4) if i not in kept]
+    assert [e.meta.origin.index for e in _episodes(out)] == kept
+    assert [e.meta.origin.index for e in _episodes(rest)] == [i for i in range(4) if i not in kept]
     assert report.no_success == (1 if criteria.success is not None else 0)
     assert report.uncovered == (1 if criteria.verdicts is not None else 0)  # episode 3 is not in the verdicts
 
@@ -194,9 +194,9 @@ def test_a_real_recording_split_and_merged_back_keeps_contacts_poses_and_observa
     with open_reader(src) as reader:
         recording = {"file": str(src), "recording": reader.meta.recording_id}
     for k, ep in enumerate(got):
-        assert ep.meta.origin["origin"] == {"file": str(src), "index": k,  # via first.mcap or rest.h5
-                                            "scene": {**recording, "start": 0, "position": k}}
-        assert_same_episode(dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, origin={})), want[k])
+        assert ep.meta.origin.origin.to_json() == {"file": str(src), "index": k,  # via first.mcap or rest.h5
+                                                   "scene": {**recording, "start": 0, "position": k}}
+        assert_same_episode(dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, origin=None)), want[k])
     assert got[2].contact_forces.shape[1] > 0 and got[2].body_poses.shape[1] > 0 and got[2].obs["state"].size
     assert [e.meta.seed for e in got] == [3, 4, 5]
 
@@ -431,7 +431,7 @@ def test_files_written_before_provenance_existed_still_read(synthetic, tmp_path)
             del episode["origin"]
             f[name].attrs[EPISODE_ATTR] = json.dumps(episode)
     with open_reader(old) as r:
-        assert r.meta.provenance == {} and all(m.origin == {} for m in r.episodes)
+        assert r.meta.provenance == {} and all(m.origin is None for m in r.episodes)
         assert isinstance(r.episodes[0], EpisodeMeta)
 
 

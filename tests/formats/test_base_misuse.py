@@ -15,6 +15,7 @@ from simreel.errors import EpisodeLayoutError, UsageError
 from simreel.formats import open_reader, open_writer
 from simreel.model.blocks import StepBlock
 from simreel.model.episode import Episode
+from simreel.model.lineage import SceneChain
 from simreel.model.meta import EpisodeMeta
 
 SUFFIXES = [".h5", ".mcap"]
@@ -239,7 +240,7 @@ def test_recording_metadata_a_reader_would_refuse_is_refused_before_the_file_is_
         ({"index": True}, "episode metadata: index is True, expected int"),
         ({"index": -1}, "episode metadata: index is -1, expected >= 0"),
         ({"env_idx": -2}, "episode metadata: env_idx is -2, expected >= 0"),
-        ({"chain": {"start": "a"}}, "episode metadata: chain is"),
+        ({"chain": SceneChain("a", 0)}, "episode metadata: chain is"),
         ({"reset_options": {(1, 2): "b"}}, "episode metadata does not convert to JSON: keys must be str"),
     ],
     ids=["float-index", "text-index", "bool-index", "negative-index", "negative-env", "chain", "tuple-key"],

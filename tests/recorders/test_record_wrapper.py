@@ -155,7 +155,7 @@ def test_each_episode_notes_its_place_in_the_scene_that_ran_it(tmp_path):
             env.step(zero)
     env.close()
     with open_reader(tmp_path / "e.h5") as r:
-        assert [(m.index, m.chain["start"], m.chain["position"]) for m in r.episodes] == \
+        assert [(m.index, m.chain.start, m.chain.position) for m in r.episodes] == \
             [(1, 1, 0), (2, 1, 1), (4, 4, 0), (5, 5, 0), (6, 5, 1)]
 
 

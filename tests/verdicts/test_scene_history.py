@@ -75,11 +75,11 @@ def test_a_copy_that_does_not_say_where_it_ran_has_no_known_history():
 def test_a_copy_of_a_copy_keeps_the_recording_it_ran_in():
     copied = SceneChains([_copy(0, "/a.h5", 4, start=2)])  # a filtered file's episode
     recorded = SceneChains([EpisodeMeta(0), EpisodeMeta(1)])
-    assert copied.copied_scene(0, "/f.h5", "f1") == {"file": "/a.h5", "start": 2, "position": 4}
-    assert recorded.copied_scene(1, "/r.h5", "") == {"file": "/r.h5", "start": 0, "position": 1}
-    assert recorded.copied_scene(1, "/r.h5", "r1") == {"file": "/r.h5", "recording": "r1", "start": 0, "position": 1}
+    assert copied.copied_scene(0, "/f.h5", "f1").to_json() == {"file": "/a.h5", "start": 2, "position": 4}
+    assert recorded.copied_scene(1, "/r.h5", "").to_json() == {"file": "/r.h5", "start": 0, "position": 1}
+    assert recorded.copied_scene(1, "/r.h5", "r1").to_json() == {"file": "/r.h5", "recording": "r1", "start": 0, "position": 1}
     again = SceneChains([_copy(0, "/a.h5", 4, start=2, recording_id="a1")])
-    assert again.copied_scene(0, "/f.h5", "f1") == {"file": "/a.h5", "recording": "a1", "start": 2, "position": 4}
+    assert again.copied_scene(0, "/f.h5", "f1").to_json() == {"file": "/a.h5", "recording": "a1", "start": 2, "position": 4}
 
 
 def test_copies_are_of_one_recording_by_its_id_wherever_it_was():
@@ -93,14 +93,14 @@ def test_copies_are_of_one_recording_by_its_id_wherever_it_was():
 def test_a_converted_episode_says_where_it_ran_in_its_provenance():
     scene = {"file": "/a.h5", "start": 0, "position": 1}
     episodes = [EpisodeMeta(3, provenance={"source_episode": 3, "scene": scene})]  # convert --episodes 3 of a.h5
-    assert _indices(episodes, 3) is None and SceneChains(episodes).copied_scene(3, "/c.h5", "c1") == scene
+    assert _indices(episodes, 3) is None and SceneChains(episodes).copied_scene(3, "/c.h5", "c1").to_json() == scene
 
 
 def test_a_run_of_episodes_in_one_env_is_one_chain_until_a_rebuild():
     episodes = [EpisodeMeta(5), EpisodeMeta(2), EpisodeMeta(7, reconfigured=True), EpisodeMeta(1)]
     scenes = run_scenes(episodes, "/out.h5", "o1")
-    assert {i: (s["start"], s["position"]) for i, s in scenes.items()} == {5: (5, 0), 2: (5, 1), 7: (7, 0), 1: (7, 1)}
-    assert {(s["file"], s["recording"]) for s in scenes.values()} == {("/out.h5", "o1")}
+    assert {i: (s.start, s.position) for i, s in scenes.items()} == {5: (5, 0), 2: (5, 1), 7: (7, 0), 1: (7, 1)}
+    assert {(s.file, s.recording) for s in scenes.values()} == {("/out.h5", "o1")}
 
 
 def _old_copy(index: int, recorded_index: int, **changes) -> EpisodeMeta:
@@ -140,7 +140,7 @@ def test_an_episode_its_file_lacks_leaves_a_gap_in_its_chain():
     """Episode 1 damaged and left out (recover): 2 is not taken for the second episode of its chain."""
     episodes = [_recorded(0, 0, 0), _recorded(2, 0, 2), _recorded(3, 0, 3)]
     assert [_indices(episodes, i) for i in (0, 2, 3)] == [[], None, None]
-    assert SceneChains(episodes).copied_scene(2, "/r.h5", "r1") == {"file": "/r.h5", "recording": "r1", "start": 0,
+    assert SceneChains(episodes).copied_scene(2, "/r.h5", "r1").to_json() == {"file": "/r.h5", "recording": "r1", "start": 0,
                                                                     "position": 2}
 
 

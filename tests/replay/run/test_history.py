@@ -166,7 +166,7 @@ def test_a_whole_chain_filtered_by_an_older_simreel_replays_its_own_history(lift
         meta = reader.meta
     older = tmp_path / "older.h5"
     write(older, meta, [dataclasses.replace(ep, meta=dataclasses.replace(
-        ep.meta, origin={k: v for k, v in ep.meta.origin.items() if k != "scene"})) for ep in episodes])
+        ep.meta, origin=dataclasses.replace(ep.meta.origin, scene=None))) for ep in episodes])
     report = tmp_path / "r.json"
     assert _replay(older, "--episodes", "2", "--report", report) == 0  # was: diverged, on a rebuilt scene
     (episode,) = json.loads(report.read_text())["episodes"]
@@ -183,7 +183,7 @@ def _older_conversion(lift, tmp_path, episodes: str):
         episodes_read = [reader.read_episode(m.index) for m in reader.episodes]
         meta = reader.meta
     older = tmp_path / "older.h5"
-    write(older, meta, [dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, chain={}, provenance={
+    write(older, meta, [dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, chain=None, provenance={
         k: v for k, v in ep.meta.provenance.items() if k != "scene"})) for ep in episodes_read])
     return older
 
