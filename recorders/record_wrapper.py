@@ -171,7 +171,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._has_success = "success" in self.meta.info_layout
         self._scalars = StepScalars(self._n, [(f"info/{k}", np.dtype(s.dtype)) for k, s in self.meta.info_layout.items()])
         self._action_rows = ActionRows(self._n)
-        self._defer = isinstance(self._writer, ProcessWriter)
+        self._defer = self._writer.converts_captures
         """Whether blocks go to the writer process with their captures unconverted (`StepBuffer.take`): it converts
         them while the env steps on."""
         self._next_index = 0

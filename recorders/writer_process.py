@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from simreel.errors import RecordingFileError
+from simreel.formats.base import EpisodeWriter
 from simreel.io.durable import deferred_signals
 from simreel.model.blocks import StepBlock
 from simreel.model.fields import episode_fields
@@ -60,11 +61,15 @@ _PARENT_CHECK_SECONDS = 1.0
 
 class ProcessWriter:
     """The writer `open_writer(path, meta, **options)` would give, run in a child process; see the module docstring.
+    It is an `EpisodeWriter` (registered as one: the format's own writer, in the child, does the writing, so nothing
+    of the base class's is inherited) that converts captured rows itself (`converts_captures`).
 
     Making one spawns the child (its imports take ~0.3 s), so the caller can build its metadata meanwhile; `open`
     then opens the writer there and raises what opening it raised (e.g. a refused target); `cancel` ends a child
     that will not be opened.
     """
+
+    converts_captures = True
 
     def __init__(self, path: str | Path) -> None:
         self._target = Path(path)
@@ -328,6 +333,9 @@ class ProcessWriter:
         # a crash of the recorder, never waiting for more.
         if not getattr(self, "_closed", True):
             self._hang_up()
+
+
+EpisodeWriter.register(ProcessWriter)
 
 
 class _Gone(RecordingFileError):

@@ -120,6 +120,10 @@ class EpisodeWriter(ABC):
     """Whether a recorder writing this format records body poses unless told otherwise."""
     writes_scene: ClassVar[bool] = False
     """Whether this format keeps what the scene looks like (`write_scene`)."""
+    converts_captures: ClassVar[bool] = False
+    """Whether the writer takes blocks whose rows are still captures (`StepBlock.captured`) and converts them off the
+    caller's time (`simreel.recorders.writer_process.ProcessWriter`, in its child); a writer in the caller's process
+    would only convert them there, so a recorder converts them itself, a block at a time."""
 
     def __init__(self, path: str | Path, meta: RecordingMeta) -> None:
         self.path = Path(path)
