@@ -7,17 +7,16 @@ so memory does not grow with episode length. The writer runs in a child process 
 and commits the episodes a reset ends while the env resets; `reset()` returns once they are durable. After
 each step the recorder copies out what it needs and converts a block of steps at once (`StepBuffer`):
 right after a physics step every numpy call costs several times its usual price.
+
+The wrapper holds the gym API and the episodes it has begun; what it asks of a reset (`reset_args`), how it reads the
+state (`state_capture`), what it notes of each sub-scene (`scene_book`) and its options (`options`) are modules of
+their own.
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import json
-import numbers
-import warnings
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,76 +28,33 @@ from simreel.formats import check_writer_options, open_writer, records_poses_by_
 from simreel.io.durable import deferred_signals
 from simreel.model.blocks import StepBlock
 from simreel.model.fields import episode_fields
-from simreel.model.lineage import SceneChain
 from simreel.model.meta import EpisodeMeta, json_default
 from simreel.model.state_tree import LeafSpec, layout_differences, layout_of, to_numpy
-from simreel.options.checks import check_flag, check_text, options_with, path_text, whole_number
+from simreel.options.checks import options_with, path_text
+from simreel.recorders.options import RecordOptions, constructor_options
+from simreel.recorders.reset_args import (
+    check_seeds,
+    draws_from_generators,
+    envs_to_reset,
+    episode_seeds,
+    reset_options,
+)
+from simreel.recorders.scene_book import SceneBook
 from simreel.recorders.scene_drawing import SceneDrawing
+from simreel.recorders.state_capture import StateCapture
 from simreel.recorders.step_buffer import StepBuffer
 from simreel.recorders.step_scalars import StepScalars, scalar_info
 from simreel.recorders.wrapper_policy import refuse_reshaping_wrappers
 from simreel.recorders.writer_process import ProcessWriter
 from simreel.sim.actions import ActionCheck
-from simreel.sim.contacts import ContactSampler, contact_channels, contacts_spec
+from simreel.sim.contacts import ContactSampler, contact_channels
 from simreel.sim.describe import flatten_obs, recording_meta
-from simreel.sim.fingerprint import fingerprint_changes, scene_fingerprint
 from simreel.sim.generators import capture_generators, consumed_generators
 from simreel.sim.poses import pose_body_names, sample_body_poses
-from simreel.sim.seeds import SEED_LIMIT, is_seed
-from simreel.sim.state import FastStateReader, check_same_layout, read_state
-from simreel.sim.step_rows import ActionRows, PackedRows
-from simreel.sim.user_code import found_spec, import_specs
+from simreel.sim.step_rows import ActionRows
+from simreel.sim.user_code import found_spec
 
 __all__ = ["RecordWrapper", "RecordOptions", "what_stopped"]
-
-
-@dataclass(frozen=True)
-class RecordOptions:
-    """What `RecordWrapper` records and how.
-
-    Attributes:
-        contacts: "auto" (net force on every moving body + the task's or the robot fingers' pairs), "none",
-            or explicit pairs "panda/panda_leftfinger:cube,..." (or a list of "A:B" strings).
-        record_obs: also record observations (T+1 rows per episode).
-        poses: also record world poses of every body (needed by MCAP's transform channel; costs about as much
-            per step as the state dict). None: the format's default (on for .mcap, off for .h5).
-        overwrite: replace an existing file instead of refusing.
-        block_steps: steps buffered in memory before they are streamed to the file.
-        imports: `--import` specs that registered the task (a .py file or a module name; one string is one spec),
-            stored so replay can import them again (a file by its absolute path: `simreel.sim.user_code.found_spec`);
-            each must be found when the recorder starts.
-        command: the command line, stored for provenance.
-        writer_options: keyword options for the format's writer (HDF5: `compression`; MCAP: `McapOptions`); another
-            name is refused when the recorder starts, naming those the format takes.
-        writer_process: write the file from a child process (`simreel.recorders.writer_process`), so an episode's
-            commit runs beside the env's reset; `reset()` still returns only once the episodes it ended are
-            committed. False: write in this process (one process less; each commit then adds to the reset).
-    """
-
-    contacts: str | None = "auto"
-    record_obs: bool = False
-    poses: bool | None = None
-    overwrite: bool = False
-    block_steps: int = 256
-    imports: tuple[str, ...] = ()
-    command: str = ""
-    writer_options: Mapping[str, Any] = field(default_factory=dict)
-    writer_process: bool = True
-
-    def __post_init__(self) -> None:
-        """Check the options whose wrong type would fail later as a raw Python error, or be taken for another value (a
-        flag given as a string), or be stored where the file could not be read back (a command that is not a
-        string); put them in one form: contacts as one string (`contacts_spec`), imports as a tuple."""
-        object.__setattr__(self, "block_steps", whole_number(
-            "block_steps", self.block_steps, "the number of steps to buffer, an int ≥ 1 (default 256)", minimum=1))
-        for name in ("record_obs", "overwrite", "writer_process") + (("poses",) if self.poses is not None else ()):
-            check_flag(name, getattr(self, name))
-        check_text("command", self.command, "the command line as a string (stored for provenance)")
-        object.__setattr__(self, "contacts", contacts_spec(self.contacts))
-        object.__setattr__(self, "imports", import_specs(self.imports))
-        if not isinstance(self.writer_options, Mapping) or not all(isinstance(k, str) for k in self.writer_options):
-            raise UsageError(f"writer_options={self.writer_options!r}: give a dict of the format's writer options, "
-                             "e.g. {\"compression\": \"gzip\"}")
 
 
 class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -116,7 +72,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def __init__(self, env: gym.Env, path: str | Path, options: RecordOptions | None = None, **overrides: Any) -> None:
         path = path_text("path", path, "the file to record to, a str or pathlib.Path ending in .h5 or .mcap")
         opts = options_with(RecordOptions, options, overrides, 'RecordWrapper(env, path, contacts="none")')
-        gym.utils.RecordConstructorArgs.__init__(self, path=str(path), **_constructor_options(opts))
+        gym.utils.RecordConstructorArgs.__init__(self, path=str(path), **constructor_options(opts))
         gym.Wrapper.__init__(self, env)
         refuse_reshaping_wrappers(env, opts.record_obs)
         check_writer_options(path, opts.writer_options)
@@ -139,14 +95,8 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._n = int(u.num_envs)
         self._sampler = ContactSampler(contact_channels(u, opts.contacts))
         self._bind_sampler()
-        self._fast: FastStateReader | None = None
-        self._state_rows: PackedRows | None = None
-        """The row source of the fast reader's captures, its leaves named as the recording's fields."""
-        self._fast_unchecked = False
-        self._fast_refuted = False
-        self._fast_scene: Any = None
-        """The PhysX scene whose fast reader passed the check after a step (None: none yet, or rebuilt)."""
         self.meta = self._describe(env, path)  # refuses an action space other than a Box
+        self._capture = StateCapture(u, self.meta)
         self._rows_beside_state = opts.record_obs or bool(self.meta.pose_bodies)
         """Whether each step records rows besides the state (`_per_state_rows`): observations or body poses."""
         self._actions = ActionCheck(self.meta.env_id, tuple(u.single_action_space.shape), self._n)
@@ -175,13 +125,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """Whether blocks go to the writer process with their captures unconverted (`StepBuffer.take`): it converts
         them while the env steps on."""
         self._next_index = 0
-        self._scene_seed: list[int | None] = [None] * self._n
-        self._scene_changes: list[dict[str, Any]] = [{} for _ in range(self._n)]
-        self._chain_start = [0] * self._n
-        self._chain_ran = [0] * self._n
-        """Per sub-scene: the index of its chain's first episode, and the episodes committed in that chain (each
-        episode's `EpisodeMeta.chain`; the env is taken as fresh from ``gym.make``, as `simreel.verdicts.scene_history` says)."""
-        self._fingerprint_scenes(range(1, self._n))  # sub-scene 0's is the recording's own
+        self._scenes = SceneBook(u, self.meta)
         self._drawing = SceneDrawing(self._writer, u, enabled=writes_scene(path))
         self._drawing.send(range(self._n))
         self._closed = False
@@ -203,92 +147,35 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None) -> Any:
         self._check_open("reset()")
-        options = _reset_options(options)
-        idxs = self._envs_to_reset(options.get("env_idx"))
-        self._check_seeds(seed, idxs)
+        options = reset_options(options)
+        idxs = envs_to_reset(options.get("env_idx"), self._n)
+        check_seeds(seed, idxs, self._n)
         for i in idxs:
             self._finish(i)
         if self._buffer.rows and all(s is None for s in self._sinks):
             self._buffer.rewind()
         self._writer.checkpoint()  # a writer process commits the episodes just ended while the env resets
-        before = capture_generators(self._u) if self._captures_generators(seed) else None
+        before = capture_generators(self._u) if draws_from_generators(self._u, seed) else None
         obs, info = self.env.reset(seed=seed, options=options or None)
         generators = consumed_generators(before, self._u) if before is not None else {}
         reconfigured = bool(to_numpy(info.get("reconfigure", False)).any()) if "reconfigure" in info else False
-        state = read_state(self._u)
-        packed = self._bind_fast_reader(state, reconfigured)
-        unpacked = self._check_state_layout(state, packed)
+        state, unpacked, packed = self._capture.at_reset(reconfigured)
         if reconfigured or self._sampler.px is not self._u.scene.px:
             self._bind_sampler()
         reset_rows, captured = self._reset_rows(state, unpacked, obs, packed)
         stored_options = json.loads(json.dumps({k: v for k, v in options.items() if k != "env_idx"},
                                                default=json_default))
         if reconfigured:
-            self._fingerprint_scenes(range(self._n))
+            self._scenes.rebuilt(range(self._n))
             self._drawing.send(range(self._n))
-        for i, seed_i in zip(idxs, self._episode_seeds(seed, idxs), strict=True):
-            if reconfigured:
-                self._scene_seed[i] = seed_i
+        for i, seed_i in zip(idxs, episode_seeds(self._u, seed, idxs), strict=True):
+            scene = self._scenes.begin(i, self._next_index, reconfigured, seed_i)
             meta = EpisodeMeta(index=self._next_index, seed=seed_i, reset_options=stored_options, env_idx=i,
-                               reconfigured=reconfigured, scene_seed=self._scene_seed[i],
-                               scene_changes=self._scene_changes[i], chain=self._chain_of(i, reconfigured),
+                               reconfigured=reconfigured, **scene._asdict(),
                                reset_generators=dict(generators))
             self._start(i, meta, StepBlock({k: a[i : i + 1] for k, a in reset_rows.items()}, 1, captured))
         self._settle()
         return obs, info
-
-    def _chain_of(self, i: int, reconfigured: bool) -> SceneChain:
-        """`EpisodeMeta.chain` of the episode sub-scene i begins (its reset `reconfigured` the scene or not): a chain
-        starts at the first committed episode since the scene was built (an episode of no step, discarded, ran
-        nothing)."""
-        if reconfigured:
-            self._chain_ran[i] = 0
-        if not self._chain_ran[i]:
-            self._chain_start[i] = self._next_index
-        return SceneChain(self._chain_start[i], self._chain_ran[i])
-
-    def _envs_to_reset(self, env_idx: Any) -> list[int]:
-        """The envs a reset with ``options={"env_idx": env_idx}`` resets (None: all of them); `UsageError`, before
-        anything changes, for what ManiSkill would fail on inside its reset (a single index, which it takes the
-        ``len()`` of; an index out of range) or would reset wrongly (an env named twice)."""
-        if env_idx is None:
-            return list(range(self._n))
-        named = to_numpy(env_idx)
-        if named.ndim == 0:
-            example = [int(env_idx)] if isinstance(env_idx, numbers.Integral) else [0]
-            raise UsageError(f"reset(options={{'env_idx': {env_idx!r}}}): give a list of the envs to reset, from 0 to "
-                             f"{self._n - 1}, e.g. {{'env_idx': {example}}} (ManiSkill takes no single index)")
-        named = named.reshape(-1)
-        if named.size and named.dtype.kind not in "iu":
-            raise UsageError(f"reset(options={{'env_idx': ...}}) holds {named.dtype} values; give the indices of the "
-                             f"envs to reset, from 0 to {self._n - 1}")
-        idxs = [int(i) for i in named]
-        if not idxs or len(set(idxs)) != len(idxs) or not all(0 <= i < self._n for i in idxs):
-            raise UsageError(f"reset(options={{'env_idx': {idxs}}}): name each env to reset once, from 0 to "
-                             f"{self._n - 1} (an env named twice would begin two episodes at once)")
-        return idxs
-
-    def _check_seeds(self, seed: Any, idxs: list[int]) -> None:
-        """Refuse, before anything changes, a seed ManiSkill would fail on inside its reset, once the episodes this
-        reset ends were committed (anything but ints from 0 to 2**32 - 1: `is_seed`), and a seed list of another
-        length than one seed, one per env, or one per env reset (`idxs`): ManiSkill 3.0.1 takes any list as the
-        episode seeds of all its envs, so with another length no seed belongs to an env and the recording would lose
-        its seed (`_episode_seeds`)."""
-        if seed is None:
-            return
-        seeds = _seed_list(seed)
-        if seeds is None and not is_seed(seed):
-            raise UsageError(f"reset(seed={seed!r}): ManiSkill takes seeds from 0 to {SEED_LIMIT - 1}; give one such "
-                             f"int, or a list of one per env ({self._n})")
-        bad = [s for s in seeds or () if not is_seed(s)]
-        if bad:
-            raise UsageError(f"reset(seed=...) holds {bad[0]!r}: ManiSkill takes seeds from 0 to {SEED_LIMIT - 1}; "
-                             f"give ints in that range, one seed or a list of one per env ({self._n})")
-        count = 1 if seeds is None else len(seeds)
-        if count not in (1, self._n, len(idxs)):
-            per_reset = f" or one per env reset ({len(idxs)})" if len(idxs) != self._n else ""
-            raise UsageError(f"reset(seed=...) got {count} seeds for {self._n} env(s); give one seed, or a list of one "
-                             f"seed per env ({self._n}){per_reset}")
 
     def _settle(self) -> None:
         """Wait until the writer has committed the episodes this reset ended (a writer process commits them while the
@@ -409,9 +296,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """The state, observations, poses and contact forces after a step: (fields read now, what is captured now
         and converted with its block: `StepBuffer` row sources and their captures)."""
         captures: list[tuple[Any, Any]] = []
-        state, packed = self._state()
+        state, packed = self._capture.after_step()
         if packed is not None:
-            captures.append((self._state_rows, packed))
+            captures.append((self._capture.rows, packed))
         fields = self._per_state_rows(state, obs) if state or self._rows_beside_state else {}
         if self._contacts_captured:
             captures.append((self._sampler.row_source, self._sampler.capture()))
@@ -518,75 +405,6 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 "(--contacts none, contacts=\"none\") or with pairs of bodies every scene has") from None
         self._contacts_captured = self._sampler.captures
 
-    def _fingerprint_scenes(self, envs: Iterable[int]) -> None:
-        """Where sub-scenes `envs` differ from the recording's scene fingerprint (after the scene was built or
-        rebuilt; ~3 ms each, never per step): each of their episodes keeps it (`EpisodeMeta.scene_changes`)."""
-        for i in envs:
-            now = scene_fingerprint(self._u, env_idx=i)
-            self._scene_changes[i] = fingerprint_changes(self.meta.scene_fingerprint, now)
-
-    def _episode_seeds(self, seed: Any, idxs: list[int]) -> list[int | None]:
-        """The episode seed of each reset env, or None where the reset was not reproducible from a seed.
-
-        ManiSkill 3.0.1 leaves `_episode_seed` stale after `reset(seed=None)` (the episode is drawn from
-        the global RNG instead) and, for a partial reset with a seed list, replaces the whole array by
-        that list, one seed per reset env in order.
-        """
-        u = self._u
-        if seed is None and not getattr(u, "_enhanced_determinism", False):
-            return [None] * len(idxs)
-        drawn = to_numpy(u._episode_seed).reshape(-1)
-        if len(drawn) == self._n:
-            return [int(drawn[i]) for i in idxs]
-        if len(drawn) == len(idxs):
-            return [int(x) for x in drawn]
-        return [None] * len(idxs)
-
-    def _captures_generators(self, seed: Any) -> bool:
-        """Whether a reset with `seed` draws its episode from generators that are not reseeded, in a way a replay can
-        repeat once it has their states (`simreel.sim.generators`): one without a seed, enhanced determinism off, in
-        a one-env recording (a replay resets one env at a time; with several, one draw serves them all)."""
-        return seed is None and self._n == 1 and not getattr(self._u, "_enhanced_determinism", False)
-
-    def _bind_fast_reader(self, state: dict[str, np.ndarray], reconfigured: bool) -> bytes | None:
-        """Bind a fast state reader to the scene after a reset (a reconfiguring reset builds new bodies); the reader's
-        capture of `state` where it is the scene's proven reader, kept (else None).
-
-        A reader is checked bit for bit against `get_state_dict()` after the first step of an episode (`_state`; after
-        a reset most velocities are zero, a weaker check), and any difference retires it. Once a scene's reader has
-        passed that check, the readers of its later episodes are checked at their reset instead, against `state` (the
-        reset row just read through `get_state_dict()`): one fast read rather than one more `get_state_dict()` per
-        episode. A reader that differs there is rebuilt and checked after the first step again."""
-        if self._fast_refuted:
-            return None
-        px = self._u.scene.px
-        if reconfigured:
-            self._fast_scene = None
-        kept = self._fast is not None and self._fast.px is px and self._fast_scene is px
-        packed = self._fast.capture_equal_to(state) if kept else None
-        if packed is not None:  # the scene's proven reader, checked again
-            self._fast_unchecked = False
-            return packed
-        self._fast = FastStateReader.for_env(self._u)
-        self._fast_unchecked = self._fast is not None
-        if self._fast is not None:
-            self._state_rows = dataclasses.replace(self._fast.packed_rows, prefix="env_states/")
-        return None
-
-    def _check_state_layout(self, state: dict[str, np.ndarray], packed: bytes | None) -> dict[str, np.ndarray]:
-        """Refuse a reset whose state (just read through `get_state_dict()`) is not in the recording's layout
-        (`StateLayoutError` naming the leaves); returns the leaves of `state` that `packed`, the scene's proven reader's
-        capture of it (`_bind_fast_reader`), does not hold: all of them without one. The leaves the capture holds
-        need no check: they equal, bit for bit, those of the same reader at a reset whose layout was checked whole
-        (when it was built); the others (controller targets, custom state) may change at any reset."""
-        layout = self.meta.state_layout
-        if packed is not None:
-            held = self._fast.packed_keys
-            state = {key: a for key, a in state.items() if key not in held}
-            layout = {key: spec for key, spec in layout.items() if key not in held}
-        check_same_layout(self.meta.env_id, layout, layout_of(state, batched=True))
-        return state
-
     def _reset_rows(self, state: dict[str, np.ndarray], unpacked: dict[str, np.ndarray], obs: Any,
                     packed: bytes | None) -> tuple[dict[str, np.ndarray], tuple[tuple[Any, list[Any], int], ...]]:
         """The reset row of every env: (its fields, `StepBlock.captured`). Where the writer process converts captures
@@ -594,25 +412,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         string to send rather than an array per leaf), the rest (`unpacked`) as arrays."""
         if packed is None or not self._defer:
             return self._per_state_rows(state, obs), ()
-        return self._per_state_rows(unpacked, obs), ((self._state_rows, [packed], 0),)
-
-    def _state(self) -> tuple[dict[str, np.ndarray], bytes | None]:
-        """The state after a step: (state leaves read now, the packed rest for `_state_rows` or None). Through the
-        fast CPU reader where it is proven equal (`_bind_fast_reader`), else all of it through `get_state_dict()`."""
-        if self._fast is None:
-            return read_state(self._u), None
-        if self._fast_unchecked:
-            self._fast_unchecked = False
-            if not self._fast.matches():
-                self._fast, self._fast_refuted = None, True
-                warnings.warn(f"simreel: the fast state reader disagrees with {self.meta.env_id}'s get_state_dict(); "
-                              "recording through get_state_dict() from now on", RuntimeWarning, stacklevel=3)
-                return read_state(self._u), None
-            self._fast_scene = self._u.scene.px
-        packed = self._fast.capture()
-        if packed is None:  # bodies were added or removed since the reader was built
-            return read_state(self._u), None
-        return self._fast.extras(), packed
+        return self._per_state_rows(unpacked, obs), ((self._capture.rows, [packed], 0),)
 
     def _flush(self, i: int) -> None:
         """Hand env i's buffered steps to its episode's sink. Callers hold signals (`deferred_signals`): a Ctrl-C
@@ -663,7 +463,7 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 except EpisodeLayoutError as e:
                     self._refuse(i, f"the writer refused the steps from there on ({e})")
                     raise
-                self._chain_ran[i] += 1
+                self._scenes.committed(i)
             self._sinks[i] = None
             self._episodes[i] = None
             self._refused.pop(i, None)
@@ -679,34 +479,3 @@ def what_stopped(error: BaseException) -> str:
     if isinstance(error, KeyboardInterrupt):
         return "Ctrl-C (SIGINT)"
     return f"an error ({error})" if isinstance(error, SimreelError) else f"an error ({type(error).__name__})"
-
-
-def _reset_options(options: Any) -> dict[str, Any]:
-    """`reset()`'s options as a dict of its own (None: none); `UsageError` for anything but a dict."""
-    if options is None:
-        return {}
-    if not isinstance(options, Mapping):
-        raise UsageError(f"reset(options={options!r}): give a dict of reset options, e.g. {{'env_idx': [0]}} or "
-                         "{'reconfigure': True}")
-    return dict(options)
-
-
-def _seed_list(seed: Any) -> list[Any] | None:
-    """The seeds of `reset(seed=...)` given as a list, a tuple, an array or a tensor (one value each), or None for
-    anything else, a single seed or not one at all."""
-    if isinstance(seed, (list, tuple)):
-        return list(seed)
-    if hasattr(seed, "dtype") and hasattr(seed, "shape"):
-        return to_numpy(seed).reshape(-1).tolist()
-    return None
-
-
-def _constructor_options(opts: RecordOptions) -> dict[str, Any]:
-    """The options that differ from the defaults, as plain values for ``env.spec`` (gymnasium's WrapperSpec)."""
-    default = RecordOptions()
-    out = {}
-    for f in dataclasses.fields(opts):
-        value = getattr(opts, f.name)
-        if value != getattr(default, f.name):
-            out[f.name] = list(value) if isinstance(value, tuple) else dict(value) if isinstance(value, Mapping) else value
-    return out

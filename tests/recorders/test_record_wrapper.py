@@ -49,7 +49,7 @@ def test_recording_reads_back_what_the_env_reported(tmp_path, env_id, kwargs):
     rng = np.random.default_rng(0)
     truth = [_run(env, 12, seed, rng) for seed in (5, 6)]
     # Stock tasks on the CPU sim are read by the fast path; this test proves it exact at every step.
-    assert env._fast is not None
+    assert env._capture.fast is not None
     env.close()
 
     with open_reader(path) as r:
@@ -185,7 +185,7 @@ def test_declared_custom_state_is_recorded_through_the_fast_reader(tmp_path):
     for _ in range(3):
         env.step(np.zeros(env.action_space.shape, np.float32))
         heights.append(float(env.unwrapped.goal_height[0]))
-    assert env._fast is not None
+    assert env._capture.fast is not None
     env.close()
     with open_reader(tmp_path / "c.h5") as r:
         np.testing.assert_array_equal(r.read_episode(0).env_states["goal_height"], np.float32(heights))

@@ -23,6 +23,7 @@ from simreel.errors import RecordingFileError, UsageError
 from simreel.formats import open_reader
 from simreel.formats.hdf5.layout import sidecar_path
 from simreel.recorders import RecordWrapper
+from simreel.recorders.scene_book import SceneBook
 from simreel.recorders.writer_process import ProcessWriter
 from simreel.sim.make import make_env
 
@@ -321,7 +322,7 @@ def test_a_recorder_interrupted_after_its_file_was_opened_leaves_nothing(tmp_pat
         raise KeyboardInterrupt
 
     with monkeypatch.context() as m:
-        m.setattr(RecordWrapper, "_fingerprint_scenes", interrupted)
+        m.setattr(SceneBook, "rebuilt", interrupted)
         with pytest.raises(KeyboardInterrupt):
             RecordWrapper(env, path, writer_process=writer_process)
     assert list(tmp_path.iterdir()) == [] and _writer_processes() == []
