@@ -459,12 +459,14 @@ class EpisodeReplayer:
         says so, and why (none for a seeded episode, or a remade reset). `RecordingFileError` where the recording
         holds no states to start from: where the episode began is then unknown, and stepping from another start would
         judge another trajectory."""
-        if source.meta.seed is not None:
+        if source.meta.seed is not None and not source.meta.seed_unchecked:
             return []
         row = _States(recorded).row(0)
         if not row:
             raise RecordingFileError(getattr(source, "path", None) or "the recording",
                                      f"episode {source.meta.index}: {UNSEEDED_WITHOUT_STATES}: it cannot be replayed")
+        if source.meta.seed_unchecked:
+            return self._check_seed(source.meta.seed, row)
         if source.meta.reset_generators:
             differing = _differing_leaves(row, self._state())
             if not differing:
@@ -476,6 +478,18 @@ class EpisodeReplayer:
         return [f"the reset from the recorded generator states did not remake the recorded initial state "
                 f"({', '.join(differing[:3])} differ: the reset drew from something else too, or another engine "
                 "replays it)", *restored]
+
+    def _check_seed(self, seed: int | None, row: dict[str, np.ndarray]) -> list[str]:
+        """Start an episode whose `seed` may be stale (``EpisodeMeta.seed_unchecked``), reset with it, where it began:
+        a reset that remade the recorded initial state (`row`) bit for bit is kept; else that state is restored, and
+        the limits say so, naming the stale seed."""
+        differing = _differing_leaves(row, self._state())
+        if not differing:
+            return []
+        restore_state(self.u, row, elapsed_steps=0)
+        return [f"stale seed: a reset with episode_seed {seed} did not remake the recorded initial state "
+                f"({', '.join(differing[:3])} differ: the episode was reset without a seed)",
+                "actions replayed from the recorded initial state"]
 
     def _replay(self, run: _Run) -> ReplayedEpisode:
         meta = run.source.meta
@@ -504,7 +518,7 @@ class EpisodeReplayer:
         states = run.states = _States(recorded)
         if run.mode == "states":
             restore_state(self.u, states.row(0), elapsed_steps=0)
-        elif run.mode == "actions" and source.meta.seed is None:
+        elif run.mode == "actions" and (source.meta.seed is None or source.meta.seed_unchecked):
             limits = self._start_unseeded(source, recorded)
             out.limits += limits
             if limits:

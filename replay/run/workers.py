@@ -285,7 +285,8 @@ class ReplayWorker:
         done = scene.ran_of(item.path, chains, item.index) if scene is not None else None
         missing = chains.history(item.index, since=done or 0)
         if len(missing) > 1:
-            short = self._last_step(reader, replayer, chains, item.index)
+            fresh = scene is not None and not scene.ran  # (fresh from gym.make: no rebuild needed)
+            short = self._last_step(reader, replayer, chains, item.index, fresh=fresh)
             if short is not None:
                 return short
         elif not missing and scene is not None and scene.short:  # (its scene's history was a last step too)
@@ -293,13 +294,15 @@ class ReplayWorker:
         return self._replay_missing(reader, replayer, chains, item, done)
 
     def _last_step(self, reader: EpisodeReader, replayer: EpisodeReplayer, chains: SceneChains,
-                   index: int) -> ReplayedHistory | None:
+                   index: int, *, fresh: bool) -> ReplayedHistory | None:
         """The history of episode `index` as the last step of the episode right before it (`step_before`), re-run on a
-        rebuilt scene from its recorded state before the episode's reset; None where that step cannot be had."""
+        rebuilt scene (unless `fresh`: one that ran nothing since it was built) from its recorded state before the
+        episode's reset; None where that step cannot be had."""
         found = step_before(reader, chains, index, None)
         if found.run is None or found.run.episode is None:
             return None
-        replayer.forget_scene()
+        if not fresh:
+            replayer.forget_scene()
         why = last_step_history(found.run.episode.index, chains.ran_before[index] or 0)
         return ReplayedHistory(before=found.run, steps=1, why=why, short=True)
 
