@@ -1,7 +1,7 @@
 """The cost of verifying one late episode against verifying every episode, in one run on one recording.
 
 Usage: python benchmarks/bench_history.py [--env PickCube-v1] [--control-mode pd_joint_delta_pos] [--episodes 500]
-                                          [--steps 10] [--unseeded] [--keep PATH]
+                                          [--steps 10] [--unseeded] [--keep PATH] [--each]
 
 Records `--episodes` episodes of `--steps` random actions (torch's generator seeded 0) with RecordWrapper's default
 options, each reset with seed e (`--unseeded`: only the first, as RL rollouts reset), then times, in this process,
@@ -9,6 +9,10 @@ options, each reset with seed e (`--unseeded`: only the first, as RL rollouts re
 results depend on what the scene ran since it was built: the last episode is replayed after only the last step of the
 one before it (from its recorded state), kept if exact, else after its whole history; the script prints which, the
 two times and their ratio. Target (issue 44): the last episode's time at most 5% of the whole run's.
+
+`--each` instead replays every episode from the third on alone, last first, in one worker (each after only the last
+step of the one before it, as `--episodes K` does), and counts those kept after that step (exact) and those replayed
+again after their whole history, with their verdicts.
 """
 
 from __future__ import annotations
@@ -44,6 +48,29 @@ def timed(path: Path, **options) -> tuple[float, list]:
     return time.perf_counter() - start, report.episodes
 
 
+def each_alone(path: Path) -> None:
+    """`--each`: every episode from index 2 on replayed alone, last first, in one worker."""
+    from collections import Counter
+
+    from simreel.formats import open_reader
+    from simreel.model.components import Tolerances
+    from simreel.replay.run.workers import ReplayJob, ReplayWorker
+    from simreel.replay.run.worklist import WorkItem, env_key
+
+    with open_reader(path) as reader:
+        key, count = env_key(reader.meta), len(reader.episodes)
+    worker = ReplayWorker(ReplayJob(mode="actions", resync=None, tolerances=Tolerances.for_mode("actions")))
+    kept, whole = Counter(), Counter()
+    try:
+        for index in range(count - 1, 1, -1):
+            report = worker.run(WorkItem(key, str(path), index)).report
+            (kept if report.history.steps == 1 else whole)[report.verdict] += 1
+    finally:
+        worker.close()
+    print(f"{count - 2} episodes alone: kept after the last step before it {sum(kept.values())} {dict(kept)}; "
+          f"replayed again after their whole history {sum(whole.values())} {dict(whole)}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--env", default="PickCube-v1")
@@ -52,6 +79,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--unseeded", action="store_true", help="reset with a seed only once, as RL rollouts do")
     ap.add_argument("--keep", type=Path, help="write the recording here (default: a temporary folder)")
+    ap.add_argument("--each", action="store_true", help="replay each episode alone instead, and count how")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         path = args.keep or Path(tmp) / "history.h5"
@@ -59,6 +87,9 @@ def main() -> None:
         record(path, args.env, args.control_mode, (args.episodes, args.steps), unseeded=args.unseeded)
         print(f"recorded {args.episodes} x {args.steps} steps of {args.env} ({args.control_mode}) in "
               f"{time.perf_counter() - start:.1f} s")
+        if args.each:
+            each_alone(path)
+            return
         last = args.episodes - 1
         one, (episode,) = timed(path, episodes=[last])
         every, episodes = timed(path)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import gc
 import time
 import warnings
 from collections.abc import Iterator
@@ -262,10 +263,11 @@ class EpisodeReplayer:
             return env_from_meta(self.meta, render_backend=render, **overrides)
 
         try:
-            if self._render_backend is not None:
-                return build(self._render_backend)
-            default = "none" if camera_use(self.obs_mode) is None else "auto"
-            return build_with_render_fallback(build, default)[0]
+            with _older_objects_unscanned():
+                if self._render_backend is not None:
+                    return build(self._render_backend)
+                default = "none" if camera_use(self.obs_mode) is None else "auto"
+                return build_with_render_fallback(build, default)[0]
         except EnvBuildError as exc:
             if self._sim_backend is None and self.meta.sim_backend in GPU_SIM_BACKENDS and not _has_cuda():
                 raise ReplayError(
@@ -288,7 +290,8 @@ class EpisodeReplayer:
                 other.close()
         self._in_modes.clear()
         if self.env is not None:
-            self.env.close()
+            with _older_objects_unscanned():
+                self.env.close()
             self.env = None
 
     def same_size_control_modes(self) -> list[str]:
@@ -649,6 +652,19 @@ class EpisodeReplayer:
         limit = self.max_episode_steps
         truncated = limit is not None and self.u._elapsed_steps[0].item() >= limit
         return obs, reward, terminated, truncated, info
+
+
+@contextlib.contextmanager
+def _older_objects_unscanned() -> Iterator[None]:
+    """ManiSkill collects garbage (``gc.collect()``) as it builds and as it clears a scene: 0.2 s each in a process
+    holding torch and a replay's objects, two thirds of the time to verify one short episode. In the block the objects
+    alive before it are out of the collector's sight (``gc.freeze``), and back in it after: garbage among them is
+    collected later, as any is."""
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 @contextlib.contextmanager

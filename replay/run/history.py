@@ -48,7 +48,7 @@ def describe_history(index: int, history: Sequence[int], replayed: Sequence[int]
 
 def last_step_history(previous: int, predecessors: int) -> str:
     """Why a replay ran only the last step of episode `previous` (one of `predecessors`) before an episode."""
-    return (f"only the last step of episode {previous}, from its recorded state, on a rebuilt scene, in place of its "
+    return (f"only the last step of episode {previous}, from its recorded state, on a scene just built, in place of its "
             f"{predecessors} predecessor(s): PhysX results depend on the scene's history, and the episode replayed "
             "exact after that step alone (else its whole history would have been replayed)")
 

@@ -49,7 +49,7 @@ def test_a_late_episode_replays_exact_after_only_the_last_step_before_it(tmp_pat
     assert episode["verdict"] == "exact"
     assert episode["history"]["episodes"] == 1 and episode["history"]["steps"] == 1
     assert episode["history"]["why"].startswith("only the last step of episode 4, from its recorded state, on a "
-                                                "rebuilt scene, in place of its 5 predecessor(s)")
+                                                "scene just built, in place of its 5 predecessor(s)")
     assert "history: 1 predecessor episode(s), 1 step(s) replayed: only the last step of episode 4" in out
 
 
