@@ -392,7 +392,7 @@ class ReplayWorker:
         source = reader.open_episode(index)
         scope = CompareScope(initial=source.meta.initial_state_known,
                              obs=job.obs_mode is None or job.obs_mode == reader.meta.obs_mode)
-        stream = self._stream(reader.meta, source.meta)
+        stream = self._stream(reader.meta, source.meta, direct=not history.short)
         kept = Collected() if job.output is not None and stream is None else None
         written: BlockSink | None = stream or kept
         if written is not None and job.mode == "states":
@@ -419,12 +419,13 @@ class ReplayWorker:
         episode = kept.episode(source.meta)
         return report, dataclasses.replace(episode, meta=_replayed_meta(episode.meta, report, ran_in))
 
-    def _stream(self, meta: RecordingMeta, episode: EpisodeMeta) -> EpisodeStream | None:
+    def _stream(self, meta: RecordingMeta, episode: EpisodeMeta, *, direct: bool = True) -> EpisodeStream | None:
         """Where the replay of `episode` (of the recording with `meta`) is written as it comes: into `-o` when this
-        process writes it and the episode is next; else, given a scratch folder, into a scratch recording of its
-        own; else nowhere (None: without `-o`, or collected whole)."""
+        process writes it, the episode is next and the replay is no attempt that may be dropped (`direct`: an output
+        never takes an episode index twice); else, given a scratch folder, into a scratch recording of its own; else
+        nowhere (None: without `-o`, or collected whole)."""
         job = self.job
-        stream = self.output.stream(episode) if self.output else None
+        stream = self.output.stream(episode) if self.output and direct else None
         if stream is None and job.output is not None and job.scratch is not None:
             spec = ReplayOutput(job.output, obs_mode=job.obs_mode, pose_bodies=output_pose_bodies(meta, job.output))
             stream = ScratchEpisode(Path(job.scratch), spec, meta, episode)

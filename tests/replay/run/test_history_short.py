@@ -85,3 +85,22 @@ def test_a_whole_run_replays_no_history(tmp_path, capsys):
     assert [e["history"]["episodes"] for e in episodes] == [0, 0, 0]
     assert episodes[0]["history"]["why"] == "the first episode of its scene"
     assert "history:" not in out
+
+
+@pytest.mark.parametrize(("task", "steps"), [(("PickCube-v1", "pd_joint_pos"), 60),
+                                            (("PushCube-v1", "pd_joint_delta_pos"), 1)], ids=["fallback", "kept"])
+def test_a_replay_written_with_o_holds_the_exact_replay_once(tmp_path, capsys, task, steps):
+    """`-o`: the attempt after the last step alone is written aside (an output takes an episode index once); kept
+    where exact, else dropped and the replay after the whole history is what the output holds."""
+    from simreel.formats import open_reader
+
+    path = _record(tmp_path / "r.h5", task, (3, 30))
+    out, report = tmp_path / "out.h5", tmp_path / "report.json"
+    assert main(["replay", str(path), "--episodes", "2", "-o", str(out), "--report", str(report), "-q"]) == 0, \
+        capsys.readouterr()
+    assert json.loads(report.read_text())["episodes"][0]["history"]["steps"] == steps
+    with open_reader(out) as replayed, open_reader(path) as recorded:
+        (meta,) = replayed.episodes
+        assert meta.length == 30 and meta.verification["verdict"] == "exact"
+        a, b = replayed.read_episode(meta.index), recorded.read_episode(2)
+        assert all((a.env_states[k] == b.env_states[k]).all() for k in b.env_states)
