@@ -359,7 +359,7 @@ def test_a_file_recordepisode_wrote_no_episode_into_is_read_as_empty_not_foreign
 
 @pytest.mark.parametrize("env_kwargs", [{}, {"enhanced_determinism": True}], ids=["unseeded", "enhanced-determinism"])
 def test_an_episode_reset_without_a_seed_has_its_stale_seed_checked_and_replays_from_its_recorded_first_state(
-        tmp_path, env_kwargs):
+        tmp_path, capsys, env_kwargs):
     """reset() without a seed: ManiSkill 3.0.1 draws the initial state from torch's global RNG, and RecordEpisode still
     writes the env's last seed as episode_seed (a stale seed). The reader keeps it, unchecked; a replay resets with it,
     finds the recorded first state not remade, says "stale seed" naming it, and replays the actions from the recorded
@@ -389,6 +389,10 @@ def test_an_episode_reset_without_a_seed_has_its_stale_seed_checked_and_replays_
                    for x in e.limits) == unseeded, e.limits
     if not unseeded:
         return
+    capsys.readouterr()
+    main(["replay", str(path), "--episodes", "1"])  # the console names it under the episode, whatever its verdict
+    assert "note: stale seed: a reset with episode_seed 0 did not remake the recorded initial state" in \
+        capsys.readouterr().out
     converted = convert_recording(path, tmp_path / "delta.h5", control_mode="pd_joint_delta_pos")
     for e in converted.episodes[1:]:  # a conversion starts there too: before, from an unseeded reset, objects elsewhere
         assert e.max_abs_error["env_states/actors/goal_site[p]"] == 0.0 and "actions replayed from the recorded " \
