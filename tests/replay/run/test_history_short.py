@@ -67,8 +67,8 @@ def test_the_last_step_comes_from_the_episodes_own_scene_chain(tmp_path, capsys)
 
 def test_a_late_episode_not_exact_after_the_last_step_is_replayed_after_its_whole_history(tmp_path, capsys):
     """PickCube's episode 2 here leaves its recording at step 2 after episode 1's last step alone (PhysX keeps more
-    of a scene's history than that step, e.g. which bodies sleep): it is replayed again after episodes 0 and 1, exact,
-    and its report says why."""
+    of a scene's history than that step remakes): it is replayed again after episodes 0 and 1, exact, and its report
+    says why."""
     path = _record(tmp_path / "r.h5", ("PickCube-v1", "pd_joint_pos"), (3, 30))
     (episode,), out = _replayed(path, tmp_path, "2", capsys)
     assert episode["verdict"] == "exact"
