@@ -198,7 +198,17 @@ class ConvertWorker:
                 "control_mode": u.control_mode,
                 "action_space": action_space_json(self.meta.env_id, u.single_action_space),
                 "env_kwargs": {**self.meta.env_kwargs, **self.job.env_kwargs},
-                "scene_fingerprint": with_controllers(self.meta.scene_fingerprint, u)}
+                "scene_fingerprint": with_controllers(self.meta.scene_fingerprint, u),
+                **self._layout_change(u)}
+
+    def _layout_change(self, unwrapped: Any) -> dict[str, Any]:
+        """The output's state layout when its controller keeps state the input's lacks (a target mode's target)."""
+        from simreel.sim.state import live_layout
+
+        if self.job.control_mode is None or not self.meta.state_layout:
+            return {}
+        live = live_layout(unwrapped)
+        return {"state_layout": live} if set(live) != set(self.meta.state_layout) else {}
 
     def run(self, item: WorkItem) -> ConvertResult:
         """Convert and check episode `item.index` of this worker's file; a `SimreelError` comes back in the result."""

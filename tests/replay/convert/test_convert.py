@@ -239,7 +239,7 @@ def test_filters_and_exit_status_on_the_command_line(demos, tmp_path, capsys):
     ("args", "message"),
     [
         (["--control-mode", "pd_joint_pos"], "--control-mode pd_joint_pos is the recording's own control mode"),
-        (["--control-mode", "pd_ee_target_delta_pose"], "cannot convert control mode pd_joint_pos to pd_ee_target_delta_pose"),
+        (["--control-mode", "pd_ee_pose"], "cannot convert control mode pd_joint_pos to pd_ee_pose"),
         (["--keep", "verified"], "--keep apply to a conversion: add --obs-mode and/or --control-mode"),
         (["--obs-mode", "state", "--tol", "ee_pos=1"], "--tol sets the tracking tolerances of a control-mode conversion"),
         (["--control-mode", "pd_joint_delta_pos", "--keep", "fast"], "expected any of verified, success, not_truncated, all"),
@@ -314,10 +314,11 @@ def test_a_conversion_to_joint_velocities_is_checked_like_any_other(demos, tmp_p
     assert main(["replay", str(out), "-q"]) == 0
 
 
-@pytest.mark.parametrize("mode", ["pd_joint_target_delta_pos", "pd_ee_target_delta_pose"])
-def test_a_mode_that_keeps_a_target_is_refused_in_one_line(demos, tmp_path, capsys, mode):
+@pytest.mark.parametrize("mode", ["pd_ee_pose", "pd_joint_pos_vel"])
+def test_a_mode_simreel_does_not_convert_to_is_refused_in_one_line(demos, tmp_path, capsys, mode):
     assert main(["convert", str(demos("PickCube-v1")), str(tmp_path / "x.h5"), "--control-mode", mode, "-q"]) == 2
     [line] = capsys.readouterr().err.splitlines()
     assert line.startswith(f"simreel convert: error: cannot convert control mode pd_joint_pos to {mode}: simreel "
-                           "converts pd_joint_pos -> pd_joint_delta_pos, pd_joint_vel, pd_ee_delta_pos,")
+                           "converts pd_joint_pos -> pd_joint_delta_pos, pd_joint_target_delta_pos, pd_joint_vel, "
+                           "pd_ee_delta_pos, pd_ee_delta_pose, pd_ee_target_delta_pos, pd_ee_target_delta_pose;")
     assert list(tmp_path.iterdir()) == []
