@@ -74,7 +74,8 @@ class ConvertOptions:
         check=text('an observation mode as a string, e.g. "rgb", or None (the recorded one)', optional=True))
     control_mode: str | None = option(
         None, help="convert the actions to this control mode: from pd_joint_pos to pd_joint_delta_pos, "
-                   "pd_ee_delta_pos or pd_ee_delta_pose; from pd_joint_delta_pos to pd_joint_pos",
+                   "pd_joint_target_delta_pos, pd_joint_vel, pd_ee_delta_pos, pd_ee_delta_pose, pd_ee_target_delta_pos "
+                   "or pd_ee_target_delta_pose; from pd_joint_delta_pos to pd_joint_pos",
         check=text('a control mode as a string, e.g. "pd_ee_delta_pose", or None (the recorded one)', optional=True))
     camera_size: tuple[int, int] | None = option(None, metavar="WxH", parse=parse_size,
                                                  help="size of every sensor camera", check=_camera_size)
