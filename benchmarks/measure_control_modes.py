@@ -13,27 +13,21 @@ default tolerances, writing every episode (``keep="all"``), and prints a markdow
 
 from __future__ import annotations
 
-import argparse
 import shutil
 import sys
 import tempfile
-import warnings
 from collections import Counter
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from demo_files import demo_arguments, demo_recorder
+
 ROBOTS = {"panda": ("pick", {}), "fetch": ("arm", {"robot_uids": "fetch"})}
 """Robot → (the demo path of `tests/support/maniskill_files.record_maniskill`, PickCube-v1's env kwargs)."""
 
 
 def main() -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--episodes", type=int, default=4)
-    p.add_argument("--steps", type=int, default=45)
-    args = p.parse_args()
-    sys.path.insert(0, str(REPO / "tests"))
-    warnings.filterwarnings("ignore")
-    from support.maniskill_files import record_maniskill
+    args = demo_arguments(__doc__, episodes=4, steps=45)
+    record_maniskill = demo_recorder()
 
     from simreel.replay.convert.control import SUPPORTED
     from simreel.replay.convert.convert import convert_recording
