@@ -177,6 +177,10 @@ class _Converter:
         self.tcp = getattr(unwrapped.agent, "tcp", None)
         self.model = self.robot.create_pinocchio_model()
         self.arm_joints = self.arm.active_joint_indices.cpu().numpy()
+        self.fk_qpos: np.ndarray | None = None
+        """The robot's joint positions of the last tool pose computed (`_tool_pose`): the command check's."""
+        self.root_at_action: Any = None
+        """Where the end-effector controller's root link was when the last action was made (its target's frame)."""
         if getattr(self.arm.config, "use_target", False):
             self._reset_target()
 
@@ -199,9 +203,9 @@ class _Converter:
 
     def _tool_pose(self, arm_target: np.ndarray, robot_qpos: np.ndarray | None = None) -> Any:
         """The world pose (sapien.Pose) of the tool-centre link with the arm's joints at `arm_target`, the robot's
-        other joints at `robot_qpos` (None: where they are now; kept in `at` for the command check)."""
+        other joints at `robot_qpos` (None: where they are now; kept in `fk_qpos` for the command check)."""
         qpos = self.robot.get_qpos().cpu().numpy()[0].astype(np.float64) if robot_qpos is None else robot_qpos.copy()
-        self.at = qpos.copy()
+        self.fk_qpos = qpos.copy()
         qpos[self.arm_joints] = arm_target
         self.model.compute_forward_kinematics(qpos)
         return self.robot.pose.sp * self.model.get_link_pose(int(self.tcp.index.item()))
@@ -220,9 +224,10 @@ class _Converter:
         target = getattr(self.arm, "_target_pose", None)
         joints = getattr(self.arm, "_target_qpos", None)  # none for a velocity controller: no pose commanded
         if target is not None and hasattr(self.arm.config, "frame"):
-            pose = getattr(self, "root_then", self.arm.root_link.pose.sp) * target.sp  # the root where the action was made
+            root = self.arm.root_link.pose.sp if self.root_at_action is None else self.root_at_action
+            pose = root * target.sp  # the target in the frame the action was made in
         elif joints is not None:  # the robot's other joints (a torso, a mobile base) where the wanted pose had them
-            pose = self._tool_pose(joints.cpu().numpy()[0], getattr(self, "at", None))
+            pose = self._tool_pose(joints.cpu().numpy()[0], self.fk_qpos)
         else:
             return None
         return np.r_[pose.p, pose.q]
@@ -300,8 +305,8 @@ class EePoseFromJointPos(_Converter):
         )
 
         now = self._reference()
-        self.root_then = self.arm.root_link.pose.sp
-        target = self.root_then.inv() * target
+        self.root_at_action = self.arm.root_link.pose.sp
+        target = self.root_at_action.inv() * target
         low = self.arm.action_space_low.cpu().numpy()[:3].astype(np.float64)
         high = self.arm.action_space_high.cpu().numpy()[:3].astype(np.float64)
         position = (np.asarray(target.p - now.p, np.float64) - 0.5 * (high + low)) / (0.5 * (high - low))
