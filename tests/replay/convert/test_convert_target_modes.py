@@ -77,3 +77,25 @@ def test_a_position_only_target_mode_that_cannot_turn_the_hand_is_not_verified(d
         assert episode["max_abs_error"]["ee/panda_hand_tcp[q]"] > 0.05  # the ee_rot tolerance
         assert episode["max_abs_error"]["ee/panda_hand_tcp[p]"] < 0.01  # the position it follows
     assert not out.exists()
+
+
+NOT_FOLLOWED = {"panda": {"pd_joint_vel", "pd_ee_delta_pos", "pd_ee_target_delta_pos"},
+                "fetch": {"pd_ee_delta_pos", "pd_ee_target_delta_pos"}}
+"""The modes whose conversions of these demos are not verified with the default tolerances (docs/conversion.md's
+table): position-only modes where the demos turn the hand; a velocity controller off the Panda's pick path by more
+than 1 cm. Fetch's pd_joint_vel is left out of the sweep's claims: some of its swings verify, some do not."""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot", list(DEMOS))
+def test_every_mode_simreel_converts_on_both_robots_gives_the_documented_verdicts(demos, robot, tmp_path):
+    from simreel.replay.convert.control import SUPPORTED
+    from simreel.replay.convert.convert import convert_recording
+
+    for mode in SUPPORTED["pd_joint_pos"]:
+        report = convert_recording(demos(robot), tmp_path / f"{mode}.h5", control_mode=mode, keep="all")
+        assert report.written == [0, 1] and len(report.episodes) == 2, mode
+        if robot == "fetch" and mode == "pd_joint_vel":
+            continue
+        verified = [e.ok for e in report.episodes]
+        assert verified == [mode not in NOT_FOLLOWED[robot]] * 2, (mode, [e.verdict for e in report.episodes])
