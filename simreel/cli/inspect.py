@@ -82,9 +82,10 @@ def summarize(reader: Any, found: dict[str, list[str]] | None = None,
 
 
 def unseeded_counts(episodes: list[Any]) -> tuple[int, int]:
-    """(episodes reset without a seed, those of them whose random generators' states were captured at the reset:
-    a replay sets them again and remakes the reset; `simreel.sim.generators`)."""
-    unseeded = [e for e in episodes if e.seed is None]
+    """(episodes reset without a seed, a ManiSkill file's stale seed counted as none (`EpisodeMeta.seed_unchecked`),
+    those of them whose random generators' states were captured at the reset: a replay sets them again and remakes
+    the reset; `simreel.sim.generators`)."""
+    unseeded = [e for e in episodes if e.seed is None or e.seed_unchecked]
     return len(unseeded), sum(bool(e.reset_generators) for e in unseeded)
 
 
@@ -92,9 +93,11 @@ def _unseeded_line(episodes: list[Any]) -> str:
     unseeded, captured = unseeded_counts(episodes)
     if not unseeded:
         return ""
+    stale = sum(e.seed_unchecked for e in episodes)
     return (f"unseeded: {unseeded} episode(s) reset without a seed; {captured} with their random generators' states "
             f"(a replay remakes their reset), {unseeded - captured} without (a replay starts them from their "
-            "recorded initial state: not exact)")
+            "recorded initial state: not exact" + (f"; {stale} with a seed the file gives that may be stale, kept where "
+                                                   "it remakes that state" if stale else "") + ")")
 
 
 def _hz(freq: float | None) -> str:

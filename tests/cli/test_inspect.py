@@ -101,6 +101,8 @@ def test_inspect_counts_unseeded_episodes_and_those_with_generator_states(tmp_pa
     assert ("unseeded: 2 episode(s) reset without a seed; 2 with their random generators' states (a replay remakes "
             "their reset), 0 without") in capsys.readouterr().out
     assert main(["inspect", str(theirs)]) == 0
-    assert "unseeded: 2 episode(s) reset without a seed; 0 with their random generators' states" in capsys.readouterr().out
+    assert ("unseeded: 2 episode(s) reset without a seed; 0 with their random generators' states (a replay remakes "
+            "their reset), 2 without (a replay starts them from their recorded initial state: not exact; 2 with a seed "
+            "the file gives that may be stale, kept where it remakes that state)") in capsys.readouterr().out
     assert main(["inspect", "--json", str(ours)]) == 0
     assert json.loads(capsys.readouterr().out)["unseeded"] == {"episodes": 2, "with_generators": 2}
