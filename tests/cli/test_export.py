@@ -8,9 +8,10 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+from support.nudged import nudged_copy
 
 from simreel.cli.main import main
-from simreel.formats import open_reader, open_writer
+from simreel.formats import open_reader
 
 
 @pytest.fixture(scope="module")
@@ -18,12 +19,7 @@ def nudged(record, tmp_path_factory) -> tuple[Path, Path]:
     """A PickCube recording (observations recorded) whose episode 1 had one action nudged, and its replay report:
     episodes 0 and 2 exact, 1 diverged."""
     folder = tmp_path_factory.mktemp("export")
-    rec = folder / "nudged.h5"
-    with open_reader(record("PickCube-v1", 3, 15, "--record-obs")) as r, open_writer(rec, r.meta) as w:
-        for m in r.episodes:
-            episode = r.read_episode(m.index)
-            episode.actions[5] += 0.5 * (m.index == 1)
-            w.write_episode(episode)
+    rec = nudged_copy(record("PickCube-v1", 3, 15, "--record-obs"), folder / "nudged.h5")
     report = folder / "report.json"
     assert main(["replay", str(rec), "--report", str(report), "-q"]) == 1
     return rec, report
