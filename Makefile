@@ -84,6 +84,7 @@ bench: test-setup
 	$(BIN)/python benchmarks/bench_view.py
 	$(BIN)/python benchmarks/bench_convert.py
 	$(BIN)/python benchmarks/bench_convert.py --what rgb
+	$(BIN)/python benchmarks/bench_training.py
 
 # LeRobot's own dataset loader (lerobot 0.4.4) in a venv of its own, for the tests that read `simreel export --to
 # lerobot` with it (they are skipped without it): lerobot pins a torch and a rerun-sdk simreel's venv cannot hold.

@@ -13,14 +13,13 @@ the conversion is expected to fall behind), next to the defaults.
 
 from __future__ import annotations
 
-import argparse
 import shutil
 import sys
 import tempfile
-import warnings
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from demo_files import demo_arguments, demo_recorder
+
 TASKS = {"PickCube-v1": "pick", "StackCube-v1": "smooth", "PegInsertionSide-v1": "smooth",
          "SimreelHeteroDrawer-v1": "smooth"}
 MODES = ("pd_joint_delta_pos", "pd_ee_delta_pose")
@@ -39,13 +38,8 @@ def _group(key: str) -> str | None:
 
 
 def main() -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--episodes", type=int, default=8)
-    p.add_argument("--steps", type=int, default=60)
-    args = p.parse_args()
-    sys.path.insert(0, str(REPO / "tests"))
-    warnings.filterwarnings("ignore")
-    from support.maniskill_files import record_maniskill
+    args = demo_arguments(__doc__, episodes=8, steps=60)
+    record_maniskill = demo_recorder()
 
     import simreel.tasks  # noqa: F401  (registers SimreelHeteroDrawer-v1 for ManiSkill's gym.make)
     from simreel.replay.convert.convert import convert_recording

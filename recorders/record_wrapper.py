@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +38,9 @@ from simreel.recorders.reset_args import (
     draws_from_generators,
     envs_to_reset,
     episode_seeds,
+    remade_by_replay,
     reset_options,
+    unseeded_warning,
 )
 from simreel.recorders.scene_book import SceneBook
 from simreel.recorders.scene_drawing import SceneDrawing
@@ -125,6 +128,11 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """Whether blocks go to the writer process with their captures unconverted (`StepBuffer.take`): it converts
         them while the env steps on."""
         self._next_index = 0
+        self.unseeded = 0
+        """Episodes begun by a reset without a seed (an RL loop's), so far."""
+        self.unseeded_remade = 0
+        """Of those, the episodes whose reset a replay remakes exactly (their random generators' states captured)."""
+        self._warned_unseeded = False
         self._scenes = SceneBook(u, self.meta)
         self._drawing = SceneDrawing(self._writer, u, enabled=writes_scene(path))
         self._drawing.send(range(self._n))
@@ -168,7 +176,9 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if reconfigured:
             self._scenes.rebuilt(range(self._n))
             self._drawing.send(range(self._n))
-        for i, seed_i in zip(idxs, episode_seeds(self._u, seed, idxs), strict=True):
+        seeds = episode_seeds(self._u, seed, idxs)
+        self._note_unseeded(seeds, generators)
+        for i, seed_i in zip(idxs, seeds, strict=True):
             scene = self._scenes.begin(i, self._next_index, reconfigured, seed_i)
             meta = EpisodeMeta(index=self._next_index, seed=seed_i, reset_options=stored_options, env_idx=i,
                                reconfigured=reconfigured, **scene._asdict(),
@@ -176,6 +186,19 @@ class RecordWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._start(i, meta, StepBlock({k: a[i : i + 1] for k, a in reset_rows.items()}, 1, captured))
         self._settle()
         return obs, info
+
+    def _note_unseeded(self, seeds: list[int | None], generators: dict[str, str]) -> None:
+        """Count the episodes this reset began without a seed (`unseeded`) and those a replay remakes (their
+        generators captured: `unseeded_remade`); warn once when a replay cannot remake them."""
+        count = sum(s is None for s in seeds)
+        if not count:
+            return
+        self.unseeded += count
+        if remade_by_replay(self._u, generators):
+            self.unseeded_remade += count
+        elif not self._warned_unseeded:
+            self._warned_unseeded = True
+            warnings.warn(unseeded_warning(self._u), stacklevel=3)
 
     def _settle(self) -> None:
         """Wait until the writer has committed the episodes this reset ended (a writer process commits them while the

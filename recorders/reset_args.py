@@ -97,6 +97,24 @@ def draws_from_generators(u: Any, seed: Any) -> bool:
     return seed is None and int(u.num_envs) == 1 and not getattr(u, "_enhanced_determinism", False)
 
 
+def remade_by_replay(u: Any, generators: dict[str, str]) -> bool:
+    """Whether a replay remakes the reset of an unseeded episode of ManiSkill env `u`, whose reset consumed
+    `generators` (`simreel.sim.generators.consumed_generators`): on the CPU sim with one env, with their states
+    captured (measured exact). Not with several envs (one draw serves them all; none is captured), and not taken to
+    on the GPU sim (its results are deterministic only for the same batch, and its exactness from captured states
+    was not measured); a replay then starts from the recorded initial state."""
+    return bool(generators) and int(u.num_envs) == 1 and not bool(getattr(u, "gpu_sim_enabled", False))
+
+
+def unseeded_warning(u: Any) -> str:
+    """What the recorder says, once, at the first unseeded reset of `u` that no replay remakes."""
+    where = f"{int(u.num_envs)} envs" if int(u.num_envs) > 1 else "the GPU sim"
+    return (f"simreel: reset() without a seed on {where}: a replay cannot remake these resets (their random draws "
+            "are not captured), so it starts each such episode from its recorded initial state, which the state "
+            "dict holds only in part (PhysX keeps more): expect within_tolerance at best, not exact. Give "
+            "reset(seed=...) one seed per env to make them exact (`simreel inspect` counts them)")
+
+
 def _seed_list(seed: Any) -> list[Any] | None:
     """The seeds of `reset(seed=...)` given as a list, a tuple, an array or a tensor (one value each), or None for
     anything else, a single seed or not one at all."""

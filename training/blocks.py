@@ -15,7 +15,10 @@ from simreel.formats import open_reader
 from simreel.formats.base import EpisodeReader, EpisodeRows, block_rows
 from simreel.model.fields import FieldSpec
 
-__all__ = ["BlockCache"]
+__all__ = ["BlockCache", "OPEN_EPISODES"]
+
+OPEN_EPISODES = 16
+"""Episodes a process keeps open at once (the ones read last): memory stays flat however many the set holds."""
 
 
 class BlockCache:
@@ -34,7 +37,7 @@ class BlockCache:
         """Start with no reader open and no block kept, in this process."""
         self._pid = os.getpid()
         self._readers: dict[str, EpisodeReader] = {}
-        self._episodes: dict[tuple[str, int], EpisodeRows] = {}
+        self._episodes: OrderedDict[tuple[str, int], EpisodeRows] = OrderedDict()
         self._blocks: OrderedDict[tuple[str, int, int], dict[str, np.ndarray]] = OrderedDict()
         self._held = 0
 
@@ -42,11 +45,15 @@ class BlockCache:
         if os.getpid() != self._pid:  # a forked worker: its parent's handles are not its own
             self._no_handles()
         rows = self._episodes.get((path, index))
-        if rows is None:
-            reader = self._readers.get(path)
-            if reader is None:
-                reader = self._readers[path] = open_reader(path)
-            rows = self._episodes[(path, index)] = reader.open_episode(index)
+        if rows is not None:
+            self._episodes.move_to_end((path, index))
+            return rows
+        reader = self._readers.get(path)
+        if reader is None:
+            reader = self._readers[path] = open_reader(path)
+        rows = self._episodes[(path, index)] = reader.open_episode(index)
+        while len(self._episodes) > OPEN_EPISODES:  # each holds its datasets' handles and their chunk caches
+            self._episodes.popitem(last=False)
         return rows
 
     def block(self, path: str, index: int, number: int) -> dict[str, np.ndarray]:

@@ -1,4 +1,5 @@
-"""Log the scene: each body's geometry once (static), its pose per step through `send_columns`."""
+"""Log the scene: each body's geometry once (static; meshes compacted: `simreel.viewers.mesh_compaction`), its pose
+per step through `send_columns`."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 import rerun as rr
 
+from simreel.viewers.mesh_compaction import compact_mesh
 from simreel.viewers.paths import body_path
 from simreel.viewers.poses import wxyz_to_xyzw
 from simreel.viewers.scene_geometry import BodyGeometry, MeshPart, Primitive
@@ -79,6 +81,7 @@ def _log_primitives(rec: rr.RecordingStream, path: str, prims: list[Primitive], 
 
 
 def _log_meshes(rec: rr.RecordingStream, path: str, meshes: list[MeshPart], ghost: bool) -> None:
+    meshes = [compact_mesh(m) for m in meshes]
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])
     vertices = np.concatenate([m.vertices for m in meshes])
     triangles = np.concatenate([m.triangles + np.uint32(off) for m, off in zip(meshes, offsets[:-1], strict=True)])

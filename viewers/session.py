@@ -545,7 +545,7 @@ def states_by_stepping(unwrapped: Any, episode: Episode) -> None:
     `ViewError` for an episode without a seed: its reset cannot be reproduced, so those states would be another's."""
     import torch
 
-    if episode.meta.seed is None:
+    if episode.meta.seed is None or episode.meta.seed_unchecked:  # (an unchecked seed may be stale)
         raise ViewError(f"episode {episode.meta.index}: {UNSEEDED_WITHOUT_STATES}: its poses cannot be shown")
 
     rows = [read_state(unwrapped)]

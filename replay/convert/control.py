@@ -6,10 +6,19 @@ computed from where the robot is now, closed-loop, as ManiSkill's own converters
 (`mani_skill.trajectory.utils.actions.conversion`, whose per-step formulas are reused here):
 
     pd_joint_pos        -> pd_joint_delta_pos     delta = recorded joint target - current qpos, normalized
+    pd_joint_pos        -> pd_joint_target_delta_pos    delta = recorded joint target - the controller's kept
+                                                  joint target, normalized
     pd_joint_pos        -> pd_joint_vel           velocity = (recorded joint target - current qpos) x control rate
     pd_joint_pos        -> pd_ee_delta_pos/pose   the end-effector pose of the recorded joint target (forward
                                                   kinematics), as a delta from the current end-effector pose
+    pd_joint_pos        -> pd_ee_target_delta_pos/pose    the same pose, as a delta from the controller's kept
+                                                  end-effector target
     pd_joint_delta_pos  -> pd_joint_pos           current qpos + the recorded delta
+
+The target modes keep a target that each action moves (it accumulates, a clipped step included): their converters
+read it from the live controller before each step, so the next action makes up what a clipped one left out. A reset
+sets it to where the robot is; `bind` does so again (after a restored initial state the controller's target is
+still the reset's: ManiSkill's ``set_state_dict`` does not restore controllers).
 
 Unlike ManiSkill's converters, one recorded step gives exactly one converted step: where the target mode's
 action limits cannot reach the recorded target in one step, the action is clipped (as ManiSkill clips it)
@@ -31,7 +40,8 @@ from simreel.errors import UsageError
 __all__ = ["SUPPORTED", "ActionConverter", "ConvertedAction", "check_pair", "converter_for"]
 
 SUPPORTED: dict[str, tuple[str, ...]] = {
-    "pd_joint_pos": ("pd_joint_delta_pos", "pd_joint_vel", "pd_ee_delta_pos", "pd_ee_delta_pose"),
+    "pd_joint_pos": ("pd_joint_delta_pos", "pd_joint_target_delta_pos", "pd_joint_vel", "pd_ee_delta_pos",
+                     "pd_ee_delta_pose", "pd_ee_target_delta_pos", "pd_ee_target_delta_pose"),
     "pd_joint_delta_pos": ("pd_joint_pos",),
 }
 """Source control mode -> the target modes simreel converts it to."""
@@ -117,26 +127,32 @@ def _check_controllers(unwrapped: Any, source: Any, target: Any, modes: tuple[st
     if differ:
         raise UsageError(f"{robot}'s {', '.join(differ)} controllers differ between {modes[0]} and {modes[1]}: "
                          "their recorded actions cannot be copied")
-    if modes[1].startswith("pd_ee_") and getattr(unwrapped.agent, "tcp", None) is None:
+    tcp = getattr(unwrapped.agent, "tcp", None)
+    if modes[1].startswith("pd_ee_") and tcp is None:
         raise UsageError(f"{robot} has no tool-centre link (agent.tcp) to convert to {modes[1]}")
+    ee_link = getattr(now["arm"], "ee_link", None)
+    if modes[1].startswith("pd_ee_") and getattr(ee_link, "name", None) != tcp.name:
+        raise UsageError(f"{robot}'s {modes[1]} controller moves link {getattr(ee_link, 'name', '?')}, not the "
+                         f"tool-centre link {tcp.name} the conversion tracks")
 
 
 def _arm_fits(mode: str, config: Any) -> bool:
     """Whether an arm controller config is what `mode`'s converter computes for: joint positions, normalized joint
     velocities, normalized joint deltas from the current positions; end-effector deltas in the root frame, from the
-    current pose (not from a kept target: a mode that keeps one adds controller state the recording lacks)."""
-    use_delta, use_target = getattr(config, "use_delta", None), getattr(config, "use_target", None)
+    current pose, or from the kept target in the modes named ``*_target_*``."""
+    use_delta, use_target = getattr(config, "use_delta", None), bool(getattr(config, "use_target", None))
     normalized = getattr(config, "normalize_action", None)
+    keeps_target = "_target_" in mode
     if mode.startswith("pd_ee_"):
         frame = str(getattr(config, "frame", ""))
-        return bool(use_delta and not use_target and normalized and frame.startswith("root_translation"))
+        return bool(use_delta and use_target == keeps_target and normalized and frame.startswith("root_translation"))
     if not hasattr(config, "lower") or hasattr(config, "frame"):
         return False
     if mode == "pd_joint_vel":
         return use_delta is None and bool(normalized)
     if mode == "pd_joint_pos":
         return use_delta is False
-    return bool(use_delta and not use_target and normalized)
+    return bool(use_delta and use_target == keeps_target and normalized)
 
 
 def _clip(action: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -161,6 +177,19 @@ class _Converter:
         self.tcp = getattr(unwrapped.agent, "tcp", None)
         self.model = self.robot.create_pinocchio_model()
         self.arm_joints = self.arm.active_joint_indices.cpu().numpy()
+        self.fk_qpos: np.ndarray | None = None
+        """The robot's joint positions of the last tool pose computed (`_tool_pose`): the command check's."""
+        self.root_at_action: Any = None
+        """Where the end-effector controller's root link was when the last action was made (its target's frame)."""
+        if getattr(self.arm.config, "use_target", False):
+            self._reset_target()
+
+    def _reset_target(self) -> None:
+        """Set the arm's kept target to where the robot is, as a reset does."""
+        if hasattr(self.arm.config, "frame"):
+            self.arm._target_pose = self.arm.ee_pose_at_base
+        else:
+            self.arm._target_qpos = self.arm.qpos.clone()
 
     def _join(self, parts: dict[str, np.ndarray], arm: np.ndarray) -> np.ndarray:
         import torch
@@ -172,9 +201,11 @@ class _Converter:
     def _qpos(self) -> np.ndarray:
         return self.arm.qpos.cpu().numpy()[0].astype(np.float64)
 
-    def _tool_pose(self, arm_target: np.ndarray) -> Any:
-        """The world pose (sapien.Pose) of the tool-centre link with the arm's joints at `arm_target`."""
-        qpos = self.robot.get_qpos().cpu().numpy()[0].astype(np.float64)
+    def _tool_pose(self, arm_target: np.ndarray, robot_qpos: np.ndarray | None = None) -> Any:
+        """The world pose (sapien.Pose) of the tool-centre link with the arm's joints at `arm_target`, the robot's
+        other joints at `robot_qpos` (None: where they are now; kept in `fk_qpos` for the command check)."""
+        qpos = self.robot.get_qpos().cpu().numpy()[0].astype(np.float64) if robot_qpos is None else robot_qpos.copy()
+        self.fk_qpos = qpos.copy()
         qpos[self.arm_joints] = arm_target
         self.model.compute_forward_kinematics(qpos)
         return self.robot.pose.sp * self.model.get_link_pose(int(self.tcp.index.item()))
@@ -193,23 +224,25 @@ class _Converter:
         target = getattr(self.arm, "_target_pose", None)
         joints = getattr(self.arm, "_target_qpos", None)  # none for a velocity controller: no pose commanded
         if target is not None and hasattr(self.arm.config, "frame"):
-            pose = self.robot.pose.sp * target.sp
-        elif joints is not None:
-            pose = self._tool_pose(joints.cpu().numpy()[0])
+            root = self.arm.root_link.pose.sp if self.root_at_action is None else self.root_at_action
+            pose = root * target.sp  # the target in the frame the action was made in
+        elif joints is not None:  # the robot's other joints (a torso, a mobile base) where the wanted pose had them
+            pose = self._tool_pose(joints.cpu().numpy()[0], self.fk_qpos)
         else:
             return None
         return np.r_[pose.p, pose.q]
 
 
 class JointFromJointPos(_Converter):
-    """pd_joint_pos -> pd_joint_delta_pos or pd_joint_vel: ManiSkill's formula of the target mode (the recorded joint
-    target minus the current joint positions, or that difference times the control rate), normalized and
-    clipped."""
+    """pd_joint_pos -> pd_joint_delta_pos, pd_joint_target_delta_pos or pd_joint_vel: ManiSkill's formula of the
+    target mode (the recorded joint target minus the current joint positions or the controller's kept target, or the
+    first difference times the control rate), normalized and clipped."""
 
     def __call__(self, action: np.ndarray) -> ConvertedAction:
         from mani_skill.trajectory.utils.actions import conversion
 
         formula = {"pd_joint_delta_pos": conversion.qpos_to_pd_joint_delta_pos,
+                   "pd_joint_target_delta_pos": conversion.qpos_to_pd_joint_target_delta_pos,
                    "pd_joint_vel": conversion.qpos_to_pd_joint_vel}[self.target_mode]
         parts = self.source.to_action_dict(np.asarray(action))
         arm, clipped = _clip(np.asarray(formula(self.arm, parts["arm"]), np.float64))
@@ -231,13 +264,20 @@ class JointPosFromJointDelta(_Converter):
 
 
 class EePoseFromJointPos(_Converter):
-    """pd_joint_pos -> pd_ee_delta_pos / pd_ee_delta_pose: the tool-centre pose the recorded joint target puts
-    the arm in (forward kinematics of the robot's pinocchio model), as a delta from the current pose in the
-    controller's frame (ManiSkill's formula), clipped as ManiSkill clips it (position per axis, rotation by norm)."""
+    """pd_joint_pos -> pd_ee_delta_pos / pd_ee_delta_pose (and their ``target`` modes): the tool-centre pose the
+    recorded joint target puts the arm in (forward kinematics of the robot's pinocchio model), as a delta from the
+    current pose (or the controller's kept target pose) in the controller's frame (ManiSkill's formula), clipped as
+    ManiSkill clips it (position per axis, rotation by norm)."""
 
     def bind(self, unwrapped: Any) -> None:
         super().bind(unwrapped)
         self.pos_only = self.arm.config.frame == "root_translation"
+        self.from_target = bool(self.arm.config.use_target)
+
+    def _reference(self) -> Any:
+        """The pose (sapien.Pose, in the controller's root-link frame) a delta action moves from: the controller's
+        kept target, else the end effector's pose now."""
+        return (self.arm._target_pose if self.from_target else self.arm.ee_pose_at_base).sp
 
     def __call__(self, action: np.ndarray) -> ConvertedAction:
         parts = self.source.to_action_dict(np.asarray(action))
@@ -256,14 +296,17 @@ class EePoseFromJointPos(_Converter):
         before the current orientation, in the root frame) as the XYZ Euler angles the controller turns back into
         a rotation, divided by ``rot_lower`` as the controller multiplies by it (a negative bound: this is why
         ManiSkill's converter, which gives the axis-angle vector of ``now * target⁻¹``, turns the right way; its
-        vector is right to first order only: 1e-3 rad off at 0.05 rad per step, measured)."""
+        vector is right to first order only: 1e-3 rad off at 0.05 rad per step, measured). Both poses are taken in
+        the frame of the controller's root link (Fetch's torso, not its base), as the controller takes them."""
         import torch
         from mani_skill.utils.geometry.rotation_conversions import (
             matrix_to_euler_angles,
             quaternion_to_matrix,
         )
 
-        now = self.tcp.pose.sp
+        now = self._reference()
+        self.root_at_action = self.arm.root_link.pose.sp
+        target = self.root_at_action.inv() * target
         low = self.arm.action_space_low.cpu().numpy()[:3].astype(np.float64)
         high = self.arm.action_space_high.cpu().numpy()[:3].astype(np.float64)
         position = (np.asarray(target.p - now.p, np.float64) - 0.5 * (high + low)) / (0.5 * (high - low))

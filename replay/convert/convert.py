@@ -14,8 +14,8 @@ same trajectory: what `simreel convert IN OUT --obs-mode ... --control-mode ...`
   object poses, success timing), each episode getting its largest tracking errors, the first step one leaves
   its tolerance, and a verdict.
 
-Filters: `episodes`, `count` (the first N of those are converted), `keep` (``verified``, ``success``,
-``not_truncated``: which of the converted episodes are written). The output's metadata says where it came from (`RecordingMeta.provenance`: source file,
+Filters: `episodes`, `count` (the first N of those are converted), `keep` (which of the converted episodes are
+written: ``verified`` ones by default, also ``success``/``not_truncated`` ones if asked, or ``all``). The output's metadata says where it came from (`RecordingMeta.provenance`: source file,
 episodes, the conversion, the tolerances) and each episode's verdict (`EpisodeMeta.provenance`). Episodes run in
 this process and ``workers - 1`` more (`simreel.replay.run.workers.run_pool`).
 
@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -107,7 +108,7 @@ class ConvertJob:
     trust_imports: bool = False
     """``--trust-recorded-imports``: the input's recorded imports may be imported (`resolve_task_imports`)."""
     converter: Callable[..., Any] | None = None
-    keep: tuple[str, ...] = ()
+    keep: tuple[str, ...] = ("verified",)
     output: ReplayOutput | None = None
     """The output's spec (path, metadata changes): what a scratch episode is written as."""
     scratch: str | None = None
@@ -197,7 +198,17 @@ class ConvertWorker:
                 "control_mode": u.control_mode,
                 "action_space": action_space_json(self.meta.env_id, u.single_action_space),
                 "env_kwargs": {**self.meta.env_kwargs, **self.job.env_kwargs},
-                "scene_fingerprint": with_controllers(self.meta.scene_fingerprint, u)}
+                "scene_fingerprint": with_controllers(self.meta.scene_fingerprint, u),
+                **self._layout_change(u)}
+
+    def _layout_change(self, unwrapped: Any) -> dict[str, Any]:
+        """The output's state layout when its controller keeps state the input's lacks (a target mode's target)."""
+        from simreel.sim.state import live_layout
+
+        if self.job.control_mode is None or not self.meta.state_layout:
+            return {}
+        live = live_layout(unwrapped)
+        return {"state_layout": live} if set(live) != set(self.meta.state_layout) else {}
 
     def run(self, item: WorkItem) -> ConvertResult:
         """Convert and check episode `item.index` of this worker's file; a `SimreelError` comes back in the result."""
@@ -455,14 +466,14 @@ class ConversionReport:
 
     @property
     def ok(self) -> bool:
-        """Every written episode verified, something written, and the written file checked."""
-        bad = {e.index for e in self.episodes if not e.ok}
-        return bool(self.written) and not bad & set(self.written) and not self.written_mismatch
+        """Every converted episode verified (written or left out), something written, and the written file
+        checked."""
+        return bool(self.written) and all(e.ok for e in self.episodes) and not self.written_mismatch
 
     def to_json(self) -> dict[str, Any]:
         return {"ok": self.ok, "path": self.path, "output": self.output, "env_id": self.env_id,
                 "conversion": self.conversion, "tolerances": self.tolerances, "warnings": self.warnings,
-                "limits": self.limits, "written": self.written, "dropped": {str(k): v for k, v in self.dropped.items()},
+                "limits": self.limits, "written": self.written, "left_out": len(self.dropped), "dropped": {str(k): v for k, v in self.dropped.items()},
                 "written_check": self.written_check, "written_mismatch": self.written_mismatch,
                 "episodes": [e.to_json() for e in self.episodes]}
 
@@ -492,10 +503,18 @@ class ConversionReport:
         if self.written_check:
             lines.append(f"written: {self.written_check}")
         n_ok = sum(e.ok and e.index not in self.written_mismatch for e in self.episodes)
-        dropped = f"; {len(self.dropped)} left out by --keep" if self.dropped else ""
         lines.append(f"{n_ok} of {len(self.episodes)} episode(s) verified; {len(self.written)} written to {self.output}"
-                     + dropped)
+                     + self._left_out_text())
         return "\n".join(lines)
+
+    def _left_out_text(self) -> str:
+        """``; 3 left out (2 not verified, 1 no success at its last step)``: how many `keep` left out, and why."""
+        if not self.dropped:
+            return ""
+        why = Counter(reason.split(" (")[0] for reason in self.dropped.values())
+        hint = "; --keep all writes them" if "not verified" in why else ""
+        return (f"; {len(self.dropped)} left out by --keep ({', '.join(f'{n} {w}' for w, n in why.items())}"
+                f"{hint})")
 
 
 def describe(conversion: Mapping[str, Any]) -> str:
@@ -751,7 +770,9 @@ def _left_out(report: EpisodeReport, last: tuple[bool | None, bool | None], keep
     """Why `keep` leaves the episode out ("" to write it), given (success, truncated) at its last step
     (`_last_flags`)."""
     success, truncated = last
-    if "verified" in keep and not report.ok:
+    if "all" in keep:
+        return ""
+    if not report.ok:
         return f"not verified ({report.verdict})"
     if "success" in keep and not success:
         return "no success at its last step"

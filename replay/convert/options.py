@@ -27,8 +27,9 @@ from simreel.verdicts.options import TOL, parse_group_tolerance
 
 __all__ = ["ConvertOptions", "KEEP", "TRACKING_GROUPS"]
 
-KEEP = ("verified", "success", "not_truncated")
-"""What `ConvertOptions.keep` may ask of an episode for it to be written."""
+KEEP = ("verified", "success", "not_truncated", "all")
+"""What `ConvertOptions.keep` may ask of an episode for it to be written: ``verified`` always (the default), with
+``success`` and/or ``not_truncated`` too; ``all`` alone writes every converted episode, verified or not."""
 TRACKING_GROUPS = ("cmd_pos", "cmd_rot", "ee_pos", "ee_rot", "obj_pos", "obj_rot", "obj_qpos", "success")
 """The tracking tolerance groups of a control-mode conversion (`simreel.replay.convert.tracking`)."""
 
@@ -73,7 +74,8 @@ class ConvertOptions:
         check=text('an observation mode as a string, e.g. "rgb", or None (the recorded one)', optional=True))
     control_mode: str | None = option(
         None, help="convert the actions to this control mode: from pd_joint_pos to pd_joint_delta_pos, "
-                   "pd_ee_delta_pos or pd_ee_delta_pose; from pd_joint_delta_pos to pd_joint_pos",
+                   "pd_joint_target_delta_pos, pd_joint_vel, pd_ee_delta_pos, pd_ee_delta_pose, pd_ee_target_delta_pos "
+                   "or pd_ee_target_delta_pose; from pd_joint_delta_pos to pd_joint_pos",
         check=text('a control mode as a string, e.g. "pd_ee_delta_pose", or None (the recorded one)', optional=True))
     camera_size: tuple[int, int] | None = option(None, metavar="WxH", parse=parse_size,
                                                  help="size of every sensor camera", check=_camera_size)
@@ -90,9 +92,10 @@ class ConvertOptions:
              "converted, at most N written)",
         check=whole("the number of episodes to convert, an int >= 1, or None (all of them)", optional=True))
     keep: tuple[str, ...] = option(
-        (), metavar="WHAT", parse=_keep_text, action=GivenOnce, check=_keep,
-        help="write only episodes that are all of (comma-separated): verified (their check passed), success (at their "
-             "last step), not_truncated (they did not end at the time limit)")
+        ("verified",), metavar="WHAT", parse=_keep_text, action=GivenOnce, check=_keep,
+        help="which converted episodes are written: verified (their check passed; the default), and also (comma-"
+             "separated) success (at their last step), not_truncated (they did not end at the time limit); or all "
+             "(every converted episode, verified or not)")
     group_tolerances: Mapping[str, float] = option(
         default_factory=dict, spec=TOL, parse=_tracking_tolerance,
         help="tracking tolerance of a control-mode conversion, repeatable; groups: cmd_pos (m), cmd_rot (rad), ee_pos "
@@ -135,6 +138,8 @@ class ConvertOptions:
         unknown = sorted(set(self.keep) - set(KEEP))
         if unknown:
             raise UsageError(f"--keep {','.join(unknown)}: expected any of {', '.join(KEEP)}")
+        if "all" in self.keep and len(set(self.keep)) > 1:
+            raise UsageError(f"--keep {','.join(self.keep)}: all writes every converted episode; give it alone")
         if self.workers < 1 or (self.count is not None and self.count < 1):
             raise UsageError(f"--workers and --count must be >= 1 (got {self.workers}, {self.count})")
         if self.block_rows is not None and self.block_rows < 1:

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from simreel.formats.base import EpisodeRows
+from simreel.model.blocks import StepBlock
 from simreel.replay.run.engine import (
     BlockSink,
     EpisodeReplayer,
@@ -42,7 +43,7 @@ class ConvertingReplayer(EpisodeReplayer):
 
         start = time.perf_counter()
         done = self.reset_for(source.meta)
-        self._check_layout()
+        self._check_converted_layout()
         recorded = source.reset()
         unseeded = self._start_unseeded(source, recorded)
         converter.bind(self.u)
@@ -75,6 +76,27 @@ class ConvertingReplayer(EpisodeReplayer):
         out.seconds = time.perf_counter() - start
         return out
 
+
+    def _check_converted_layout(self) -> None:
+        """The rebuilt env's state layout is the recording's, but for the state of a controller that keeps a target
+        (the target control mode's, which the recorded one lacks)."""
+        from simreel.sim.state import check_rebuilt_layout
+
+        if not self._layout_checked and self.meta.state_layout:
+            check_rebuilt_layout(self.u, self.meta.env_id, self.meta.state_layout, new_controller_state=True)
+            self._layout_checked = True
+
+    def _block(self, recorded: StepBlock, actions: np.ndarray | None = None) -> Any:
+        """The engine's buffers, and the state of a controller the recorded control mode lacks (a target mode's
+        target): the converted run's states hold it, as a recording in that mode does."""
+        from simreel.sim.state import live_layout
+
+        buf = super()._block(recorded, actions)
+        if self.meta.state_layout and any(n.startswith("env_states/") for n in recorded.arrays):
+            for key, spec in live_layout(self.u).items():
+                if key not in self.meta.state_layout and key.startswith("controller/"):
+                    buf.env_states[key] = np.zeros((buf.rows, *spec.shape), spec.dtype)
+        return buf
 
 
 def _put(rows: np.ndarray, *values: np.ndarray | None) -> None:

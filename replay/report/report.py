@@ -18,7 +18,7 @@ from simreel.verdicts.compare import Divergence, EpisodeComparison, worst_keys
 from simreel.verdicts.divergence import Explanation
 from simreel.verdicts.report_file import REPORT_VERDICTS, VERIFIED
 
-__all__ = ["EpisodeReport", "VERIFIED", "VERDICTS", "CHECK_ORDER", "WITH_ENV_STATES", "checked_groups", "recording_limits",
+__all__ = ["EpisodeReport", "HistoryEntry", "VERIFIED", "VERDICTS", "CHECK_ORDER", "WITH_ENV_STATES", "checked_groups", "recording_limits",
            "only_flags_problem", "episode_lines"]
 
 VERDICTS = REPORT_VERDICTS
@@ -80,6 +80,28 @@ def checked_groups(keys: list[str]) -> list[str]:
     return [g for g in CHECK_ORDER if g in groups]
 
 
+@dataclass(frozen=True)
+class HistoryEntry:
+    """What an actions replay ran before an episode to give its scene the history it had when recorded (PhysX's CPU
+    results depend on it, `simreel.verdicts.scene_history`): `episodes` predecessors, `steps` steps of them (one:
+    only the last step of the one right before it, from its recorded state), and `why`."""
+
+    episodes: int
+    steps: int
+    why: str
+
+    def describe(self) -> str:
+        """The console's ``history:`` line."""
+        return f"{self.episodes} predecessor episode(s), {self.steps} step(s) replayed: {self.why}"
+
+    def to_json(self) -> dict[str, Any]:
+        return {"episodes": self.episodes, "steps": self.steps, "why": self.why}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> HistoryEntry:
+        return cls(int(d["episodes"]), int(d["steps"]), str(d["why"]))
+
+
 @dataclass
 class EpisodeReport:
     """The verdict on one episode's replay."""
@@ -109,6 +131,8 @@ class EpisodeReport:
     compared, the recording has none)."""
     explanation: Explanation | None = None
     """Why it diverged (`simreel.replay.explain.explain`); None unless the verdict is ``diverged``."""
+    history: HistoryEntry | None = None
+    """What was replayed before it for its scene's history (None: not an actions replay of a file's episode)."""
 
     @classmethod
     def from_comparison(cls, recorded: Episode | EpisodeRows, cmp: EpisodeComparison, *, notes: list[str],
@@ -172,6 +196,8 @@ class EpisodeReport:
             out["scene_differences"] = [d.to_json() for d in self.scene_differences]
         if self.explanation is not None:
             out["explanation"] = self.explanation.to_json()
+        if self.history is not None:
+            out["history"] = self.history.to_json()
         return out
 
     def verification(self) -> dict[str, Any]:
@@ -195,6 +221,7 @@ class EpisodeReport:
             per_step={k: [float(x) for x in v] for k, v in d.get("per_step", {}).items()},
             scene_differences=_scene_differences(d.get("scene_differences")),
             explanation=None if d.get("explanation") is None else Explanation.from_json(d["explanation"]),
+            history=None if d.get("history") is None else HistoryEntry.from_json(d["history"]),
         )
 
 
@@ -219,5 +246,7 @@ def episode_lines(e: EpisodeReport) -> list[str]:
             lines.append(f"{pad} {len(e.diverged_keys)} keys left their tolerance; worst: " + ", ".join(also[:3]))
     if e.explanation is not None:
         lines += [f"{pad} {line}" for line in e.explanation.lines()]
+    if e.history is not None and e.history.episodes:
+        lines.append(f"{pad} history: {e.history.describe()}")
     lines += [f"{pad} note: {note}" for note in (e.notes if e.verdict != "exact" else e.limits)]  # always: unchecked
     return lines

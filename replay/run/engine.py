@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import gc
 import time
 import warnings
 from collections.abc import Iterator
@@ -262,10 +263,11 @@ class EpisodeReplayer:
             return env_from_meta(self.meta, render_backend=render, **overrides)
 
         try:
-            if self._render_backend is not None:
-                return build(self._render_backend)
-            default = "none" if camera_use(self.obs_mode) is None else "auto"
-            return build_with_render_fallback(build, default)[0]
+            with _older_objects_unscanned():
+                if self._render_backend is not None:
+                    return build(self._render_backend)
+                default = "none" if camera_use(self.obs_mode) is None else "auto"
+                return build_with_render_fallback(build, default)[0]
         except EnvBuildError as exc:
             if self._sim_backend is None and self.meta.sim_backend in GPU_SIM_BACKENDS and not _has_cuda():
                 raise ReplayError(
@@ -288,7 +290,8 @@ class EpisodeReplayer:
                 other.close()
         self._in_modes.clear()
         if self.env is not None:
-            self.env.close()
+            with _older_objects_unscanned():
+                self.env.close()
             self.env = None
 
     def same_size_control_modes(self) -> list[str]:
@@ -459,12 +462,14 @@ class EpisodeReplayer:
         says so, and why (none for a seeded episode, or a remade reset). `RecordingFileError` where the recording
         holds no states to start from: where the episode began is then unknown, and stepping from another start would
         judge another trajectory."""
-        if source.meta.seed is not None:
+        if source.meta.seed is not None and not source.meta.seed_unchecked:
             return []
         row = _States(recorded).row(0)
         if not row:
             raise RecordingFileError(getattr(source, "path", None) or "the recording",
                                      f"episode {source.meta.index}: {UNSEEDED_WITHOUT_STATES}: it cannot be replayed")
+        if source.meta.seed_unchecked:
+            return self._check_seed(source.meta.seed, row)
         if source.meta.reset_generators:
             differing = _differing_leaves(row, self._state())
             if not differing:
@@ -476,6 +481,18 @@ class EpisodeReplayer:
         return [f"the reset from the recorded generator states did not remake the recorded initial state "
                 f"({', '.join(differing[:3])} differ: the reset drew from something else too, or another engine "
                 "replays it)", *restored]
+
+    def _check_seed(self, seed: int | None, row: dict[str, np.ndarray]) -> list[str]:
+        """Start an episode whose `seed` may be stale (``EpisodeMeta.seed_unchecked``), reset with it, where it began:
+        a reset that remade the recorded initial state (`row`) bit for bit is kept; else that state is restored, and
+        the limits say so, naming the stale seed."""
+        differing = _differing_leaves(row, self._state())
+        if not differing:
+            return []
+        restore_state(self.u, row, elapsed_steps=0)
+        return [f"stale seed: a reset with episode_seed {seed} did not remake the recorded initial state "
+                f"({', '.join(differing[:3])} differ: the episode was reset without a seed)",
+                "actions replayed from the recorded initial state"]
 
     def _replay(self, run: _Run) -> ReplayedEpisode:
         meta = run.source.meta
@@ -504,7 +521,7 @@ class EpisodeReplayer:
         states = run.states = _States(recorded)
         if run.mode == "states":
             restore_state(self.u, states.row(0), elapsed_steps=0)
-        elif run.mode == "actions" and source.meta.seed is None:
+        elif run.mode == "actions" and (source.meta.seed is None or source.meta.seed_unchecked):
             limits = self._start_unseeded(source, recorded)
             out.limits += limits
             if limits:
@@ -635,6 +652,19 @@ class EpisodeReplayer:
         limit = self.max_episode_steps
         truncated = limit is not None and self.u._elapsed_steps[0].item() >= limit
         return obs, reward, terminated, truncated, info
+
+
+@contextlib.contextmanager
+def _older_objects_unscanned() -> Iterator[None]:
+    """ManiSkill collects garbage (``gc.collect()``) as it builds and as it clears a scene: 0.2 s each in a process
+    holding torch and a replay's objects, two thirds of the time to verify one short episode. In the block the objects
+    alive before it are out of the collector's sight (``gc.freeze``), and back in it after: garbage among them is
+    collected later, as any is."""
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 @contextlib.contextmanager

@@ -24,13 +24,13 @@ from simreel.errors import EPISODE_DATA_ERRORS, RecordingFileError
 from simreel.formats import EpisodeReader
 from simreel.model.fields import field_group
 from simreel.model.meta import EpisodeMeta
-from simreel.replay.report.report import EpisodeReport
+from simreel.replay.report.report import EpisodeReport, HistoryEntry
 from simreel.replay.run.engine import SceneBefore
 from simreel.replay.run.worklist import WorkItem
 from simreel.verdicts.scene_history import SceneChains, recorded_scene
 
-__all__ = ["describe_history", "describe_missing_history", "describe_missing_step_before", "describe_unreadable_history",
-           "SHIPPED_HISTORY", "SceneRun", "ReplayedHistory", "restoring_history", "has_history", "StepBefore",
+__all__ = ["describe_history", "last_step_history", "whole_history_after", "describe_missing_history", "describe_missing_step_before", "describe_unreadable_history",
+           "SHIPPED_HISTORY", "span", "SceneRun", "ReplayedHistory", "restoring_history", "has_history", "StepBefore",
            "step_before"]
 
 _MAY_DIVERGE = "PhysX results depend on the scene's history: a divergence may come from that alone"
@@ -42,8 +42,23 @@ SHIPPED_HISTORY = ("replayed without the episodes that ran before it in the reco
 def describe_history(index: int, history: Sequence[int], replayed: Sequence[int]) -> str:
     """The note of episode `index`, replayed after its recorded predecessors `history`, of which `replayed` were
     replayed just for that (actions only: not verified)."""
-    return (f"episode {index} replayed after its recorded predecessor(s) {_span(history)} (PhysX results depend on "
-            f"the scene's history); {_span(replayed)} replayed for that, not verified")
+    return (f"episode {index} replayed after its recorded predecessor(s) {span(history)} (PhysX results depend on "
+            f"the scene's history); {span(replayed)} replayed for that, not verified")
+
+
+def last_step_history(previous: int, predecessors: int) -> str:
+    """Why a replay ran only the last step of episode `previous` (one of `predecessors`) before an episode."""
+    return (f"only the last step of episode {previous}, from its recorded state, on a scene just built, in place of its "
+            f"{predecessors} predecessor(s): PhysX results depend on the scene's history, and the episode replayed "
+            "exact after that step alone (else its whole history would have been replayed)")
+
+
+def whole_history_after(previous: int, verdict: str, first: str | None) -> str:
+    """Why a replay ran an episode's whole history after trying only the last step of episode `previous`, after
+    which the episode replayed `verdict` (`first`: where it first differed)."""
+    where = f" ({first})" if first else ""
+    return (f"its whole history: replayed after only the last step of episode {previous} (from its recorded state), "
+            f"it was {verdict}{where}, not exact")
 
 
 def describe_missing_history(episode: EpisodeMeta, ran_before: int | None, recording_id: str) -> str:
@@ -80,7 +95,7 @@ def describe_missing_step_before(why: str) -> str:
             f"the one its recorder's scene ran before it ({why}): contact-based values there (is_grasped) may differ")
 
 
-def _span(indices: Sequence[int]) -> str:
+def span(indices: Sequence[int]) -> str:
     """``0–4`` for consecutive episode indices, else ``0, 2, 5``."""
     if len(indices) > 1 and list(indices) == list(range(indices[0], indices[-1] + 1)):
         return f"{indices[0]}–{indices[-1]}"
@@ -97,11 +112,15 @@ class SceneRun:
     path: str | None = None
     chain: str | None = None
     ran: int = 0
+    short: bool = False
+    """Its history was only the last step of one episode (`last_step_history`): the next episode of the chain is then
+    kept only if it replays exact, else replayed again after its whole history."""
 
     @classmethod
-    def after(cls, path: str, chains: SceneChains, index: int) -> SceneRun:
-        """The scene that ran episode `index` of the file at `path` last, after its history."""
-        return cls(path, chains.key[index], (chains.ran_before[index] or 0) + 1)
+    def after(cls, path: str, chains: SceneChains, index: int, *, short: bool = False) -> SceneRun:
+        """The scene that ran episode `index` of the file at `path` last, after its history (`short`: only the last
+        step of its predecessor)."""
+        return cls(path, chains.key[index], (chains.ran_before[index] or 0) + 1, short)
 
     def ran_of(self, path: str, chains: SceneChains, index: int) -> int | None:
         """How many episodes of episode `index`'s history (in the file at `path`) this scene has run already; None
@@ -124,7 +143,15 @@ class ReplayedHistory:
     """Why its history could not be replayed (it is then replayed without), for its report's limits; in a restoring
     mode, why the step before its reset could not be re-run."""
     before: SceneBefore | None = None
-    """In a restoring mode, the step before its reset, which its replay re-runs first (`step_before`)."""
+    """The step before its reset, which its replay re-runs first (`step_before`): in a restoring mode; in mode
+    ``actions`` where only that step is replayed of its history (`short`)."""
+    steps: int = 0
+    """The predecessors' steps replayed for it just now."""
+    why: str = ""
+    """Why that much (`HistoryEntry.why`; empty: the scene had run its history, or it has none)."""
+    short: bool = False
+    """Mode ``actions``: only the last step of the episode before is replayed (`before`) on a rebuilt scene, or the
+    scene's history came from such a step; the replay is kept only if it is exact."""
 
     def tell(self, report: EpisodeReport, index: int) -> None:
         """Add to episode `index`'s `report` what was replayed before it, or what could not be."""
@@ -133,6 +160,14 @@ class ReplayedHistory:
         if self.lost:
             report.notes.append(self.lost)
             report.limits.append(self.lost)
+
+    def entry(self, first_of_scene: bool) -> HistoryEntry:
+        """The report's `HistoryEntry` of an actions replay (`first_of_scene`: the episode's scene was just built when
+        recorded)."""
+        episodes = 1 if self.short and self.before is not None else len(self.replayed)
+        why = self.why or self.lost or ("the first episode of its scene" if first_of_scene else
+                                        "its scene had just run its predecessors (replayed before it in this run)")
+        return HistoryEntry(episodes, self.steps, why)
 
 
 def restoring_history(reader: EpisodeReader, chains: SceneChains, item: WorkItem,

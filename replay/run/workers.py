@@ -56,7 +56,11 @@ from simreel.replay.run.history import (
     describe_missing_step_before,
     describe_unreadable_history,
     has_history,
+    last_step_history,
     restoring_history,
+    span,
+    step_before,
+    whole_history_after,
 )
 from simreel.replay.run.output import (
     EpisodeStream,
@@ -155,6 +159,8 @@ class VerifySink(BlockSink):
                  then: BlockSink | None) -> None:
         self._args = (tolerances, channels, scope)
         self.then = then
+        self.explain = True
+        """Whether a divergence is explained (`ReplayWorker._report`)."""
         self.start()
 
     def start(self) -> None:
@@ -236,12 +242,20 @@ class ReplayWorker:
             scene, self._scene = self._scene, None  # unknown until the replay ends well
             history = self._replay_history(reader, replayer, item, scene, shipped=shipped is not None)
             report, replayed = self._replay(reader, replayer, item.index, history, self._ran_in(item, reader, history))
+            if report.verdict != "exact" and history.short:  # the short history was not enough: the whole one
+                history = self._whole_history(reader, replayer, item, whole_history_after(
+                    self._previous(reader, item), report.verdict, _first(report)))
+                report, replayed = self._replay(reader, replayer, item.index, history,
+                                                self._ran_in(item, reader, history))
         except SimreelError as e:
             return EpisodeResult(item, error=e, worker=where)
         restoring = self.job.mode in RESTORING_MODES  # (what it ran last counts, not what ran before it)
+        if not restoring:
+            report.history = history.entry(shipped is None and not self._chains_of(item.path, reader).ran_before.get(
+                item.index, 1))
         if report.explanation is None and shipped is None and (restoring or history.lost is None):
             chains = self._chains_of(item.path, reader)  # (an explanation steps again; a lost history ran none)
-            self._scene = SceneRun.after(item.path, chains, item.index)
+            self._scene = SceneRun.after(item.path, chains, item.index, short=history.short)
         episode, scratch = (None, replayed) if isinstance(replayed, Path) else (replayed, None)
         return EpisodeResult(item, report, episode, scratch=scratch, worker=where, history=history.replayed,
                              warnings=self._warnings(item.path, reader, replayer))
@@ -249,11 +263,14 @@ class ReplayWorker:
     def _replay_history(self, reader: EpisodeReader, replayer: EpisodeReplayer, item: WorkItem,
                         scene: SceneRun | None, *, shipped: bool) -> ReplayedHistory:
         """In mode ``actions``, give `replayer`'s scene (which ran `scene`) the history episode `item.index` had
-        when recorded (`simreel.verdicts.scene_history.SceneChains`): replay the predecessors it lacks (actions only,
-        nothing compared or written), after rebuilding the scene when it ran anything else. The other modes
-        restore recorded states: no history is replayed, only the step before the reset (`_step_before`). Where the
-        history cannot be replayed (a `shipped` episode comes without its file; a predecessor's data is damaged)
-        the episode is replayed on a rebuilt scene without it, and its report says so."""
+        when recorded (`simreel.verdicts.scene_history.SceneChains`). Where it lacks more than one predecessor, only the
+        last step of the one right before is replayed, from its recorded state, on a rebuilt scene (`_last_step`):
+        a reset keeps of the scene's history what that step leaves, and the episode is kept if it then replays
+        exact; `run` replays the whole history where it does not. Else the predecessors it lacks are replayed
+        (actions only, nothing compared or written), after rebuilding the scene when it ran anything else. The other
+        modes restore recorded states: no history is replayed, only the step before the reset (`_step_before`).
+        Where the history cannot be replayed (a `shipped` episode comes without its file; a predecessor's data is
+        damaged) the episode is replayed on a rebuilt scene without it, and its report says so."""
         if self.job.mode in RESTORING_MODES:
             return self._step_before(reader, replayer, item, scene, shipped=shipped)
         episode = reader.episode_meta(item.index)
@@ -267,7 +284,39 @@ class ReplayWorker:
             return ReplayedHistory(lost=lost)
         done = scene.ran_of(item.path, chains, item.index) if scene is not None else None
         missing = chains.history(item.index, since=done or 0)
-        if done is None and not (missing or [episode])[0].reconfigured:
+        if len(missing) > 1:
+            fresh = scene is not None and not scene.ran  # (fresh from gym.make: no rebuild needed)
+            short = self._last_step(reader, replayer, chains, item.index, fresh=fresh)
+            if short is not None:
+                return short
+        elif not missing and scene is not None and scene.short:  # (its scene's history was a last step too)
+            return ReplayedHistory(short=True)
+        return self._replay_missing(reader, replayer, chains, item, done)
+
+    def _last_step(self, reader: EpisodeReader, replayer: EpisodeReplayer, chains: SceneChains,
+                   index: int, *, fresh: bool) -> ReplayedHistory | None:
+        """The history of episode `index` as the last step of the episode right before it (`step_before`), re-run on a
+        rebuilt scene (unless `fresh`: one that ran nothing since it was built) from its recorded state before the
+        episode's reset; None where that step cannot be had."""
+        found = step_before(reader, chains, index, None)
+        if found.run is None or found.run.episode is None:
+            return None
+        if not fresh:
+            replayer.forget_scene()
+        why = last_step_history(found.run.episode.index, chains.ran_before[index] or 0)
+        return ReplayedHistory(before=found.run, steps=1, why=why, short=True)
+
+    def _whole_history(self, reader: EpisodeReader, replayer: EpisodeReplayer, item: WorkItem,
+                       why: str) -> ReplayedHistory:
+        """Episode `item.index`'s whole history, replayed on a rebuilt scene (`why`: for its report)."""
+        history = self._replay_missing(reader, replayer, self._chains_of(item.path, reader), item, None)
+        return dataclasses.replace(history, why=history.lost or why)
+
+    def _replay_missing(self, reader: EpisodeReader, replayer: EpisodeReplayer, chains: SceneChains, item: WorkItem,
+                        done: int | None) -> ReplayedHistory:
+        """Replay the predecessors of `item` from place `done` on (None: its whole history, on a rebuilt scene)."""
+        missing = chains.history(item.index, since=done or 0)
+        if done is None and not (missing or [reader.episode_meta(item.index)])[0].reconfigured:
             replayer.forget_scene()  # (a chain whose first reset rebuilt the scene rebuilds it itself)
         for ep in missing:
             try:
@@ -278,7 +327,14 @@ class ReplayWorker:
                 return ReplayedHistory(lost=describe_unreadable_history(ep.index, e))
         if not missing:
             return ReplayedHistory()
-        return ReplayedHistory([ep.index for ep in missing], [ep.index for ep in chains.history(item.index)])
+        replayed = [ep.index for ep in missing]
+        return ReplayedHistory(replayed, [ep.index for ep in chains.history(item.index)],
+                               steps=sum(ep.length for ep in missing),
+                               why=f"episode(s) {span(replayed)}, which its scene had not run")
+
+    def _previous(self, reader: EpisodeReader, item: WorkItem) -> int:
+        previous = self._chains_of(item.path, reader).previous(item.index)
+        return previous.index if previous is not None else item.index - 1
 
     def _step_before(self, reader: EpisodeReader, replayer: EpisodeReplayer, item: WorkItem, scene: SceneRun | None,
                      *, shipped: bool) -> ReplayedHistory:
@@ -336,21 +392,26 @@ class ReplayWorker:
         source = reader.open_episode(index)
         scope = CompareScope(initial=source.meta.initial_state_known,
                              obs=job.obs_mode is None or job.obs_mode == reader.meta.obs_mode)
-        stream = self._stream(reader.meta, source.meta)
+        stream = self._stream(reader.meta, source.meta, direct=not history.short)
         kept = Collected() if job.output is not None and stream is None else None
         written: BlockSink | None = stream or kept
         if written is not None and job.mode == "states":
             written = RecordedContacts(written)
         verify = VerifySink(job.tolerances, reader.meta.contact_channels, scope, written)
+        verify.explain = not history.short
         try:
             replayer.rerun_step_before(history.before)
             replayed = replayer.replay_rows(source, verify, mode=job.mode, resync=job.resync, rows=job.block_rows)
-            report = self._report(reader, replayer, source, replayed, verify.comparison)
+            report = self._report(reader, replayer, source, replayed, verify)
             history.tell(report, index)
         except BaseException:
             if stream is not None:
                 stream.discard()
             raise
+        if history.short and report.verdict != "exact":  # `run` replays it again, after its whole history
+            if stream is not None:
+                stream.discard()
+            return report, None
         if stream is not None:
             stream.commit(_replayed_meta(source.meta, report, ran_in), source.length)
         if kept is None:
@@ -358,25 +419,28 @@ class ReplayWorker:
         episode = kept.episode(source.meta)
         return report, dataclasses.replace(episode, meta=_replayed_meta(episode.meta, report, ran_in))
 
-    def _stream(self, meta: RecordingMeta, episode: EpisodeMeta) -> EpisodeStream | None:
+    def _stream(self, meta: RecordingMeta, episode: EpisodeMeta, *, direct: bool = True) -> EpisodeStream | None:
         """Where the replay of `episode` (of the recording with `meta`) is written as it comes: into `-o` when this
-        process writes it and the episode is next; else, given a scratch folder, into a scratch recording of its
-        own; else nowhere (None: without `-o`, or collected whole)."""
+        process writes it, the episode is next and the replay is no attempt that may be dropped (`direct`: an output
+        never takes an episode index twice); else, given a scratch folder, into a scratch recording of its own; else
+        nowhere (None: without `-o`, or collected whole)."""
         job = self.job
-        stream = self.output.stream(episode) if self.output else None
+        stream = self.output.stream(episode) if self.output and direct else None
         if stream is None and job.output is not None and job.scratch is not None:
             spec = ReplayOutput(job.output, obs_mode=job.obs_mode, pose_bodies=output_pose_bodies(meta, job.output))
             stream = ScratchEpisode(Path(job.scratch), spec, meta, episode)
         return stream
 
     def _report(self, reader: EpisodeReader, replayer: EpisodeReplayer, source: EpisodeRows,
-                replayed: ReplayedEpisode, comparison: Callable[[], EpisodeComparison]) -> EpisodeReport:
+                replayed: ReplayedEpisode, verify: VerifySink) -> EpisodeReport:
+        """The report of `source`'s replay, judged by `verify`, explained where it diverged (not when it is only an
+        attempt after a short history, `ReplayedHistory.short`, which `run` replays again unless exact)."""
         meta = reader.meta
-        cmp = comparison()
+        cmp = verify.comparison()
         report = EpisodeReport.from_comparison(source, cmp, notes=replayed.notes, limits=replayed.limits,
                                                seconds=replayed.seconds)
         report.scene_differences = replayed.scene_differences
-        if cmp.first_divergence is not None:  # after the report's timing: explaining replays steps again
+        if cmp.first_divergence is not None and verify.explain:  # after the report's timing: explaining steps again
             from simreel.replay.run.fingerprint import fingerprint_differences
 
             ctx = ExplainContext(mode=self.job.mode, resync=self.job.resync, channels=list(meta.contact_channels),
@@ -642,3 +706,8 @@ def _main_is_a_script() -> bool:
 
     main = sys.modules.get("__main__")
     return bool(getattr(main, "__file__", None)) and getattr(getattr(main, "__spec__", None), "name", None) is None
+
+
+def _first(report: EpisodeReport) -> str | None:
+    """Where `report`'s replay first differed from its recording, in words (None: nowhere past its tolerance)."""
+    return report.first_divergence.describe() if report.first_divergence is not None else None

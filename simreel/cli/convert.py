@@ -1,7 +1,8 @@
 """`simreel convert`: copy a recording between HDF5 (.h5) and MCAP (.mcap), losslessly; or, with --obs-mode and/or
 --control-mode, convert it (re-render observations from the recorded states, convert actions to another control
-mode) and verify every episode step by step (`simreel.replay.convert.convert`). Exit 0 when every written episode
-verifies, 1 when one does not (or nothing was written), 2 on bad input."""
+mode) and verify every episode step by step (`simreel.replay.convert.convert`). Only verified episodes are
+written unless --keep all. Exit 0 when every converted episode verifies, 1 when one does not (written or left out)
+or nothing was written, 2 on bad input."""
 
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ def add_parser(sub: Any) -> None:
         "copied as they are, bit for bit, both ways (the copy is not read back: `simreel merge IN -o OUT` copies and "
         "checks every array). With --obs-mode and/or --control-mode, convert instead: observations are "
         "re-rendered from the recorded states, actions converted to the control mode and replayed from each reset, "
-        "and every episode is checked step by step against IN (exit 1 when one is not verified).",
+        "and every episode is checked step by step against IN: only verified ones are written unless --keep all "
+        "(exit 1 when one is not verified).",
     )
     p.add_argument("input", metavar="IN", help="recording to read (.h5 or .mcap; simreel's or ManiSkill's)")
     p.add_argument("output", metavar="OUT", help="file to write: .h5/.hdf5 or .mcap")

@@ -19,7 +19,8 @@ def add_parser(sub: Any) -> None:
         help="export recordings to a training format: a LeRobot dataset v3.0",
         description="Write the episodes of the recordings IN (files, folders, glob patterns) as a LeRobot dataset "
         "v3.0 in the folder OUT: parquet data files of many episodes each, at the env's control frequency, with "
-        "observation.state, action, next.reward, next.success, next.done and the index columns, meta/info.json "
+        "observation.state, action, next.reward, next.success, next.done and the index columns, each recorded camera "
+        "as an H.264 video (observation.images.<camera>), meta/info.json "
         "(the source files and the report's verdicts under \"simreel\"), stats.json, tasks and the episodes table. "
         "With --report, only the episodes the replay verified.",
     )

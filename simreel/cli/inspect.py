@@ -9,7 +9,7 @@ import dataclasses
 import json
 from typing import Any
 
-__all__ = ["add_parser", "run", "summarize", "OPENED_EPISODES"]
+__all__ = ["add_parser", "run", "summarize", "unseeded_counts", "OPENED_EPISODES"]
 
 OPENED_EPISODES = 50
 """How many episodes `inspect FILE` opens, as every command that reads them does, to name what only opening an
@@ -76,8 +76,28 @@ def summarize(reader: Any, found: dict[str, list[str]] | None = None,
         "meta": m.to_json(),
         "episodes": [e.to_json() for e in episodes],
         "total_steps": sum(e.length for e in episodes),
+        "unseeded": dict(zip(("episodes", "with_generators"), unseeded_counts(episodes), strict=True)),
         **(found if found is not None else problems(reader)),
     }
+
+
+def unseeded_counts(episodes: list[Any]) -> tuple[int, int]:
+    """(episodes reset without a seed, a ManiSkill file's stale seed counted as none (`EpisodeMeta.seed_unchecked`),
+    those of them whose random generators' states were captured at the reset: a replay sets them again and remakes
+    the reset; `simreel.sim.generators`)."""
+    unseeded = [e for e in episodes if e.seed is None or e.seed_unchecked]
+    return len(unseeded), sum(bool(e.reset_generators) for e in unseeded)
+
+
+def _unseeded_line(episodes: list[Any]) -> str:
+    unseeded, captured = unseeded_counts(episodes)
+    if not unseeded:
+        return ""
+    stale = sum(e.seed_unchecked for e in episodes)
+    return (f"unseeded: {unseeded} episode(s) reset without a seed; {captured} with their random generators' states "
+            f"(a replay remakes their reset), {unseeded - captured} without (a replay starts them from their "
+            "recorded initial state: not exact" + (f"; {stale} with a seed the file gives that may be stale, kept where "
+                                                   "it remakes that state" if stale else "") + ")")
 
 
 def _hz(freq: float | None) -> str:
@@ -134,6 +154,8 @@ def _print_episodes(eps: list[Any]) -> None:
     width = max(map(len, origins), default=0)
     origin_head = f" {'origin':<{width}}" if width else ""
     print(f"\nepisodes: {len(eps)}, steps: {sum(e.length for e in eps)}, successful at the end: {succ}")
+    if _unseeded_line(eps):
+        print(_unseeded_line(eps))
     print(f"  {'index':>5} {'env':>4} {'seed':>11} {'steps':>6} {'success':>8}{origin_head}  reset")
     for e, origin in zip(eps, origins, strict=True):
         reset = "reconfigured" if e.reconfigured else ""

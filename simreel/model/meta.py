@@ -287,6 +287,10 @@ class EpisodeMeta:
     process-wide random generator the reset drew from (``{"torch": ..., "numpy": ..., "python": ...}``, each
     compressed and base64-encoded: `simreel.sim.generators`), so that a replay's reset remakes the episode bit for bit;
     empty for a seeded episode (and in files of earlier simreel versions, whose readers ignore the field)."""
+    seed_unchecked: bool = False
+    """`seed` is the file's word only, not known to be the reset's: ManiSkill's RecordEpisode writes the env's last
+    seed as ``episode_seed`` of a reset given none (a stale seed). An actions replay resets with it and keeps that
+    reset only where it remakes the recorded initial state bit for bit, else restores that state and says so."""
 
     def __post_init__(self) -> None:
         """The chain and origin as their records, also where given as their JSON (``chain={"start": 0, "position":

@@ -133,10 +133,12 @@ def names_tagged(cls: type, tag: str) -> tuple[str, ...]:
 
 
 def changed_on_command_line(cls: type, args: argparse.Namespace, names: Sequence[str]) -> list[str]:
-    """The command-line flags among `names` whose value in `args` is not their default."""
+    """The command-line flags among `names` whose value in `args` is not their default, or that were given (a
+    `GivenOnce` option, even with its default value)."""
     declared = {f.name: (f, o) for f, o in _declared(cls)}
+    given = vars(args).get("_given_once", {})
     return [flags_of(n, declared[n][1])[-1] for n in names
-            if getattr(args, n, None) != _default(*declared[n])]
+            if n in given or getattr(args, n, None) != _default(*declared[n])]
 
 
 def documented(cls: type) -> type:

@@ -286,10 +286,16 @@ def _layout_error(want: Mapping[str, LeafSpec], have: Mapping[str, LeafSpec], la
     return StateLayoutError(f"{what} ({'; '.join(diffs[:4])}{more}); {fix}")
 
 
-def check_rebuilt_layout(unwrapped: Any, env_id: str, recorded: Mapping[str, LeafSpec]) -> None:
-    """Raise `StateLayoutError` unless the env rebuilt for a recording of `env_id` has its `recorded` layout."""
+def check_rebuilt_layout(unwrapped: Any, env_id: str, recorded: Mapping[str, LeafSpec], *,
+                         new_controller_state: bool = False) -> None:
+    """Raise `StateLayoutError` unless the env rebuilt for a recording of `env_id` has its `recorded` layout;
+    `new_controller_state`: but for the ``controller/`` entries the recording lacks (an env rebuilt in another control
+    mode, whose controller keeps a target)."""
+    live = live_layout(unwrapped)
+    if new_controller_state:
+        live = {k: v for k, v in live.items() if k in recorded or not k.startswith("controller/")}
     error = _layout_error(
-        recorded, live_layout(unwrapped), ("recorded", "rebuilt"),
+        recorded, live, ("recorded", "rebuilt"),
         f"the rebuilt {env_id} has another state layout than the recording",
         "rebuild it with the task version and --import modules that recorded it (see `simreel inspect`)",
     )

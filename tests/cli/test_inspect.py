@@ -81,3 +81,28 @@ def test_a_file_that_names_no_reward_mode_shows_the_one_the_env_used(ms_dir, cap
     out = capsys.readouterr().out
     assert "reward=normalized_dense (the task's default: the file names none; rewards recorded)" in out
     assert "reward=None" not in out
+
+
+def test_inspect_counts_unseeded_episodes_and_those_with_generator_states(tmp_path, capsys):
+    """simreel's RecordWrapper keeps the generator states of an unseeded reset (a replay remakes it); ManiSkill's
+    RecordEpisode does not (a replay starts from the recorded initial state): inspect says how many of each."""
+    from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
+
+    ours = tmp_path / "ours.h5"
+    rec = RecordWrapper(make_env("PickCube-v1", render_backend="none"), ours)
+    for seed in (0, None, None):
+        rec.reset(seed=seed)
+        rec.step(rec.action_space.sample())
+    rec.close()
+    theirs = record_maniskill(tmp_path, "PickCube-v1", name="theirs", episodes=3, steps=2, seeded=False)
+    capsys.readouterr()
+    assert main(["inspect", str(ours)]) == 0
+    assert ("unseeded: 2 episode(s) reset without a seed; 2 with their random generators' states (a replay remakes "
+            "their reset), 0 without") in capsys.readouterr().out
+    assert main(["inspect", str(theirs)]) == 0
+    assert ("unseeded: 2 episode(s) reset without a seed; 0 with their random generators' states (a replay remakes "
+            "their reset), 2 without (a replay starts them from their recorded initial state: not exact; 2 with a seed "
+            "the file gives that may be stale, kept where it remakes that state)") in capsys.readouterr().out
+    assert main(["inspect", "--json", str(ours)]) == 0
+    assert json.loads(capsys.readouterr().out)["unseeded"] == {"episodes": 2, "with_generators": 2}

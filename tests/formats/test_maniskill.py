@@ -357,36 +357,42 @@ def test_a_file_recordepisode_wrote_no_episode_into_is_read_as_empty_not_foreign
                                            "groups)\n")
 
 
-@pytest.mark.parametrize(("env_kwargs", "seeds"), [({}, [0, None, None]),
-                                                   ({"enhanced_determinism": True}, "recorded")],
-                         ids=["unseeded", "enhanced-determinism"])
-def test_an_episode_reset_without_a_seed_has_none_and_replays_from_its_recorded_first_state(tmp_path, env_kwargs,
-                                                                                           seeds):
+@pytest.mark.parametrize("env_kwargs", [{}, {"enhanced_determinism": True}], ids=["unseeded", "enhanced-determinism"])
+def test_an_episode_reset_without_a_seed_has_its_stale_seed_checked_and_replays_from_its_recorded_first_state(
+        tmp_path, capsys, env_kwargs):
     """reset() without a seed: ManiSkill 3.0.1 draws the initial state from torch's global RNG, and RecordEpisode still
-    writes the env's last seed as episode_seed, which every replay used before (each such episode "diverged" at the
-    reset, "input inconsistent"). Its seed is unknown; the actions are replayed from the recorded first state. With
-    enhanced_determinism ManiSkill draws a new seed and uses it: that episode_seed is the reset's."""
+    writes the env's last seed as episode_seed (a stale seed). The reader keeps it, unchecked; a replay resets with it,
+    finds the recorded first state not remade, says "stale seed" naming it, and replays the actions from the recorded
+    first state. With enhanced_determinism ManiSkill draws a new seed and uses it: that episode_seed is the reset's."""
+    unseeded = not env_kwargs
     path = record_maniskill(tmp_path, "PickCube-v1", name="unseeded", episodes=3, steps=5, obs_mode="state",
                             seeded=False, env_kwargs=env_kwargs)
     entries = json.loads(path.with_suffix(".json").read_text())["episodes"]
     assert ["seed" in e["reset_kwargs"] for e in entries] == [True, False, False]
     with open_reader(path) as r:
-        assert [m.seed for m in r.episodes] == (seeds if seeds != "recorded" else [e["episode_seed"] for e in entries])
+        assert [m.seed for m in r.episodes] == [e["episode_seed"] for e in entries]
+        assert [m.seed_unchecked for m in r.episodes] == [False, unseeded, unseeded]
         said = [n for m in r.episodes for n in m.notes if n.startswith("reset without a seed")]
-    assert len(said) == (2 if seeds != "recorded" else 0)
+    assert len(said) == (2 if unseeded else 0)
     assert not said or said[0] == (
-        "reset without a seed (its reset_kwargs hold none): episode_seed 0 is not this reset's (ManiSkill draws an "
-        "unseeded reset from torch's global RNG, and RecordEpisode writes the env's last seed): no replay can remake "
-        "it, ManiSkill's replay_trajectory neither")
+        "reset without a seed (its reset_kwargs hold none): episode_seed 0 may be stale (ManiSkill draws an unseeded "
+        "reset from torch's global RNG, and RecordEpisode writes the env's last seed); an actions replay resets with "
+        "it and checks it against env_states[0]")
     report = verify_recording(path)
     assert report.episodes[0].verdict == "exact"
-    if seeds == "recorded":
+    if not unseeded:
         assert [e.verdict for e in report.episodes] == ["exact"] * 3
     for e in report.episodes[1:]:  # from a restored state, PhysX may drift (README: determinism), never off at reset
         assert e.first_divergence is None or e.first_divergence.at != "reset", e.first_divergence
-        assert ("actions replayed from the recorded initial state" in e.limits) == (seeds != "recorded")
-    if seeds == "recorded":
+        assert ("actions replayed from the recorded initial state" in e.limits) == unseeded
+        assert any(x.startswith("stale seed: a reset with episode_seed 0 did not remake the recorded initial state (")
+                   for x in e.limits) == unseeded, e.limits
+    if not unseeded:
         return
+    capsys.readouterr()
+    main(["replay", str(path), "--episodes", "1"])  # the console names it under the episode, whatever its verdict
+    assert "note: stale seed: a reset with episode_seed 0 did not remake the recorded initial state" in \
+        capsys.readouterr().out
     converted = convert_recording(path, tmp_path / "delta.h5", control_mode="pd_joint_delta_pos")
     for e in converted.episodes[1:]:  # a conversion starts there too: before, from an unseeded reset, objects elsewhere
         assert e.max_abs_error["env_states/actors/goal_site[p]"] == 0.0 and "actions replayed from the recorded " \

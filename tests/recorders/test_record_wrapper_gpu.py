@@ -61,3 +61,30 @@ def test_the_record_command_records_exactly_the_episodes_asked_of_parallel_envs(
                  "--sim-backend", "physx_cuda", "-q"]) == 0
     with open_reader(out) as r:
         assert sorted((m.seed, m.length) for m in r.episodes) == [(0, 5), (1, 5), (2, 5)]
+
+
+def test_unseeded_partial_resets_on_the_gpu_sim_are_warned_of_once_and_counted(tmp_path, capsys):
+    """Several envs on the GPU sim: one draw serves every env and nothing captures it, so a replay cannot remake an
+    unseeded reset: the recorder says so once; `simreel inspect` counts the episodes without generator states."""
+    import warnings
+
+    from simreel.cli.main import main
+    from simreel.recorders import RecordWrapper
+    from simreel.sim.make import make_env
+
+    env = RecordWrapper(make_env("PickCube-v1", num_envs=4, sim_backend="physx_cuda"), tmp_path / "u.h5")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        env.reset(seed=list(range(4)))
+        for t in range(4):
+            env.step(env.action_space.sample())
+            if t in (1, 2):
+                env.reset(options={"env_idx": torch.tensor([0, 2])})
+        env.close()
+    warned = [str(w.message) for w in caught if "without a seed" in str(w.message)]
+    assert len(warned) == 1 and warned[0].startswith("simreel: reset() without a seed on 4 envs: a replay cannot")
+    assert (env.unseeded, env.unseeded_remade) == (4, 0)
+    capsys.readouterr()
+    assert main(["inspect", str(tmp_path / "u.h5")]) == 0
+    assert ("unseeded: 4 episode(s) reset without a seed; 0 with their random generators' states"
+            in capsys.readouterr().out)

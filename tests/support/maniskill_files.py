@@ -4,7 +4,9 @@
   ``pd_joint_pos`` (the control mode of ManiSkill's published demos) along a path of joint targets: a random
   walk (``path="walk"``), a smooth path through random waypoints at the joint speeds of a motion-planned demo
   (``"smooth"``), or, for PickCube, a scripted grasp-and-lift planned with inverse kinematics (``"pick"``,
-  what ManiSkill's motion-planning demos do); obs mode, env states and rewards as asked.
+  what ManiSkill's motion-planning demos do), or a smooth swing of the arm alone, the robot's other controllers
+  holding still (``"arm"``: for robots whose action is more than joint targets, as Fetch's with its mobile base);
+  obs mode, env states and rewards as asked.
 - `replay_maniskill`: `python -m mani_skill.trajectory.replay_trajectory` on such a file in a child process
   (it needs a render device: pass an environment with lavapipe), returning the file it wrote.
 """
@@ -21,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["record_maniskill", "replay_maniskill", "joint_targets", "smooth_targets", "pick_targets"]
+__all__ = ["record_maniskill", "replay_maniskill", "joint_targets", "smooth_targets", "pick_targets", "arm_targets"]
 
 MAX_JOINT_STEP = 0.02
 """rad per step (0.4 rad/s at 20 Hz) of the smooth and planned paths: about the joint speed of ManiSkill's
@@ -141,9 +143,31 @@ def record_maniskill(folder: Path, env_id: str, *, name: str = "demos", episodes
     return Path(folder) / f"{name}.h5"
 
 
+def arm_targets(env: Any, steps: int, seed: int) -> np.ndarray:
+    """(steps, A) pd_joint_pos actions swinging the arm's joints smoothly by up to ±0.3 rad from their pose at reset
+    and back (`MAX_JOINT_STEP` at most), the gripper at its reset position, every other controller at zero (a
+    delta or a velocity: holding still)."""
+    import torch
+
+    controller = env.unwrapped.agent.controller
+    rng = np.random.default_rng(seed)
+    q0 = controller.controllers["arm"].qpos.cpu().numpy()[0].astype(np.float64)
+    swing = rng.uniform(-0.3, 0.3, q0.shape) * min(1.0, MAX_JOINT_STEP * steps / (0.3 * np.pi))
+    parts = {uid: torch.zeros((1, *c.action_space.shape)) for uid, c in controller.controllers.items()}
+    if "gripper" in parts:
+        parts["gripper"][:] = controller.controllers["gripper"].qpos[:, :1]
+    out = []
+    for t in range(steps):
+        parts["arm"] = torch.as_tensor(q0 + swing * np.sin(np.pi * (t + 1) / steps), dtype=torch.float32)[None]
+        out.append(controller.from_action_dict(parts).cpu().numpy()[0])
+    return np.asarray(out, np.float32)
+
+
 def _path(env: Any, path: str, steps: int, seed: int) -> np.ndarray:
     if path == "pick":
         return pick_targets(env, steps)
+    if path == "arm":
+        return arm_targets(env, steps, seed)
     space = env.action_space
     make = {"walk": joint_targets, "smooth": smooth_targets}[path]
     return make(_start_targets(env), space.low, space.high, steps, seed=seed)

@@ -7,9 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from support.nudged import nudged_copy
 
 from simreel.cli.main import main
-from simreel.formats import open_reader, open_writer
 
 
 @pytest.fixture(scope="session")
@@ -33,12 +33,7 @@ def nudged(three_tasks, tmp_path_factory) -> tuple[Path, Path]:
     """A copy of the PickCube recording whose episode 1 had one action nudged, and its replay report (episodes 0
     and 2 exact, 1 diverged)."""
     folder = tmp_path_factory.mktemp("verdicts")
-    rec = folder / "nudged.h5"
-    with open_reader(three_tasks["pick"]) as r, open_writer(rec, r.meta) as w:
-        for m in r.episodes:
-            episode = r.read_episode(m.index)
-            episode.actions[5] += 0.5 * (m.index == 1)
-            w.write_episode(episode)
+    rec = nudged_copy(three_tasks["pick"], folder / "nudged.h5")
     report = folder / "report.json"
     assert main(["replay", str(rec), "--report", str(report), "-q"]) == 1
     return rec, report

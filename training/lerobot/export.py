@@ -42,6 +42,13 @@ from simreel.training.lerobot.layout import (
     write_tasks,
 )
 from simreel.training.lerobot.options import ExportOptions
+from simreel.training.lerobot.videos import (
+    CameraVideos,
+    VideoFeature,
+    as_image_stats,
+    camera_fields,
+    image_pixels,
+)
 from simreel.training.options import EpisodeChoice
 
 __all__ = ["export_lerobot", "ExportSummary", "check_export_target"]
@@ -90,19 +97,26 @@ def export_lerobot(inputs: str | Path | Sequence[str | Path], out: str | Path, o
     layouts = _layouts(opts, files, episodes)
     fps = _fps(files)
     with staged_folder(out, overwrite=opts.overwrite, looks_ours=is_lerobot_dataset, kind=_KIND) as folder:
-        writer = _Writer(folder, next(iter(layouts.values())).features)
+        first = next(iter(layouts.values()))
+        videos = [VideoFeature(key, f.shape, fps) for key, f in first.cameras.items()]
+        writer = _Writer(folder, first.features, CameraVideos(folder, videos, fps))
         tasks: dict[str, int] = {}
-        for number, episode in enumerate(episodes):
-            task = opts.task or files[episode.path].meta.env_id
-            task_index = tasks.setdefault(task, len(tasks))
-            with open_reader(episode.path) as reader:
-                frames = layouts[episode.path].frames(reader.open_episode(episode.index), fps=fps,
-                                                      episode_index=number, first_index=writer.frames,
-                                                      task_index=task_index)
-            writer.episode(number, episode, task, frames)
+        try:
+            for number, episode in enumerate(episodes):
+                task = opts.task or files[episode.path].meta.env_id
+                task_index = tasks.setdefault(task, len(tasks))
+                with open_reader(episode.path) as reader:
+                    frames = layouts[episode.path].frames(reader.open_episode(episode.index), fps=fps,
+                                                          episode_index=number, first_index=writer.frames,
+                                                          task_index=task_index)
+                writer.episode(number, episode, task, frames)
+        except BaseException:
+            writer.videos.abort()  # no ffmpeg left running
+            raise
         writer.finish(fps=fps, tasks=list(tasks), robot_type=_robot_type(files),
                       provenance=_provenance(files, episodes, opts))
-    return ExportSummary(out, len(episodes), writer.frames, fps, [f.key for f in writer.features],
+    return ExportSummary(out, len(episodes), writer.frames, fps,
+                         [f.key for f in writer.features] + [f.key for f in writer.videos.features],
                          sources=list(files), left_out=left_out)
 
 
@@ -116,16 +130,19 @@ def _layouts(opts: ExportOptions, files: dict[str, SourceFile], episodes: Sequen
         fields = files[path].fields
         state_names = opts.state or (("obs",) if any(f.name.startswith("obs/") for f in fields) else ("env_states",))
         state = resolve_features(state_names, fields, path=path, episode=index)
+        cameras = camera_fields(fields)
+        if not opts.state:  # camera frames go to videos, not into the state
+            state = [f for f in state if f not in cameras]
         if any(not f.per_state for f in state):
             raise UsageError(f"--state {','.join(state_names)}: {', '.join(f.name for f in state if not f.per_state)} "
                              "is one row a step, not a state; name obs/... or env_states/... fields")
         extras = resolve_features(opts.extras, fields, path=path, episode=index) if opts.extras else []
-        chosen = [*state, *extras, *(f for f in fields if f.name == "actions")]
+        chosen = [*state, *extras, *cameras, *(f for f in fields if f.name == "actions")]
         if first is None:
             first = (path, chosen)
         else:
             same_features(chosen, first[1], path=path, first_path=first[0])
-        out[path] = FrameLayout(state, fields, extras)
+        out[path] = FrameLayout(state, fields, extras, cameras)
     return out
 
 
@@ -161,8 +178,8 @@ def _provenance(files: dict[str, SourceFile], episodes: Sequence[EpisodeRef], op
 class _Writer:
     """The data files (one row group an episode, a new file past ~100 MB), the episodes table and the stats."""
 
-    def __init__(self, folder: Path, features: Sequence[Any]) -> None:
-        self.folder, self.features = folder, list(features)
+    def __init__(self, folder: Path, features: Sequence[Any], videos: CameraVideos) -> None:
+        self.folder, self.features, self.videos = folder, list(features), videos
         self.schema = pa.schema([pa.field(f.key, f.arrow_type(), nullable=False) for f in self.features])
         self.frames = 0
         self._file_number = -1
@@ -182,33 +199,43 @@ class _Writer:
         return chunk_file(self._file_number)
 
     def episode(self, number: int, episode: EpisodeRef, task: str, frames: dict[str, np.ndarray]) -> None:
+        images = {f.key: frames.pop(f.key) for f in self.videos.features}
         table = pa.table([arrow_column(f, frames[f.key]) for f in self.features], schema=self.schema)
         where = self._data_file(table.nbytes)
         self._file.write_table(table)
         self._file_bytes += table.nbytes
         stats = {key: episode_stats(values) for key, values in frames.items()}
         self.stats.add(frames, stats)
+        pixels = {key: image_pixels(values) for key, values in images.items()}
+        pixel_stats = {key: episode_stats(values) for key, values in pixels.items()}
+        self.stats.add(pixels, pixel_stats)
         length = len(frames["index"])
         row = {"episode_index": number, "tasks": [task], "length": length,
                "data/chunk_index": where["chunk_index"], "data/file_index": where["file_index"],
                "dataset_from_index": self.frames, "dataset_to_index": self.frames + length,
                "meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0,
                "simreel/source_file": episode.path, "simreel/source_episode": episode.index,
-               "simreel/verdict": episode.verdict}
+               "simreel/verdict": episode.verdict, **self.videos.episode(images)}
         for key, s in stats.items():
             row.update({f"stats/{key}/{name}": value.tolist() for name, value in s.items()})
+        for key, s in pixel_stats.items():
+            row.update({f"stats/{key}/{name}": value for name, value in as_image_stats(s).items()})
         self._episode_rows.append(row)
         self.frames += length
 
     def finish(self, *, fps: float, tasks: list[str], robot_type: str | None, provenance: dict[str, Any]) -> None:
         if self._file is not None:
             self._file.close()
+        self.videos.finish()
         columns = {key: [row[key] for row in self._episode_rows] for key in self._episode_rows[0]}
         episodes_path = self.folder / EPISODES_PATH.format(**chunk_file(0))
         episodes_path.parent.mkdir(parents=True, exist_ok=True)
         pq.write_table(pa.Table.from_pydict(columns), episodes_path)
         write_tasks(self.folder / TASKS_PATH, tasks)
-        write_json(self.folder / STATS_PATH, self.stats.document())
+        stats = self.stats.document()
+        stats.update({f.key: as_image_stats(stats[f.key]) for f in self.videos.features})
+        write_json(self.folder / STATS_PATH, stats)
         totals = {"total_episodes": len(self._episode_rows), "total_frames": self.frames, "total_tasks": len(tasks)}
-        write_json(self.folder / INFO_PATH, info_document(fps=fps, features=self.features, totals=totals,
+        write_json(self.folder / INFO_PATH, info_document(fps=fps, features=[*self.features, *self.videos.features],
+                                                          totals=totals,
                                                           robot_type=robot_type, provenance=provenance))

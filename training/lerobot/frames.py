@@ -1,7 +1,7 @@
 """An episode's rows as LeRobot frames: frame t is step t — ``observation.state`` the state the step's action was
 taken in (per-state row t, the chosen fields flattened and joined), ``action`` its action, ``next.reward``,
 ``next.success`` its reward and success flag, ``next.done`` True where the step terminated or truncated the episode
-and at its last step; ``timestamp`` t / fps; the index columns. The state after the last step (row T) has no frame.
+and at its last step; each camera's frame t (per-state row t) for its video; ``timestamp`` t / fps; the index columns. The state after the last step (row T) has no frame.
 Values are the recording's own, bit for bit (float32; the state fields' other dtypes must convert exactly)."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from simreel.errors import UsageError
 from simreel.formats.base import EpisodeRows, block_rows
 from simreel.model.fields import FieldSpec
 from simreel.training.lerobot.layout import FrameFeature
+from simreel.training.lerobot.videos import video_key
 
 __all__ = ["FrameLayout", "EXACT_IN_FLOAT32"]
 
@@ -27,18 +28,20 @@ class FrameLayout:
     ``observation.environment_state``, per-step ``contact_forces`` as ``observation.contact_forces``)."""
 
     def __init__(self, state: Sequence[FieldSpec], fields: Sequence[FieldSpec],
-                 extras: Sequence[FieldSpec] = ()) -> None:
+                 extras: Sequence[FieldSpec] = (), cameras: Sequence[FieldSpec] = ()) -> None:
         for f in [*state, *extras]:
             if f.dtype not in EXACT_IN_FLOAT32:
                 raise UsageError(f"{f.name} is {f.dtype}, which float32 does not hold exactly; choose fields of "
                                  f"{', '.join(EXACT_IN_FLOAT32)}")
         self.state = list(state)
+        self.cameras = {video_key(f): f for f in cameras}
+        """Camera fields by video key: their per-state rows 0 .. T-1 are the videos' frames."""
         self.extras = {"observation.environment_state": [f for f in extras if f.per_state],
                        "observation.contact_forces": [f for f in extras if not f.per_state]}
         held = {f.name: f for f in fields}
         self.actions = held["actions"]
         self.step_fields = [n for n in ("rewards", "success", "terminated", "truncated") if n in held]
-        self.names = [f.name for f in (*self.state, *extras)] + ["actions", *self.step_fields]
+        self.names = [f.name for f in (*self.state, *extras, *cameras)] + ["actions", *self.step_fields]
         self.features = self._features()
 
     def _features(self) -> list[FrameFeature]:
@@ -59,11 +62,14 @@ class FrameLayout:
 
     def frames(self, rows: EpisodeRows, *, fps: float, episode_index: int, first_index: int,
                task_index: int) -> dict[str, np.ndarray]:
-        """The frame columns of the episode `rows` (read a block at a time), by LeRobot key."""
+        """The frame columns of the episode `rows` (read a block at a time), and each camera's frames (T, H, W, 3),
+        by LeRobot key."""
         length = rows.length
         arrays = _episode_arrays(rows, self.names, [f.name for f in (*self.state, *self.extras[
-            "observation.environment_state"])])
+            "observation.environment_state"], *self.cameras.values())])
         out = {"observation.state": _joined(arrays, self.state, length)}
+        for key, camera in self.cameras.items():
+            out[key] = arrays[camera.name][:length]
         for key, fs in self.extras.items():
             if fs:
                 out[key] = _joined(arrays, fs, length)

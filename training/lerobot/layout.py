@@ -5,6 +5,7 @@
     meta/tasks.parquet                          task text (the pandas index) -> task_index
     meta/episodes/chunk-000/file-000.parquet    one row per episode: its index range, data file, tasks, stats
     data/chunk-000/file-000.parquet             the frames, many episodes a file
+    videos/<key>/chunk-000/file-000.mp4         a camera's frames, many episodes a file (`videos`)
 
 A feature of shape (1,) is a plain column, one of shape (n,) a fixed-size list column (LeRobot reads both through
 Hugging Face `datasets` with the features info.json lists)."""
@@ -22,7 +23,7 @@ import pyarrow.parquet as pq
 
 from simreel import __version__
 
-__all__ = ["CODEBASE_VERSION", "CHUNKS_SIZE", "DATA_PATH", "EPISODES_PATH", "INFO_PATH", "STATS_PATH", "TASKS_PATH",
+__all__ = ["CODEBASE_VERSION", "CHUNKS_SIZE", "DATA_PATH", "EPISODES_PATH", "INFO_PATH", "STATS_PATH", "TASKS_PATH", "VIDEO_PATH",
            "QUANTILES", "FrameFeature", "info_document", "write_json", "write_tasks", "chunk_file", "arrow_column",
            "is_lerobot_dataset"]
 
@@ -86,7 +87,7 @@ def info_document(*, fps: float, features: Sequence[FrameFeature], totals: Mappi
         "fps": int(fps) if float(fps).is_integer() else fps,
         "splits": {"train": f"0:{totals['total_episodes']}"},
         "data_path": DATA_PATH,
-        "video_path": None,
+        "video_path": VIDEO_PATH if any(f.info()["dtype"] == "video" for f in features) else None,
         "features": {f.key: f.info() for f in features},
         "simreel": {"version": __version__, **provenance},
     }

@@ -49,7 +49,8 @@ class ExportOptions:
     state: tuple[str, ...] = option(
         (), metavar="FIELDS", parse=_names,
         help="fields joined into observation.state, comma-separated (names or groups: obs/agent/qpos, obs, "
-             "env_states/articulations/panda); default: obs where the recording has observations, else env_states",
+             "env_states/articulations/panda); default: obs where the recording has observations (its camera "
+             "frames go to videos), else env_states",
         check=_name_tuple("field names, e.g. ('obs/agent/qpos',), or () for the default"))
     extras: tuple[str, ...] = option(
         (), metavar="FIELDS", parse=_names,

@@ -323,17 +323,24 @@ def _unseeded_resets_are_random(sidecar: Sidecar) -> bool:
     return int(kw.get("num_envs") or 1) == 1 and not kw.get("enhanced_determinism")
 
 
+def unseeded_reset(entry: dict[str, Any], *, unseeded_random: bool) -> bool:
+    """Whether the episode of sidecar `entry` was reset without a seed, and such a reset is random
+    (`_unseeded_resets_are_random`): its `episode_seed` is then likely stale, the env's last seed."""
+    reset = entry.get("reset_kwargs") or {}
+    return unseeded_random and bool(reset) and "seed" not in reset
+
+
 def _seed(entry: dict[str, Any], notes: list[str], *, unseeded_random: bool) -> int | None:
-    """The episode's seed: `episode_seed` (what replay_trajectory uses), checked against `reset_kwargs.seed`; None
-    where the recorded reset kwargs hold no seed and such a reset is random (`_unseeded_resets_are_random`): its
-    episode_seed is not its seed, and replays start from the recorded first state (`EpisodeReplayer`)."""
+    """The episode's seed: `episode_seed` (what replay_trajectory uses), checked against `reset_kwargs.seed`. Where
+    the recorded reset kwargs hold no seed and such a reset is random (`unseeded_reset`), episode_seed is likely not
+    its seed (``EpisodeMeta.seed_unchecked``): a replay checks it against the recorded first state."""
     seed = entry.get("episode_seed")
     reset = entry.get("reset_kwargs") or {}
-    if unseeded_random and reset and "seed" not in reset:
-        notes.append(f"reset without a seed (its reset_kwargs hold none): episode_seed {seed} is not this reset's "
+    if unseeded_reset(entry, unseeded_random=unseeded_random):
+        notes.append(f"reset without a seed (its reset_kwargs hold none): episode_seed {seed} may be stale "
                      "(ManiSkill draws an unseeded reset from torch's global RNG, and RecordEpisode writes the env's "
-                     "last seed): no replay can remake it, ManiSkill's replay_trajectory neither")
-        return None
+                     "last seed); an actions replay resets with it and checks it against env_states[0]")
+        return int(seed) if isinstance(seed, (int, np.integer)) else None
     given = reset.get("seed")
     if isinstance(given, list):
         notes.append(f"reset_kwargs.seed is a list ({given}); ManiSkill's replay takes its one element")
@@ -367,6 +374,7 @@ def _episode_metas(sidecar: Sidecar, groups: dict[int, str],
         metas.append(EpisodeMeta(
             index=entry["episode_id"],
             seed=seed,
+            seed_unchecked=seed is not None and unseeded_reset(entry, unseeded_random=unseeded_random),
             reset_options=options,
             reconfigured=True if options.get("reconfigure") else None,
             length=_length(entry, action_rows(entry["episode_id"]), notes),

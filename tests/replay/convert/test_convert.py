@@ -157,16 +157,20 @@ def test_an_episode_clipped_at_every_step_has_its_commands_shown_unjudged(demos,
     assert row.split()[3:5] == ["-", "-"], row  # episode, steps, verdict, then the two command columns
 
 
-def test_keep_verified_writes_only_the_episodes_that_pass(demos, tmp_path, capsys):
+def test_by_default_only_verified_episodes_are_written_and_the_run_still_fails(demos, tmp_path, capsys):
     src = demos("PickCube-v1")
 
     def bad_first_episode(*args):
         return _BadEpisode(converter_for(*args))
 
-    report = convert_recording(src, tmp_path / "kept.h5", control_mode="pd_joint_delta_pos", keep=["verified"],
+    report = convert_recording(src, tmp_path / "kept.h5", control_mode="pd_joint_delta_pos",
                                converter=bad_first_episode)
     assert [e.verdict for e in report.episodes][0] == "diverged" and report.episodes[1].ok
-    assert report.written == [1] and report.dropped == {0: "not verified (diverged)"} and report.ok
+    assert report.written == [1] and report.dropped == {0: "not verified (diverged)"} and not report.ok
+    assert report.to_json()["left_out"] == 1
+    assert report.summary().endswith("1 of 2 episode(s) verified; 1 written to "
+                                     f"{tmp_path / 'kept.h5'}; 1 left out by --keep (1 not verified; --keep all "
+                                     "writes them)")
     with open_reader(tmp_path / "kept.h5") as r:
         assert [m.index for m in r.episodes] == [1]
         assert r.meta.provenance["filters"]["keep"] == ["verified"]
@@ -174,6 +178,24 @@ def test_keep_verified_writes_only_the_episodes_that_pass(demos, tmp_path, capsy
     assert main(["inspect", str(tmp_path / "kept.h5")]) == 0
     assert (f"made by    convert of {src.resolve()} (episodes 0, 1): control_mode pd_joint_pos -> pd_joint_delta_pos; "
             "kept: verified") in capsys.readouterr().out
+
+
+def test_failed_conversions_are_left_out_unless_keep_all(tmp_path, capsys):
+    """Random pd_joint_pos actions jump further than pd_ee_delta_pose reaches in a step: no episode verifies, none
+    is written (exit 1); `--keep all` writes them all and the exit status is still 1."""
+    src, out, every = tmp_path / "rand.h5", tmp_path / "out.h5", tmp_path / "all.h5"
+    assert main(["record", "PickCube-v1", "-o", str(src), "-n", "2", "--max-steps", "15", "--control-mode",
+                 "pd_joint_pos", "--seed", "3", "-q"]) == 0
+    capsys.readouterr()
+    assert main(["convert", str(src), str(out), "--control-mode", "pd_ee_delta_pose", "-q"]) == 1
+    printed = capsys.readouterr().out
+    assert ("0 of 2 episode(s) verified; 0 written to " f"{out}; 2 left out by --keep (2 not verified; --keep all "
+            "writes them)") in printed
+    assert printed.count("not written: not verified") == 2 and not out.exists()
+    assert main(["convert", str(src), str(every), "--control-mode", "pd_ee_delta_pose", "--keep", "all", "-q"]) == 1
+    assert f"0 of 2 episode(s) verified; 2 written to {every}\n" in capsys.readouterr().out
+    with open_reader(every) as r:
+        assert [m.index for m in r.episodes] == [0, 1] and r.meta.provenance["filters"]["keep"] == ["all"]
 
 
 class _BadEpisode:
@@ -217,12 +239,14 @@ def test_filters_and_exit_status_on_the_command_line(demos, tmp_path, capsys):
     ("args", "message"),
     [
         (["--control-mode", "pd_joint_pos"], "--control-mode pd_joint_pos is the recording's own control mode"),
-        (["--control-mode", "pd_ee_target_delta_pose"], "cannot convert control mode pd_joint_pos to pd_ee_target_delta_pose"),
+        (["--control-mode", "pd_ee_pose"], "cannot convert control mode pd_joint_pos to pd_ee_pose"),
         (["--keep", "verified"], "--keep apply to a conversion: add --obs-mode and/or --control-mode"),
         (["--obs-mode", "state", "--tol", "ee_pos=1"], "--tol sets the tracking tolerances of a control-mode conversion"),
-        (["--control-mode", "pd_joint_delta_pos", "--keep", "fast"], "expected any of verified, success, not_truncated"),
+        (["--control-mode", "pd_joint_delta_pos", "--keep", "fast"], "expected any of verified, success, not_truncated, all"),
+        (["--control-mode", "pd_joint_delta_pos", "--keep", "all,success"],
+         "--keep all,success: all writes every converted episode; give it alone"),
     ],
-    ids=["same-mode", "unsupported-pair", "filter-without-conversion", "tol-without-control", "bad-keep"],
+    ids=["same-mode", "unsupported-pair", "filter-without-conversion", "tol-without-control", "bad-keep", "keep-all-and"],
 )
 def test_bad_conversions_are_one_line_exit_2(demos, tmp_path, capsys, args, message):
     src = demos("PickCube-v1")
@@ -290,10 +314,11 @@ def test_a_conversion_to_joint_velocities_is_checked_like_any_other(demos, tmp_p
     assert main(["replay", str(out), "-q"]) == 0
 
 
-@pytest.mark.parametrize("mode", ["pd_joint_target_delta_pos", "pd_ee_target_delta_pose"])
-def test_a_mode_that_keeps_a_target_is_refused_in_one_line(demos, tmp_path, capsys, mode):
+@pytest.mark.parametrize("mode", ["pd_ee_pose", "pd_joint_pos_vel"])
+def test_a_mode_simreel_does_not_convert_to_is_refused_in_one_line(demos, tmp_path, capsys, mode):
     assert main(["convert", str(demos("PickCube-v1")), str(tmp_path / "x.h5"), "--control-mode", mode, "-q"]) == 2
     [line] = capsys.readouterr().err.splitlines()
     assert line.startswith(f"simreel convert: error: cannot convert control mode pd_joint_pos to {mode}: simreel "
-                           "converts pd_joint_pos -> pd_joint_delta_pos, pd_joint_vel, pd_ee_delta_pos,")
+                           "converts pd_joint_pos -> pd_joint_delta_pos, pd_joint_target_delta_pos, pd_joint_vel, "
+                           "pd_ee_delta_pos, pd_ee_delta_pose, pd_ee_target_delta_pos, pd_ee_target_delta_pose;")
     assert list(tmp_path.iterdir()) == []

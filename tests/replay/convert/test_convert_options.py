@@ -25,7 +25,7 @@ CAMERA = "give (width, height) of the cameras in pixels, two ints >= 1, e.g. (12
         ({"count": "3"}, "count='3': give the number of episodes to convert, an int >= 1, or None (all of them)"),
         ({"block_rows": True}, "block_rows=True: give the number of steps converted at a time, an int >= 1, or None "
                                "(the reader's)"),  # was: accepted, as 1
-        ({"keep": 5}, 'keep=5: give the episodes to write as a tuple of any of verified, success, not_truncated, '
+        ({"keep": 5}, 'keep=5: give the episodes to write as a tuple of any of verified, success, not_truncated, all, '
                       'e.g. ("verified",)'),  # was: TypeError 'int' object is not iterable
         ({"camera_size": "128x128"}, f"camera_size='128x128': {CAMERA}"),  # was: a tuple of 7 characters
         ({"camera_size": (1.5, 2)}, f"camera_size=(1.5, 2): {CAMERA}"),  # was: accepted

@@ -49,7 +49,7 @@ def test_a_re_render_writes_the_same_file_from_one_process_or_two(demos, tmp_pat
         assert [e.ok for e in report.episodes] == [True, False, True] and report.episodes[1].verdict == "diverged"
         assert report.episodes[1].first_divergence.key == "rewards" and report.episodes[1].first_divergence.step == 4
         assert report.written == [0, 2] and report.dropped == {1: "not verified (diverged)"}
-        assert report.ok and not report.written_mismatch and "byte-identical" in report.written_check
+        assert not report.ok and not report.written_mismatch and "byte-identical" in report.written_check
     assert not scratch_folder(tmp_path / "two.h5").exists()
     written, source = _digests(tmp_path / "one.h5"), _digests(demos)
     assert list(written) == [0, 2] and _digests(tmp_path / "two.h5") == written
@@ -66,7 +66,8 @@ def test_a_re_render_writes_the_same_file_from_one_process_or_two(demos, tmp_pat
 
 def test_a_re_render_that_keeps_nothing_writes_no_file(demos, tmp_path):
     report = convert_recording(demos, tmp_path / "none.h5", obs_mode="state", keep=["success"], block_rows=BLOCK)
-    assert report.written == [] and set(report.dropped.values()) == {"no success at its last step"}
+    assert report.written == [] and report.dropped[1] == "not verified (diverged)"  # verified first, then success
+    assert {report.dropped[0], report.dropped[2]} == {"no success at its last step"}
     assert report.written_check == "nothing written" and not (tmp_path / "none.h5").exists()
 
 
@@ -75,7 +76,7 @@ def test_a_re_render_never_reads_an_episode_whole(demos, tmp_path, monkeypatch):
         raise AssertionError(f"episode {self.meta.index} read whole")
 
     monkeypatch.setattr(EpisodeRows, "episode", whole)
-    report = convert_recording(demos, tmp_path / "blocks.h5", obs_mode="state", block_rows=BLOCK)
+    report = convert_recording(demos, tmp_path / "blocks.h5", obs_mode="state", block_rows=BLOCK, keep="all")
     assert report.written == [0, 1, 2] and not report.written_mismatch
 
 

@@ -39,12 +39,14 @@ def test_an_episode_replayed_alone_is_replayed_after_its_history(lift, tmp_path,
     try:
         with open_reader(lift) as reader:
             key = env_key(reader.meta)
-        result = worker.run(WorkItem(key, str(lift), 2))
-        assert result.report.verdict == "exact" and result.history == [0, 1]
-        assert "episode 2 replayed after its recorded predecessor(s) 0–1 (PhysX results depend on the scene's " \
-               "history); 0–1 replayed for that, not verified" in result.report.notes
+        result = worker.run(WorkItem(key, str(lift), 2))  # only episode 1's last step, then exact
+        assert result.report.verdict == "exact" and result.history == []
+        assert (result.report.history.episodes, result.report.history.steps) == (1, 1)
         assert worker.run(WorkItem(key, str(lift), 0)).history == []  # the scene is rebuilt: it ran 0, 1, 2
-        assert worker.run(WorkItem(key, str(lift), 2)).history == [1]  # it ran episode 0 already
+        result = worker.run(WorkItem(key, str(lift), 2))  # it ran episode 0 already: episode 1 whole
+        assert result.history == [1] and result.report.verdict == "exact"
+        assert "episode 2 replayed after its recorded predecessor(s) 0–1 (PhysX results depend on the scene's " \
+               "history); 1 replayed for that, not verified" in result.report.notes
     finally:
         worker.close()
 
@@ -149,11 +151,11 @@ def test_a_merged_file_replays_each_recordings_episodes_after_their_own_history(
             ids.append(reader.meta.recording_id)
     assert chains[:3] == [f"{merged}{ids[0]}#0"] * 3 and chains[3:] == [f"{merged}{ids[1]}#0"] * 3
     report = tmp_path / "r.json"
-    assert _replay(merged, "--episodes", "5", "--report", report) == 0
-    (episode,) = json.loads(report.read_text())["episodes"]
-    assert episode["verdict"] == "exact"  # after b's episodes 0 and 1 (merged 3 and 4), not a's
-    assert "episode 5 replayed after its recorded predecessor(s) 3–4 (PhysX results depend on the scene's " \
-           "history); 3–4 replayed for that, not verified" in episode["notes"]
+    assert _replay(merged, "--episodes", "2,5", "--report", report) == 0
+    first, episode = json.loads(report.read_text())["episodes"]
+    assert first["verdict"] == "exact" and "only the last step of episode 1," in first["history"]["why"]
+    # after b's episode 1's last step (merged 4), not a's, on a scene rebuilt after a's episode 2
+    assert episode["verdict"] == "exact" and "only the last step of episode 4," in episode["history"]["why"]
 
 
 def test_a_whole_chain_filtered_by_an_older_simreel_replays_its_own_history(lift, tmp_path, capsys):
@@ -170,8 +172,7 @@ def test_a_whole_chain_filtered_by_an_older_simreel_replays_its_own_history(lift
     report = tmp_path / "r.json"
     assert _replay(older, "--episodes", "2", "--report", report) == 0  # was: diverged, on a rebuilt scene
     (episode,) = json.loads(report.read_text())["episodes"]
-    assert episode["verdict"] == "exact" and "episode 2 replayed after its recorded predecessor(s) 0–1 (PhysX " \
-        "results depend on the scene's history); 0–1 replayed for that, not verified" in episode["notes"]
+    assert episode["verdict"] == "exact" and "only the last step of episode 1" in episode["history"]["why"]
 
 
 def _older_conversion(lift, tmp_path, episodes: str):
