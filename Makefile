@@ -44,11 +44,19 @@ $(STAMP): pyproject.toml tools/install_torch.sh tools/fetch_lavapipe.sh
 # pytest, ruff, the docs site's tools, Foxglove's schemas and Ray (the tests run `replay --ray`).
 $(TEST_STAMP): $(STAMP)
 	$(QUIET_PIP) $(BIN)/pip install -q -e '.[test,ray]'
+	@# Headless Chromium (Debian's), for the tests that open the web viewer in a browser (skipped without it).
+	@if [ -x /usr/bin/chromium ]; then :; \
+	 elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
+	   (apt-get install -y -q chromium chromium-driver >/dev/null 2>&1 || \
+	    (apt-get update -q >/dev/null && apt-get install -y -q chromium chromium-driver >/dev/null)) || \
+	   echo "warning: apt-get could not install chromium: the browser tests will be skipped"; \
+	 else echo "warning: no /usr/bin/chromium (apt-get install chromium as root): the browser tests will be skipped"; fi
 	@touch $(TEST_STAMP)
 
 # Record a few PickCube-v1 episodes, show what the file holds, replay and verify every step (writing
 # the replay and a JSON report), and build a Rerun session of episode 0 beside its replay. Everything goes
-# to $(DEMO)/; the last line, printed by `simreel view`, is the command that opens the session.
+# to $(DEMO)/; the last lines, printed by `simreel view`, say how to open the session (where there is no display:
+# how to serve it to a browser).
 demo: setup
 	@mkdir -p $(DEMO)
 	$(BIN)/simreel record PickCube-v1 -o $(DEMO)/pickcube.h5 -n 3 --seed 0 --overwrite

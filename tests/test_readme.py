@@ -260,9 +260,13 @@ def desk(tmp_path_factory) -> Desk:
     return Desk(tmp_path_factory.mktemp("pages"))
 
 
+_DISPLAY_VARS = ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")
+
+
 def _environment() -> dict[str, str]:
-    """What a user's shell has after `. .venv/bin/activate`: the venv first on PATH, no Vulkan variables."""
-    env = {k: v for k, v in os.environ.items() if k not in _VULKAN_VARS}
+    """What a user's shell has after `. .venv/bin/activate` on a headless machine (the pages' transcripts show what
+    `view` prints there): the venv first on PATH, no Vulkan variables, no display."""
+    env = {k: v for k, v in os.environ.items() if k not in _VULKAN_VARS and k not in _DISPLAY_VARS}
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"
     env["VIRTUAL_ENV"] = str(Path(sys.executable).parents[1])
     return env

@@ -50,7 +50,7 @@ from simreel.viewers.scene_geometry import (
     scene_geometry,
 )
 from simreel.viewers.sources import EpisodeRun, Source, read_compare, read_run
-from simreel.viewers.web_server import LOCALHOST, listening, reached_at
+from simreel.viewers.web_server import LOCALHOST, listening, reached_at, web_viewer_url
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -185,14 +185,6 @@ def viewer_executable() -> str | None:
 
     beside = Path(sys.executable).parent / "rerun"
     return str(beside) if beside.is_file() else shutil.which("rerun")
-
-
-def web_viewer_url(web_port: int, grpc_url: str, host: str = "localhost") -> str:
-    """The web viewer's address with the gRPC server to open (``?url=rerun%2Bhttp://...``: a ``+`` left as it is
-    would reach the viewer as a space)."""
-    from urllib.parse import quote
-
-    return f"http://{host}:{web_port}/?url={quote(grpc_url, safe=':/[]')}"
 
 
 _HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
@@ -418,29 +410,34 @@ class ViewSession:
         _flush_to_viewer(rec, port)
 
     def serve(self, *, web_port: int = 9090, grpc_port: int = 9876, bind: str = LOCALHOST,
-              open_browser: bool = False) -> str:
+              memory_limit: str | None = None, open_browser: bool = False) -> str:
         """Serve the session: a gRPC server holding it, and the web viewer (HTML + Wasm) that connects to it, both
         listening on `bind` only (default: this machine; `simreel.viewers.web_server`).
 
-        Returns the web viewer's URL, whose ``url`` parameter names the gRPC server. Both serve until this session
-        is closed (or the process ends). The server keeps everything logged, so viewers that connect later see the
-        whole episode.
+        Returns the web viewer's URL (`web_viewer_url`: the gRPC server to open, the WebGL renderer). Both serve
+        until this session is closed (or the process ends). The server keeps everything logged, up to
+        `memory_limit` (``2GB``, ``25%``; None: Rerun's default), so viewers that connect later see the whole
+        episode. To serve several sessions from one server, start it with `start_web_server` and `stream_to` it.
         """
         import webbrowser
 
         from simreel.viewers.web_server import start_web_server
 
-        server = start_web_server(bind=bind, web_port=web_port, grpc_port=grpc_port)
-        self.served = server
-        rec = self.new_stream()
-        rec.connect_grpc(server.grpc_url, default_blueprint=self.blueprint())
-        self.log_to(rec)
-        _flush_to_viewer(rec, grpc_port, host=reached_at(bind).strip("[]"))
-        host = "localhost" if bind == LOCALHOST else reached_at(bind)
-        url = web_viewer_url(web_port, server.grpc_url, host=host)
+        self.served = start_web_server(bind=bind, web_port=web_port, grpc_port=grpc_port, memory_limit=memory_limit)
+        url = self.stream_to(self.served)
         if open_browser:
             webbrowser.open(url)
         return url
+
+    def stream_to(self, server: Any) -> str:
+        """Send the session, as one Rerun recording, to a running `WebServer` (it stays open when this session is
+        closed) and return the web viewer's URL."""
+        rec = self.new_stream()
+        rec.connect_grpc(server.grpc_url, default_blueprint=self.blueprint())
+        self.log_to(rec)
+        _flush_to_viewer(rec, server.grpc_port, host=reached_at(server.bind).strip("[]"))
+        host = "localhost" if server.bind == LOCALHOST else reached_at(server.bind)
+        return web_viewer_url(server.web_port, server.grpc_url, host=host)
 
     # ------------------------------------------------------------------ logging
     def log_to(self, rec: rr.RecordingStream) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -22,7 +23,8 @@ from typing import IO
 
 from simreel.errors import UsageError, ViewError
 
-__all__ = ["LOCALHOST", "WebServer", "start_web_server", "check_bind_address", "reached_at", "listening"]
+__all__ = ["LOCALHOST", "WebServer", "start_web_server", "check_bind_address", "check_memory_limit", "reached_at",
+           "listening", "web_viewer_url", "port_forward_line", "serve_file_command"]
 
 LOCALHOST = "127.0.0.1"
 """Where ``--serve`` listens by default: a remote browser reaches it through ``ssh -L``."""
@@ -44,6 +46,42 @@ def check_bind_address(address: str) -> str:
                          f"an IP address of one of its interfaces, e.g. {LOCALHOST} (this machine only, the "
                          "default) or 0.0.0.0 (every interface)") from None
     return address
+
+
+_MEMORY_LIMIT = re.compile(r"^(\d+(\.\d+)?%|\d+(\.\d+)?\s*([KMGT]i?B|B))$", re.IGNORECASE)
+"""What Rerun's ``--server-memory-limit`` takes: bytes with a unit (``2GB``, ``512MiB``) or a share of memory (``25%``)."""
+
+
+def check_memory_limit(limit: str) -> str:
+    """`limit` if Rerun's ``--server-memory-limit`` takes it, else `UsageError` saying what it takes."""
+    if not _MEMORY_LIMIT.match(limit.strip()):
+        raise UsageError(f"--server-memory-limit {limit}: give an amount with its unit, e.g. 2GB or 512MiB, or a share "
+                         "of this machine's memory, e.g. 25%")
+    return limit.strip().replace(" ", "")
+
+
+def web_viewer_url(web_port: int, grpc_url: str, host: str = "localhost") -> str:
+    """The web viewer's address with the gRPC server to open (``?url=rerun%2Bhttp://...``: a ``+`` left as it is
+    would reach the viewer as a space) and the WebGL renderer: Rerun's default, WebGPU, fails in a browser that
+    renders in software (a machine without a GPU), WebGL works there and everywhere else."""
+    from urllib.parse import quote
+
+    return f"http://{host}:{web_port}/?url={quote(grpc_url, safe=':/[]')}&renderer=webgl"
+
+
+def port_forward_line(web_port: int, grpc_port: int) -> str:
+    """How a browser on another machine reaches servers listening on this one's 127.0.0.1: both ports forwarded."""
+    return (f"from another machine: ssh -L {web_port}:localhost:{web_port} -L {grpc_port}:localhost:{grpc_port} "
+            "USER@THIS-HOST, then open the URL there")
+
+
+def serve_file_command(viewer: str, rrd: str, *, web_port: int = 9090, grpc_port: int = 9876) -> str:
+    """The shell command that serves a saved .rrd to a browser (this machine only), with `viewer` the Rerun
+    executable as the shell spells it."""
+    import shlex
+
+    return (f"{viewer} --serve-web {shlex.quote(rrd)} --bind {LOCALHOST} --web-viewer-port {web_port} "
+            f"--port {grpc_port} --renderer webgl")
 
 
 def reached_at(address: str) -> str:
@@ -80,12 +118,16 @@ class WebServer:
         self.log.close()
 
 
-def start_web_server(*, bind: str = LOCALHOST, web_port: int = 9090, grpc_port: int = 9876) -> WebServer:
+def start_web_server(*, bind: str = LOCALHOST, web_port: int = 9090, grpc_port: int = 9876,
+                     memory_limit: str | None = None) -> WebServer:
     """Start the servers on `bind` and wait until both ports answer; `ViewError` naming why when the process
-    stops first (or does not listen within a minute)."""
+    stops first (or does not listen within a minute). `memory_limit` (``2GB``, ``25%``; None: Rerun's default)
+    bounds what the gRPC server keeps for viewers that connect later: past it, the oldest data is dropped."""
     log = tempfile.TemporaryFile()
     command = [_server_executable(), "--serve-web", "--bind", bind, "--port", str(grpc_port),
-               "--web-viewer-port", str(web_port)]
+               "--web-viewer-port", str(web_port), "--renderer", "webgl"]
+    if memory_limit is not None:
+        command += ["--server-memory-limit", check_memory_limit(memory_limit)]
     process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
                                preexec_fn=_end_with_parent)
     server = WebServer(process, bind, web_port, grpc_port, log)

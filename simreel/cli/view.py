@@ -13,7 +13,7 @@ from simreel.cli.common import add_import_option, add_tolerance_options, refuse_
 from simreel.errors import UsageError
 from simreel.io.durable import raise_if_stopped
 
-__all__ = ["add_parser", "run", "default_output", "has_display", "open_command", "viewer_available"]
+__all__ = ["add_parser", "run", "default_output", "has_display", "open_command", "open_hint", "viewer_available"]
 
 
 def add_parser(sub: Any) -> None:
@@ -28,9 +28,11 @@ def add_parser(sub: Any) -> None:
             "(simreel replay -o of PATH), `conversion` (simreel convert of PATH), else its file name."
         ),
     )
-    p.add_argument("path", metavar="PATH", help="recording (.h5 or .mcap)")
-    p.add_argument("--episode", type=int, default=None, metavar="I",
-                   help="episode index (default: the first in the file); see `simreel inspect PATH`")
+    p.add_argument("paths", nargs="+", metavar="PATH",
+                   help="recording (.h5 or .mcap); with --serve, several: one Rerun recording per file and episode")
+    p.add_argument("--episode", type=int, action="append", default=None, metavar="I",
+                   help="episode index (default: the first in the file); see `simreel inspect PATH`. With --serve, "
+                        "give it more than once to serve several episodes (of each PATH), picked in the viewer")
     p.add_argument("--compare", default=None, metavar="OTHER",
                    help="another recording of the task: a replay (`simreel replay -o OTHER`), a conversion or a "
                         "second recording; ghost overlay + first divergence")
@@ -50,6 +52,9 @@ def add_parser(sub: Any) -> None:
                         "through ssh -L; 0.0.0.0: every interface, for anyone who can reach this machine)"),
     p.add_argument("--grpc-port", type=int, default=None,
                    help=f"gRPC port for --serve/--spawn (default {_PORTS['grpc']})")
+    p.add_argument("--server-memory-limit", default=None, metavar="LIMIT",
+                   help="the most memory the --serve server keeps the episodes in, e.g. 2GB or 25%% (past it, the "
+                        "oldest data is dropped; default: Rerun's)")
     p.add_argument("--geometry", default="auto", choices=("auto", "visual", "collision"),
                    help="visual meshes (needs a render device), collision shapes, or auto (default)")
     p.add_argument("--block-steps", type=int, default=None, metavar="N",
@@ -143,17 +148,36 @@ def open_command(rrd: str | Path) -> str:
     ``make demo`` runs. Either way the command works in the shell simreel was started from.
     """
     import shlex
+
+    return f"{viewer_command()} {shlex.quote(str(rrd))}"
+
+
+def viewer_command() -> str:
+    """The Rerun viewer as the shell simreel was started from reaches it (`open_command`), shell-quoted."""
+    import shlex
     import shutil
 
     from simreel.viewers.session import viewer_executable
 
     viewer = viewer_executable()
     if viewer is None or viewer == shutil.which("rerun"):
-        command = "rerun"
-    else:
-        relative = os.path.relpath(viewer)
-        command = viewer if relative.startswith("..") else relative if os.sep in relative else f"./{relative}"
-    return f"{shlex.quote(command)} {shlex.quote(str(rrd))}"
+        return "rerun"
+    relative = os.path.relpath(viewer)
+    return shlex.quote(viewer if relative.startswith("..") else relative if os.sep in relative else f"./{relative}")
+
+
+def open_hint(rrd: str | Path) -> list[str]:
+    """The lines that say how to look at a saved .rrd here: ``open it with: <open_command>`` where a window can
+    open; elsewhere the command that serves it to a browser, the URL (WebGL: a browser without a GPU cannot run
+    Rerun's WebGPU renderer) and the ssh port forward for a browser on another machine."""
+    if has_display():
+        return [f"open it with: {open_command(rrd)}"]
+    from simreel.viewers.web_server import port_forward_line, serve_file_command, web_viewer_url
+
+    web, grpc = _PORTS["web"], _PORTS["grpc"]
+    return [f"no display here; serve it to a browser with: {serve_file_command(viewer_command(), str(rrd))}",
+            f"then open: {web_viewer_url(web, f'rerun+http://127.0.0.1:{grpc}/proxy')}",
+            port_forward_line(web, grpc)]
 
 
 def default_output(path: str | Path, episode: int) -> Path:
@@ -161,15 +185,24 @@ def default_output(path: str | Path, episode: int) -> Path:
     return Path.cwd() / f"{Path(path).stem}.episode{episode}.rrd"
 
 
-def _first_episode(args: argparse.Namespace) -> int:
-    """The episode to show; a bad file or episode fails here, before the env is built."""
+def _shown_episodes(args: argparse.Namespace) -> list[tuple[str, int]]:
+    """(file, episode) of each session to show; a bad file or episode fails here, before any env is built. Several
+    only with --serve (one server holds them all)."""
     from simreel.formats import open_reader
 
-    with open_reader(args.path) as reader:
-        if args.episode is not None:
-            reader.episode_meta(args.episode)
-            return args.episode
-        return reader.episodes[0].index if reader.episodes else 0
+    several = len(args.paths) > 1 or len(args.episode or ()) > 1
+    if several and not args.serve:
+        raise UsageError("several recordings or episodes are shown together only with --serve (one web viewer, one "
+                         "Rerun recording each); otherwise give one PATH and one --episode")
+    if several and args.compare is not None:
+        raise UsageError("--compare overlays another recording on one episode: give one PATH and one --episode")
+    shown = []
+    for path in dict.fromkeys(args.paths):  # each once, in the order given
+        with open_reader(path) as reader:
+            for episode in dict.fromkeys(args.episode or [reader.episodes[0].index if reader.episodes else 0]):
+                reader.episode_meta(episode)
+                shown.append((path, episode))
+    return shown
 
 
 _PORTS = {"web": 9090, "grpc": 9876}
@@ -181,16 +214,23 @@ def _refuse_unused(args: argparse.Namespace, mode: str) -> None:
     --compare (`refuse_tolerances_without_compare`), ports where no server runs (--save; --web-port with --spawn).
     Then the ports not given are the defaults (`_PORTS`)."""
     refuse_tolerances_without_compare(args)
-    serverless = {"save": ("--web-port", "--grpc-port"), "spawn": ("--web-port",), "serve": ()}[mode]
+    serverless = {"save": ("--web-port", "--grpc-port", "--server-memory-limit"),
+                  "spawn": ("--web-port", "--server-memory-limit"), "serve": ()}[mode]
     unused = ", ".join(option for option in serverless if getattr(args, option[2:].replace("-", "_")) is not None)
     if unused and mode == "spawn":
-        raise UsageError(f"{unused}: the web viewer's port, for --serve; --spawn uses --grpc-port only")
+        raise UsageError(f"{unused}: of the web server, for --serve; --spawn uses --grpc-port only")
     if unused:
         shown = "--save" if args.save else "the default --save (no viewer can open here)"
-        raise UsageError(f"{unused}: ports of --serve and --spawn; with {shown} no server runs, so leave {unused} out")
+        what = "options of the servers" if "memory" in unused else "ports"
+        raise UsageError(f"{unused}: {what} of --serve and --spawn; with {shown} no server runs, so leave {unused} "
+                         "out")
     if args.bind is not None and mode != "serve":
         raise UsageError(f"--bind {args.bind}: the address --serve listens on; with --{mode} it would be ignored, "
                          "so leave it out")
+    if args.server_memory_limit is not None:
+        from simreel.viewers.web_server import check_memory_limit
+
+        args.server_memory_limit = check_memory_limit(args.server_memory_limit)
     args.web_port = _PORTS["web"] if args.web_port is None else args.web_port
     args.grpc_port = _PORTS["grpc"] if args.grpc_port is None else args.grpc_port
 
@@ -240,41 +280,90 @@ def _check_ports(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.block_steps is not None and args.block_steps < 1:
         raise UsageError(f"--block-steps must be ≥ 1, got {args.block_steps}")
-    episode = _first_episode(args)
-    mode, save = _sink(args, episode)
-    from simreel.viewers import ViewOptions, build_session
-
-    options = ViewOptions(episode=episode, compare=args.compare, geometry=args.geometry, mode=args.mode,
-                          atol=args.atol, tolerances=dict(args.tol) or None, block_steps=args.block_steps,
-                          imports=tuple(args.imports), trust_recorded_imports=args.trust_recorded_imports)
+    args.path = args.paths[0]
+    shown = _shown_episodes(args)
+    mode, save = _sink(args, shown[0][1])
+    if mode == "serve":
+        return _serve(args, shown)
     t0 = time.perf_counter()
-    with build_session(args.path, options) as session:
-        if args.geometry == "visual" and session.geometry_source != "visual":
-            from simreel.sim.make import no_render_device_fix
-
-            print("warning: no render device, so no visual meshes: showing collision shapes (for the meshes, "
-                  f"{no_render_device_fix()})", file=sys.stderr)
-        raise_if_stopped()  # a Ctrl-C a library swallowed while the session was built
+    with _built_session(args, *shown[0]) as session:
         if mode == "save":
             out = session.save(save, overwrite=args.overwrite)
             size = out.stat().st_size / 1024
             print(f"wrote {out} ({size:.0f} KiB, {session.episode.length} steps, {session.geometry_source} geometry) "
                   f"in {time.perf_counter() - t0:.1f} s")
-        elif mode == "spawn":
+        else:
             session.spawn(port=args.grpc_port)
             print(f"sent {session.recording_id} to the Rerun viewer")
-        else:
-            url = session.serve(web_port=args.web_port, grpc_port=args.grpc_port, bind=args.bind)
-            print(f"serving {session.recording_id} at {url} (Ctrl-C to stop)")
+        _print_lines(_findings(session))
+        if mode == "save":
+            _print_lines(open_hint(out))
+    return 0
+
+
+def _built_session(args: argparse.Namespace, path: str, episode: int) -> Any:
+    """The session of one episode, built as the options say (a warning when visual meshes cannot be had)."""
+    from simreel.viewers import ViewOptions, build_session
+
+    options = ViewOptions(episode=episode, compare=args.compare, geometry=args.geometry, mode=args.mode,
+                          atol=args.atol, tolerances=dict(args.tol) or None, block_steps=args.block_steps,
+                          imports=tuple(args.imports), trust_recorded_imports=args.trust_recorded_imports)
+    session = build_session(path, options)
+    if args.geometry == "visual" and session.geometry_source != "visual":
+        from simreel.sim.make import no_render_device_fix
+
+        print("warning: no render device, so no visual meshes: showing collision shapes (for the meshes, "
+              f"{no_render_device_fix()})", file=sys.stderr)
+    with session.closed_on_error():
+        raise_if_stopped()  # a Ctrl-C a library swallowed while the session was built
+    return session
+
+
+def _serve(args: argparse.Namespace, shown: list[tuple[str, int]]) -> int:
+    """Serve every (file, episode) of `shown` from one server, one Rerun recording each, until Ctrl-C or SIGTERM;
+    each session's env is closed once it is streamed (the server holds what was sent)."""
+    from simreel.viewers.web_server import LOCALHOST, port_forward_line, start_web_server
+
+    server = start_web_server(bind=args.bind, web_port=args.web_port, grpc_port=args.grpc_port,
+                              memory_limit=args.server_memory_limit)
+    try:
+        served, findings = [], []
+        for path, episode in shown:
+            with _built_session(args, path, episode) as session:
+                url = session.stream_to(server)
+                served.append(session.recording_id)
+                said = _findings(session)
+                findings += [f"{session.recording_id}: {line}" for line in said] if len(shown) > 1 else said
+        print(f"serving {', '.join(served)} at {url} (Ctrl-C to stop)")
+        _print_lines(findings)
+        if len(served) > 1:
+            print(f"{len(served)} recordings: pick one in the viewer's recordings panel (top left)")
+        print(f"ports: web viewer {server.web_port}, gRPC {server.grpc_port}, on {server.bind}")
+        if server.bind == LOCALHOST:
+            print(port_forward_line(server.web_port, server.grpc_port))
+        sys.stdout.flush()
+        print(f"stopped serving ({_wait_for_stop()})")
+    finally:
+        server.close()
+    return 0
+
+
+def _print_lines(lines: list[str]) -> None:
+    for line in lines:
+        print(line)
+
+
+def _findings(session: Any) -> list[str]:
+    """The notes of the episode shown and what the comparison found, as lines."""
+    import contextlib
+    import io
+
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said):
         for note in session.episode.meta.notes:
             print(f"note: {note}")
         _print_comparison(session.comparison, session.explanation, session.compared)
-        if mode == "save":
-            print(f"open it with: {open_command(out)}")
-        elif mode == "serve":
-            sys.stdout.flush()
-            print(f"stopped serving ({_wait_for_stop()})")
-    return 0
+    return said.getvalue().splitlines()
 
 
 class _Stop(Exception):

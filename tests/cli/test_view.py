@@ -21,7 +21,9 @@ from support.processes import (
     free_port,
     free_ports,
     read_line,
+    reap,
     simreel_command,
+    stop_child,
     without_display,
 )
 from support.rrd import read_served, running_grpc_server
@@ -39,7 +41,9 @@ def test_view_save(pickcube_h5, tmp_path, capsys, rrd_reader):
 
 
 def test_view_defaults_to_saving_without_a_display(pickcube_h5, tmp_path, monkeypatch, capsys):
-    from simreel.cli.view import open_command
+    """No window can open: the session is saved, and the hint serves it to a browser (the `rerun` viewer itself
+    fails there with a winit EventLoopError); tests/viewers/test_web_server.py opens what it prints."""
+    from simreel.cli.view import viewer_command
 
     for name in DISPLAY_VARS:
         monkeypatch.delenv(name, raising=False)
@@ -47,7 +51,21 @@ def test_view_defaults_to_saving_without_a_display(pickcube_h5, tmp_path, monkey
     assert main(["view", str(pickcube_h5), "--geometry", "collision"]) == 0
     out = tmp_path / "pickcube.episode0.rrd"
     assert out.is_file()
-    assert capsys.readouterr().out.splitlines()[-1] == f"open it with: {open_command(out)}"
+    assert capsys.readouterr().out.splitlines()[-3:] == [
+        f"no display here; serve it to a browser with: {viewer_command()} --serve-web {out} --bind 127.0.0.1 "
+        "--web-viewer-port 9090 --port 9876 --renderer webgl",
+        "then open: http://localhost:9090/?url=rerun%2Bhttp://127.0.0.1:9876/proxy&renderer=webgl",
+        "from another machine: ssh -L 9090:localhost:9090 -L 9876:localhost:9876 USER@THIS-HOST, then open the URL "
+        "there"]
+
+
+def test_with_a_display_the_hint_opens_the_viewer(tmp_path, monkeypatch):
+    from simreel.cli.view import open_command, open_hint
+
+    out = tmp_path / "pc.rrd"
+    with answering_display() as env:
+        monkeypatch.setenv("DISPLAY", env["DISPLAY"])
+        assert open_hint(out) == [f"open it with: {open_command(out)}"]
 
 
 VENV_BIN = Path(sys.executable).parent
@@ -88,19 +106,21 @@ def test_the_open_hint_works_in_the_shell_it_is_printed_in(tmp_path, monkeypatch
 
 
 def test_make_demo_prints_one_hint_that_works(pickcube_h5, tmp_path):
-    """What `make demo` runs: the venv's simreel from the repository root, the venv not activated. The last line
-    is the only hint, and its command works in that shell (before, it said `rerun ...`: not on that PATH)."""
+    """What `make demo` runs on a machine without a display: the venv's simreel from the repository root, the venv
+    not activated. The hint is the last three lines (serve, open, ssh), and its viewer runs in that shell (before,
+    it said `rerun ...`: not on that PATH; then `rerun FILE`, which fails without a display)."""
     repo = VENV_BIN.parents[1]
     bare_path = os.pathsep.join(p for p in os.environ["PATH"].split(os.pathsep) if Path(p) != VENV_BIN)
     out = tmp_path / "pickcube.rrd"
     done = subprocess.run([os.path.relpath(VENV_BIN / "simreel", repo), "view", str(pickcube_h5), "--geometry",
-                           "collision", "--save", str(out)], cwd=repo, env={**os.environ, "PATH": bare_path},
+                           "collision", "--save", str(out)], cwd=repo, env={**without_display(), "PATH": bare_path},
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
-    assert [line for line in lines if "rerun" in line] == [lines[-1]]
-    assert lines[-1] == f"open it with: {os.path.relpath(VENV_BIN / 'rerun', repo)} {out}"
-    _runs_here(lines[-1].removeprefix("open it with: "), repo, bare_path)
+    assert [line for line in lines if "rerun" in line] == lines[-3:-1]  # the command to serve, its URL; then ssh
+    serve = lines[-3].split("serve it to a browser with: ")[1]
+    assert serve.startswith(f"{os.path.relpath(VENV_BIN / 'rerun', repo)} --serve-web {out} ")
+    _runs_here(f"{serve.split()[0]} x", repo, bare_path)
     makefile = (repo / "Makefile").read_text()
     assert "rerun" not in makefile.split("\ndemo:")[1].split("\n\n")[0]  # the demo target prints no hint of its own
 
@@ -382,14 +402,14 @@ def test_serve_serves_the_episode_until_stopped(pickcube_h5, tmp_path, rrd_reade
                              lambda c: c.steps("/world/cube", "Transform3D:translation") == list(range(-1, STEPS)))
         assert child.poll() is None  # still serving
         assert _listening_on(web) == _listening_on(grpc) == ["127.0.0.1"]  # not every interface: this machine only
-        child.send_signal(stop)
-        out, err = child.communicate(timeout=60)
+        out, err = stop_child(child, stop)
     finally:
-        if child.poll() is None:
-            child.kill()
-            child.communicate()
+        reap(child)
     assert child.returncode == 0, err
-    assert out.splitlines() == [f"stopped serving ({'Ctrl-C' if stop == signal.SIGINT else 'SIGTERM'})"]
+    assert out.splitlines() == [f"ports: web viewer {web}, gRPC {grpc}, on 127.0.0.1",
+                                f"from another machine: ssh -L {web}:localhost:{web} -L {grpc}:localhost:{grpc} "
+                                "USER@THIS-HOST, then open the URL there",
+                                f"stopped serving ({'Ctrl-C' if stop == signal.SIGINT else 'SIGTERM'})"]
     saved = tmp_path / "saved.rrd"
     assert main(["view", str(pickcube_h5), "--geometry", "collision", "--save", str(saved)]) == 0
     expected = rrd_reader(saved)

@@ -100,3 +100,18 @@ def stop_ray_node(node: subprocess.Popen, timeout: float = 60) -> None:
             os.killpg(node.pid, signal.SIGKILL)
         except ProcessLookupError:  # nothing left
             pass
+
+
+def stop_child(child: subprocess.Popen[str], signum: int, timeout: float = 60) -> tuple[str, str]:
+    """Send `signum`, wait for `child` to end and return (stdout, stderr) left unread, with what `read_line` left
+    in the pipe's buffer (`communicate` reads past that buffer and loses it)."""
+    child.send_signal(signum)
+    child.wait(timeout=timeout)
+    return child.stdout.read(), child.stderr.read()
+
+
+def reap(child: subprocess.Popen[str]) -> None:
+    """Kill `child` if it still runs (a test that failed while it served)."""
+    if child.poll() is None:
+        child.kill()
+        child.communicate()
