@@ -202,7 +202,7 @@ def test_an_episode_an_older_simreel_converted_without_its_predecessors_is_not_g
                "depend on the scene's history: a divergence may come from that alone")
     assert unknown in episode["limits"] and not any("predecessor" in note for note in episode["notes"])
     again = tmp_path / "again.h5"
-    main(["convert", str(older), str(again), "--obs-mode", "state", "--episodes", "2", "-q"])
+    main(["convert", str(older), str(again), "--obs-mode", "state", "--episodes", "2", "--keep", "all", "-q"])
     with open_reader(again) as reader:
         assert "scene" not in reader.episode_meta(2).provenance  # unknown, not a wrong one
 

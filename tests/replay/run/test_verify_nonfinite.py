@@ -43,11 +43,13 @@ def test_a_non_finite_restored_position_diverges_in_every_mode(poisoned, tmp_pat
 
 
 def test_a_conversion_does_not_call_it_verified_and_filter_does_not_keep_it(poisoned, tmp_path, capsys):
-    """What reads the verdicts keeps to them: a conversion writes the episode as diverged, filter --verified drops
-    it."""
+    """What reads the verdicts keeps to them: a conversion leaves the episode out, or with --keep all writes it as
+    diverged; filter --verified drops it."""
     report = tmp_path / "r.json"
     out = tmp_path / "c.h5"
     assert main(["convert", str(poisoned["nan"]), str(out), "--obs-mode", "state", "--report", str(report), "-q"]) == 1
+    assert not out.exists()
+    assert main(["convert", str(poisoned["nan"]), str(out), "--obs-mode", "state", "--keep", "all", "-q"]) == 1
     with open_reader(out) as r:
         assert r.episode_meta(0).provenance["verdict"] == "diverged"
     assert main(["replay", str(poisoned["nan"]), "--mode", "states", "--report", str(tmp_path / "v.json"),
