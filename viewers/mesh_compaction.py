@@ -1,13 +1,13 @@
 """Meshes made smaller before they are logged (`compact_mesh`): a robot's visual meshes come unwelded, every triangle
-with three vertices of its own (the Panda's: 400k vertices for 136k triangles, 70k distinct positions), which made
-nine tenths of a session's bytes.
+with three vertices of its own (the Panda's: 400k vertices for 136k triangles, 70k distinct positions), and they are
+nearly all of a session's bytes.
 
 Positions are snapped to a grid of `POSITION_STEP` (a quarter of a millimetre: finer than a pixel at any distance a
-scene is looked at) and normals to one of `NORMAL_STEP`; corners at one position whose normals fall in one bin of
-`NORMAL_BINS` per axis become one vertex, with their mean normal. A smooth surface's corners merge, a sharp edge's do
-not (their normals lie bins apart), so the surface is shaded as before. The triangles are the same triangles. LZ4,
-which Rerun compresses chunks with, then finds repeats in the snapped numbers too: a 50-step PickCube-v1 session is
-half its size (`benchmarks/bench_view.py --sizes`).
+scene is looked at) and normals to one of `NORMAL_STEP`; corners at one position whose normals round to one bin
+(`NORMAL_BINS`) become one vertex, with their mean normal. A smooth surface's corners merge, a sharp edge's do not
+(their normals lie bins apart), so the surface is shaded as the scene's normals shade it. The triangles are the same
+triangles. LZ4, which Rerun compresses chunks with, then finds repeats in the snapped numbers too: a 50-step
+PickCube-v1 session is about half the size of one with the meshes as given (`benchmarks/bench_rrd_size.py`).
 """
 
 from __future__ import annotations
