@@ -103,7 +103,7 @@ def remade_by_replay(u: Any, generators: dict[str, str]) -> bool:
     captured (measured exact). Not with several envs (one draw serves them all; none is captured), and not taken to
     on the GPU sim (its results are deterministic only for the same batch, and its exactness from captured states
     was not measured); a replay then starts from the recorded initial state."""
-    return bool(generators) and int(u.num_envs) == 1 and not bool(getattr(u, "gpu_sim_enabled", False))
+    return bool(generators) and not bool(getattr(u, "gpu_sim_enabled", False))  # (captured only with one env)
 
 
 def unseeded_warning(u: Any) -> str:

@@ -28,7 +28,7 @@ import numpy as np
 
 from simreel.errors import RecordingFileError, StorageError, UsageError
 from simreel.formats import open_reader, recording_files
-from simreel.io.durable import STORAGE_ERRNOS, raise_if_stopped, storage_error
+from simreel.io.durable import raise_if_stopped
 from simreel.io.paths import refuse_empty
 from simreel.io.targets import check_distinct, check_output, staged_output
 from simreel.model.components import DEFAULT_TOLERANCES, Tolerances
@@ -462,63 +462,26 @@ def _encode(path: Path, frames: Iterator[np.ndarray], fps: float, *, overwrite: 
 
 
 def _write_mp4(path: Path, frames: Iterator[np.ndarray], fps: float, *, label: Path) -> int:
-    """Encode `frames` into `path` with ffmpeg (imageio's binary, the command imageio's writer runs) and return
-    how many; `label` is the video's name in errors.
-
-    ffmpeg is run here rather than through imageio's writer, which neither checks how ffmpeg ended nor keeps its
-    messages: a trailer ffmpeg could not write (a full disk) left a cut video reported as written, a frame it
-    could not take a broken pipe and ffmpeg's whole log. Its messages are kept and make the error
-    (`_encoder_error`)."""
-    import subprocess
+    """Encode `frames` into `path` (`simreel.io.h264.H264Writer`) and return how many; `label` is the video's name in
+    errors; ffmpeg's warnings of a video that was written go to stderr."""
     import sys
-    import tempfile
 
-    count, process = 0, None
-    with tempfile.TemporaryFile() as log:
-        try:
-            for frame in frames:
-                if process is None:
-                    process = subprocess.Popen(_ffmpeg_command(path, frame.shape, fps), stdin=subprocess.PIPE,
-                                               stdout=subprocess.DEVNULL, stderr=log)
-                process.stdin.write(np.ascontiguousarray(frame, np.uint8).tobytes())
-                count += 1
-            if process is None:
-                raise ValueError(f"no frames to write to {label}")
-            process.stdin.close()
-            ended = process.wait() == 0
-        except BrokenPipeError:  # ffmpeg stopped taking frames: its log says why
-            process.wait()
-            ended = False
-        except BaseException:
-            if process is not None:
-                process.kill()
-                process.wait()
-            raise
-        log.seek(0)
-        said = log.read().decode(errors="replace").strip()
-    if not ended:
-        raise _encoder_error(label, said)
+    from simreel.io.h264 import H264Writer
+
+    writer = None
+    try:
+        for frame in frames:
+            if writer is None:
+                writer = H264Writer(path, frame.shape, fps, label=label)
+            writer.write(frame)
+        if writer is None:
+            raise ValueError(f"no frames to write to {label}")
+        writer, done = None, writer
+    except BaseException:
+        if writer is not None:
+            writer.kill()
+        raise
+    said = done.close()
     if said:
-        print(said, file=sys.stderr)  # warnings of a video that was written
-    return count
-
-
-def _ffmpeg_command(path: Path, shape: tuple[int, ...], fps: float) -> list[str]:
-    """ffmpeg reading raw rgb24 frames of `shape` (H, W, 3) from stdin and writing H.264 (yuv420p) to `path`."""
-    import imageio_ffmpeg
-
-    height, width = shape[:2]
-    return [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo", "-s", f"{width}x{height}",
-            "-pix_fmt", "rgb24", "-r", str(fps), "-i", "-", "-an", "-vcodec", "libx264", "-pix_fmt", "yuv420p",
-            "-v", "error", str(path)]
-
-
-def _encoder_error(path: Path, said: str) -> Exception:
-    """The error for ffmpeg failing to write the video `path`, from what it `said`: where the storage refused (a
-    full disk, a read-only file system) the one-line `storage_error` (exit 2), else a `RuntimeError` quoting ffmpeg's
-    last line (not the user's doing)."""
-    for code in sorted(STORAGE_ERRNOS):
-        if os.strerror(code) in said:
-            return storage_error(path, OSError(code, os.strerror(code)), lost="the video was not written")
-    last = said.splitlines()[-1] if said else "no message"
-    return RuntimeError(f"ffmpeg could not write {path}: {last}")
+        print(said, file=sys.stderr)
+    return done.frames

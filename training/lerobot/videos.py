@@ -10,14 +10,13 @@ A camera is a recording's ``obs/sensor_data/<camera>/rgb`` field (uint8, (H, W, 
 
 from __future__ import annotations
 
-import subprocess
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 
+from simreel.io.h264 import H264Writer
 from simreel.model.fields import FieldSpec
 from simreel.training.lerobot.layout import VIDEO_PATH, chunk_file
 
@@ -70,67 +69,25 @@ def as_image_stats(stats: dict[str, Any]) -> dict[str, Any]:
     return {k: v if k == "count" else np.asarray(v).reshape(-1, 1, 1).tolist() for k, v in stats.items()}
 
 
-class _Encoder:
-    """One ffmpeg process writing one mp4 from raw rgb24 frames on its stdin; its messages kept for the error."""
-
-    def __init__(self, path: Path, shape: tuple[int, ...], fps: float) -> None:
-        import imageio_ffmpeg
-
-        height, width = shape[:2]
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.path, self.frames = path, 0
-        self._log: IO[bytes] = tempfile.TemporaryFile()
-        command = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-v", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
-                   "-s", f"{width}x{height}", "-r", f"{fps:g}", "-i", "-", "-an", "-c:v", "libx264",
-                   "-pix_fmt", "yuv420p", "-crf", str(CRF), "-g", str(GOP), str(path)]
-        self._process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log)
-
-    def write(self, frames: np.ndarray) -> None:
-        try:
-            self._process.stdin.write(np.ascontiguousarray(frames, dtype=np.uint8).tobytes())
-        except BrokenPipeError:
-            self.close()  # raises with what ffmpeg said
-        self.frames += len(frames)
-
-    def bytes_written(self) -> int:
-        return self.path.stat().st_size if self.path.exists() else 0
-
-    def close(self) -> None:
-        try:
-            self._process.stdin.close()
-        except BrokenPipeError:
-            pass
-        ended = self._process.wait() == 0
-        self._log.seek(0)
-        said = self._log.read().decode(errors="replace").strip()
-        self._log.close()
-        if not ended:
-            last = said.splitlines()[-1] if said else "no message"
-            raise RuntimeError(f"ffmpeg could not write {self.path}: {last}")
-
-    def kill(self) -> None:
-        self._process.kill()
-        self._process.wait()
-        self._log.close()
-
-
 class CameraVideos:
     """The video files of each camera, episodes appended in order (`episode`), closed by `finish` (or `abort`)."""
 
     def __init__(self, folder: Path, features: Sequence[VideoFeature], fps: float) -> None:
         self.folder, self.features, self.fps = folder, list(features), fps
-        self._encoders: dict[str, _Encoder] = {}
+        self._encoders: dict[str, H264Writer] = {}
         self._file_numbers = {f.key: -1 for f in self.features}
 
-    def _encoder(self, feature: VideoFeature) -> _Encoder:
+    def _encoder(self, feature: VideoFeature) -> H264Writer:
         current = self._encoders.get(feature.key)
-        if current is None or current.bytes_written() >= VIDEO_FILE_MB * 2**20:
+        if current is None or _bytes_written(current.path) >= VIDEO_FILE_MB * 2**20:
             if current is not None:
                 current.close()
             self._file_numbers[feature.key] += 1
             where = chunk_file(self._file_numbers[feature.key])
             path = self.folder / VIDEO_PATH.format(video_key=feature.key, **where)
-            self._encoders[feature.key] = current = _Encoder(path, feature.shape, self.fps)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._encoders[feature.key] = current = H264Writer(path, feature.shape, self.fps,
+                                                               output_options=("-crf", str(CRF), "-g", str(GOP)))
         return current
 
     def episode(self, frames: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -157,3 +114,7 @@ class CameraVideos:
         for encoder in self._encoders.values():
             encoder.kill()
         self._encoders.clear()
+
+
+def _bytes_written(path: Path) -> int:
+    return path.stat().st_size if path.exists() else 0
