@@ -23,7 +23,7 @@ what to keep. If the recorder
 dies (`kill -9`), the child does what it was sent before and then exits at once, as the recorder would have: the
 running episodes are not committed and a staged `--overwrite` replaces nothing.
 
-Run by `ProcessWriter` only (`_BOOTSTRAP`).
+The child's side: `simreel.recorders.writer_child`.
 """
 
 from __future__ import annotations
@@ -45,6 +45,7 @@ from simreel.io.durable import deferred_signals
 from simreel.model.blocks import StepBlock
 from simreel.model.fields import episode_fields
 from simreel.model.meta import EpisodeMeta, RecordingMeta
+from simreel.recorders.writer_child import rebuilt_error
 
 __all__ = ["ProcessWriter"]
 
@@ -55,8 +56,6 @@ _STOP_SECONDS = 30
 """How long a child that does not answer is waited for once the recorder has been asked to stop (Ctrl-C, SIGTERM)."""
 _MAX_SOURCES = 64
 """Row sources the child holds at most (`ProcessWriter._source_number`); at least as many as a block has (4)."""
-_PARENT_CHECK_SECONDS = 1.0
-"""How often an idle child checks that its recorder still runs (a forked process may hold the pipe open)."""
 
 
 class ProcessWriter:
@@ -143,7 +142,7 @@ class ProcessWriter:
     def block_parts(self, block: StepBlock, episode: int,
                     fields: list[Any] | None = None) -> tuple[dict[str, Any], int, tuple[Any, ...]]:
         """`block` checked against the field table (`fields`: those of a reset row), as the child rebuilds it
-        (`_Child._block`): its arrays, rows, and captures with their row sources by number (`_source_number`)."""
+        (`simreel.recorders.writer_child._Child._block`): its arrays, rows, and captures with their row sources by number (`_source_number`)."""
         arrays = block.conform(self.fields if fields is None else fields, episode=episode)
         return arrays, block.rows, tuple((self._source_number(s), held, env) for s, held, env in block.captured)
 
@@ -280,10 +279,10 @@ class ProcessWriter:
         try:
             with deferred_signals():
                 status, answer, committed = self._recv_conn.recv()
-                self._owed -= status != "failed"  # "failed" is the child's own news, not an answer (`_Child._guarded`)
+                self._owed -= status != "failed"  # "failed" is the child's own news, not an answer (`simreel.recorders.writer_child._Child._guarded`)
                 self.committed += [self._committing.pop(i) for i in committed]
                 if status != "ok" and self._failed is None:
-                    self._failed = _rebuilt(answer)
+                    self._failed = rebuilt_error(answer)
         except (EOFError, OSError):
             raise self._gone() from None
         return answer if status == "ok" else None
@@ -390,8 +389,8 @@ _BOOTSTRAP = (
     "spec = PathFinder.find_spec('simreel', [root])\n"
     "sys.modules['simreel'] = module_from_spec(spec)\n"
     "spec.loader.exec_module(sys.modules['simreel'])\n"
-    "from simreel.recorders.writer_process import _main\n"
-    "_main(int(read_fd), int(write_fd), int(parent))\n"
+    "from simreel.recorders.writer_child import main\n"
+    "main(int(read_fd), int(write_fd), int(parent))\n"
 )
 """The child's program: it ignores SIGINT and SIGTERM (the recorder handles them and tells it what to keep) and runs
 the simreel this process runs, loaded from the folder this process loaded it from, without putting that folder (or the
@@ -428,176 +427,3 @@ def _simreel_root() -> str:
     import simreel
 
     return os.path.dirname(os.path.dirname(os.path.abspath(simreel.__file__)))
-
-
-# ---------------------------------------------------------------------- errors across the pipe
-def _portable(e: BaseException) -> tuple[str, str, tuple[Any, ...], dict[str, Any]]:
-    """`e` as (module, class name, args, attributes): simreel's errors take other arguments than their message, so
-    pickle could not rebuild them; an OSError's args carry its errno, message and file names. What cannot be pickled
-    travels as a RuntimeError with the error's text."""
-    args = e.args
-    if isinstance(e, OSError) and e.errno is not None:
-        args = (e.errno, e.strerror, e.filename, None, e.filename2)
-    portable = (type(e).__module__, type(e).__qualname__, args, dict(getattr(e, "__dict__", {})))
-    try:
-        pickle.dumps(portable)
-    except Exception:  # noqa: BLE001 - anything may fail to pickle
-        return "builtins", "RuntimeError", (f"{type(e).__name__}: {e}",), {}
-    return portable
-
-
-def _rebuilt(portable: tuple[str, str, tuple[Any, ...], dict[str, Any]]) -> BaseException:
-    import importlib
-
-    module, name, args, attributes = portable
-    try:
-        cls = getattr(importlib.import_module(module), name)
-        if issubclass(cls, OSError):
-            return cls(*args)
-        e = cls.__new__(cls)
-        BaseException.__init__(e, *args)
-        e.__dict__.update(attributes)
-        return e
-    except Exception:  # noqa: BLE001 - a class this process cannot rebuild: its message still says what happened
-        return RuntimeError(f"{module}.{name}: {args[0] if args else ''}")
-
-
-# ---------------------------------------------------------------------- the child
-class _Child:
-    """Carries out what the recorder sends, in order. After an error nothing more is written (the writer is stopped,
-    as it would be in the recorder's process); only what cleans up (discard, close, abort) still runs."""
-
-    def __init__(self, recv: Connection, send: Connection, parent: int) -> None:
-        self._recv, self._send = recv, send
-        self._parent = parent
-        self._writer: Any = None
-        self._sinks: dict[int, Any] = {}
-        self._error: BaseException | None = None
-        """The first error met (every answer carries it)."""
-        self._stopped = False
-        self._committed: list[int] = []
-        """Episodes committed since the last answer."""
-        self._sources: dict[int, Any] = {}
-        """The row sources the recorder sent, by number (`ProcessWriter._source_number`)."""
-
-    def run(self) -> None:
-        self._answer_raw(("ready", None, []))
-        while True:
-            message = self._next()
-            op, args = message[0], message[1:]
-            getattr(self, f"_{op}")(*args)
-            if op in ("close", "abort"):
-                return
-
-    def _next(self) -> tuple[Any, ...]:
-        """The next message; at the end of the input (the recorder is gone without closing), exit at once, leaving
-        everything as a crash of the recorder would."""
-        try:
-            while not self._recv.poll(_PARENT_CHECK_SECONDS):
-                if os.getppid() != self._parent:  # the recorder died; a process it forked holds the pipe open
-                    os._exit(0)
-            return self._recv.recv()
-        except (EOFError, OSError):
-            os._exit(0)
-
-    def _answer(self, value: Any = None) -> None:
-        """Answer with `value`, the episodes committed since the last answer, and the error that stopped the writer
-        (in every answer from then on: the recorder may have been interrupted before it read the first)."""
-        if self._error is not None:
-            self._say("error", _portable(self._error))
-        else:
-            self._say("ok", value)
-
-    def _say(self, status: str, value: Any) -> None:
-        """Send (status, value, the episodes committed since the last message)."""
-        committed, self._committed = self._committed, []
-        self._answer_raw((status, value, committed))
-
-    def _answer_raw(self, answer: tuple[str, Any, list[int]]) -> None:
-        try:
-            self._send.send(answer)
-        except OSError:  # the recorder is gone
-            os._exit(0)
-
-    def _guarded(self, work: Any, *args: Any) -> bool:
-        """Run a write unless the writer has stopped; an error stops it, and is told at once (the recorder reads it
-        before its next write) and again in every answer."""
-        if self._stopped:
-            return False
-        try:
-            work(*args)
-            return True
-        except Exception as e:  # noqa: BLE001 - every error goes back to the recorder, which raises it
-            self._error, self._stopped = e, True
-            self._say("failed", _portable(e))  # now: the recorder raises it at its next write
-            return False
-
-    def _cleanup(self, work: Any) -> None:
-        try:
-            work()
-        except Exception as e:  # noqa: BLE001
-            self._error = self._error or e
-
-    def _open(self, path: str, meta: RecordingMeta, options: dict[str, Any]) -> None:
-        from simreel.formats import open_writer
-
-        def opened() -> None:
-            self._writer = open_writer(path, meta, **options)
-
-        self._guarded(opened)
-        self._answer((str(self._writer.path), time.process_time()) if self._writer is not None else None)
-        if self._writer is None:
-            os._exit(0)
-
-    def _begin(self, meta: EpisodeMeta, parts: tuple[Any, ...]) -> None:
-        def begun() -> None:
-            self._sinks[meta.index] = self._writer.begin_episode(meta, self._block(parts))
-
-        self._guarded(begun)
-
-    def _scene(self, geometry: Any) -> None:
-        self._guarded(self._writer.write_scene, geometry)
-
-    def _learn(self, number: int, source: Any, forget: int | None) -> None:
-        if forget is not None:
-            del self._sources[forget]
-        self._sources[number] = source
-
-    def _block(self, parts: tuple[dict[str, Any], int, tuple[Any, ...]]) -> StepBlock:
-        """The block `ProcessWriter.block_parts` sent."""
-        arrays, rows, captured = parts
-        return StepBlock(arrays, rows, tuple((self._sources[number], held, env) for number, held, env in captured))
-
-    def _append(self, index: int, parts: tuple[Any, ...]) -> None:
-        sink = self._sinks.get(index)
-        if sink is not None:
-            self._guarded(sink.append, self._block(parts))  # the format's sink converts what the recorder captured
-
-    def _finish(self, index: int, parts: tuple[Any, ...] | None, meta: EpisodeMeta) -> None:
-        if parts is not None:
-            self._append(index, parts)
-        sink = self._sinks.pop(index, None)
-        if sink is not None and self._guarded(sink.commit, meta):
-            self._committed.append(index)
-
-    def _discard(self, index: int) -> None:
-        sink = self._sinks.pop(index, None)
-        if sink is not None:
-            self._cleanup(sink.discard)
-
-    def _settle(self) -> None:
-        self._answer()
-
-    def _close(self, replace: bool) -> None:
-        self._cleanup(lambda: self._writer.close(replace=replace))
-        self._answer(time.process_time())
-
-    def _abort(self) -> None:
-        if self._writer is not None:
-            self._cleanup(self._writer.abort)
-        self._answer()
-
-
-def _main(read_fd: int, write_fd: int, parent: int) -> None:
-    """The child's life (SIGINT and SIGTERM are ignored from its first line on, `_BOOTSTRAP`)."""
-    _Child(Connection(read_fd, writable=False), Connection(write_fd, readable=False), parent).run()

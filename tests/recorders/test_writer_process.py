@@ -342,16 +342,16 @@ def test_an_error_read_as_a_ctrl_c_lands_is_raised_by_close(tmp_path, monkeypatc
     w = ProcessWriter(tmp_path / "r.h5").open(meta)
     _write(w, first)
     w.begin_episode(first.meta, first.reset_block())  # refused in the child
-    rebuilt = writer_process._rebuilt
+    rebuilt = writer_process.rebuilt_error
 
     def rebuilt_as_ctrl_c_lands(portable):
         signal.raise_signal(signal.SIGINT)  # held until the answer is noted
         return rebuilt(portable)
 
-    monkeypatch.setattr(writer_process, "_rebuilt", rebuilt_as_ctrl_c_lands)
+    monkeypatch.setattr(writer_process, "rebuilt_error", rebuilt_as_ctrl_c_lands)
     with pytest.raises(KeyboardInterrupt):
         w.settle()
-    monkeypatch.setattr(writer_process, "_rebuilt", rebuilt)
+    monkeypatch.setattr(writer_process, "rebuilt_error", rebuilt)
     with pytest.raises(UsageError, match="episode 0 was already written"):
         w.close()
     assert [m.index for m in w.committed] == [0]
