@@ -13,10 +13,15 @@ from typing import Any
 from simreel.errors import UsageError
 from simreel.options.checks import flag, text, whole_number
 from simreel.options.declare import GivenOnce, check_options, documented, option
-from simreel.sim.contacts import contacts_spec
 from simreel.sim.user_code import IMPORTS, import_specs
 
 __all__ = ["RecordOptions", "constructor_options"]
+
+
+def _contacts(name: str, value: Any) -> str | None:
+    from simreel.sim.contacts import contacts_spec  # the live-env side of contacts, kept off the CLI's parser
+
+    return contacts_spec(value)
 
 
 def _poses(name: str, value: Any) -> bool | None:
@@ -43,7 +48,7 @@ class RecordOptions:
         help="contact channels: auto (default: the net force on every moving body, and the task's or the robot "
              "fingers' pairs), none, or pairs like panda/panda_leftfinger:cube (from Python also a list of \"A:B\" "
              "strings)",
-        check=lambda name, value: contacts_spec(value))
+        check=_contacts)
     record_obs: bool = option(False, action="store_true", help="also record observations (T+1 rows per episode)",
                               check=flag())
     poses: bool | None = option(
