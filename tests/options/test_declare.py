@@ -138,6 +138,7 @@ _COMMANDS = {
     "merge": ["simreel.cli.merge:MergeRun", "simreel.datasets.options:DatasetOptions"],
     "filter": ["simreel.cli.filter:FilterRun", "simreel.datasets.options:EpisodeCriteria",
                "simreel.datasets.options:DatasetOptions"],
+    "recover": ["simreel.cli.recover:RecoverRun"],
 }
 """Each command whose options are declared, and the classes that declare them."""
 
