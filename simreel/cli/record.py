@@ -13,7 +13,7 @@ from simreel.io.durable import raise_if_stopped
 from simreel.options.declare import add_arguments, check_options, from_arguments, option
 from simreel.recorders.options import RecordOptions
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "RecordRun"]
 
 _DEFAULT_MAX_STEPS = 200
 _STEP_LIMIT = 2**31 - 1
