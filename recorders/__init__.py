@@ -29,3 +29,7 @@ def __getattr__(name: str) -> Any:
 
     globals()["RecordWrapper"] = RecordWrapper
     return RecordWrapper
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})
