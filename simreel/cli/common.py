@@ -5,16 +5,17 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 from simreel.errors import UsageError
 from simreel.model.selection import parse_index_ranges
 from simreel.options.checks import parse_json_kwargs, parse_size
-from simreel.options.declare import GivenOnce, add_option
+from simreel.options.declare import GivenOnce, Option, add_arguments, add_option, check_options, option
 from simreel.sim.user_code import IMPORTS, TRUST_IMPORTS
 from simreel.verdicts.options import ATOL, TOL, mode_choices, parse_group_tolerance, parse_tolerance
 
-__all__ = ["add_env_options", "env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
+__all__ = ["EnvOptions", "QUIET", "add_env_options", "env_options", "add_import_option", "apply_imports", "parse_json_kwargs", "parse_index_ranges",
            "parse_size", "add_tolerance_options", "parse_tolerance", "parse_group_tolerance", "progress_bar", "mode_choices",
            "GivenOnce", "LOG_LINE_SECONDS", "STOPPED_THEN", "stopped_saying", "write_json_report"]
 
@@ -101,32 +102,52 @@ def add_import_option(p: argparse.ArgumentParser, *, reads_recordings: bool = Fa
         add_option(p, "trust_recorded_imports", TRUST_IMPORTS, False)
 
 
+QUIET = Option(help="no progress bar", flags=("-q", "--quiet"), action="store_true")
+"""``-q``, declared once for the commands that show a progress bar and take it."""
+
+
+def _num_envs(name: str, value: int | None) -> int | None:
+    if value is not None and value < 1:
+        raise UsageError(f"--num-envs must be ≥ 1, got {value}")
+    return value
+
+
+@dataclass(frozen=True)
+class EnvOptions:
+    """The env's gym.make options of a command that builds one (`add_env_options`); each not given stays None, its
+    default `simreel.sim.make.EnvConfig`'s (`env_options`)."""
+
+    obs_mode: str | None = option(None, help="ManiSkill obs_mode (default: state)")
+    control_mode: str | None = option(None, help="ManiSkill control_mode (default: the task's)")
+    reward_mode: str | None = option(None, help="ManiSkill reward_mode (default: the task's)")
+    sim_backend: str | None = option(None, help="physx_cpu, physx_cuda or auto (default)")
+    render_backend: str | None = option(None, help="gpu, cpu, none or auto (default: detected)")
+    num_envs: int | None = option(None, parse=int, check=_num_envs,
+                                  help="parallel envs (>1 needs the GPU sim; default: 1)")
+    env_kwargs: dict[str, Any] = option(default_factory=dict, parse=parse_json_kwargs, metavar="JSON",
+                                        help='extra gym.make kwargs as a JSON object, e.g. \'{"robot_uids": "panda"}\'')
+
+    def __post_init__(self) -> None:
+        check_options(self)
+
+
 def add_env_options(p: argparse.ArgumentParser) -> None:
-    """The env's gym.make options; each not given stays None, its default `simreel.sim.make.EnvConfig`'s
-    (`env_options`)."""
-    p.add_argument("--obs-mode", default=None, help="ManiSkill obs_mode (default: state)")
-    p.add_argument("--control-mode", default=None, help="ManiSkill control_mode (default: the task's)")
-    p.add_argument("--reward-mode", default=None, help="ManiSkill reward_mode (default: the task's)")
-    p.add_argument("--sim-backend", default=None, help="physx_cpu, physx_cuda or auto (default)")
-    p.add_argument("--render-backend", default=None, help="gpu, cpu, none or auto (default: detected)")
-    p.add_argument("--num-envs", type=int, default=None, help="parallel envs (>1 needs the GPU sim; default: 1)")
-    p.add_argument("--env-kwargs", type=parse_json_kwargs, default={}, metavar="JSON",
-                   help='extra gym.make kwargs as a JSON object, e.g. \'{"robot_uids": "panda"}\'')
-    add_import_option(p)
+    """The env's gym.make options (`EnvOptions`)."""
+    add_arguments(p, EnvOptions)
 
 
 _ENV_OPTIONS = ("obs_mode", "control_mode", "reward_mode", "sim_backend", "render_backend", "num_envs")
-"""The `EnvConfig` fields `add_env_options` gives options for."""
+"""The `EnvConfig` fields `EnvOptions` gives options for (besides `env_kwargs`)."""
 
 
-def env_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The env options given (`add_env_options`), as `EnvConfig` arguments; `EnvBuildError` where --env-kwargs gives
-    one of them too, otherwise (``--obs-mode state --env-kwargs '{"obs_mode": "rgb"}'``), even at its default value,
-    which `EnvConfig` alone cannot tell from one not given."""
+def env_options(env_id: str, options: EnvOptions) -> dict[str, Any]:
+    """The env options given, as `EnvConfig` arguments; `EnvBuildError` where --env-kwargs gives one of them too,
+    otherwise (``--obs-mode state --env-kwargs '{"obs_mode": "rgb"}'``), even at its default value, which
+    `EnvConfig` alone cannot tell from one not given."""
     from simreel.sim.make import refuse_repeated
 
-    given = {name: getattr(args, name) for name in _ENV_OPTIONS if getattr(args, name) is not None}
-    refuse_repeated(args.env_id, given, args.env_kwargs)
+    given = {name: getattr(options, name) for name in _ENV_OPTIONS if getattr(options, name) is not None}
+    refuse_repeated(env_id, given, options.env_kwargs)
     return given
 
 

@@ -1,17 +1,37 @@
 """`simreel filter`: keep (or split off) a recording's episodes by index, final success, length or a replay's
-verdicts, losslessly, checked against the input after writing."""
+verdicts, losslessly, checked against the input after writing. Its criteria are `EpisodeCriteria`'s declarations,
+how it writes `DatasetOptions`' (`simreel.datasets.options`); the files, the verdict reports and ``-q`` are
+`FilterRun`'s."""
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import GivenOnce, parse_index_ranges
+from simreel.cli.common import QUIET
 from simreel.cli.merge import dataset_progress
+from simreel.datasets.options import DatasetOptions, EpisodeCriteria
 from simreel.errors import UsageError
+from simreel.options.declare import add_arguments, from_arguments, option
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "FilterRun"]
+
+
+@dataclass(frozen=True)
+class FilterRun:
+    """The options of `simreel filter` besides the criteria and how it writes: its files, each declared once."""
+
+    output: str = option("", flags=("-o", "--output"), required=True, metavar="OUT",
+                         help="file for the episodes kept (.h5 or .mcap)")
+    rest: str | None = option(None, metavar="OTHER", help="file for every episode not kept (.h5 or .mcap)")
+    verified: str | None = option(None, metavar="REPORT", group="verdict",
+                                  help="episodes a replay report (simreel replay --report) says verified: exact or "
+                                       "within tolerance; episodes it does not cover are not kept")
+    diverged: str | None = option(None, metavar="REPORT", group="verdict",
+                                  help="episodes a replay report says diverged")
+    quiet: bool = option(False, spec=QUIET)
 
 
 def add_parser(sub: Any) -> None:
@@ -23,54 +43,39 @@ def add_parser(sub: Any) -> None:
         "are read back and every array checked against IN.",
     )
     p.add_argument("input", metavar="IN", help="recording to read (.h5, .mcap, ManiSkill .h5 + .json)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="file for the episodes kept (.h5 or .mcap)")
-    p.add_argument("--rest", default=None, metavar="OTHER", help="file for every episode not kept (.h5 or .mcap)")
-    p.add_argument("--episodes", action=GivenOnce, default=None, metavar="LIST", help="original episode indices, e.g. 0,3-7")
-    success = p.add_mutually_exclusive_group()
-    success.add_argument("--success", dest="success", action="store_const", const=True, default=None,
-                         help="episodes whose final success is true (a file without success has none)")
-    success.add_argument("--no-success", dest="success", action="store_const", const=False,
-                         help="episodes whose final success is false")
-    p.add_argument("--min-steps", type=int, default=None, metavar="N", help="episodes of at least N steps")
-    p.add_argument("--max-steps", type=int, default=None, metavar="N", help="episodes of at most N steps")
-    verdict = p.add_mutually_exclusive_group()
-    verdict.add_argument("--verified", default=None, metavar="REPORT",
-                         help="episodes a replay report (simreel replay --report) says verified: exact or within "
-                              "tolerance; episodes it does not cover are not kept")
-    verdict.add_argument("--diverged", default=None, metavar="REPORT",
-                         help="episodes a replay report says diverged")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT and OTHER if they exist")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_arguments(p, FilterRun, only=["output", "rest"])
+    add_arguments(p, EpisodeCriteria)
+    add_arguments(p, FilterRun, only=["verified", "diverged"])
+    add_arguments(p, DatasetOptions)
+    add_arguments(p, FilterRun, only=["quiet"])
     p.set_defaults(run=run)
 
 
-def _criteria(args: argparse.Namespace) -> Any:
-    from simreel.datasets.dataset import EpisodeCriteria
-
-    episodes = None if args.episodes is None else parse_index_ranges(args.episodes)
-    if episodes is not None and not episodes:
+def _criteria(args: argparse.Namespace, cmd: FilterRun) -> EpisodeCriteria:
+    criteria = from_arguments(EpisodeCriteria, args, **_verdicts(args.input, cmd))
+    if criteria.episodes is not None and not criteria.episodes:
         raise UsageError(f"--episodes {args.episodes!r} names no episode")
-    return EpisodeCriteria(episodes=episodes, success=args.success,
-                           min_steps=args.min_steps, max_steps=args.max_steps, **_verdicts(args))
+    return criteria
 
 
-def _verdicts(args: argparse.Namespace) -> dict[str, Any]:
+def _verdicts(path: str, cmd: FilterRun) -> dict[str, Any]:
     """The verdict criterion of --verified/--diverged REPORT: the report's verdicts of IN's episodes."""
-    report = args.verified or args.diverged
+    report = cmd.verified or cmd.diverged
     if report is None:
         return {}
     from simreel.datasets.dataset import DIVERGED, VERIFIED, report_verdicts
     from simreel.replay import read_verdicts
 
     found = read_verdicts(report)
-    return {"verdicts": report_verdicts(args.input, found.verdicts, found.files, report),
-            "keep_verdicts": VERIFIED if args.verified else DIVERGED, "report": str(Path(report).resolve())}
+    return {"verdicts": report_verdicts(path, found.verdicts, found.files, report),
+            "keep_verdicts": VERIFIED if cmd.verified else DIVERGED, "report": str(Path(report).resolve())}
 
 
 def run(args: argparse.Namespace) -> int:
     from simreel.datasets.dataset import filter_recording
 
-    report = filter_recording(args.input, args.output, _criteria(args), rest=args.rest, overwrite=args.overwrite,
-                              command=args.command_line, progress=dataset_progress(args.quiet))
+    cmd = from_arguments(FilterRun, args)
+    options = from_arguments(DatasetOptions, args, command=args.command_line, progress=dataset_progress(cmd.quiet))
+    report = filter_recording(args.input, cmd.output, _criteria(args, cmd), options, rest=cmd.rest)
     print(report.summary())
     return 0

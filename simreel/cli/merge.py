@@ -4,11 +4,23 @@ losslessly, checked against the inputs after writing."""
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from typing import Any
 
-from simreel.cli.common import progress_bar
+from simreel.cli.common import QUIET, progress_bar
+from simreel.datasets.options import DatasetOptions
+from simreel.options.declare import add_arguments, from_arguments, option
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "MergeRun"]
+
+
+@dataclass(frozen=True)
+class MergeRun:
+    """The options of `simreel merge` besides how it writes (`DatasetOptions`), each declared once."""
+
+    output: str = option("", flags=("-o", "--output"), required=True, metavar="OUT",
+                         help="file to write: .h5/.hdf5 or .mcap")
+    quiet: bool = option(False, spec=QUIET)
 
 
 def add_parser(sub: Any) -> None:
@@ -20,9 +32,9 @@ def add_parser(sub: Any) -> None:
         "format (.h5 or .mcap). OUT is read back and every array checked against its source.",
     )
     p.add_argument("inputs", nargs="+", metavar="IN", help="recordings to merge (.h5, .mcap, ManiSkill .h5 + .json)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="file to write: .h5/.hdf5 or .mcap")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_arguments(p, MergeRun, only=["output"])
+    add_arguments(p, DatasetOptions)
+    add_arguments(p, MergeRun, only=["quiet"])
     p.set_defaults(run=run)
 
 
@@ -34,7 +46,8 @@ def dataset_progress(quiet: bool) -> Any:
 def run(args: argparse.Namespace) -> int:
     from simreel.datasets.dataset import merge
 
-    report = merge(args.inputs, args.output, overwrite=args.overwrite, command=args.command_line,
-                   progress=dataset_progress(args.quiet))
+    cmd = from_arguments(MergeRun, args)
+    options = from_arguments(DatasetOptions, args, command=args.command_line, progress=dataset_progress(cmd.quiet))
+    report = merge(args.inputs, cmd.output, options)
     print(report.summary())
     return 0

@@ -6,37 +6,61 @@ import argparse
 from dataclasses import dataclass
 from typing import Any
 
-from simreel.cli.common import GivenOnce, add_env_options, apply_imports, env_options, progress_bar
+from simreel.cli.common import QUIET, EnvOptions, add_env_options, apply_imports, env_options, progress_bar
 from simreel.cli.policy_option import POLICY_HELP
 from simreel.errors import UsageError
 from simreel.io.durable import raise_if_stopped
+from simreel.options.declare import add_arguments, check_options, from_arguments, option
+from simreel.recorders.options import RecordOptions
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "RecordRun"]
 
 _DEFAULT_MAX_STEPS = 200
 _STEP_LIMIT = 2**31 - 1
 """The longest time limit ManiSkill can keep: it counts an episode's steps in int32 (beyond, every step ends it)."""
 
 
+def _episodes(name: str, value: int) -> int:
+    if value < 1:
+        raise UsageError(f"--episodes must be ≥ 1, got {value}")
+    return value
+
+
+def _max_steps(name: str, value: int | None) -> int | None:
+    if value is not None and not 1 <= value <= _STEP_LIMIT:
+        raise UsageError(f"--max-steps must be from 1 to {_STEP_LIMIT} (ManiSkill counts steps in 32 bits), got "
+                         f"{value}")
+    return value
+
+
+@dataclass(frozen=True)
+class RecordRun:
+    """What `simreel record` runs, besides `RecordOptions` (what is recorded) and `EnvOptions` (the env): the
+    command's own options, each declared once."""
+
+    env_id: str = option("", cli=False, help="the task to record (ENV_ID)")
+    output: str = option("", flags=("-o", "--output"), required=True, metavar="OUT", help="output file: .h5 or .mcap")
+    episodes: int = option(1, flags=("-n", "--episodes"), parse=int, check=_episodes,
+                           help="episodes to record (default 1)")
+    seed: int = option(0, parse=int, help="seed of the first episode; episode k uses seed+k")
+    policy: str = option("random", help=f"{POLICY_HELP} (default random)")
+    max_steps: int | None = option(
+        None, parse=int, check=_max_steps,
+        help=f"the episodes' time limit in steps, longer or shorter than the task's (default: the task's, else "
+             f"{_DEFAULT_MAX_STEPS}); the replay rebuilds the env with it. `max_episode_steps` in --env-kwargs does "
+             "the same")
+    quiet: bool = option(False, spec=QUIET)
+
+    def __post_init__(self) -> None:
+        check_options(self)
+
+
 def add_parser(sub: Any) -> None:
     p = sub.add_parser("record", help="record episodes of an env to .h5 or .mcap",
                        description="Run a policy in ENV_ID and record every episode with its full state dict.")
     p.add_argument("env_id", metavar="ENV_ID")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output file: .h5 or .mcap")
-    p.add_argument("-n", "--episodes", type=int, default=1, help="episodes to record (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the first episode; episode k uses seed+k")
-    p.add_argument("--policy", default="random", help=f"{POLICY_HELP} (default random)")
-    p.add_argument("--max-steps", type=int, default=None,
-                   help="the episodes' time limit in steps, longer or shorter than the task's (default: the task's, "
-                        f"else {_DEFAULT_MAX_STEPS}); the replay rebuilds the env with it. `max_episode_steps` in "
-                        "--env-kwargs does the same")
-    p.add_argument("--contacts", action=GivenOnce, default="auto", metavar="auto|none|A:B,...",
-                   help="contact channels: auto (default), none, or pairs like panda/panda_leftfinger:cube")
-    p.add_argument("--record-obs", action="store_true", help="also record observations")
-    p.add_argument("--poses", action=argparse.BooleanOptionalAction, default=None,
-                   help="record world poses of every body and link (default: on for .mcap, off for .h5)")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_arguments(p, RecordRun)
+    add_arguments(p, RecordOptions)
     add_env_options(p)
     p.set_defaults(run=run)
 
@@ -47,21 +71,14 @@ def _done(terminated: Any, truncated: Any) -> Any:
     return to_numpy(terminated).reshape(-1) | to_numpy(truncated).reshape(-1)
 
 
-def _check_counts(args: argparse.Namespace) -> None:
-    if args.episodes < 1:
-        raise UsageError(f"--episodes must be ≥ 1, got {args.episodes}")
-    if args.max_steps is not None and not 1 <= args.max_steps <= _STEP_LIMIT:
-        raise UsageError(f"--max-steps must be from 1 to {_STEP_LIMIT} (ManiSkill counts steps in 32 bits), got "
-                         f"{args.max_steps}")
+def _check_seeds(cmd: RecordRun, env: EnvOptions) -> None:
+    """The seeds a run uses fit the simulator's (`check_seed_span`)."""
     from simreel.model.env_config import EnvConfig
-
-    num_envs = EnvConfig.num_envs if args.num_envs is None else args.num_envs
-    if num_envs < 1:
-        raise UsageError(f"--num-envs must be ≥ 1, got {num_envs}")
     from simreel.sim.seeds import check_seed_span
 
-    last = args.seed + max(args.episodes, num_envs) - 1  # the largest seed a run uses (`_record_batched`)
-    check_seed_span(args.seed, last, "run", "-n")
+    num_envs = EnvConfig.num_envs if env.num_envs is None else env.num_envs
+    last = cmd.seed + max(cmd.episodes, num_envs) - 1  # the largest seed a run uses (`_record_batched`)
+    check_seed_span(cmd.seed, last, "run", "-n")
 
 
 @dataclass(frozen=True)
@@ -73,50 +90,53 @@ class _Limits:
     note: str
 
 
-def _limits(args: argparse.Namespace) -> _Limits:
+def _limits(cmd: RecordRun, env: EnvOptions) -> _Limits:
     """The time limit the options ask for (--max-steps, or `max_episode_steps` in --env-kwargs, a gym.make argument
     rather than the task's), and the line that says which limit applies."""
     from simreel.sim.make import time_limit
 
-    registered = time_limit(args.env_id)
-    asked = args.env_kwargs.pop("max_episode_steps", None)
+    registered = time_limit(cmd.env_id)
+    asked = env.env_kwargs.pop("max_episode_steps", None)
     if asked is not None and (not isinstance(asked, int) or isinstance(asked, bool) or not 1 <= asked <= _STEP_LIMIT):
         raise UsageError(f"--env-kwargs max_episode_steps must be a whole number from 1 to {_STEP_LIMIT} (ManiSkill "
                          f"counts steps in 32 bits), got {asked!r}")
-    if asked is not None and args.max_steps is not None and asked != args.max_steps:
-        raise UsageError(f"--max-steps {args.max_steps} and --env-kwargs max_episode_steps {asked} disagree; give one")
-    chosen = args.max_steps or asked
+    if asked is not None and cmd.max_steps is not None and asked != cmd.max_steps:
+        raise UsageError(f"--max-steps {cmd.max_steps} and --env-kwargs max_episode_steps {asked} disagree; give one")
+    chosen = cmd.max_steps or asked
     if chosen is None:
         if registered is None:
-            return _Limits(_DEFAULT_MAX_STEPS, None, f"{args.env_id} has no time limit; episodes end after "
+            return _Limits(_DEFAULT_MAX_STEPS, None, f"{cmd.env_id} has no time limit; episodes end after "
                                                      f"{_DEFAULT_MAX_STEPS} steps (--max-steps), or when the task ends them")
-        return _Limits(registered, None, f"episodes end at {args.env_id}'s time limit of {registered} steps, or "
+        return _Limits(registered, None, f"episodes end at {cmd.env_id}'s time limit of {registered} steps, or "
                                          "earlier when the task ends them")
     if registered is not None and chosen != registered:
-        return _Limits(chosen, chosen, f"{args.env_id}'s time limit is {registered} steps; this recording sets it to "
+        return _Limits(chosen, chosen, f"{cmd.env_id}'s time limit is {registered} steps; this recording sets it to "
                                        f"{chosen} (the recording keeps it, so replay uses it too)")
     return _Limits(chosen, chosen, f"episodes end at the time limit of {chosen} steps, or earlier when the task "
                                    "ends them")
 
 
 def run(args: argparse.Namespace) -> int:
-    _check_counts(args)
+    cmd = from_arguments(RecordRun, args, env_id=args.env_id)
+    env = from_arguments(EnvOptions, args)
+    options = from_arguments(RecordOptions, args, command=args.command_line)
+    _check_seeds(cmd, env)
     from simreel.formats import check_writable
 
-    check_writable(args.output, overwrite=args.overwrite)  # reject what cannot be written before paying for the env
-    apply_imports(args.imports)
+    check_writable(cmd.output, overwrite=options.overwrite)  # reject what cannot be written before paying for the env
+    apply_imports(options.imports)
     from simreel.cli.policy_option import load_policy
 
-    policy = _Policy(args.policy, load_policy(args.policy, args.env_id))
-    limits = _limits(args)
+    policy = _Policy(cmd.policy, load_policy(cmd.policy, cmd.env_id))
+    limits = _limits(cmd, env)
     print(limits.note)
-    rec = _recorder(args, limits.time_limit)
-    rec.action_space.seed(args.seed)  # `--policy random` is then reproducible from --seed
+    rec = _recorder(cmd, env, options, limits.time_limit)
+    rec.action_space.seed(cmd.seed)  # `--policy random` is then reproducible from --seed
     try:
         if rec.meta.num_envs == 1:
-            _record_single(rec, policy, args, limits.steps)
+            _record_single(rec, policy, cmd, limits.steps)
         else:
-            _record_batched(rec, policy, args, limits.steps)
+            _record_batched(rec, policy, cmd, limits.steps)
     except BaseException as e:
         from simreel.recorders.record_wrapper import what_stopped
 
@@ -145,29 +165,29 @@ class _Policy:
         return self._call.returned(lambda: rec.step(action), where)
 
 
-def _recorder(args: argparse.Namespace, time_limit: int | None) -> Any:
+def _recorder(cmd: RecordRun, env_opts: EnvOptions, options: RecordOptions, time_limit: int | None) -> Any:
     """The env the options ask for, wrapped in the recorder (the env is closed if the recorder refuses)."""
     from simreel.recorders import RecordWrapper
     from simreel.sim.make import EnvConfig, make_env
 
-    config = EnvConfig(**env_options(args), env_kwargs=args.env_kwargs, max_episode_steps=time_limit)
-    env = make_env(args.env_id, config)
+    config = EnvConfig(**env_options(cmd.env_id, env_opts), env_kwargs=env_opts.env_kwargs,
+                       max_episode_steps=time_limit)
+    env = make_env(cmd.env_id, config)
     try:
-        return RecordWrapper(env, args.output, contacts=args.contacts, record_obs=args.record_obs, poses=args.poses,
-                             overwrite=args.overwrite, imports=tuple(args.imports), command=args.command_line)
+        return RecordWrapper(env, cmd.output, options)
     except BaseException:
         env.close()
         raise
 
 
-def _progress(args: argparse.Namespace) -> Any:
-    return progress_bar(quiet=args.quiet, total=args.episodes, unit="ep", desc=f"record {args.env_id}")
+def _progress(cmd: RecordRun) -> Any:
+    return progress_bar(quiet=cmd.quiet, total=cmd.episodes, unit="ep", desc=f"record {cmd.env_id}")
 
 
-def _record_single(rec: Any, policy: _Policy, args: argparse.Namespace, max_steps: int) -> None:
-    with _progress(args) as bar:
-        for k in range(args.episodes):
-            obs, _ = rec.reset(seed=args.seed + k)
+def _record_single(rec: Any, policy: _Policy, cmd: RecordRun, max_steps: int) -> None:
+    with _progress(cmd) as bar:
+        for k in range(cmd.episodes):
+            obs, _ = rec.reset(seed=cmd.seed + k)
             for t in range(max_steps):
                 raise_if_stopped()
                 obs, _, terminated, truncated, _ = policy.step(rec, obs, f"episode {k}, step {t}")
@@ -176,18 +196,18 @@ def _record_single(rec: Any, policy: _Policy, args: argparse.Namespace, max_step
             bar.update()
 
 
-def _record_batched(rec: Any, policy: _Policy, args: argparse.Namespace, max_steps: int) -> None:
+def _record_batched(rec: Any, policy: _Policy, cmd: RecordRun, max_steps: int) -> None:
     """N parallel envs running episodes k = 0, 1, ... in the order they start, episode k with seed S+k. An env whose
     episode ends is reset alone (a partial reset: its episode is committed and the next one starts there) while it
     runs one of the `--episodes` wanted; an episode started past those (a reset must start one) gets seed S, is left
     running when it ends, and is dropped at the end: exactly the episodes wanted are recorded, with their seeds."""
     import numpy as np
 
-    n, wanted = rec.meta.num_envs, args.episodes
+    n, wanted = rec.meta.num_envs, cmd.episodes
     order = np.arange(n)  # the start order of each env's running episode
-    obs, _ = rec.reset(seed=[args.seed + i for i in range(n)])
+    obs, _ = rec.reset(seed=[cmd.seed + i for i in range(n)])
     started, steps = n, np.zeros(n, dtype=np.int64)
-    with _progress(args) as bar:
+    with _progress(cmd) as bar:
         while len(rec.episodes_committed) < wanted:
             raise_if_stopped()
             obs, _, terminated, truncated, _ = policy.step(rec, obs, f"after {len(rec.episodes_committed)} episodes")
@@ -197,7 +217,7 @@ def _record_batched(rec: Any, policy: _Policy, args: argparse.Namespace, max_ste
                 idx = np.flatnonzero(done)
                 before = len(rec.episodes_committed)
                 new = np.arange(started, started + len(idx))
-                seeds = [args.seed + int(k) if k < wanted else args.seed for k in new]
+                seeds = [cmd.seed + int(k) if k < wanted else cmd.seed for k in new]
                 obs, _ = rec.reset(seed=seeds, options={"env_idx": idx})
                 order[idx], started, steps[idx] = new, started + len(idx), 0
                 bar.update(len(rec.episodes_committed) - before)

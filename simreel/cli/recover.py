@@ -13,9 +13,23 @@ at the time, damaged episodes, records and bytes.
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["add_parser", "run"]
+from simreel.options.declare import add_arguments, from_arguments, option
+
+__all__ = ["add_parser", "run", "RecoverRun"]
+
+
+@dataclass(frozen=True)
+class RecoverRun:
+    """The options of `simreel recover`, each declared once: the keywords of `simreel.datasets.copy.recover`, which
+    checks them (for a Python caller too)."""
+
+    output: str | None = option(None, flags=("-o", "--output"), metavar="OUT",
+                                help="write the recovered recording here instead of replacing PATH (.mcap; .h5 "
+                                     "writes HDF5)")
+    overwrite: bool = option(False, action="store_true", help="replace OUT if it exists")
 
 
 def add_parser(sub: Any) -> None:
@@ -28,16 +42,15 @@ def add_parser(sub: Any) -> None:
         "shorter than it says it is, cannot be opened at all).",
     )
     p.add_argument("path", metavar="PATH", help="the interrupted or damaged recording (.mcap or .h5)")
-    p.add_argument("-o", "--output", metavar="OUT", default=None,
-                   help="write the recovered recording here instead of replacing PATH (.mcap; .h5 writes HDF5)")
-    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    add_arguments(p, RecoverRun)
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from simreel.datasets.copy import recover
 
-    r = recover(args.path, args.output, overwrite=args.overwrite)
+    cmd = from_arguments(RecoverRun, args)
+    r = recover(args.path, cmd.output, overwrite=cmd.overwrite)
     if r.finished:
         print(r.finished)
     if r.complete and r.output is None:

@@ -1,7 +1,8 @@
 """Each option of a command declared once: a dataclass field made by `option(...)` carries its default, its help,
 its command-line spelling and its check, and everything else comes from that one declaration —
 
-- `add_arguments(parser, Options)`: the command's argparse arguments (flags, defaults, help, choices);
+- `add_arguments(parser, Options)`: the command's argparse arguments (flags, defaults, help, choices, required
+  options, mutually exclusive groups, ``--x``/``--no-x`` twins);
 - `from_arguments(Options, args, ...)`: the options object from what argparse parsed;
 - `check_options(self)`, called by the options' ``__post_init__``: every field's check, so a Python caller's
   wrong value is the same one-line `UsageError` as a command line's;
@@ -43,6 +44,12 @@ class Option:
         check: ``check(name, value)`` returns the value in its one form or raises `UsageError` naming `name`.
         cli: False for an option only Python callers give (the command fills it itself).
         tags: kinds the command groups options by (`names_tagged`).
+        required: the command line must give it (argparse's ``required``; a Python caller gives the field).
+        group: the name of a mutually exclusive group: of the options of one class in the same group, the command
+            line takes one at most (``--verified REPORT`` or ``--diverged REPORT``).
+        negative: the help of the option's ``--no-<name>`` twin, for a yes/no/unset option (a field defaulting to
+            None): the option's own flag sets True, the twin False, the command line takes one at most, and neither
+            given leaves the default (``--success`` / ``--no-success``).
     """
 
     help: str
@@ -58,6 +65,9 @@ class Option:
     check: Callable[[str, Any], Any] | None = None
     cli: bool = True
     tags: frozenset[str] = frozenset()
+    required: bool = False
+    group: str | None = None
+    negative: str | None = None
 
 
 def option(default: Any = dataclasses.MISSING, *, default_factory: Any = dataclasses.MISSING, spec: Option | None = None,
@@ -87,22 +97,34 @@ def flags_of(name: str, o: Option) -> tuple[str, ...]:
     return o.flags or ("--" + name.replace("_", "-"),)
 
 
-def add_option(parser: argparse.ArgumentParser, dest: str, o: Option, default: Any) -> None:
-    """Add the command-line option `o`, parsed into `dest` with `default` when not given."""
+def add_option(parser: Any, dest: str, o: Option, default: Any) -> None:
+    """Add the command-line option `o` to `parser` (an argparse parser or group), parsed into `dest` with `default`
+    when not given; with `Option.negative`, its ``--no-`` twin too, in one mutually exclusive group."""
+    if o.negative is not None:
+        twins = parser.add_mutually_exclusive_group()
+        flag = flags_of(dest, o)[-1]
+        twins.add_argument(flag, dest=dest, action="store_const", const=True, default=default, help=o.help)
+        twins.add_argument("--no-" + flag.removeprefix("--"), dest=dest, action="store_const", const=False,
+                           help=o.negative)
+        return
     kwargs: dict[str, Any] = {"dest": dest, "default": default, "help": o.help}
     choices = o.choices() if callable(o.choices) else o.choices
     extra = {"metavar": o.metavar, "choices": choices, "nargs": o.nargs, "const": o.const, "action": o.action,
-             "type": o.parse}
+             "type": o.parse, "required": o.required or None}
     kwargs.update({k: v for k, v in extra.items() if v is not None})
     parser.add_argument(*flags_of(dest, o), **kwargs)
 
 
 def add_arguments(parser: argparse.ArgumentParser, cls: type, *, only: Sequence[str] | None = None) -> None:
-    """Add every command-line option `cls` declares (those named in `only`, where given, in its order)."""
+    """Add every command-line option `cls` declares (those named in `only`, where given, in its order); the options
+    of one `Option.group` go into one mutually exclusive group."""
     declared = {f.name: (f, o) for f, o in _declared(cls) if o.cli}
+    groups: dict[str, Any] = {}
     for name in only if only is not None else declared:
         f, o = declared[name]
-        add_option(parser, f.name, o, _default(f, o))
+        if o.group is not None and o.group not in groups:
+            groups[o.group] = parser.add_mutually_exclusive_group()
+        add_option(parser if o.group is None else groups[o.group], f.name, o, _default(f, o))
 
 
 def from_arguments(cls: type, args: argparse.Namespace, **given: Any) -> Any:

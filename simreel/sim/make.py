@@ -197,7 +197,7 @@ def prepare_plain_gym_make() -> None:
     no device installs the no-render layer, so ``gym.make(env_id, obs_mode="state", render_backend="none")``
     builds (ManiSkill itself needs ``render_backend="none"`` there). Known upstream messages that ask nothing of
     the user are hidden from then on (`simreel.sim.upstream_noise`). Call it before ``gym.make`` (and before
-    importing mani_skill or sapien, for SAPIEN's libvulkan warning); importing `simreel.recorders` does.
+    importing mani_skill or sapien, for SAPIEN's libvulkan warning); importing `simreel.recorders.RecordWrapper` does.
     """
     quiet_upstream_noise()
     configure_vulkan()

@@ -4,7 +4,7 @@ uses its bundled libvulkan (the system has none: expected, and it works), ManiSk
 mani_skill was not installed from git.
 
 `quiet_upstream_noise` hides exactly these (a warnings filter and a filter on ManiSkill's logger, matched by their
-words); every other warning of SAPIEN or ManiSkill still shows. Importing `simreel.recorders`, or calling
+words); every other warning of SAPIEN or ManiSkill still shows. Importing `simreel.recorders.RecordWrapper`, or calling
 `simreel.sim.make.prepare_plain_gym_make`, does it; set ``SIMREEL_SHOW_UPSTREAM_WARNINGS=1`` to see them again."""
 
 from __future__ import annotations

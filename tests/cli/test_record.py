@@ -190,16 +190,15 @@ class _BatchedStandIn:
 def test_parallel_envs_record_exactly_the_episodes_asked_with_seeds_in_range(episodes, lengths, committed):
     """Regression: -n 1 --num-envs 4 committed 4 episodes, and a run near the top of the seed range handed ManiSkill
     seeds past 2**32 - 1 for episodes it then dropped."""
-    import argparse
-
     from simreel.cli import record
+    from simreel.cli.common import EnvOptions
 
     seed = 2**32 - max(episodes, 4)  # the highest first seed the options allow
-    args = argparse.Namespace(episodes=episodes, seed=seed, num_envs=4, max_steps=10, quiet=True, env_id="X")
-    record._check_counts(args)
+    cmd = record.RecordRun(env_id="X", output="x.h5", episodes=episodes, seed=seed, max_steps=10, quiet=True)
+    record._check_seeds(cmd, EnvOptions(num_envs=4))
     rec = _BatchedStandIn(4, lengths)
     policy = record._Policy("zero", lambda env, obs: np.zeros(1))
-    record._record_batched(rec, policy, args, 10)
+    record._record_batched(rec, policy, cmd, 10)
     assert [(s - seed, env) for s, env in rec.episodes_committed] == committed
     assert max(rec.seeds) <= 2**32 - 1
 

@@ -1,4 +1,4 @@
-"""`simreel.sim.upstream_noise`: a user's script that imports simreel.recorders prints none of the upstream messages
+"""`simreel.sim.upstream_noise`: a user's script that imports simreel.recorders.RecordWrapper prints none of the upstream messages
 that ask nothing of them (SAPIEN's libvulkan fallback, ManiSkill's sapien_cuda fallback), and shows them again with
 SIMREEL_SHOW_UPSTREAM_WARNINGS=1."""
 
@@ -11,7 +11,7 @@ import pytest
 
 SCRIPT = """
 import gymnasium as gym
-import simreel.recorders  # prepares gym.make, and quiets the known upstream messages
+from simreel.recorders import RecordWrapper  # prepares gym.make, and quiets the known upstream messages
 import mani_skill.envs
 env = gym.make("PickCube-v1", obs_mode="state")  # the default render device: sapien_cuda, then a fallback
 env.reset(seed=0)
