@@ -277,7 +277,7 @@ class EpisodeMeta:
     provenance: dict[str, Any] = field(default_factory=dict)
     """For an episode of a converted recording: ``{"source_episode": index in the source, "verdict", "checked",
     "first_exceeded", "max_error"}`` as the conversion judged it (see `RecordingMeta.provenance`), and ``"scene"``,
-    where it ran (a `ScenePlace`'s JSON; `simreel.replay.convert.convert.ConvertJob.scenes`); for an episode of a
+    where it ran (a `ScenePlace`'s JSON; `simreel.replay.convert.job.ConvertJob.scenes`); for an episode of a
     replay's output, the ``"scene"`` the replay ran it in."""
     verification: dict[str, Any] = field(default_factory=dict)
     """In a file written by ``simreel replay -o``: the replay's verdict on this episode (verdict, first divergence,

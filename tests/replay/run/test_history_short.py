@@ -118,7 +118,8 @@ def test_every_late_episode_replayed_alone_is_exact(tmp_path, task, seeded):
     the last step of the one before it, or, where that is not exact, its whole history): all exact."""
     from simreel.formats import open_reader
     from simreel.model.components import Tolerances
-    from simreel.replay.run.workers import ReplayJob, ReplayWorker
+    from simreel.replay.run.job import ReplayJob
+    from simreel.replay.run.workers import ReplayWorker
     from simreel.replay.run.worklist import WorkItem, env_key
 
     path = _record(tmp_path / "r.h5", task, (8, 30), seeded=seeded)

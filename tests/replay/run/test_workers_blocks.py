@@ -18,8 +18,9 @@ from simreel.cli.main import main
 from simreel.errors import RecordingFileError
 from simreel.formats import open_reader
 from simreel.model.components import Tolerances
+from simreel.replay.run.job import ReplayJob
 from simreel.replay.run.output import ReplayedWriter, ReplayOutput
-from simreel.replay.run.workers import ReplayJob, ReplayWorker
+from simreel.replay.run.workers import ReplayWorker
 from simreel.replay.run.worklist import WorkItem, env_key
 
 BLOCK = 7
