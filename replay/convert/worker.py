@@ -14,7 +14,7 @@ import numpy as np
 
 from simreel.errors import SimreelError
 from simreel.formats import EpisodeReader, open_reader
-from simreel.model.lineage import ScenePlace
+from simreel.model.lineage import EpisodeProvenance, ScenePlace
 from simreel.model.meta import EpisodeMeta, RecordingMeta
 from simreel.replay.convert.job import ConvertJob, ConvertResult, states_tolerances
 from simreel.replay.convert.replayer import ConvertingReplayer
@@ -200,14 +200,9 @@ def _provenance_meta(meta: EpisodeMeta, report: EpisodeReport, scene: ScenePlace
                      clipped: int | None = None) -> EpisodeMeta:
     """The converted episode's metadata: `meta` with the conversion's verdict and where it ran (`scene`,
     `ConvertJob.scenes`) as its provenance."""
-    meta = dataclasses.replace(meta, notes=[])
-    meta.provenance = {
-        "source_episode": report.index,
-        "verdict": report.verdict,
-        "checked": list(report.checked),
-        "first_exceeded": None if report.first_divergence is None else report.first_divergence.to_json(),
-        "max_error": {k: float(v) if np.isfinite(v) else str(v) for k, v in report.max_abs_error.items()},
-        **({"clipped_steps": clipped} if clipped is not None else {}),
-        **({"scene": scene.to_json()} if scene is not None else {}),
-    }
-    return meta
+    first = None if report.first_divergence is None else report.first_divergence.to_json()
+    provenance = EpisodeProvenance(
+        source_episode=report.index, verdict=report.verdict, checked=tuple(report.checked), first_exceeded=first,
+        max_error={k: float(v) if np.isfinite(v) else str(v) for k, v in report.max_abs_error.items()},
+        clipped_steps=clipped, scene=scene)
+    return dataclasses.replace(meta, notes=[], provenance=provenance)

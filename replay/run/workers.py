@@ -22,7 +22,7 @@ from simreel.errors import SimreelError
 from simreel.formats import EpisodeReader
 from simreel.formats.base import EpisodeRows
 from simreel.model.episode import Episode
-from simreel.model.lineage import ScenePlace
+from simreel.model.lineage import EpisodeProvenance, ScenePlace
 from simreel.model.meta import EpisodeMeta, RecordingMeta
 from simreel.replay.explain.explain import ExplainContext, explain_divergence
 from simreel.replay.report.report import EpisodeReport
@@ -216,7 +216,9 @@ class ReplayWorker(HistoryReplay):
 def _replayed_meta(meta: EpisodeMeta, report: EpisodeReport, ran_in: ScenePlace | None) -> EpisodeMeta:
     """The metadata `-o` writes with a replayed episode: the recorded one's, with the replay's verdict and where the
     replay ran (`ReplayWorker._ran_in`)."""
-    provenance = {**meta.provenance, "scene": ran_in.to_json()} if ran_in is not None else meta.provenance
+    provenance = meta.provenance
+    if ran_in is not None:
+        provenance = dataclasses.replace(provenance or EpisodeProvenance(), scene=ran_in)
     return dataclasses.replace(meta, verification=report.verification(), provenance=provenance)
 
 

@@ -101,7 +101,7 @@ def test_a_replay_written_with_o_holds_the_exact_replay_once(tmp_path, capsys, t
     assert json.loads(report.read_text())["episodes"][0]["history"]["steps"] == steps
     with open_reader(out) as replayed, open_reader(path) as recorded:
         (meta,) = replayed.episodes
-        assert meta.length == 30 and meta.verification["verdict"] == "exact"
+        assert meta.length == 30 and meta.verification.verdict == "exact"
         a, b = replayed.read_episode(meta.index), recorded.read_episode(2)
         assert all((a.env_states[k] == b.env_states[k]).all() for k in b.env_states)
 

@@ -150,4 +150,4 @@ def test_output_written_block_by_block_equals_the_output_written_whole(record, t
             assert list(a) == list(b)
             for name in a:
                 np.testing.assert_array_equal(a[name], b[name], err_msg=name)
-        assert whole.episodes[0].verification["verdict"] in ("exact", "within_tolerance")
+        assert whole.episodes[0].verification.verdict in ("exact", "within_tolerance")
