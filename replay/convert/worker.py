@@ -21,9 +21,9 @@ from simreel.replay.convert.replayer import ConvertingReplayer
 from simreel.replay.convert.sinks import RenderedRows, TrackingSink, WrittenEpisode
 from simreel.replay.convert.tracking import Commands
 from simreel.replay.report.report import EpisodeReport
-from simreel.replay.run.engine import ReplayerOptions
 from simreel.replay.run.history import ReplayedHistory, SceneRun, restoring_history
 from simreel.replay.run.output import EpisodeStream, ReplayedWriter, ScratchEpisode
+from simreel.replay.run.replayer_options import ReplayerOptions
 from simreel.replay.run.sinks import Collected, VerifySink
 from simreel.replay.run.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports

@@ -14,8 +14,8 @@ from simreel.model.components import Tolerances
 from simreel.model.episode import Episode
 from simreel.model.meta import RecordingMeta
 from simreel.replay.report.report import EpisodeReport
-from simreel.replay.run.engine import ReplayerOptions
 from simreel.replay.run.output import output_pose_bodies
+from simreel.replay.run.replayer_options import ReplayerOptions
 from simreel.replay.run.worklist import WorkItem
 from simreel.sim.user_code import resolve_task_imports
 
