@@ -54,7 +54,8 @@ def each_alone(path: Path) -> None:
 
     from simreel.formats import open_reader
     from simreel.model.components import Tolerances
-    from simreel.replay.run.workers import ReplayJob, ReplayWorker
+    from simreel.replay.run.job import ReplayJob
+    from simreel.replay.run.workers import ReplayWorker
     from simreel.replay.run.worklist import WorkItem, env_key
 
     with open_reader(path) as reader:

@@ -24,7 +24,8 @@ from typing import Any
 
 _HOMES = {
     "simreel.replay.audit.audit": ("AuditFinding", "AuditOptions", "AuditReport", "audit_task"),
-    "simreel.replay.run.engine": ("EpisodeReplayer", "ReplayedEpisode", "ReplayerOptions"),
+    "simreel.replay.run.engine": ("EpisodeReplayer", "ReplayedEpisode"),
+    "simreel.replay.run.replayer_options": ("ReplayerOptions",),
     "simreel.replay.run.options": ("MODES", "ReplayOptions"),
     "simreel.replay.report.report": ("EpisodeReport",),
     "simreel.replay.report.log": ("Verdicts", "read_verdicts"),

@@ -132,7 +132,7 @@ PUBLIC_API = {
     "simreel.formats": ["open_reader", "open_writer", "EpisodeReader", "EpisodeWriter", "StepBlock"],
     "simreel.model": [],
     "simreel.model.meta": ["RecordingMeta", "EpisodeMeta"],
-    "simreel.model.lineage": ["SceneChain", "ScenePlace", "EpisodeOrigin"],
+    "simreel.model.lineage": ["SceneChain", "ScenePlace", "EpisodeOrigin", "EpisodeProvenance", "EpisodeVerification"],
     "simreel.model.episode": ["Episode"],
     "simreel.sim.make": ["make_env", "EnvConfig"],
     "simreel.datasets.copy": ["recover"],

@@ -191,7 +191,8 @@ def explain_for_view(recorded: Episode, compared: Episode, comparison: ViewCompa
         explanation.checked.append("cause not classified: the compared file is no replay of this recording "
                                    "(`simreel replay -o` classifies the cause of its replays' divergences)")
         return explanation
-    stored = compared.meta.verification.get("explanation")
+    verification = compared.meta.verification
+    stored = verification.explanation if verification is not None else None
     if not stored:
         explanation.checked.append("cause not classified: the replay holds no explanation (that replay did not "
                                    "diverge, or its file was rewritten without it)")

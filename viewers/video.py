@@ -33,6 +33,7 @@ from simreel.io.paths import refuse_empty
 from simreel.io.targets import check_distinct, check_output, staged_output
 from simreel.model.components import DEFAULT_TOLERANCES, Tolerances
 from simreel.model.episode import Episode
+from simreel.model.lineage import EpisodeProvenance
 from simreel.model.meta import RecordingMeta
 from simreel.model.selection import EpisodeSelection
 from simreel.options.checks import check_flag, options_with, whole_number_pair
@@ -401,22 +402,22 @@ class _Labels:
 
 
 def _stored_conversion(compare_meta: RecordingMeta, right: Episode, meta: RecordingMeta, path: str | Path,
-                       index: int) -> dict | None:
+                       index: int) -> EpisodeProvenance | None:
     """The verdict ``simreel convert`` stored with `right` (`EpisodeMeta.provenance`), when it judged this very
     episode: the compare file is a conversion of the recording `meta` at `path` (`made_from`) and `right` converts
     episode `index`. None otherwise: a conversion of another recording or episode says nothing of this one, which is
     then compared as any other file is."""
-    judged = right.meta.provenance or {}
-    if not judged.get("verdict") or compared_role(compare_meta, meta, path) != "conversion":
+    judged = right.meta.provenance
+    if judged is None or not judged.verdict or compared_role(compare_meta, meta, path) != "conversion":
         return None
-    return judged if judged.get("source_episode") == index else None
+    return judged if judged.source_episode == index else None
 
 
-def _conversion_labels(left: Episode, conversion: dict) -> _Labels:
+def _conversion_labels(left: Episode, conversion: EpisodeProvenance) -> _Labels:
     """The labels of a video of `left` beside its conversion, with the verdict that conversion stored for this
     episode (`_stored_conversion`), in the words `ViewComparison.verdict` uses (``within tolerance``)."""
-    labels = _Labels(left.length, success=left.success, verdict=f"conversion {conversion['verdict'].replace('_', ' ')}")
-    first = conversion.get("first_exceeded")
+    labels = _Labels(left.length, success=left.success, verdict=f"conversion {conversion.verdict.replace('_', ' ')}")
+    first = conversion.first_exceeded
     if first:
         labels.out_at = int(first["step"]) + (0 if first.get("at") == "reset" else 1)
         labels.detail = f"{first['key']} off by {first['error']:.3g} at step {first['step']}"

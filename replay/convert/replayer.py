@@ -12,13 +12,10 @@ import numpy as np
 
 from simreel.formats.base import EpisodeRows
 from simreel.model.blocks import StepBlock
-from simreel.replay.run.engine import (
-    BlockSink,
-    EpisodeReplayer,
-    ReplayedEpisode,
-    task_code_errors,
-    without_nan,
-)
+from simreel.replay.run.blocks import without_nan
+from simreel.replay.run.engine import EpisodeReplayer, ReplayedEpisode
+from simreel.replay.run.guards import task_code_errors
+from simreel.replay.run.sinks import BlockSink
 
 __all__ = ["ConvertingReplayer"]
 

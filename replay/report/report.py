@@ -12,6 +12,7 @@ from simreel.formats.base import EpisodeRows
 from simreel.model.components import format_number, json_number
 from simreel.model.episode import Episode
 from simreel.model.fields import FLAG_FIELDS
+from simreel.model.lineage import EpisodeVerification
 from simreel.model.meta import RecordingMeta
 from simreel.sim.fingerprint import SceneDifference
 from simreel.verdicts.compare import Divergence, EpisodeComparison, worst_keys
@@ -200,11 +201,12 @@ class EpisodeReport:
             out["history"] = self.history.to_json()
         return out
 
-    def verification(self) -> dict[str, Any]:
+    def verification(self) -> EpisodeVerification:
         """What a replayed episode written by ``simreel replay -o`` keeps of its report (`EpisodeMeta.verification`):
         verdict, first divergence, scene differences and explanation, for viewers of that file."""
         full = self.to_json()
-        return {k: full.get(k) for k in ("verdict", "first_divergence", "scene_differences", "explanation")}
+        return EpisodeVerification(full["verdict"], full.get("first_divergence"), full.get("scene_differences"),
+                                   full.get("explanation"))
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> EpisodeReport:

@@ -25,7 +25,7 @@ from simreel.formats import EpisodeReader
 from simreel.model.fields import field_group
 from simreel.model.meta import EpisodeMeta
 from simreel.replay.report.report import EpisodeReport, HistoryEntry
-from simreel.replay.run.engine import SceneBefore
+from simreel.replay.run.resets import SceneBefore
 from simreel.replay.run.worklist import WorkItem
 from simreel.verdicts.scene_history import SceneChains, recorded_scene
 

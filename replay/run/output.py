@@ -30,7 +30,7 @@ from simreel.model.episode import Episode
 from simreel.model.fields import OPTIONAL_STEP_FIELDS
 from simreel.model.meta import EpisodeMeta, RecordingMeta, new_recording_id
 from simreel.model.state_tree import layout_of
-from simreel.replay.run.engine import BlockSink
+from simreel.replay.run.sinks import BlockSink
 
 __all__ = ["ReplayOutput", "ReplayedWriter", "EpisodeStream", "RecordedContacts", "output_pose_bodies",
            "ScratchFolder", "ScratchEpisode", "scratch_folder", "OutputFailed", "published", "staged_path",

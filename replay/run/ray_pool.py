@@ -30,7 +30,9 @@ from simreel.formats import EpisodeReader
 from simreel.formats.base import EpisodeRows
 from simreel.model.episode import Episode
 from simreel.model.meta import RecordingMeta
-from simreel.replay.run.workers import EpisodeResult, ReaderCache, ReplayJob, ReplayWorker
+from simreel.replay.run.job import EpisodeResult, ReplayJob
+from simreel.replay.run.readers import ReaderCache
+from simreel.replay.run.workers import ReplayWorker
 from simreel.replay.run.worklist import RecordingInfo, WorkItem, chain_groups, next_item
 
 __all__ = ["run_ray", "RayOptions", "ShippedEpisode", "MAX_ATTEMPTS"]

@@ -2,7 +2,7 @@
 
 A `ReplayRun` takes recordings — files, folders of them, glob patterns — and makes one work list of their
 episodes (`simreel.replay.run.worklist`), ordered so each worker reuses its env. It replays them in this process,
-in worker processes (``workers=N``: this one and N - 1 more, `simreel.replay.run.workers`) or on a Ray cluster
+in worker processes (``workers=N``: this one and N - 1 more, `simreel.replay.run.pool`) or on a Ray cluster
 (``ray=...``: `simreel.replay.run.ray_pool`), compares each with its recording (`simreel.verdicts.compare`) and counts the
 verdicts in a `RunTally` (`simreel.replay.report.tally`): ``exact``, ``within_tolerance``, ``diverged`` — with the first
 divergence (step, key path, error, tolerance) and the largest error per key — or ``error`` (the episode could not
@@ -42,6 +42,7 @@ from simreel.options.checks import (
 from simreel.replay.report.log import LoggedRun, ReportLog, load_log, report_paths, tally_of_log, write_report
 from simreel.replay.report.report import EpisodeReport, recording_limits
 from simreel.replay.report.tally import FileTally, ReplayReport, RunTally
+from simreel.replay.run.job import EpisodeResult, ReplayJob
 from simreel.replay.run.options import ReplayOptions, json_value
 from simreel.replay.run.output import (
     ReplayedWriter,
@@ -51,16 +52,8 @@ from simreel.replay.run.output import (
     published,
     staged_path,
 )
-from simreel.replay.run.workers import (
-    EpisodeResult,
-    Lanes,
-    ReplayJob,
-    ReplayWorker,
-    WorkerDiedError,
-    pool_closing,
-    run_pool,
-    start_pool,
-)
+from simreel.replay.run.pool import Lanes, WorkerDiedError, pool_closing, run_pool, start_pool
+from simreel.replay.run.workers import ReplayWorker
 from simreel.replay.run.worklist import (
     LACKING_LISTED,
     RecordingInfo,

@@ -134,7 +134,7 @@ def _options(args: argparse.Namespace) -> Any:
 def _convert(args: argparse.Namespace) -> int:
     from simreel.formats import check_report_writable, recording_files
     from simreel.io.targets import check_distinct
-    from simreel.replay.convert.convert import ConversionRun
+    from simreel.replay.convert.run import ConversionRun
 
     options = _options(args)
     if args.report is not None:

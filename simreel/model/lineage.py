@@ -4,7 +4,10 @@
   was built;
 - `ScenePlace`: the same place for an episode made from another recording (a copy's ``origin.scene``, a
   conversion's or a replay's ``provenance["scene"]``), naming that recording;
-- `EpisodeOrigin` (`EpisodeMeta.origin`): where a merged or filtered episode was copied from.
+- `EpisodeOrigin` (`EpisodeMeta.origin`): where a merged or filtered episode was copied from;
+- `EpisodeProvenance` (`EpisodeMeta.provenance`): how a converted episode was made and judged, and where a
+  conversion or a replay ran it;
+- `EpisodeVerification` (`EpisodeMeta.verification`): the verdict of the replay that wrote an episode.
 
 Each reads its JSON strictly (`MetadataError` naming the field and what was found) and writes the JSON simreel's
 files have always held: ``{}`` where a record is absent. What the records mean for a replay is
@@ -15,16 +18,21 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from simreel.errors import MetadataError
 
-__all__ = ["SceneChain", "ScenePlace", "EpisodeOrigin"]
+__all__ = ["SceneChain", "ScenePlace", "EpisodeOrigin", "EpisodeProvenance", "EpisodeVerification"]
 
 
 def _counts(d: Mapping[str, Any], names: tuple[str, ...]) -> bool:
     return all(type(d.get(k)) is int and d[k] >= 0 for k in names)
+
+
+def _absent(d: Any) -> bool:
+    """Whether JSON value `d` is ``{}``: the record is absent."""
+    return isinstance(d, Mapping) and not d
 
 
 def _refused(what: str, d: Any, expected: str) -> MetadataError:
@@ -46,7 +54,7 @@ class SceneChain:
     def from_json(cls, d: Any, what: str = "chain") -> SceneChain | None:
         """The chain JSON object `d` holds; None for ``{}`` (unknown: ManiSkill's files, simreel's from before it
         noted it)."""
-        if isinstance(d, Mapping) and not d:
+        if _absent(d):
             return None
         if not isinstance(d, Mapping) or not _counts(d, ("start", "position")):
             raise _refused(what, d, '{"start": <index>, "position": <count>}')
@@ -116,9 +124,114 @@ class EpisodeOrigin:
     @classmethod
     def from_json(cls, d: Any, what: str = "origin") -> EpisodeOrigin | None:
         """The origin JSON object `d` holds; None for ``{}`` (an episode that is no copy)."""
-        if isinstance(d, Mapping) and not d:
+        if _absent(d):
             return None
         if not isinstance(d, Mapping) or not isinstance(d.get("file"), str) or not _counts(d, ("index",)):
             raise _refused(what, d, '{"file": <path>, "index": <index there>, "scene": {...}, "origin": {...}}')
         return cls(d["file"], d["index"], ScenePlace.held_by(d, what),
                    cls.from_json(d.get("origin") or {}, f"{what}.origin"))
+
+
+def _str_list(d: Mapping[str, Any], key: str) -> bool:
+    value = d.get(key, [])
+    return isinstance(value, list) and all(isinstance(x, str) for x in value)
+
+
+def _optional(d: Mapping[str, Any], key: str, types: type | tuple[type, ...]) -> bool:
+    value = d.get(key)
+    return value is None or (isinstance(value, types) and not isinstance(value, bool))
+
+
+_CONVERSION_KEYS = ("source_episode", "verdict", "checked", "first_exceeded", "max_error")
+"""What a conversion writes of each episode it converted (`EpisodeProvenance`), ``clipped_steps`` and ``scene``
+aside."""
+
+
+@dataclass(frozen=True)
+class EpisodeProvenance:
+    """How an episode made from another recording was made (`EpisodeMeta.provenance`). For an episode of a converted
+    recording: the episode it converts (`source_episode`, its index in the source), the conversion's verdict on it,
+    the groups it `checked`, the first error past its tolerance (`first_exceeded`: a
+    `simreel.verdicts.compare.Divergence`'s JSON, None where none was), the largest error per key (`max_error`: a
+    float, or its text where not finite) and, for a control-mode conversion, the steps whose converted action was
+    clipped (`clipped_steps`). For either a conversion or a replay's output (``simreel replay -o``): the `scene` it ran
+    in (`ScenePlace`, None where unknown or states were restored). `others`: keys this version does not know, kept as
+    they were."""
+
+    source_episode: int | None = None
+    verdict: str | None = None
+    checked: tuple[str, ...] = ()
+    first_exceeded: dict[str, Any] | None = None
+    max_error: dict[str, float | str] = field(default_factory=dict)
+    clipped_steps: int | None = None
+    scene: ScenePlace | None = None
+    others: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON simreel has always written: a conversion's keys where it is one (`source_episode` set), then
+        ``clipped_steps`` and ``scene`` where known."""
+        d: dict[str, Any] = dict(self.others)
+        if self.source_episode is not None:
+            d.update(source_episode=self.source_episode, verdict=self.verdict, checked=list(self.checked),
+                     first_exceeded=self.first_exceeded, max_error=dict(self.max_error))
+        if self.clipped_steps is not None:
+            d["clipped_steps"] = self.clipped_steps
+        if self.scene is not None:
+            d["scene"] = self.scene.to_json()
+        return d
+
+    @classmethod
+    def from_json(cls, d: Any, what: str = "provenance") -> EpisodeProvenance | None:
+        """The provenance JSON object `d` holds; None for ``{}`` (an episode recorded in its file)."""
+        if _absent(d):
+            return None
+        if not isinstance(d, Mapping) or not cls._valid(d):
+            raise _refused(what, d, '{"source_episode": <index>, "verdict": <verdict>, "checked": [...], '
+                                    '"first_exceeded": {...} | null, "max_error": {...}, "scene": {...}}')
+        known = {*_CONVERSION_KEYS, "clipped_steps", "scene"}
+        return cls(d.get("source_episode"), d.get("verdict"), tuple(d.get("checked", ())), d.get("first_exceeded"),
+                   dict(d.get("max_error") or {}), d.get("clipped_steps"), ScenePlace.held_by(d, what),
+                   {k: v for k, v in d.items() if k not in known})
+
+    @staticmethod
+    def _valid(d: Mapping[str, Any]) -> bool:
+        return (("source_episode" not in d or _counts(d, ("source_episode",))) and _optional(d, "verdict", str)
+                and _str_list(d, "checked") and _optional(d, "first_exceeded", Mapping)
+                and isinstance(d.get("max_error", {}), Mapping)
+                and ("clipped_steps" not in d or _counts(d, ("clipped_steps",))))
+
+
+@dataclass(frozen=True)
+class EpisodeVerification:
+    """The verdict of the replay that wrote an episode (``simreel replay -o``; `EpisodeMeta.verification`): its
+    `verdict`, and as their JSON (`simreel.replay.report.report.EpisodeReport.verification`) the first divergence,
+    the scene differences found at the reset (None: not compared) and the explanation of a divergence, for viewers
+    of that file."""
+
+    verdict: str
+    first_divergence: dict[str, Any] | None = None
+    scene_differences: list[dict[str, Any]] | None = None
+    explanation: dict[str, Any] | None = None
+    others: dict[str, Any] = field(default_factory=dict)
+    """Keys this version does not know, kept as they were."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {**self.others, "verdict": self.verdict, "first_divergence": self.first_divergence,
+                "scene_differences": self.scene_differences, "explanation": self.explanation}
+
+    @classmethod
+    def from_json(cls, d: Any, what: str = "verification") -> EpisodeVerification | None:
+        """The verification JSON object `d` holds; None for ``{}`` (an episode no replay wrote)."""
+        if _absent(d):
+            return None
+        differences = d.get("scene_differences") if isinstance(d, Mapping) else None
+        ok = (isinstance(d, Mapping) and isinstance(d.get("verdict"), str) and _optional(d, "first_divergence", Mapping)
+              and (differences is None or (isinstance(differences, list)
+                                           and all(isinstance(x, Mapping) for x in differences)))
+              and _optional(d, "explanation", Mapping))
+        if not ok:
+            raise _refused(what, d, '{"verdict": <verdict>, "first_divergence": {...} | null, '
+                                    '"scene_differences": [...] | null, "explanation": {...} | null}')
+        others = {k: v for k, v in d.items() if k not in ("verdict", "first_divergence", "scene_differences",
+                                                          "explanation")}
+        return cls(d["verdict"], d.get("first_divergence"), differences, d.get("explanation"), others)

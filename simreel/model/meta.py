@@ -21,7 +21,7 @@ import numpy as np
 from simreel import FORMAT_VERSION
 from simreel.errors import MetadataError
 from simreel.model.json_input import json_value
-from simreel.model.lineage import EpisodeOrigin, SceneChain, ScenePlace
+from simreel.model.lineage import EpisodeOrigin, EpisodeProvenance, EpisodeVerification, SceneChain
 from simreel.model.state_tree import LeafSpec
 
 
@@ -274,14 +274,15 @@ class EpisodeMeta:
     origin: EpisodeOrigin | None = None
     """Where a merged or filtered episode was copied from (`EpisodeOrigin`: the file and the index there, where it ran
     when it was recorded, and that episode's own origin when it was a copy too); None for a recorded episode."""
-    provenance: dict[str, Any] = field(default_factory=dict)
-    """For an episode of a converted recording: ``{"source_episode": index in the source, "verdict", "checked",
-    "first_exceeded", "max_error"}`` as the conversion judged it (see `RecordingMeta.provenance`), and ``"scene"``,
-    where it ran (a `ScenePlace`'s JSON; `simreel.replay.convert.convert.ConvertJob.scenes`); for an episode of a
-    replay's output, the ``"scene"`` the replay ran it in."""
-    verification: dict[str, Any] = field(default_factory=dict)
-    """In a file written by ``simreel replay -o``: the replay's verdict on this episode (verdict, first divergence,
-    scene differences, explanation: `simreel.replay.report.report.EpisodeReport.verification`); empty elsewhere."""
+    provenance: EpisodeProvenance | None = None
+    """For an episode of a converted recording: the episode it converts, the verdict, what was checked, the first
+    error past its tolerance and the largest errors, as the conversion judged it (`EpisodeProvenance`; see
+    `RecordingMeta.provenance`), and where it ran (`simreel.replay.convert.job.ConvertJob.scenes`); for an episode
+    of a replay's output, the scene the replay ran it in. None for a recorded episode (``{}`` in the file)."""
+    verification: EpisodeVerification | None = None
+    """In a file written by ``simreel replay -o``: the replay's verdict on this episode (`EpisodeVerification`:
+    verdict, first divergence, scene differences, explanation:
+    `simreel.replay.report.report.EpisodeReport.verification`); None elsewhere (``{}`` in the file)."""
     reset_generators: dict[str, str] = field(default_factory=dict)
     """For an episode reset without a seed in a one-env recording: the state, just before that reset, of each
     process-wide random generator the reset drew from (``{"torch": ..., "numpy": ..., "python": ...}``, each
@@ -293,19 +294,21 @@ class EpisodeMeta:
     reset only where it remakes the recorded initial state bit for bit, else restores that state and says so."""
 
     def __post_init__(self) -> None:
-        """The chain and origin as their records, also where given as their JSON (``chain={"start": 0, "position":
-        2}``), checked as a file's are."""
-        if self.chain is None or isinstance(self.chain, Mapping):
-            self.chain = SceneChain.from_json(self.chain or {})
-        if self.origin is None or isinstance(self.origin, Mapping):
-            self.origin = EpisodeOrigin.from_json(self.origin or {})
+        """The chain, origin, provenance and verification as their records, also where given as their JSON
+        (``chain={"start": 0, "position": 2}``), checked as a file's are."""
+        for name, record in _RECORDS.items():
+            value = getattr(self, name)
+            if value is None or isinstance(value, Mapping):
+                setattr(self, name, record.from_json(value or {}))
+            elif not value.to_json():  # an empty record (a provenance whose scene was taken away): none, as read
+                setattr(self, name, None)
 
     def to_json(self) -> dict[str, Any]:
         """Its fields as JSON values, new objects throughout (the JSON round trip copies; `dataclasses.asdict`'s deep
         copy before it doubled the cost, and every writer does this several times an episode)."""
         fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        fields["chain"] = {} if self.chain is None else self.chain.to_json()
-        fields["origin"] = {} if self.origin is None else self.origin.to_json()
+        for name in _RECORDS:
+            fields[name] = {} if fields[name] is None else fields[name].to_json()
         return json.loads(json.dumps(fields, default=json_default))
 
     @classmethod
@@ -315,8 +318,12 @@ class EpisodeMeta:
         for name in ("index", "length", "env_idx"):
             if kw.get(name, 0) < 0:
                 raise MetadataError(f"episode metadata: {name} is {kw[name]}, expected >= 0")
-        ScenePlace.held_by(kw.get("provenance") or {}, "provenance")
         return cls(**kw)
+
+
+_RECORDS = {"chain": SceneChain, "origin": EpisodeOrigin, "provenance": EpisodeProvenance,
+            "verification": EpisodeVerification}
+"""`EpisodeMeta`'s fields that are typed records, each written as its JSON object (``{}`` where absent)."""
 
 
 def new_recording_id() -> str:

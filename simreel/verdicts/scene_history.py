@@ -45,7 +45,7 @@ def recorded_scene(episode: EpisodeMeta) -> ScenePlace | None:
     """Where `episode` says it ran, if it was made from another recording: ``provenance["scene"]`` of a converted
     episode (first: a control-mode conversion of a copy ran in its own run), else ``origin.scene`` of a copy
     (filter, merge); None for an episode recorded in its file (or a copy that does not say)."""
-    converted = ScenePlace.held_by(episode.provenance or {}, "provenance")
+    converted = episode.provenance.scene if episode.provenance is not None else None
     return converted or (episode.origin.scene if episode.origin is not None else None)
 
 
@@ -145,7 +145,7 @@ def _made_elsewhere(ep: EpisodeMeta) -> bool:
     ``provenance``) or a replay's output (its ``verification``). Where such an episode says neither where it ran nor
     its place (a simreel older than those notes wrote it), the order of its file does not tell its place: ``convert
     --episodes 0,2`` wrote episode 2 right after 0."""
-    return bool(ep.origin is not None or ep.provenance or ep.verification)
+    return ep.origin is not None or ep.provenance is not None or ep.verification is not None
 
 
 def _places_by_index(made: Sequence[EpisodeMeta]) -> dict[int, tuple[int, int]]:

@@ -133,7 +133,7 @@ def test_a_file_without_rewards_replays_without_computing_them_and_minus_o_still
     them anyway); a replay written with -o computes them, equal to what RecordEpisode recorded for the same run."""
     from simreel.model.components import Tolerances
     from simreel.replay.run.engine import EpisodeReplayer
-    from simreel.replay.run.workers import ReplayJob
+    from simreel.replay.run.job import ReplayJob
 
     with_rewards = record_maniskill(tmp_path / "a", "PickCube-v1", episodes=2, steps=12)
     without = record_maniskill(tmp_path / "b", "PickCube-v1", episodes=2, steps=12, record_reward=False)

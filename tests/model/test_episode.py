@@ -160,7 +160,7 @@ def test_metadata_of_files_recorded_before_the_scene_fingerprint_still_reads():
     old = {k: v for k, v in _meta().to_json().items() if k != "scene_fingerprint"}
     assert RecordingMeta.from_json(old).scene_fingerprint == {}
     ep = EpisodeMeta.from_json({"index": 1, "seed": 4, "length": 9})
-    assert (ep.scene_changes, ep.verification) == ({}, {})
+    assert (ep.scene_changes, ep.verification) == ({}, None)
     fingerprinted = _meta(scene_fingerprint={"bodies": {"cube": {"mass": 0.064}}, "controllers": {}})
     assert RecordingMeta.from_json(fingerprinted.to_json()) == fingerprinted
     assert list(fingerprinted.to_json()["scene_fingerprint"]) == ["zlib+base64"]  # stored packed

@@ -12,6 +12,7 @@ import pytest
 from support.mcap_samples import synthetic_episode, synthetic_meta, write
 
 from simreel.cli.main import main
+from simreel.model.lineage import EpisodeProvenance
 from simreel.model.state_tree import LeafSpec
 from simreel.viewers.video import VideoRun, video_path
 
@@ -145,7 +146,7 @@ def _write_episodes(src, dst, episodes, *, steps=None, provenance=None):
                 ep = r.read_episode(i)
                 ep = ep.first_steps(steps) if steps is not None else ep
                 if provenance:
-                    ep.meta.provenance = {"source_episode": i, "verdict": "within_tolerance", "first_exceeded": None}
+                    ep.meta.provenance = EpisodeProvenance(source_episode=i, verdict="within_tolerance")
                 w.write_episode(ep)
     return dst
 

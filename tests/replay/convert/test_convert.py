@@ -74,7 +74,7 @@ def test_a_conversion_verifies_with_per_step_tracking_errors(demos, env_id, mode
         assert r.meta.provenance["source"] == str(src.resolve())
         assert r.meta.provenance["conversion"]["control_mode"] == ["pd_joint_pos", mode]
         for m in r.episodes:
-            assert m.provenance["source_episode"] == m.index and m.provenance["verdict"] in ("exact", "within_tolerance")
+            assert m.provenance.source_episode == m.index and m.provenance.verdict in ("exact", "within_tolerance")
             assert r.read_episode(m.index).length == original.read_episode(m.index).length
     # the converted file is a trajectory of its own: replayed in its control mode, it is reproduced exactly
     assert main(["replay", str(out), "-q"]) == 0

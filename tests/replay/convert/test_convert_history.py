@@ -36,7 +36,7 @@ def test_an_episode_whose_predecessors_the_conversion_left_out_says_so(tmp_path)
 def test_a_re_render_finds_its_input_scene_chains_once(record, tmp_path, monkeypatch):
     """The run found them for the episodes' scenes, and its worker again for the steps before their resets: O(episodes)
     twice, 0.4 s of 100,000 episodes."""
-    import simreel.replay.convert.convert as convert
+    import simreel.replay.convert.run as run
     from simreel.verdicts.scene_history import SceneChains
 
     built = []
@@ -46,7 +46,7 @@ def test_a_re_render_finds_its_input_scene_chains_once(record, tmp_path, monkeyp
             built.append(len(episodes))
             super().__init__(episodes)
 
-    monkeypatch.setattr(convert, "SceneChains", CountedChains)
+    monkeypatch.setattr(run, "SceneChains", CountedChains)
     src = record("PickCube-v1", 3, 5, "--record-obs")
     assert main(["convert", str(src), str(tmp_path / "out.h5"), "--obs-mode", "state_dict", "-q"]) == 0
     assert built == [3]

@@ -64,7 +64,7 @@ def test_an_option_of_the_wrong_type_is_one_usage_error_when_the_options_are_bui
 )
 def test_a_conversion_of_options_of_the_wrong_type_or_no_option_is_one_usage_error(tmp_path, options, overrides,
                                                                                     message):
-    from simreel.replay.convert.convert import ConversionRun
+    from simreel.replay.convert.run import ConversionRun
 
     with pytest.raises(UsageError) as refused:
         ConversionRun(tmp_path / "in.h5", tmp_path / "out.h5", options, **overrides)

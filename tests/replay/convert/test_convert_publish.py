@@ -14,7 +14,9 @@ from support.maniskill_files import record_maniskill
 from simreel.cli.main import main
 from simreel.errors import OutputCheckError
 from simreel.io.lock import being_written
-from simreel.replay.convert.convert import ConversionReport, ConversionRun, convert_recording
+from simreel.replay.convert.convert import convert_recording
+from simreel.replay.convert.report import ConversionReport
+from simreel.replay.convert.run import ConversionRun
 from simreel.replay.run.output import scratch_folder
 
 STEPS = 8

@@ -60,7 +60,7 @@ def test_a_re_render_writes_the_same_file_from_one_process_or_two(demos, tmp_pat
         report = one
         assert r.meta.obs_mode == "state" and r.meta.provenance["filters"]["keep"] == ["verified"]
         episode = r.read_episode(2)
-        assert episode.meta.provenance["verdict"] == report.episodes[2].verdict and episode.length == STEPS
+        assert episode.meta.provenance.verdict == report.episodes[2].verdict and episode.length == STEPS
         assert next(iter(episode.obs.values())).shape[0] == STEPS + 1
 
 

@@ -17,7 +17,8 @@ from support.mcap_samples import write
 from simreel.cli.main import main
 from simreel.formats import open_reader
 from simreel.model.components import Tolerances
-from simreel.replay.run.workers import ReplayJob, ReplayWorker
+from simreel.replay.run.job import ReplayJob
+from simreel.replay.run.workers import ReplayWorker
 from simreel.replay.run.worklist import WorkItem, build_worklist, env_key
 
 
@@ -184,8 +185,8 @@ def _older_conversion(lift, tmp_path, episodes: str):
         episodes_read = [reader.read_episode(m.index) for m in reader.episodes]
         meta = reader.meta
     older = tmp_path / "older.h5"
-    write(older, meta, [dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, chain=None, provenance={
-        k: v for k, v in ep.meta.provenance.items() if k != "scene"})) for ep in episodes_read])
+    write(older, meta, [dataclasses.replace(ep, meta=dataclasses.replace(ep.meta, chain=None, provenance=dataclasses.replace(
+        ep.meta.provenance, scene=None))) for ep in episodes_read])
     return older
 
 
@@ -204,7 +205,7 @@ def test_an_episode_an_older_simreel_converted_without_its_predecessors_is_not_g
     again = tmp_path / "again.h5"
     main(["convert", str(older), str(again), "--obs-mode", "state", "--episodes", "2", "--keep", "all", "-q"])
     with open_reader(again) as reader:
-        assert "scene" not in reader.episode_meta(2).provenance  # unknown, not a wrong one
+        assert reader.episode_meta(2).provenance.scene is None  # unknown, not a wrong one
 
 
 def test_a_whole_chain_an_older_simreel_converted_replays_its_own_history(lift, tmp_path):

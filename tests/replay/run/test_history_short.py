@@ -101,7 +101,7 @@ def test_a_replay_written_with_o_holds_the_exact_replay_once(tmp_path, capsys, t
     assert json.loads(report.read_text())["episodes"][0]["history"]["steps"] == steps
     with open_reader(out) as replayed, open_reader(path) as recorded:
         (meta,) = replayed.episodes
-        assert meta.length == 30 and meta.verification["verdict"] == "exact"
+        assert meta.length == 30 and meta.verification.verdict == "exact"
         a, b = replayed.read_episode(meta.index), recorded.read_episode(2)
         assert all((a.env_states[k] == b.env_states[k]).all() for k in b.env_states)
 
@@ -118,7 +118,8 @@ def test_every_late_episode_replayed_alone_is_exact(tmp_path, task, seeded):
     the last step of the one before it, or, where that is not exact, its whole history): all exact."""
     from simreel.formats import open_reader
     from simreel.model.components import Tolerances
-    from simreel.replay.run.workers import ReplayJob, ReplayWorker
+    from simreel.replay.run.job import ReplayJob
+    from simreel.replay.run.workers import ReplayWorker
     from simreel.replay.run.worklist import WorkItem, env_key
 
     path = _record(tmp_path / "r.h5", task, (8, 30), seeded=seeded)

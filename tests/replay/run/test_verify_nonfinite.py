@@ -51,7 +51,7 @@ def test_a_conversion_does_not_call_it_verified_and_filter_does_not_keep_it(pois
     assert not out.exists()
     assert main(["convert", str(poisoned["nan"]), str(out), "--obs-mode", "state", "--keep", "all", "-q"]) == 1
     with open_reader(out) as r:
-        assert r.episode_meta(0).provenance["verdict"] == "diverged"
+        assert r.episode_meta(0).provenance.verdict == "diverged"
     assert main(["replay", str(poisoned["nan"]), "--mode", "states", "--report", str(tmp_path / "v.json"),
                  "-q"]) == 1
     assert main(["filter", str(poisoned["nan"]), "-o", str(tmp_path / "ok.h5"), "--verified",

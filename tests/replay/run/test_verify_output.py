@@ -58,7 +58,7 @@ def test_output_of_two_workers_equals_output_of_one(record, tmp_path, fmt):
     assert len(_workers_of(tmp_path / "r.json")) == 2  # the pool's process replayed some of them
     _assert_same_output(one, two)
     with open_reader(two) as reader:
-        assert [m.verification["verdict"] for m in reader.episodes] == ["exact"] * 4
+        assert [m.verification.verdict for m in reader.episodes] == ["exact"] * 4
     assert not scratch_folder(two).exists()
     if fmt == "h5":  # ManiSkill's sidecar too, apart from the command line it names
         sidecars = [json.loads(p.with_suffix(".json").read_text()) for p in (one, two)]

@@ -9,7 +9,8 @@ import pickle
 from simreel.errors import EnvBuildError, RecordingFileError
 from simreel.formats import open_reader
 from simreel.model.components import Tolerances
-from simreel.replay.run.workers import ReplayJob, ReplayWorker
+from simreel.replay.run.job import ReplayJob
+from simreel.replay.run.workers import ReplayWorker
 from simreel.replay.run.worklist import WorkItem, env_key
 
 

@@ -18,8 +18,9 @@ from simreel.cli.main import main
 from simreel.errors import RecordingFileError
 from simreel.formats import open_reader
 from simreel.model.components import Tolerances
+from simreel.replay.run.job import ReplayJob
 from simreel.replay.run.output import ReplayedWriter, ReplayOutput
-from simreel.replay.run.workers import ReplayJob, ReplayWorker
+from simreel.replay.run.workers import ReplayWorker
 from simreel.replay.run.worklist import WorkItem, env_key
 
 BLOCK = 7
@@ -149,4 +150,4 @@ def test_output_written_block_by_block_equals_the_output_written_whole(record, t
             assert list(a) == list(b)
             for name in a:
                 np.testing.assert_array_equal(a[name], b[name], err_msg=name)
-        assert whole.episodes[0].verification["verdict"] in ("exact", "within_tolerance")
+        assert whole.episodes[0].verification.verdict in ("exact", "within_tolerance")

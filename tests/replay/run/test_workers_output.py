@@ -13,7 +13,9 @@ from support.damage import corrupt_chunk
 
 from simreel.formats import open_reader
 from simreel.model.components import Tolerances
-from simreel.replay.run.workers import ReplayJob, ReplayWorker, run_pool
+from simreel.replay.run.job import ReplayJob
+from simreel.replay.run.pool import run_pool
+from simreel.replay.run.workers import ReplayWorker
 from simreel.replay.run.worklist import WorkItem, env_key
 
 

@@ -10,7 +10,8 @@ import time
 from dataclasses import dataclass
 
 from simreel.cli.main import main
-from simreel.replay.run.workers import EpisodeResult, run_pool
+from simreel.replay.run.job import EpisodeResult
+from simreel.replay.run.pool import run_pool
 from simreel.replay.run.worklist import WorkItem, build_worklist, chain_groups
 
 
