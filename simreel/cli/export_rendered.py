@@ -74,7 +74,7 @@ def export_rendered(inputs: Sequence[str], out: str, options: ExportOptions, ren
     checked = rendered[0].conversion["checked"]
     print(f"re-rendered: {render.obs_mode} observations of {sum(len(r.written) for r in rendered)} episode(s) from "
           f"their recorded states; checked: {checked}"
-          + (f"; {len(dropped)} left out, not verified: {_named(dropped)}" if dropped else ""))
+          + (f"; {len(dropped)} left out by the conversion check: {_named(dropped)}" if dropped else ""))
     return 1 if dropped else 0
 
 
