@@ -26,7 +26,7 @@ from typing import Any
 
 from simreel.cli.common import progress_bar
 from simreel.datasets.inputs import file_identity, shown_path
-from simreel.errors import UsageError
+from simreel.errors import SimreelError, UsageError
 from simreel.formats import open_reader
 from simreel.training.lerobot.options import ExportOptions
 
@@ -116,7 +116,10 @@ def _export(done: _Rendered, target: Path) -> Any:
                        kind="LeRobot dataset") as folder:
         plain = dataclasses.replace(options, report=None, overwrite=True)  # the staged folder is new and empty
         sys.stderr.flush()
-        summary = export_lerobot([r.output for r in written], folder, plain)
+        try:
+            summary = export_lerobot([r.output for r in written], folder, plain)
+        except SimreelError as e:  # about a scratch recording (a field it lacks): name the input it came from
+            raise UsageError(_as_inputs(str(e), written)) from None
         _name_inputs(folder, done)
     return dataclasses.replace(summary, path=target)
 
@@ -159,6 +162,14 @@ def _source(report: Any, exported: dict[str, Any], source: Any) -> dict[str, Any
                 "left_out": {str(i): why for i, why in sorted(report.dropped.items())}}
     return {**exported, "path": report.path, "size": size, "mtime_ns": mtime_ns,
             "recording_id": source.meta.recording_id, "obs_mode": source.meta.obs_mode, "rendered": rendered}
+
+
+def _as_inputs(message: str, reports: Sequence[Any]) -> str:
+    """`message` with each scratch recording's path replaced by that of the input it was rendered from."""
+    for r in reports:
+        for path in dict.fromkeys((_key(r.output), r.output)):
+            message = message.replace(path, f"{r.path} (re-rendered)")
+    return message
 
 
 def _key(path: str) -> str:

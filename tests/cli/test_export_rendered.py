@@ -118,6 +118,17 @@ def test_an_existing_out_is_refused_before_anything_is_converted(rendered, capsy
     assert not list(out.parent.glob(".ds*"))
 
 
+def test_an_export_that_fails_after_the_conversion_leaves_nothing(rendered, tmp_path, capsys):
+    """--state names a field the converted episodes lack: found only once they exist, after the conversion; the
+    scratch recordings and the staged dataset are removed (as on Ctrl-C: the same context managers)."""
+    out = tmp_path / "ds"
+    assert _status(["export", str(rendered["rec"]), "--to", "lerobot", str(out), "--state", "obs/nope", "--report",
+                    str(rendered["report"]), *RENDER]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("simreel export: error: ") and err.count("\n") == 1 and f"{rendered['rec']} (re-rendered): episode 0 has no obs/nope" in err, err
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_recording_with_those_observations_is_refused(record, tmp_path, capsys):
     rec = record("PickCube-v1", 1, 5, "--record-obs")
     assert _status(["export", str(rec), "--to", "lerobot", str(tmp_path / "ds"), "--obs-mode", "state", "-q"]) == 2
