@@ -11,6 +11,9 @@ an env with a camera, ~5 s); the module takes ~45 s, the PushCube test (`slow`) 
 from __future__ import annotations
 
 import json
+import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -126,6 +129,23 @@ def test_an_export_that_fails_after_the_conversion_leaves_nothing(rendered, tmp_
                     str(rendered["report"]), *RENDER]) == 2
     err = capsys.readouterr().err
     assert err.startswith("simreel export: error: ") and err.count("\n") == 1 and f"{rendered['rec']} (re-rendered): episode 0 has no obs/nope" in err, err
+    assert not list(tmp_path.iterdir())
+
+
+def test_ctrl_c_during_the_conversion_leaves_nothing(rendered, tmp_path):
+    """SIGINT once the conversion writes into the scratch folder (beside its lock): exit 130, no scratch or staged
+    folder left."""
+    out = tmp_path / "ds"
+    child = subprocess.Popen([sys.executable, "-m", "simreel", "export", str(rendered["rec"]), "--to", "lerobot",
+                              str(out), *RENDER], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    scratch = tmp_path / ".ds.replay.partial"
+    while child.poll() is None and time.monotonic() < deadline and len(list(scratch.glob("*"))) < 2:
+        time.sleep(0.05)
+    assert child.poll() is None, child.communicate()
+    child.send_signal(signal.SIGINT)
+    _, err = child.communicate(timeout=60)
+    assert child.returncode == 130, err
     assert not list(tmp_path.iterdir())
 
 
