@@ -5,8 +5,9 @@ rendered, within the codec's error; its actions are the source's, bit for bit; i
 the scratch recording) and the conversion; a replay report chooses the source's episodes; bad input is one line,
 exit 2, before anything is converted.
 
-Cost on the 2-core machine: ~10 s an export or conversion of a few 10-step PickCube episodes at 64x64 (each builds
-an env with a camera, ~5 s); the module takes ~45 s, the PushCube test (`slow`) ~20 s more."""
+Cost on the shared 2-core machine (2026-12-02): the module's default tests ~40-55 s (the shared fixture ~21 s: a
+replay, an export and a conversion of 10-step PickCube episodes at 64x64, each building an env with a camera); the
+`slow` ones, PushCube ~14-19 s and Ctrl-C in a child process 1-19 s, more."""
 
 from __future__ import annotations
 
@@ -132,6 +133,7 @@ def test_an_export_that_fails_after_the_conversion_leaves_nothing(rendered, tmp_
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_the_conversion_leaves_nothing(rendered, tmp_path):
     """SIGINT once the conversion writes into the scratch folder (beside its lock): exit 130, no scratch or staged
     folder left."""
