@@ -12,7 +12,7 @@ the episodes table names each episode's input file and the replay report's verdi
 
 Episodes a replay report leaves out are never converted (the report is checked against the inputs). Episodes whose
 conversion check fails are left out of the dataset and named in the summary; the command then exits 1, as `simreel
-convert` does."""
+convert` does (and writes nothing when none passes)."""
 
 from __future__ import annotations
 
@@ -66,7 +66,8 @@ def export_rendered(inputs: Sequence[str], out: str, options: ExportOptions, ren
                     for k, (path, refs) in enumerate(by_file.items())]
         dropped = [(r.path, i, why) for r in rendered for i, why in sorted(r.dropped.items())]
         if not any(r.written for r in rendered):
-            raise UsageError(f"no episode passed its conversion check ({_named(dropped)}); nothing was exported")
+            print(f"nothing exported: no episode passed its conversion check ({_named(dropped)})")
+            return 1
         done = _Rendered(options, files, {(e.path, e.index): e.verdict for e in chosen}, rendered)
         summary = _export(done, target)
     left_by_report = _all_episodes(files) - len(chosen) if options.report is not None else 0

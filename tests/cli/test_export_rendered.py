@@ -159,15 +159,19 @@ def test_a_recording_with_those_observations_is_refused(record, tmp_path, capsys
                                        "render them anew\n")
 
 
-def test_an_episode_that_fails_its_conversion_check_is_left_out_and_named(record, tmp_path, capsys):
-    """Episode 1's recorded reward at step 3 altered: the reward recomputed from its restored state disagrees."""
-    source = record("PickCube-v1", 2, 5)
-    rec = tmp_path / "altered.h5"
+def _altered(source: Path, rec: Path, episodes: tuple[int, ...]) -> Path:
+    """A copy of `source` whose `episodes` have their recorded reward at step 3 altered: the reward recomputed from
+    the restored state disagrees, so their conversion check fails."""
     with open_reader(source) as r, open_writer(rec, r.meta) as w:
         for m in r.episodes:
             episode = r.read_episode(m.index)
-            episode.rewards[3] += 1.0 * (m.index == 1)
+            episode.rewards[3] += 1.0 * (m.index in episodes)
             w.write_episode(episode)
+    return rec
+
+
+def test_an_episode_that_fails_its_conversion_check_is_left_out_and_named(record, tmp_path, capsys):
+    rec = _altered(record("PickCube-v1", 2, 5), tmp_path / "altered.h5", (1,))
     out = tmp_path / "ds"
     capsys.readouterr()
     assert main(["export", str(rec), "--to", "lerobot", str(out), *RENDER]) == 1
@@ -176,6 +180,15 @@ def test_an_episode_that_fails_its_conversion_check_is_left_out_and_named(record
     assert f"1 left out by the conversion check: {rec} episode 1 (not verified (diverged))" in printed, printed
     assert [e["simreel/source_episode"] for e in _episodes(out)] == [0]
     assert list(_info(out)["simreel"]["sources"][0]["rendered"]["left_out"]) == ["1"]
+
+
+def test_no_episode_passing_its_check_exports_nothing(record, tmp_path, capsys):
+    rec = _altered(record("PickCube-v1", 2, 5), tmp_path / "altered.h5", (0, 1))
+    capsys.readouterr()
+    assert main(["export", str(rec), "--to", "lerobot", str(tmp_path / "ds"), *RENDER]) == 1
+    assert capsys.readouterr().out == (f"nothing exported: no episode passed its conversion check ({rec} episode 0 "
+                                       f"(not verified (diverged)), {rec} episode 1 (not verified (diverged)))\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["altered.h5", "altered.json"]
 
 
 @pytest.mark.slow
