@@ -13,7 +13,7 @@ from simreel.model.components import Tolerances
 from simreel.model.selection import EpisodeSelection, parse_index_ranges
 from simreel.options.checks import flag, mapping, path, text, whole
 from simreel.options.declare import GivenOnce, check_options, documented, names_tagged, option
-from simreel.options.parallel import RAY, WORKERS
+from simreel.options.parallel import RAY, WORKERS, check_workers
 from simreel.sim.user_code import IMPORTS, TRUST_IMPORTS
 from simreel.verdicts.options import ATOL, TOL, mode_choices
 
@@ -102,8 +102,7 @@ class ReplayOptions:
             raise UsageError(f"--resync works with --mode actions only (got --mode {self.mode})")
         if self.resync is not None and self.resync < 1:
             raise UsageError(f"--resync must be >= 1, got {self.resync}")
-        if self.workers < 1:
-            raise UsageError(f"--workers must be >= 1, got {self.workers}")
+        check_workers(self.workers)
         if self.resume and self.report is None:
             raise UsageError("resume needs the report to continue (--resume REPORT.json)")
         if self.ship and self.ray is None:  # it only tells Ray actors what to read

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from simreel.cli.common import progress_bar
 from simreel.errors import UsageError
 from simreel.options.declare import add_arguments, from_arguments
 from simreel.training.lerobot.options import FORMATS, ExportOptions
@@ -29,6 +30,7 @@ def add_parser(sub: Any) -> None:
                    help=f"the format ({', '.join(FORMATS)}) and the folder to write (a new one, or a dataset of that "
                         "format with --overwrite)")
     add_arguments(p, ExportOptions)
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(run=run)
 
 
@@ -39,5 +41,7 @@ def run(args: argparse.Namespace) -> int:
     if fmt not in FORMATS:
         raise UsageError(f"--to {fmt}: simreel exports to {', '.join(FORMATS)}")
     options = from_arguments(ExportOptions, args, command=args.command_line)
-    print(export_lerobot(args.inputs, output, options).summary())
+    with progress_bar(quiet=args.quiet, unit="frame", desc="export") as bar:
+        summary = export_lerobot(args.inputs, output, options, progress=bar.update)
+    print(summary.summary())
     return 0

@@ -4,10 +4,11 @@
 
 from __future__ import annotations
 
+from simreel.errors import UsageError
 from simreel.options.checks import text, whole
 from simreel.options.declare import Option
 
-__all__ = ["WORKERS", "RAY"]
+__all__ = ["WORKERS", "RAY", "check_workers"]
 
 WORKERS = Option(help="parallel processes, or Ray workers with --ray (default 1)", metavar="N", parse=int,
                  check=whole("the number of processes (Ray workers with ray) working on the episodes, an int >= 1"))
@@ -16,3 +17,9 @@ RAY = Option(help="run on a Ray cluster (pip install 'simreel[ray]'): alone, a c
              nargs="?", const="local", metavar="ADDRESS",
              check=text('"local", "auto" or a cluster address ("ray://host:10001", "host:6379") as a string, or None '
                         "(no Ray)", optional=True))
+
+
+def check_workers(workers: int) -> None:
+    """`UsageError` for fewer than one worker."""
+    if workers < 1:
+        raise UsageError(f"--workers must be >= 1, got {workers}")
