@@ -9,7 +9,9 @@ one run.
    opencv-python-headless``); it is skipped, saying so, without them. What each writes differs: ManiSkill one mp4v
    video per episode at the fps given (here 20, the env's control rate), `observation.state` = `agent/qpos`;
    simreel H.264 videos, episodes concatenated, the whole observation as the state, rewards, success, done, the
-   statistics with quantiles and the provenance.
+   statistics with quantiles and the provenance. ``--workers 1,2`` times simreel's export with each worker count
+   too, side by side, alternately, and prints the ratio to one worker (on a machine whose cores others share, the
+   figure moves with their load).
 2. Loader: DataLoader samples/s over state windows of a state-obs recording (batch 64, one process, one pass):
    `RecordingDataset` (observation history 1 and 2, action chunk 1 and 8) against ManiSkill's
    `ManiSkillTrajectoryDataset` (single frames: the obs dict and the action; it loads the whole file first, which
@@ -19,6 +21,7 @@ one run.
 
     .venv/bin/python benchmarks/bench_training.py                          # 10 rgb episodes, 20 / 200 state ones
     .venv/bin/python benchmarks/bench_training.py --episodes 4 --state-episodes 10 --scale 10 --rounds 2
+    .venv/bin/python benchmarks/bench_training.py --workers 1,2 --skip-loader     # export: 1 and 2 workers
 """
 
 from __future__ import annotations
@@ -64,15 +67,18 @@ def _converter_runs() -> str | None:
         if missing else None
 
 
-def bench_export(folder: Path, rec: Path, rounds: int) -> None:
+def bench_export(folder: Path, rec: Path, rounds: int, workers: tuple[int, ...] = (1,)) -> None:
     frames = STEPS * _episode_count(rec)
     why_not = _converter_runs()
-    times: dict[str, list[float]] = {"simreel": [], "maniskill": []}
+    simreel = {n: "simreel" if n == 1 else f"simreel -w{n}" for n in workers}
+    times: dict[str, list[float]] = {**{label: [] for label in simreel.values()}, "maniskill": []}
     sizes = {}
     for k in range(rounds):
-        out = folder / f"simreel_{k}"
-        times["simreel"].append(_timed([SIMREEL, "export", str(rec), "--to", "lerobot", str(out)]))
-        sizes["simreel"] = _bytes(out)
+        for n, label in simreel.items():  # alternately, so that the machine's load falls on each alike
+            out = folder / f"simreel_{n}_{k}"
+            times[label].append(_timed([SIMREEL, "export", str(rec), "--to", "lerobot", str(out), "--workers", str(n),
+                                        "-q"]))
+            sizes[label] = _bytes(out)
         if why_not is None:
             out = folder / f"maniskill_{k}"
             times["maniskill"].append(_timed([PYTHON, "-m", "mani_skill.trajectory.convert_to_lerobot", "--traj-path",
@@ -83,11 +89,15 @@ def bench_export(folder: Path, rec: Path, rounds: int) -> None:
     for tool, runs in times.items():
         if runs:
             best = min(runs)
-            print(f"  {tool:10s} {best:7.2f} s  {frames / best:8.1f} frames/s  {sizes[tool] / frames:9.1f} B/frame "
+            print(f"  {tool:12s} {best:7.2f} s  {frames / best:8.1f} frames/s  {sizes[tool] / frames:9.1f} B/frame "
                   f"({sizes[tool] / 2**20:.2f} MiB; runs {', '.join(f'{t:.2f}' for t in runs)} s)")
+    for n, label in simreel.items():
+        if n != 1 and 1 in simreel:
+            print(f"  --workers {n}: {min(times['simreel']) / min(times[label]):.2f}x the throughput of one worker "
+                  f"({os.cpu_count()} CPU(s) here)")
     if why_not:
         print(f"  maniskill  not run: {why_not}")
-    else:
+    elif "simreel" in times:
         ratio = min(times["maniskill"]) / min(times["simreel"])
         print(f"  simreel throughput {ratio:.2f}x ManiSkill's; bytes {sizes['simreel'] / sizes['maniskill']:.2f}x")
 
@@ -160,12 +170,17 @@ def main() -> None:
     parser.add_argument("--scale", type=int, default=10, help="times more episodes for the memory figure")
     parser.add_argument("--rounds", type=int, default=3, help="export rounds of each tool (default 3)")
     parser.add_argument("--skip-export", action="store_true", help="only the loader and memory figures")
+    parser.add_argument("--workers", type=lambda text: tuple(int(n) for n in text.split(",")), default=(1,),
+                        metavar="N,N", help="simreel export --workers counts to time side by side (default 1)")
+    parser.add_argument("--skip-loader", action="store_true", help="only the export figures")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         if not args.skip_export:
             rec = _record(folder / "rgb.h5", args.episodes, "--obs-mode", "rgb")
-            bench_export(folder, rec, args.rounds)
+            bench_export(folder, rec, args.rounds, args.workers)
+        if args.skip_loader:
+            return
         small = _record(folder / "state.h5", args.state_episodes)
         large = _record(folder / "state_x.h5", args.state_episodes * args.scale)
         bench_loader(small, large, args.scale)

@@ -41,7 +41,8 @@ def split_episodes(episodes: Sequence[PlannedEpisode], workers: int) -> list[lis
     shards: list[list[PlannedEpisode]] = [[] for _ in range(count)]
     done = shard = 0
     for number, episode in enumerate(episodes):
-        wanted = min(done * count // total, shard + 1, count - 1)  # never past the next shard: none left empty
+        middle = 2 * done + episode.ref.length  # twice the frames up to the episode's middle
+        wanted = min(middle * count // (2 * total), shard + 1, count - 1)  # never past the next: none left empty
         shard = max(wanted, count - (len(episodes) - number))  # as many episodes left as shards: one each
         shards[shard].append(episode)
         done += episode.ref.length
@@ -111,9 +112,8 @@ def _collect(workers: list[tuple[Any, Connection]], results: dict[int, ShardResu
             try:
                 kind, value = conn.recv()
             except EOFError:
-                code = workers[number][0].exitcode
-                raise ExportWorkerError(f"an export worker process died (exit status {code}: killed from outside, "
-                                        "out of memory?); nothing was written") from None
+                raise ExportWorkerError(f"an export worker process {_how_it_ended(workers[number][0])}; nothing "
+                                        "was written") from None
             if kind == "frames":
                 if progress is not None:
                     progress(value)
@@ -121,6 +121,15 @@ def _collect(workers: list[tuple[Any, Connection]], results: dict[int, ShardResu
                 results[number] = value
             else:
                 raise value
+
+
+def _how_it_ended(process: Any) -> str:
+    """How a worker process that hung up without a word ended, in words."""
+    process.join(_STOP_SECONDS)  # (it may not be reaped yet)
+    code = process.exitcode
+    if code is not None and code < 0:
+        return f"was killed by {signal.Signals(-code).name} (out of memory? a kill -9?)"
+    return f"ended with exit status {code} (its error is printed above)" if code else "died"
 
 
 def _stop(workers: list[tuple[Any, Connection]]) -> None:
@@ -145,12 +154,13 @@ def _shard_process(job: ExportJob, shard: list[PlannedEpisode], folder: Path, co
     signal.signal(signal.SIGTERM, _terminated)
     try:
         result = write_shard(job, shard, folder, lambda frames: conn.send(("frames", frames)))
+        answer = ("done", result)
     except Terminated:
         return
     except BaseException as e:  # noqa: BLE001 - every error goes back to the parent, which raises it
-        conn.send(("error", _sendable(e)))
-        return
-    conn.send(("done", result))
+        answer = ("error", _sendable(e))
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # its work is done: a stop now just ends it, quietly
+    conn.send(answer)
 
 
 def _sendable(error: BaseException) -> BaseException:

@@ -9,6 +9,7 @@ are known up front), so a shard's frames carry their final ``episode_index`` and
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -77,7 +78,7 @@ def write_shard(job: ExportJob, episodes: Sequence[PlannedEpisode], folder: Path
             if progress is not None:
                 progress(planned.ref.length)
     except BaseException:
-        writer.videos.abort()  # no ffmpeg left running
+        writer.abort()  # no ffmpeg left running
         raise
     return writer.close()
 
@@ -128,6 +129,14 @@ class _ShardWriter:
         for key, s in pixel_stats.items():
             row.update({f"stats/{key}/{name}": value for name, value in as_image_stats(s).items()})
         self.result.rows.append(row)
+
+    def abort(self) -> None:
+        """End the videos' ffmpeg processes at once and let go of the data file (the folder is thrown away)."""
+        self.videos.abort()
+        if self._file is not None:
+            with contextlib.suppress(Exception):  # (its bytes no longer matter)
+                self._file.close()
+            self._file = None
 
     def close(self) -> ShardResult:
         if self._file is not None:
