@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -51,12 +52,19 @@ def _bytes(folder: Path) -> int:
     return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
 
 
-def _timed(command: list[str], env: dict[str, str] | None = None) -> float:
+def _timed(command: list[str], env: dict[str, str] | None = None, cpu: list[float] | None = None) -> float:
+    """The wall time of `command`, run to its end; its CPU time (its processes', ffmpeg's included) appended to
+    `cpu` where given."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True, env=env)
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(command[:4])} ... failed: {(done.stderr or done.stdout).strip()[-500:]}")
-    return time.perf_counter() - start
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if cpu is not None:
+        cpu.append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
+    return wall
 
 
 def _converter_runs() -> str | None:
@@ -72,25 +80,28 @@ def bench_export(folder: Path, rec: Path, rounds: int, workers: tuple[int, ...] 
     why_not = _converter_runs()
     simreel = {n: "simreel" if n == 1 else f"simreel -w{n}" for n in workers}
     times: dict[str, list[float]] = {**{label: [] for label in simreel.values()}, "maniskill": []}
+    cpu: dict[str, list[float]] = {label: [] for label in times}
     sizes = {}
     for k in range(rounds):
         for n, label in simreel.items():  # alternately, so that the machine's load falls on each alike
             out = folder / f"simreel_{n}_{k}"
             times[label].append(_timed([SIMREEL, "export", str(rec), "--to", "lerobot", str(out), "--workers", str(n),
-                                        "-q"]))
+                                        "-q"], cpu=cpu[label]))
             sizes[label] = _bytes(out)
         if why_not is None:
             out = folder / f"maniskill_{k}"
             times["maniskill"].append(_timed([PYTHON, "-m", "mani_skill.trajectory.convert_to_lerobot", "--traj-path",
                                               str(rec), "--output-dir", str(out), "--fps", "20", "--image-size",
-                                              "128x128"], env={**os.environ, "PYTHONWARNINGS": "ignore"}))
+                                              "128x128"], env={**os.environ, "PYTHONWARNINGS": "ignore"},
+                                             cpu=cpu["maniskill"]))
             sizes["maniskill"] = _bytes(out)
     print(f"export of {_episode_count(rec)} episodes x {STEPS} steps, one 128x128 camera (best of {rounds}):")
     for tool, runs in times.items():
         if runs:
             best = min(runs)
             print(f"  {tool:12s} {best:7.2f} s  {frames / best:8.1f} frames/s  {sizes[tool] / frames:9.1f} B/frame "
-                  f"({sizes[tool] / 2**20:.2f} MiB; runs {', '.join(f'{t:.2f}' for t in runs)} s)")
+                  f"({sizes[tool] / 2**20:.2f} MiB; runs {', '.join(f'{t:.2f}' for t in runs)} s; CPU "
+                  f"{', '.join(f'{t:.2f}' for t in cpu[tool])} s)")
     for n, label in simreel.items():
         if n != 1 and 1 in simreel:
             print(f"  --workers {n}: {min(times['simreel']) / min(times[label]):.2f}x the throughput of one worker "
