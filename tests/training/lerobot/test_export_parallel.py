@@ -219,3 +219,28 @@ def test_workers_below_one_are_refused(three_tasks, tmp_path, capsys):
     assert main(["export", str(three_tasks["push"]), "--to", "lerobot", str(tmp_path / "ds"), "--workers", "0"]) == 2
     assert capsys.readouterr().err == "simreel export: error: --workers must be >= 1, got 0\n"
     assert json.dumps(sorted(p.name for p in tmp_path.iterdir())) == "[]"
+
+
+REPO = Path(__file__).resolve().parents[3]
+LEROBOT_PYTHON = Path(os.environ.get("SIMREEL_LEROBOT_PYTHON", REPO / ".cache/lerobot-venv/bin/python"))
+
+
+@pytest.mark.skipif(not LEROBOT_PYTHON.is_file(), reason="no LeRobot venv: run `make lerobot-env`")
+@pytest.mark.parametrize(("kind", "workers", "script"), [("state", 3, "lerobot_read.py"),
+                                                         ("rgb", 2, "lerobot_read_videos.py")])
+def test_lerobot_reads_the_shards_files_as_the_one_workers_file(exports, tmp_path, kind, workers, script):
+    """LeRobot's own loader: every frame, window and pad mask the same; the video frames within the codec's
+    error of the one-worker video's."""
+    read = {}
+    for n in (1, workers):
+        subprocess.run([str(LEROBOT_PYTHON), "-W", "ignore", str(REPO / "tests/support" / script),
+                        str(exports[kind][n]), str(tmp_path / f"{n}.npz")], check=True, timeout=300,
+                       capture_output=True, env={**os.environ, "HF_HUB_OFFLINE": "1"})
+        with np.load(tmp_path / f"{n}.npz") as data:
+            read[n] = dict(data)
+    assert read[1].keys() == read[workers].keys()
+    for key, values in read[1].items():
+        if key == KEY:
+            check_within_codec_error(read[workers][key], values)
+        else:
+            assert np.array_equal(read[workers][key], values), key
