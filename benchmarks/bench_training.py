@@ -9,7 +9,9 @@ one run.
    opencv-python-headless``); it is skipped, saying so, without them. What each writes differs: ManiSkill one mp4v
    video per episode at the fps given (here 20, the env's control rate), `observation.state` = `agent/qpos`;
    simreel H.264 videos, episodes concatenated, the whole observation as the state, rewards, success, done, the
-   statistics with quantiles and the provenance.
+   statistics with quantiles and the provenance. ``--workers 1,2`` times simreel's export with each worker count
+   too, side by side, alternately, and prints the ratio to one worker (on a machine whose cores others share, the
+   figure moves with their load).
 2. Loader: DataLoader samples/s over state windows of a state-obs recording (batch 64, one process, one pass):
    `RecordingDataset` (observation history 1 and 2, action chunk 1 and 8) against ManiSkill's
    `ManiSkillTrajectoryDataset` (single frames: the obs dict and the action; it loads the whole file first, which
@@ -19,6 +21,7 @@ one run.
 
     .venv/bin/python benchmarks/bench_training.py                          # 10 rgb episodes, 20 / 200 state ones
     .venv/bin/python benchmarks/bench_training.py --episodes 4 --state-episodes 10 --scale 10 --rounds 2
+    .venv/bin/python benchmarks/bench_training.py --workers 1,2 --skip-loader     # export: 1 and 2 workers
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -48,12 +52,19 @@ def _bytes(folder: Path) -> int:
     return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
 
 
-def _timed(command: list[str], env: dict[str, str] | None = None) -> float:
+def _timed(command: list[str], env: dict[str, str] | None = None, cpu: list[float] | None = None) -> float:
+    """The wall time of `command`, run to its end; its CPU time (its processes', ffmpeg's included) appended to
+    `cpu` where given."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True, env=env)
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(command[:4])} ... failed: {(done.stderr or done.stdout).strip()[-500:]}")
-    return time.perf_counter() - start
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if cpu is not None:
+        cpu.append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
+    return wall
 
 
 def _converter_runs() -> str | None:
@@ -64,30 +75,40 @@ def _converter_runs() -> str | None:
         if missing else None
 
 
-def bench_export(folder: Path, rec: Path, rounds: int) -> None:
+def bench_export(folder: Path, rec: Path, rounds: int, workers: tuple[int, ...] = (1,)) -> None:
     frames = STEPS * _episode_count(rec)
     why_not = _converter_runs()
-    times: dict[str, list[float]] = {"simreel": [], "maniskill": []}
+    simreel = {n: "simreel" if n == 1 else f"simreel -w{n}" for n in workers}
+    times: dict[str, list[float]] = {**{label: [] for label in simreel.values()}, "maniskill": []}
+    cpu: dict[str, list[float]] = {label: [] for label in times}
     sizes = {}
     for k in range(rounds):
-        out = folder / f"simreel_{k}"
-        times["simreel"].append(_timed([SIMREEL, "export", str(rec), "--to", "lerobot", str(out)]))
-        sizes["simreel"] = _bytes(out)
+        for n, label in simreel.items():  # alternately, so that the machine's load falls on each alike
+            out = folder / f"simreel_{n}_{k}"
+            times[label].append(_timed([SIMREEL, "export", str(rec), "--to", "lerobot", str(out), "--workers", str(n),
+                                        "-q"], cpu=cpu[label]))
+            sizes[label] = _bytes(out)
         if why_not is None:
             out = folder / f"maniskill_{k}"
             times["maniskill"].append(_timed([PYTHON, "-m", "mani_skill.trajectory.convert_to_lerobot", "--traj-path",
                                               str(rec), "--output-dir", str(out), "--fps", "20", "--image-size",
-                                              "128x128"], env={**os.environ, "PYTHONWARNINGS": "ignore"}))
+                                              "128x128"], env={**os.environ, "PYTHONWARNINGS": "ignore"},
+                                             cpu=cpu["maniskill"]))
             sizes["maniskill"] = _bytes(out)
     print(f"export of {_episode_count(rec)} episodes x {STEPS} steps, one 128x128 camera (best of {rounds}):")
     for tool, runs in times.items():
         if runs:
             best = min(runs)
-            print(f"  {tool:10s} {best:7.2f} s  {frames / best:8.1f} frames/s  {sizes[tool] / frames:9.1f} B/frame "
-                  f"({sizes[tool] / 2**20:.2f} MiB; runs {', '.join(f'{t:.2f}' for t in runs)} s)")
+            print(f"  {tool:12s} {best:7.2f} s  {frames / best:8.1f} frames/s  {sizes[tool] / frames:9.1f} B/frame "
+                  f"({sizes[tool] / 2**20:.2f} MiB; runs {', '.join(f'{t:.2f}' for t in runs)} s; CPU "
+                  f"{', '.join(f'{t:.2f}' for t in cpu[tool])} s)")
+    for n, label in simreel.items():
+        if n != 1 and 1 in simreel:
+            print(f"  --workers {n}: {min(times['simreel']) / min(times[label]):.2f}x the throughput of one worker "
+                  f"({os.cpu_count()} CPU(s) here)")
     if why_not:
         print(f"  maniskill  not run: {why_not}")
-    else:
+    elif "simreel" in times:
         ratio = min(times["maniskill"]) / min(times["simreel"])
         print(f"  simreel throughput {ratio:.2f}x ManiSkill's; bytes {sizes['simreel'] / sizes['maniskill']:.2f}x")
 
@@ -160,12 +181,17 @@ def main() -> None:
     parser.add_argument("--scale", type=int, default=10, help="times more episodes for the memory figure")
     parser.add_argument("--rounds", type=int, default=3, help="export rounds of each tool (default 3)")
     parser.add_argument("--skip-export", action="store_true", help="only the loader and memory figures")
+    parser.add_argument("--workers", type=lambda text: tuple(int(n) for n in text.split(",")), default=(1,),
+                        metavar="N,N", help="simreel export --workers counts to time side by side (default 1)")
+    parser.add_argument("--skip-loader", action="store_true", help="only the export figures")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         if not args.skip_export:
             rec = _record(folder / "rgb.h5", args.episodes, "--obs-mode", "rgb")
-            bench_export(folder, rec, args.rounds)
+            bench_export(folder, rec, args.rounds, args.workers)
+        if args.skip_loader:
+            return
         small = _record(folder / "state.h5", args.state_episodes)
         large = _record(folder / "state_x.h5", args.state_episodes * args.scale)
         bench_loader(small, large, args.scale)

@@ -19,7 +19,7 @@ from simreel.model.json_input import parse_json
 if TYPE_CHECKING:  # the dataset imports torch; statistics of exported frames need none
     from simreel.training.dataset import RecordingDataset
 
-__all__ = ["FeatureStats", "RunningStats", "compute_stats"]
+__all__ = ["FeatureStats", "RunningStats", "block_moments", "compute_stats"]
 
 _STATS = ("count", "mean", "std", "min", "max")
 
@@ -36,17 +36,19 @@ class RunningStats:
 
     def add(self, rows: np.ndarray) -> None:
         """Take `rows` (n, *shape) into the statistics."""
-        if not len(rows):
-            return
-        x = np.asarray(rows, dtype=np.float64)
-        n, mean = len(x), x.mean(axis=0)
-        m2 = ((x - mean) ** 2).sum(axis=0)
+        if len(rows):
+            self.merge(block_moments(rows))
+
+    def merge(self, moments: tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """Take the `block_moments` of a block of rows (taken elsewhere: another process) into the statistics, as
+        `add` of those rows would, bit for bit."""
+        n, mean, m2, low, high = moments
         total = self.count + n
         delta = mean - self.mean
         self.mean = self.mean + delta * (n / total)
         self._m2 = self._m2 + m2 + delta**2 * (self.count * n / total)
         self.count = total
-        self.min, self.max = np.minimum(self.min, x.min(axis=0)), np.maximum(self.max, x.max(axis=0))
+        self.min, self.max = np.minimum(self.min, low), np.maximum(self.max, high)
 
     @property
     def std(self) -> np.ndarray:
@@ -56,6 +58,14 @@ class RunningStats:
     def to_json(self) -> dict[str, Any]:
         return {"count": self.count, "mean": self.mean.tolist(), "std": self.std.tolist(), "min": self.min.tolist(),
                 "max": self.max.tolist()}
+
+
+def block_moments(rows: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Count, mean, sum of squared deviations, min and max of a block of rows (n >= 1, *shape), in float64: what
+    `RunningStats.merge` takes."""
+    x = np.asarray(rows, dtype=np.float64)
+    mean = x.mean(axis=0)
+    return len(x), mean, ((x - mean) ** 2).sum(axis=0), x.min(axis=0), x.max(axis=0)
 
 
 @dataclass

@@ -13,6 +13,7 @@ from simreel.model.components import Tolerances
 from simreel.model.selection import EpisodeSelection, parse_index_ranges
 from simreel.options.checks import flag, mapping, path, text, whole
 from simreel.options.declare import GivenOnce, check_options, documented, names_tagged, option
+from simreel.options.parallel import RAY, WORKERS, check_workers
 from simreel.sim.user_code import IMPORTS, TRUST_IMPORTS
 from simreel.verdicts.options import ATOL, TOL, mode_choices
 
@@ -59,10 +60,7 @@ class ReplayOptions:
                                        "re-render)",
                                   check=text('an observation mode as a string, e.g. "rgb", or None (the recorded '
                                              "one)", optional=True))
-    workers: int = option(1, metavar="N", parse=int, tags=["execution"],
-                          help="parallel processes, or Ray actors with --ray (default 1)",
-                          check=whole("the number of processes (Ray actors with ray) replaying episodes, an int "
-                                      ">= 1"))
+    workers: int = option(1, spec=WORKERS, tags=["execution"])
     imports: tuple[str, ...] = option(default_factory=tuple, spec=IMPORTS, tags=["verdict"])
     trust_recorded_imports: bool = option(False, spec=TRUST_IMPORTS, tags=["execution"])
     sim_backend: str | None = option(None, tags=["verdict"],
@@ -80,12 +78,7 @@ class ReplayOptions:
     resume: bool = option(False, cli=False, check=flag(),
                           help="continue `report`: replay only the episodes it has no verdict for, with the options "
                                "it was made with (the command line's --resume REPORT.json)")
-    ray: str | None = option(None, nargs="?", const="local", metavar="ADDRESS", tags=["execution"],
-                             help="replay on a Ray cluster (pip install 'simreel[ray]'): alone, a cluster started on "
-                                  "this machine; 'auto', the cluster this machine belongs to; or its address "
-                                  "(host:6379, ray://host:10001)",
-                             check=text('"local", "auto" or a cluster address ("ray://host:10001", "host:6379") as a '
-                                        "string, or None (no Ray)", optional=True))
+    ray: str | None = option(None, spec=RAY, tags=["execution"])
     ship: bool = option(False, action="store_true", tags=["execution"], check=flag(),
                         help="with --ray: send every episode from this machine to the workers (by default they read "
                              "the recordings they see as this machine does, on a shared filesystem, and get the rest "
@@ -109,8 +102,7 @@ class ReplayOptions:
             raise UsageError(f"--resync works with --mode actions only (got --mode {self.mode})")
         if self.resync is not None and self.resync < 1:
             raise UsageError(f"--resync must be >= 1, got {self.resync}")
-        if self.workers < 1:
-            raise UsageError(f"--workers must be >= 1, got {self.workers}")
+        check_workers(self.workers)
         if self.resume and self.report is None:
             raise UsageError("resume needs the report to continue (--resume REPORT.json)")
         if self.ship and self.ray is None:  # it only tells Ray actors what to read

@@ -6,11 +6,8 @@ process that started it. `WorkerDiedError` when one dies."""
 from __future__ import annotations
 
 import contextlib
-import multiprocessing
 import os
 import signal
-import threading
-import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -19,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from simreel.errors import ReplayError, SimreelError
-from simreel.io.durable import deferred_signals
+from simreel.io.processes import launched, setup_worker_process, spawn_context
 from simreel.replay.run.job import EpisodeResult
 from simreel.replay.run.worklist import WorkItem, chain_groups, next_item
 
@@ -35,10 +32,7 @@ def _worker_init(job: Any, parent: int, first: WorkItem | None = None) -> None:
     back with the item, as any other. `parent`: the pid of the process that started the pool (`start_pool` gives
     it): this process ends when that one is gone, even if it was gone before this one got here."""
     global _WORKER
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked since its start (`_launched`)
-    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
-    _one_thread_per_process()
+    setup_worker_process(parent)
     try:
         _WORKER = job.open_worker()
         if first is not None and hasattr(_WORKER, "prepare"):
@@ -48,25 +42,12 @@ def _worker_init(job: Any, parent: int, first: WorkItem | None = None) -> None:
             _WORKER = e
 
 
-def _one_thread_per_process() -> None:
-    """A pool of N processes on N cores: torch's intra-op threads (one per core in each process by default)
-    would only compete with the other workers. Unless the user set it, one thread each."""
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
 
 
 def _ready() -> None:
     """Nothing: submitted to start a pool's processes before work is handed out (`start_pool`)."""
 
 
-def _exit_with_parent(parent: int) -> None:
-    """End this worker process when its parent `parent` is gone (killed with -9, it cannot stop the pool): a pool
-    worker waiting for work does not notice by itself, and would wait on, orphaned. The pid comes from the parent,
-    not from `os.getppid()` here: a parent killed while this process was still starting has already handed it to
-    init (pid 1, or a subreaper), which would then pass for the parent forever."""
-    while os.getppid() == parent:
-        time.sleep(0.5)
-    os._exit(1)
 
 
 def _worker_run(item: WorkItem) -> EpisodeResult:
@@ -120,11 +101,11 @@ def start_pool(job: Any, workers: int, first: WorkItem | None = None) -> Lanes:
     """`workers - 1` worker processes for `job`, started now: each imports, builds its worker and, given `first`,
     that item's env while this process prepares its own (a worker costs seconds to start, as long as tens of
     steps). Hand them to `run_pool`; `pool_closing` shuts them down."""
-    ctx = multiprocessing.get_context("spawn")  # sapien/torch state must not be forked
+    ctx = spawn_context()
     lanes = Lanes([ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_worker_init,
                                        initargs=(job, os.getpid(), first)) for _ in range(workers - 1)])
     try:
-        with _launched():
+        with launched():
             for executor in lanes.executors:
                 ready = executor.submit(_ready)  # starts the lane's process now
                 lanes.started += [(process, ready) for process in executor._processes.values()]
@@ -135,18 +116,6 @@ def start_pool(job: Any, workers: int, first: WorkItem | None = None) -> Lanes:
     return lanes
 
 
-@contextlib.contextmanager
-def _launched() -> Iterator[None]:
-    """Start worker processes in the block with SIGINT and SIGTERM held here, and SIGINT blocked in the processes
-    until `_worker_init` ignores it. A stop handled half way through a start left a process reading its set-up from a
-    closed pipe, and a terminal's Ctrl-C (which reaches every process of the group) that found a process still
-    importing before `_worker_init`: each printed a traceback under the command's one line."""
-    with deferred_signals():
-        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})  # inherited by the processes started now
-        try:
-            yield
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 def run_pool(worker: Any, items: Iterable[WorkItem], workers: int, collect: Callable[[EpisodeResult], Any],

@@ -8,26 +8,25 @@ it sees the same file (path, size and modification time: a shared filesystem); o
 lost) is replaced and its unfinished episodes go to the others; an episode whose actor died `MAX_ATTEMPTS`
 times is reported as an error rather than retried for ever. Each episode's result reaches `collect` once.
 
-Ray is an optional dependency (``pip install 'simreel[ray]'``); it is imported only here.
+Ray is an optional dependency (``pip install 'simreel[ray]'``), imported only when a run asks for it
+(`simreel.io.ray_cluster`).
 """
 
 from __future__ import annotations
 
 import contextlib
-import logging
 import os
-import signal
 import socket
-import threading
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
 from simreel.datasets.inputs import file_identity
-from simreel.errors import RecordingFileError, UsageError
+from simreel.errors import RecordingFileError
 from simreel.formats import EpisodeReader
 from simreel.formats.base import EpisodeRows
+from simreel.io.ray_cluster import connect, import_ray, worker_count
 from simreel.model.episode import Episode
 from simreel.model.meta import RecordingMeta
 from simreel.replay.run.job import EpisodeResult, ReplayJob
@@ -41,8 +40,6 @@ MAX_ATTEMPTS = 3
 """Times an episode is handed out before the deaths of the actors replaying it make it an error."""
 _AHEAD = 2
 """Episodes in flight per actor: one replaying, one waiting, so an actor never idles on the driver."""
-_OBJECT_STORE_BYTES = 256 * 1024**2
-"""Object store of a cluster started here: enough for shipped episodes, small beside the envs."""
 
 
 @dataclass(frozen=True)
@@ -94,85 +91,6 @@ class _Actor:
 
     def run(self, item: WorkItem, shipped: ShippedEpisode | None = None) -> EpisodeResult:
         return self.worker.run(item, shipped)
-
-
-def _import_ray() -> Any:
-    try:
-        import ray
-    except ImportError:
-        raise UsageError("--ray needs Ray: pip install 'simreel[ray]' (in simreel's repository: "
-                         ".venv/bin/pip install -e '.[ray]')") from None
-    return ray
-
-
-def _connect(ray: Any, address: str) -> None:
-    """Join or start the cluster; `UsageError` naming the address when there is none. simreel's own SIGINT and
-    SIGTERM handlers stay in place (`ray.init` installs its own, which would end a run with Ray's dumps and exit
-    15 instead of the report's resume hint)."""
-    quiet = {"logging_level": logging.ERROR, "log_to_driver": False, "include_dashboard": False}
-    if address != "local":
-        _check_reachable(address)
-    with _signal_handlers_kept():
-        try:
-            if address == "local":
-                # "local": a private instance, also where `ray start` runs a cluster (plain init would join it)
-                ray.init(address="local", object_store_memory=_OBJECT_STORE_BYTES, **quiet)
-            else:
-                ray.init(address=address, **quiet)
-        except (ConnectionError, RuntimeError, ValueError) as e:
-            if address == "local":
-                raise UsageError(f"--ray: cannot start Ray on this machine ({type(e).__name__}: {e}); join a "
-                                 "running cluster instead (--ray auto, or its address)") from None
-            raise UsageError(f"--ray {address}: no Ray cluster to join there ({type(e).__name__}: {e}); start one "
-                             "(ray start --head) or give its address (host:6379, ray://host:10001)") from None
-
-
-_CONNECT_SECONDS = 5.0
-"""How long `_check_reachable` waits for a cluster's port to answer (Ray itself would retry for ever)."""
-
-
-def _check_reachable(address: str) -> None:
-    """`UsageError` when nothing listens at a ``host:port`` or ``ray://host:port`` address: `ray.init` retries such
-    an address for ever. "auto" is Ray's to find (it fails at once when this machine belongs to no cluster)."""
-    host, sep, port = address.removeprefix("ray://").rpartition(":")
-    if address == "auto" or not sep or not port.isdigit():
-        return
-    host = host.strip("[]")  # an IPv6 address in brackets
-    try:
-        socket.create_connection((host, int(port)), timeout=_CONNECT_SECONDS).close()
-    except OSError as e:
-        why = "no answer" if isinstance(e, TimeoutError) else (e.strerror or str(e))
-        raise UsageError(f"--ray {address}: no Ray cluster answers there ({why}); start one (ray start --head) or "
-                         "give its address (host:6379, ray://host:10001)") from None
-
-
-@contextlib.contextmanager
-def _signal_handlers_kept() -> Iterator[None]:
-    """Put simreel's SIGINT and SIGTERM handlers back after the block (`ray.init` replaces them: its SIGTERM one
-    exits 15, and its core worker prints a stack dump), so a stopped run ends as a local one does. Only the main
-    thread sets handlers."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    kept = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for s, handler in kept.items():
-            if handler is not None:
-                signal.signal(s, handler)  # also takes the signal back from Ray's C++ handler
-
-
-def _actor_count(ray: Any, workers: int) -> tuple[int, list[str]]:
-    """How many actors to start for `workers` (each takes one CPU) and the note that says so when the cluster has
-    fewer CPUs: Ray would wait for ever to place the others. `UsageError` for a cluster without CPUs."""
-    cpus = int(ray.cluster_resources().get("CPU", 0))
-    if cpus < 1:
-        raise UsageError("--ray: the Ray cluster has no CPU for a worker (each takes one); add a node with CPUs")
-    if workers <= cpus:
-        return workers, []
-    return cpus, [f"--workers {workers}: the Ray cluster has {cpus} CPU(s), one per worker, so {cpus} worker(s) "
-                  "replayed"]
 
 
 class _Fleet:
@@ -283,11 +201,11 @@ def run_ray(job: ReplayJob, items: list[WorkItem], options: RayOptions, files: l
             collect: Callable[[EpisodeResult], Any]) -> list[str]:
     """Replay `items` (episodes of `files`) on Ray actors, calling `collect` here with each result as it comes;
     returns notes on what happened on the way (fewer workers than asked, workers that died)."""
-    ray = _import_ray()
-    _connect(ray, options.address)
+    ray = import_ray()
+    connect(ray, options.address)
     fleet = None
     try:
-        actors, notes = _actor_count(ray, options.workers)
+        actors, notes = worker_count(ray, options.workers, did="replayed")
         fleet = _Fleet(ray, job, options, files, actors)
         fleet.run(items, collect)
     finally:

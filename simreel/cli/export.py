@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from simreel.cli.common import progress_bar
 from simreel.cli.export_rendered import RENDER_OPTIONS, export_rendered, render_options
 from simreel.errors import UsageError
 from simreel.options.declare import add_arguments, from_arguments
@@ -49,5 +50,7 @@ def run(args: argparse.Namespace) -> int:
     render = render_options(args)
     if render is not None:
         return export_rendered(args.inputs, output, options, render, quiet=args.quiet)
-    print(export_lerobot(args.inputs, output, options).summary())
+    with progress_bar(quiet=args.quiet, unit="frame", desc="export") as bar:
+        summary = export_lerobot(args.inputs, output, options, progress=bar.update)
+    print(summary.summary())
     return 0

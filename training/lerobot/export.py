@@ -1,20 +1,22 @@
 """`export_lerobot`: the episodes of simreel recordings (and ManiSkill files) as a LeRobot dataset v3.0 folder.
 
 Episodes are taken as `simreel.training.episodes` chooses them (a replay report's verified ones by default when a
-report is given), in the order of the inputs, and streamed one at a time: each episode's frames (`frames`) are
-appended to the current data file as one row group (a new file once it reaches ~100 MB), its row of the episodes
-table and its statistics are kept, and the metadata (info.json, stats.json, tasks, the episodes table) are written
-once at the end. The folder is written under a hidden name beside OUT and takes its name only when complete
+report is given), in the order of the inputs. Each episode's place in the dataset is planned up front from the
+episodes' lengths (`_plan`), the episodes are cut into one run of consecutive episodes a worker (`--workers`,
+`--ray`: `parallel`), and each run is streamed an episode at a time into data and video files of its own (`shard`).
+One final step then gives each shard's files their numbers in the dataset and writes the metadata (info.json,
+stats.json, tasks, the episodes table) once. With one worker the files are exactly those of a plain streaming
+export. The folder is written under a hidden name beside OUT and takes its name only when complete
 (`simreel.io.folders.staged_folder`)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import shutil
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
@@ -25,16 +27,16 @@ from simreel.io.folders import check_folder_output, staged_folder
 from simreel.options.checks import options_with
 from simreel.training.episodes import EpisodeRef, SourceFile, chosen_episodes
 from simreel.training.features import resolve_features, same_features
-from simreel.training.lerobot.frame_stats import DatasetStats, episode_stats
+from simreel.training.lerobot.frame_stats import DatasetStats
 from simreel.training.lerobot.frames import FrameLayout
 from simreel.training.lerobot.layout import (
-    DATA_FILE_MB,
+    CHUNKS_SIZE,
     DATA_PATH,
     EPISODES_PATH,
     INFO_PATH,
     STATS_PATH,
     TASKS_PATH,
-    arrow_column,
+    VIDEO_PATH,
     chunk_file,
     info_document,
     is_lerobot_dataset,
@@ -42,12 +44,12 @@ from simreel.training.lerobot.layout import (
     write_tasks,
 )
 from simreel.training.lerobot.options import ExportOptions
+from simreel.training.lerobot.parallel import shard_folder, split_episodes, write_shards
+from simreel.training.lerobot.shard import ExportJob, PlannedEpisode, ShardResult
 from simreel.training.lerobot.videos import (
-    CameraVideos,
     VideoFeature,
     as_image_stats,
     camera_fields,
-    image_pixels,
 )
 from simreel.training.options import EpisodeChoice
 
@@ -82,9 +84,10 @@ def check_export_target(out: str | Path, *, overwrite: bool) -> Path:
 
 
 def export_lerobot(inputs: str | Path | Sequence[str | Path], out: str | Path, options: ExportOptions | None = None,
-                   **overrides: Any) -> ExportSummary:
+                   *, progress: Callable[[int], Any] | None = None, **overrides: Any) -> ExportSummary:
     """Export the episodes of the recordings `inputs` names to the LeRobot dataset folder `out`; `options` (or its
-    fields as keywords) say what it holds and which episodes."""
+    fields as keywords) say what it holds, which episodes, and over how many workers; `progress` is called with the
+    frames of each episode (each shard with Ray) once written."""
     opts = options_with(ExportOptions, options, overrides, 'export_lerobot("demos/", "out", report="report.json")')
     inputs = [inputs] if isinstance(inputs, (str, Path)) else list(inputs)
     out = check_export_target(out, overwrite=opts.overwrite)
@@ -96,28 +99,29 @@ def export_lerobot(inputs: str | Path | Sequence[str | Path], out: str | Path, o
         left_out = sum(len(open_reader(p).episodes) for p in files) - len(episodes)
     layouts = _layouts(opts, files, episodes)
     fps = _fps(files)
+    first = next(iter(layouts.values()))
+    job = ExportJob(layouts, first.features, [VideoFeature(key, f.shape, fps) for key, f in first.cameras.items()], fps)
+    planned = _plan(episodes, files, opts.task)
     with staged_folder(out, overwrite=opts.overwrite, looks_ours=is_lerobot_dataset, kind=_KIND) as folder:
-        first = next(iter(layouts.values()))
-        videos = [VideoFeature(key, f.shape, fps) for key, f in first.cameras.items()]
-        writer = _Writer(folder, first.features, CameraVideos(folder, videos, fps))
-        tasks: dict[str, int] = {}
-        try:
-            for number, episode in enumerate(episodes):
-                task = opts.task or files[episode.path].meta.env_id
-                task_index = tasks.setdefault(task, len(tasks))
-                with open_reader(episode.path) as reader:
-                    frames = layouts[episode.path].frames(reader.open_episode(episode.index), fps=fps,
-                                                          episode_index=number, first_index=writer.frames,
-                                                          task_index=task_index)
-                writer.episode(number, episode, task, frames)
-        except BaseException:
-            writer.videos.abort()  # no ffmpeg left running
-            raise
-        writer.finish(fps=fps, tasks=list(tasks), robot_type=_robot_type(files),
-                      provenance=_provenance(files, episodes, opts))
-    return ExportSummary(out, len(episodes), writer.frames, fps,
-                         [f.key for f in writer.features] + [f.key for f in writer.videos.features],
+        results = write_shards(job, split_episodes(planned, opts.workers), folder, ray=opts.ray, progress=progress)
+        _place_files(folder, results, [v.key for v in job.videos])
+        _write_metadata(folder, job, results, robot_type=_robot_type(files),
+                        provenance=_provenance(files, episodes, opts))
+    frames = sum(e.ref.length for e in planned)
+    return ExportSummary(out, len(episodes), frames, fps, [f.key for f in job.features] + [v.key for v in job.videos],
                          sources=list(files), left_out=left_out)
+
+
+def _plan(episodes: Sequence[EpisodeRef], files: dict[str, SourceFile], task: str | None) -> list[PlannedEpisode]:
+    """Each episode's place in the dataset (its episode_index and first frame's index, from the episodes' lengths)
+    and task (`task`, else its env id; task_index in the order the tasks first come)."""
+    tasks: dict[str, int] = {}
+    planned, first_index = [], 0
+    for number, episode in enumerate(episodes):
+        text = task or files[episode.path].meta.env_id
+        planned.append(PlannedEpisode(episode, number, first_index, text, tasks.setdefault(text, len(tasks))))
+        first_index += episode.length
+    return planned
 
 
 def _layouts(opts: ExportOptions, files: dict[str, SourceFile], episodes: Sequence[EpisodeRef]
@@ -175,67 +179,61 @@ def _provenance(files: dict[str, SourceFile], episodes: Sequence[EpisodeRef], op
             "keep": list(opts.keep) if opts.report is not None else None, "command": opts.command}
 
 
-class _Writer:
-    """The data files (one row group an episode, a new file past ~100 MB), the episodes table and the stats."""
+def _place_files(folder: Path, results: Sequence[ShardResult], video_keys: Sequence[str]) -> None:
+    """Move each shard's data and video files to their numbers in the dataset (the first shard's are in place;
+    each next one's follow them) and renumber its episodes' rows to match."""
+    data_offset, video_offsets = 0, dict.fromkeys(video_keys, 0)
+    for number, result in enumerate(results):
+        source = shard_folder(folder, number)
+        for n in range(result.data_files):
+            _move(source / DATA_PATH.format(**chunk_file(n)), folder / DATA_PATH.format(**chunk_file(data_offset + n)))
+        for key in video_keys:
+            for n in range(result.video_files[key]):
+                _move(source / VIDEO_PATH.format(video_key=key, **chunk_file(n)),
+                      folder / VIDEO_PATH.format(video_key=key, **chunk_file(video_offsets[key] + n)))
+        for row in result.rows:
+            _renumber(row, "data", data_offset)
+            for key in video_keys:
+                _renumber(row, f"videos/{key}", video_offsets[key])
+        data_offset += result.data_files
+        for key in video_keys:
+            video_offsets[key] += result.video_files[key]
+        if source != folder:
+            shutil.rmtree(source)
 
-    def __init__(self, folder: Path, features: Sequence[Any], videos: CameraVideos) -> None:
-        self.folder, self.features, self.videos = folder, list(features), videos
-        self.schema = pa.schema([pa.field(f.key, f.arrow_type(), nullable=False) for f in self.features])
-        self.frames = 0
-        self._file_number = -1
-        self._file: pq.ParquetWriter | None = None
-        self._file_bytes = 0
-        self._episode_rows: list[dict[str, Any]] = []
-        self.stats = DatasetStats()
 
-    def _data_file(self, incoming: int) -> dict[str, int]:
-        if self._file is None or self._file_bytes + incoming > DATA_FILE_MB * 2**20:
-            if self._file is not None:
-                self._file.close()
-            self._file_number += 1
-            path = self.folder / DATA_PATH.format(**chunk_file(self._file_number))
-            path.parent.mkdir(parents=True, exist_ok=True)
-            self._file, self._file_bytes = pq.ParquetWriter(path, self.schema), 0
-        return chunk_file(self._file_number)
+def _move(source: Path, target: Path) -> None:
+    if source != target:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        source.rename(target)
 
-    def episode(self, number: int, episode: EpisodeRef, task: str, frames: dict[str, np.ndarray]) -> None:
-        images = {f.key: frames.pop(f.key) for f in self.videos.features}
-        table = pa.table([arrow_column(f, frames[f.key]) for f in self.features], schema=self.schema)
-        where = self._data_file(table.nbytes)
-        self._file.write_table(table)
-        self._file_bytes += table.nbytes
-        stats = {key: episode_stats(values) for key, values in frames.items()}
-        self.stats.add(frames, stats)
-        pixels = {key: image_pixels(values) for key, values in images.items()}
-        pixel_stats = {key: episode_stats(values) for key, values in pixels.items()}
-        self.stats.add(pixels, pixel_stats)
-        length = len(frames["index"])
-        row = {"episode_index": number, "tasks": [task], "length": length,
-               "data/chunk_index": where["chunk_index"], "data/file_index": where["file_index"],
-               "dataset_from_index": self.frames, "dataset_to_index": self.frames + length,
-               "meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0,
-               "simreel/source_file": episode.path, "simreel/source_episode": episode.index,
-               "simreel/verdict": episode.verdict, **self.videos.episode(images)}
-        for key, s in stats.items():
-            row.update({f"stats/{key}/{name}": value.tolist() for name, value in s.items()})
-        for key, s in pixel_stats.items():
-            row.update({f"stats/{key}/{name}": value for name, value in as_image_stats(s).items()})
-        self._episode_rows.append(row)
-        self.frames += length
 
-    def finish(self, *, fps: float, tasks: list[str], robot_type: str | None, provenance: dict[str, Any]) -> None:
-        if self._file is not None:
-            self._file.close()
-        self.videos.finish()
-        columns = {key: [row[key] for row in self._episode_rows] for key in self._episode_rows[0]}
-        episodes_path = self.folder / EPISODES_PATH.format(**chunk_file(0))
-        episodes_path.parent.mkdir(parents=True, exist_ok=True)
-        pq.write_table(pa.Table.from_pydict(columns), episodes_path)
-        write_tasks(self.folder / TASKS_PATH, tasks)
-        stats = self.stats.document()
-        stats.update({f.key: as_image_stats(stats[f.key]) for f in self.videos.features})
-        write_json(self.folder / STATS_PATH, stats)
-        totals = {"total_episodes": len(self._episode_rows), "total_frames": self.frames, "total_tasks": len(tasks)}
-        write_json(self.folder / INFO_PATH, info_document(fps=fps, features=[*self.features, *self.videos.features],
-                                                          totals=totals,
-                                                          robot_type=robot_type, provenance=provenance))
+def _renumber(row: dict[str, Any], prefix: str, offset: int) -> None:
+    """Shift the file a row points at (``<prefix>/chunk_index``, ``<prefix>/file_index``) by `offset` files."""
+    local = row[f"{prefix}/chunk_index"] * CHUNKS_SIZE + row[f"{prefix}/file_index"]
+    where = chunk_file(local + offset)
+    row[f"{prefix}/chunk_index"], row[f"{prefix}/file_index"] = where["chunk_index"], where["file_index"]
+
+
+def _write_metadata(folder: Path, job: ExportJob, results: Sequence[ShardResult], *, robot_type: str | None,
+                    provenance: dict[str, Any]) -> None:
+    """The one final step, once every shard is written: the episodes table, the tasks, stats.json (the episodes'
+    statistics merged in their order) and info.json."""
+    rows = [row for result in results for row in result.rows]
+    tasks = list(dict.fromkeys(row["tasks"][0] for row in rows))
+    columns = {key: [row[key] for row in rows] for key in rows[0]}
+    episodes_path = folder / EPISODES_PATH.format(**chunk_file(0))
+    episodes_path.parent.mkdir(parents=True, exist_ok=True)
+    pq.write_table(pa.Table.from_pydict(columns), episodes_path)
+    write_tasks(folder / TASKS_PATH, tasks)
+    merged = DatasetStats()
+    for result in results:
+        for episode in result.moments:
+            merged.add(episode)
+    stats = merged.document()
+    stats.update({v.key: as_image_stats(stats[v.key]) for v in job.videos})
+    write_json(folder / STATS_PATH, stats)
+    totals = {"total_episodes": len(rows), "total_frames": sum(row["length"] for row in rows),
+              "total_tasks": len(tasks)}
+    write_json(folder / INFO_PATH, info_document(fps=job.fps, features=[*job.features, *job.videos], totals=totals,
+                                                 robot_type=robot_type, provenance=provenance))

@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 
 from simreel.training.lerobot.layout import QUANTILES
-from simreel.training.stats import RunningStats
+from simreel.training.stats import RunningStats, block_moments
 
-__all__ = ["episode_stats", "DatasetStats", "QUANTILE_KEYS"]
+__all__ = ["episode_stats", "episode_moments", "DatasetStats", "QUANTILE_KEYS"]
 
 QUANTILE_KEYS = tuple(f"q{round(q * 100):02d}" for q in QUANTILES)
 
@@ -29,23 +29,33 @@ def episode_stats(values: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
+def episode_moments(frames: Mapping[str, np.ndarray], stats: Mapping[str, Mapping[str, np.ndarray]]
+                    ) -> dict[str, tuple[tuple, dict[str, np.ndarray]]]:
+    """What `DatasetStats.add` takes of one episode: each frame column's `block_moments` and its `episode_stats`
+    quantiles. Small (a few numbers an element), so a worker process sends them to the one that merges them."""
+    out = {}
+    for key, values in frames.items():
+        out[key] = (block_moments(np.asarray(values).reshape(len(values), -1)),
+                    {q: stats[key][q] for q in QUANTILE_KEYS})
+    return out
+
+
 class DatasetStats:
-    """The dataset's statistics of every feature, taken an episode at a time (`add`)."""
+    """The dataset's statistics of every feature, merged an episode at a time (`add`), in the episodes' order: the
+    same numbers, bit for bit, whichever process took each episode's `episode_moments`."""
 
     def __init__(self) -> None:
         self._running: dict[str, RunningStats] = {}
         self._quantiles: dict[str, dict[str, np.ndarray]] = {}
 
-    def add(self, frames: Mapping[str, np.ndarray], stats: Mapping[str, Mapping[str, np.ndarray]]) -> None:
-        """Take one episode's frame columns and their `episode_stats`."""
-        for key, values in frames.items():
-            x = np.asarray(values).reshape(len(values), -1)
-            running = self._running.setdefault(key, RunningStats(x.shape[1:]))
-            running.add(x)
-            weights = self._quantiles.setdefault(key, {q: np.zeros(x.shape[1:]) for q in QUANTILE_KEYS})
+    def add(self, moments: Mapping[str, tuple[tuple, Mapping[str, np.ndarray]]]) -> None:
+        """Take one episode's `episode_moments`."""
+        for key, (block, quantiles) in moments.items():
+            count, shape = block[0], np.shape(block[1])
+            self._running.setdefault(key, RunningStats(shape)).merge(block)
+            weights = self._quantiles.setdefault(key, {q: np.zeros(shape) for q in QUANTILE_KEYS})
             for q in QUANTILE_KEYS:
-                weights[q] += stats[key][q] * len(x)
-
+                weights[q] += quantiles[q] * count
     def document(self) -> dict[str, dict[str, Any]]:
         """meta/stats.json."""
         out = {}

@@ -11,6 +11,7 @@ from typing import Any
 
 from simreel.options.checks import flag, path_text, text, text_tuple
 from simreel.options.declare import check_options, documented, option
+from simreel.options.parallel import RAY, WORKERS, check_workers
 from simreel.verdicts.report_file import REPORT_VERDICTS, VERIFIED
 
 __all__ = ["ExportOptions", "FORMATS"]
@@ -70,8 +71,11 @@ class ExportOptions:
         check=_name_tuple(f"verdicts among {', '.join(REPORT_VERDICTS)}"))
     overwrite: bool = option(False, action="store_true", help="replace OUT if it is a LeRobot dataset",
                              check=flag())
+    workers: int = option(1, spec=WORKERS)
+    ray: str | None = option(None, spec=RAY)
     command: str = option("", cli=False, help="the command line, kept in meta/info.json",
                           check=text("the command line as a string"))
 
     def __post_init__(self) -> None:
         check_options(self)
+        check_workers(self.workers)

@@ -105,10 +105,12 @@ class CameraVideos:
                             f"videos/{feature.key}/to_timestamp": encoder.frames / self.fps})
         return columns
 
-    def finish(self) -> None:
+    def finish(self) -> dict[str, int]:
+        """Close every video; the number of files each camera's video key has."""
         for encoder in self._encoders.values():
             encoder.close()
         self._encoders.clear()
+        return {key: number + 1 for key, number in self._file_numbers.items()}
 
     def abort(self) -> None:
         for encoder in self._encoders.values():

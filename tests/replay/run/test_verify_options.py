@@ -15,7 +15,7 @@ from simreel.replay import ReplayOptions, ReplayRun, verify_recording
 
 EPISODES = 'give episode indices, ints >= 0 (e.g. [0, 3]), their text as --episodes takes it ("0,3-7"), or None (all)'
 RESYNC = "give the number of actions between two restores of the recorded state, an int >= 1, or None (never restore)"
-WORKERS = "give the number of processes (Ray actors with ray) replaying episodes, an int >= 1"
+WORKERS = "give the number of processes (Ray workers with ray) working on the episodes, an int >= 1"
 
 
 @pytest.mark.parametrize(

@@ -14,10 +14,10 @@ import os
 import subprocess
 from pathlib import Path
 
-import imageio_ffmpeg
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from support.h264_frames import check_within_codec_error, decoded_frames
 
 from simreel.cli.main import main
 from simreel.formats import open_reader
@@ -26,8 +26,6 @@ from simreel.training.lerobot.export import export_lerobot
 REPO = Path(__file__).resolve().parents[3]
 LEROBOT_PYTHON = Path(os.environ.get("SIMREEL_LEROBOT_PYTHON", REPO / ".cache/lerobot-venv/bin/python"))
 KEY = "observation.images.base_camera"
-CODEC_MEAN_ERROR = 6.0
-"""The largest mean absolute error (of 255) a decoded frame may have."""
 
 
 @pytest.fixture(scope="module")
@@ -43,19 +41,6 @@ def camera_export(tmp_path_factory) -> tuple[Path, Path, np.ndarray]:
         frames = np.concatenate([reader.read_episode(m.index).fields()["obs/sensor_data/base_camera/rgb"][:-1]
                                  for m in reader.episodes])
     return rec, out, frames
-
-
-def _decoded(video: Path, shape: tuple[int, ...]) -> np.ndarray:
-    raw = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", str(video), "-f", "rawvideo",
-                          "-pix_fmt", "rgb24", "-"], capture_output=True, check=True, timeout=120).stdout
-    return np.frombuffer(raw, np.uint8).reshape(-1, *shape)
-
-
-def _check_within_codec_error(decoded: np.ndarray, recorded: np.ndarray) -> None:
-    assert decoded.shape == recorded.shape
-    errors = np.abs(decoded.astype(np.int16)[:, None] - recorded.astype(np.int16)[None]).mean(axis=(2, 3, 4))
-    assert (np.diag(errors) <= CODEC_MEAN_ERROR).all(), np.diag(errors)
-    assert (errors.argmin(axis=1) == np.arange(len(recorded))).all(), errors.argmin(axis=1)
 
 
 def test_the_camera_becomes_one_video_of_every_episode_as_lerobot_lays_it_out(camera_export):
@@ -76,8 +61,8 @@ def test_the_camera_becomes_one_video_of_every_episode_as_lerobot_lays_it_out(ca
     assert np.asarray(stats["mean"]).shape == (3, 1, 1) and 0 <= np.min(stats["min"]) <= np.max(stats["max"]) <= 1
     np.testing.assert_allclose(np.asarray(stats["mean"]).ravel(), (frames[:, ::4, ::4] / 255).mean(axis=(0, 1, 2)))
 
-    decoded = _decoded(out / f"videos/{KEY}/chunk-000/file-000.mp4", frames.shape[1:])
-    _check_within_codec_error(decoded, frames)
+    decoded = decoded_frames(out / f"videos/{KEY}/chunk-000/file-000.mp4", frames.shape[1:])
+    check_within_codec_error(decoded, frames)
 
 
 @pytest.mark.skipif(not LEROBOT_PYTHON.is_file(), reason="no LeRobot venv: run `make lerobot-env`")
@@ -88,4 +73,4 @@ def test_lerobots_loader_decodes_every_frame_of_every_episode(camera_export, tmp
                    env={**os.environ, "HF_HUB_OFFLINE": "1"})
     with np.load(tmp_path / "frames.npz") as got:
         assert got["episode_index"].tolist() == [0] * 8 + [1] * 8
-        _check_within_codec_error(got[KEY], frames)
+        check_within_codec_error(got[KEY], frames)
