@@ -13,9 +13,12 @@ one run.
    too, side by side, alternately, and prints the ratio to one worker (on a machine whose cores others share, the
    figure moves with their load).
 2. Loader: DataLoader samples/s over state windows of a state-obs recording (batch 64, one process, one pass):
-   `RecordingDataset` (observation history 1 and 2, action chunk 1 and 8) against ManiSkill's
-   `ManiSkillTrajectoryDataset` (single frames: the obs dict and the action; it loads the whole file first, which
-   its building time, imports included, is printed apart).
+   `RecordingDataset` (observation history 1 and 2, action chunk 1 and 8; ``collate_fn=ds.collate`` and torch's
+   default collate) against ManiSkill's `ManiSkillTrajectoryDataset` (single frames: the obs dict and the action;
+   it loads the whole file first, which its building time, imports included, is printed apart) and against
+   LeRobot's `LeRobotDataset` on the `simreel export --to lerobot` copy of the same recording, with
+   `delta_timestamps` giving the same windows (fps 20), run in LeRobot's venv (`make lerobot-env`; skipped, saying
+   so, without it).
 3. Memory: the peak RSS of a fresh process that builds each dataset and reads every sample once, for the recording
    and for one with ``--scale`` times its episodes.
 
@@ -117,19 +120,30 @@ def _episode_count(rec: Path) -> int:
     return len(json.loads(rec.with_suffix(".json").read_text())["episodes"])
 
 
+LEROBOT_PYTHON = REPO / ".cache" / "lerobot-venv" / "bin" / "python"
+
 _LOADER = r"""
-import resource, sys, time, torch
+import os, resource, sys, time, torch
 kind, path, history, horizon = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
 start = time.perf_counter()
-if kind == "simreel":
+collate = None
+if kind.startswith("simreel"):
     from simreel.training import RecordingDataset
     ds = RecordingDataset(path, features=["obs", "actions"], history=history, horizon=horizon)
+    collate = ds.collate if kind == "simreel" else None
+    kind = "simreel"
+elif kind == "lerobot":
+    os.environ["HF_HUB_OFFLINE"] = "1"
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    dt = 1 / 20
+    ds = LeRobotDataset("simreel/export", root=path, delta_timestamps={
+        "observation.state": [k * dt for k in range(1 - history, 1)], "action": [k * dt for k in range(horizon)]})
 else:
     from mani_skill.trajectory.dataset import ManiSkillTrajectoryDataset
     ds = ManiSkillTrajectoryDataset(path, load_count=-1, success_only=False, device=None)
 built = time.perf_counter() - start
 n = 0
-for batch in torch.utils.data.DataLoader(ds, batch_size=64, shuffle=True, num_workers=0):
+for batch in torch.utils.data.DataLoader(ds, batch_size=64, shuffle=True, num_workers=0, collate_fn=collate):
     n += len(batch["actions" if kind == "simreel" else "action"])
 took = time.perf_counter() - start
 print(n, built, took, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
@@ -143,7 +157,8 @@ def _loader(kind: str, path: Path, history: int = 1, horizon: int = 1) -> tuple[
     icd = lavapipe_icd_path()
     if icd is not None:  # ManiSkill's dataset imports mani_skill (sapien), which wants a Vulkan driver
         env["VK_ICD_FILENAMES"] = str(icd)
-    done = subprocess.run([PYTHON, "-c", _LOADER, kind, str(path), str(history), str(horizon)], capture_output=True,
+    python = str(LEROBOT_PYTHON) if kind == "lerobot" else PYTHON
+    done = subprocess.run([python, "-c", _LOADER, kind, str(path), str(history), str(horizon)], capture_output=True,
                           text=True, env=env, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"{kind} loader failed: {done.stderr.strip()[-800:]}")
@@ -151,20 +166,38 @@ def _loader(kind: str, path: Path, history: int = 1, horizon: int = 1) -> tuple[
     return int(n), float(built), float(took), float(rss)
 
 
+LOADERS = (("ManiSkillTrajectoryDataset, single frames", "maniskill", 1, 1),
+           ("LeRobotDataset, history 1, horizon 1", "lerobot", 1, 1),
+           ("RecordingDataset, history 1, horizon 1", "simreel", 1, 1),
+           ("LeRobotDataset, history 2, horizon 8", "lerobot", 2, 8),
+           ("RecordingDataset, history 2, horizon 8", "simreel", 2, 8),
+           ("RecordingDataset, h2 c8, default collate", "simreel-default", 2, 8))
+"""(label, kind, history, horizon) of each loader measured."""
+
+
 def bench_loader(small: Path, large: Path, scale: int) -> None:
     print(f"DataLoader over state windows (batch 64, one process, one pass; {_episode_count(small)} episodes x "
           f"{STEPS} steps):")
+    exported = small.with_name("state_lerobot")
+    if LEROBOT_PYTHON.exists():
+        subprocess.run([SIMREEL, "export", str(small), "--to", "lerobot", str(exported)], check=True,
+                       capture_output=True)
     rates = {}
-    for label, kind, history, horizon in (("ManiSkillTrajectoryDataset, single frames", "maniskill", 1, 1),
-                                          ("RecordingDataset, history 1, horizon 1", "simreel", 1, 1),
-                                          ("RecordingDataset, history 2, horizon 8", "simreel", 2, 8)):
-        n, built, took, rss = _loader(kind, small, history, horizon)
+    for label, kind, history, horizon in LOADERS:
+        if kind == "lerobot" and not LEROBOT_PYTHON.exists():
+            print(f"  {label:44s} not run: no LeRobot venv at {LEROBOT_PYTHON} (make lerobot-env)")
+            continue
+        n, built, took, rss = _loader(kind, exported if kind == "lerobot" else small, history, horizon)
         rates[label] = n / (took - built)
         print(f"  {label:44s} {rates[label]:9.0f} samples/s ({n} samples in {took - built:.2f} s; building it "
               f"{built:.2f} s, imports included)")
     base = rates["ManiSkillTrajectoryDataset, single frames"]
     print(f"  RecordingDataset single frames {rates['RecordingDataset, history 1, horizon 1'] / base:.2f}x "
           "ManiSkill's samples/s")
+    for window in ("history 1, horizon 1", "history 2, horizon 8"):
+        if f"LeRobotDataset, {window}" in rates:
+            print(f"  RecordingDataset {window}: {rates[f'RecordingDataset, {window}'] / rates[f'LeRobotDataset, {window}']:.2f}x "
+                  "LeRobotDataset's samples/s")
     print(f"peak memory, a fresh process reading every sample once, {_episode_count(small)} vs "
           f"{_episode_count(large)} episodes ({scale}x):")
     for label, kind in (("RecordingDataset (history 2, horizon 8)", "simreel"),

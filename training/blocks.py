@@ -84,12 +84,21 @@ class BlockCache:
 
     def field_rows(self, path: str, index: int, field: FieldSpec, rows: np.ndarray) -> np.ndarray:
         """Rows `rows` (in `field`'s own numbering) of `field` in episode `index` of `path`, as one array."""
+        return self.gather([(path, index)], np.zeros(len(rows), dtype=np.int64), field, rows)
+
+    def gather(self, episodes: Sequence[tuple[str, int]], which: np.ndarray, field: FieldSpec,
+               rows: np.ndarray) -> np.ndarray:
+        """Row `rows[k]` (in `field`'s own numbering) of `field` in episode `episodes[which[k]]` (a (path, index)),
+        for every k, as one array: one fancy index per block the rows touch."""
         shifted = rows - 1 if field.per_state else rows  # a per-state row r > 0 is in the block of step r - 1
         numbers = np.where(shifted < 0, -1, shifted // self.rows)
         out = np.empty((len(rows), *field.shape), dtype=field.dtype)
-        for number in np.unique(numbers):
-            at = numbers == number
-            block = self.block(path, index, int(number))[field.name]
+        keys = which * (int(numbers.max(initial=0)) + 2) + numbers + 1  # one key per (episode, block)
+        order = np.argsort(keys, kind="stable")
+        bounds = np.flatnonzero(np.diff(keys[order])) + 1
+        for at in np.split(order, bounds) if len(order) else ():
+            number = int(numbers[at[0]])
+            block = self.block(*episodes[int(which[at[0]])], number)[field.name]
             out[at] = block[0] if number < 0 else block[shifted[at] - number * self.rows]
         return out
 

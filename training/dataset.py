@@ -9,7 +9,10 @@ files, each sample one step of one episode. What a sample holds:
   padded by the control mode: `simreel.training.windows.pad_actions`; other fields repeat the last row);
 - ``episode`` (the episode's place in the set) and ``step`` (t).
 
-Arrays are the recording's own values, dtype and all (numpy; a DataLoader's collate makes tensors of them);
+Arrays are the recording's own values, dtype and all (numpy; a DataLoader's collate makes tensors of them). A
+DataLoader asks for a whole batch at once (`RecordingDataset.__getitems__`: one fancy index per block the batch
+touches); give it ``collate_fn=RecordingDataset.collate`` to make tensors of the batch's arrays without going
+sample by sample.
 `simreel.training.stats` normalizes. Rows are read a block at a time, each DataLoader worker through its own readers
 (`simreel.training.blocks`)."""
 
@@ -28,9 +31,20 @@ from simreel.training.blocks import BlockCache
 from simreel.training.episodes import EpisodeRef, SourceFile, chosen_episodes
 from simreel.training.features import resolve_features, same_features
 from simreel.training.options import SampleOptions
-from simreel.training.windows import chunk_rows, history_rows, pad_actions
+from simreel.training.windows import pad_action_batch, pads_with_zeros, window_rows
 
-__all__ = ["RecordingDataset"]
+__all__ = ["RecordingDataset", "SampleBatch"]
+
+
+class SampleBatch(list):
+    """The samples `RecordingDataset.__getitems__` gives (a list of sample dicts, as `__getitem__` makes them), with
+    `arrays`: each key's values for the whole batch, stacked (what `RecordingDataset.collate` turns into tensors)."""
+
+    def __init__(self, arrays: dict[str, np.ndarray]) -> None:
+        count = len(arrays["step"])
+        super().__init__({k: int(v[i]) if k in ("episode", "step") else v[i] for k, v in arrays.items()}
+                         for i in range(count))
+        self.arrays = arrays
 
 
 class RecordingDataset(torch.utils.data.Dataset):
@@ -48,6 +62,11 @@ class RecordingDataset(torch.utils.data.Dataset):
         self.starts = np.cumsum([0] + [e.length for e in self.episodes])
         """Sample number of each episode's step 0 (and the total, last)."""
         self.cache = BlockCache(self.fields, max_bytes=self.options.cache_bytes)
+        self._lengths = np.array([e.length for e in self.episodes])
+        self._where = [(e.path, e.index) for e in self.episodes]
+        self._zero_pads = np.array([pads_with_zeros(self.control_mode(e), self.options.action_pad)
+                                    for e in self.episodes])
+        """Per episode: whether its actions past the end are zeros but for the last dimension (`pads_with_zeros`)."""
 
     def __len__(self) -> int:
         return int(self.starts[-1])
@@ -61,20 +80,43 @@ class RecordingDataset(torch.utils.data.Dataset):
         return episode, sample - int(self.starts[episode])
 
     def __getitem__(self, sample: int) -> dict[str, Any]:
-        number, t = self.locate(sample)
-        episode = self.episodes[number]
-        out: dict[str, Any] = {}
+        return self.__getitems__([sample])[0]
+
+    def __getitems__(self, samples: Sequence[int]) -> SampleBatch:
+        """The samples numbered `samples`, read together (what a DataLoader asks for, a batch at a time)."""
+        return SampleBatch(self.batch(samples))
+
+    def batch(self, samples: Sequence[int]) -> dict[str, np.ndarray]:
+        """The samples numbered `samples`, stacked: each key of a sample (`__getitem__`) with a first axis of
+        len(samples)."""
+        numbers = np.asarray(samples)
+        if numbers.ndim != 1 or numbers.dtype.kind not in "iu" or len(numbers) and not (
+                -len(self) <= numbers.min() and numbers.max() < len(self)):
+            for sample in samples:
+                self.locate(sample)  # raises IndexError, naming the sample
+            numbers = numbers.astype(np.int64).reshape(-1)
+        numbers = numbers.astype(np.int64) % max(len(self), 1)
+        which = np.searchsorted(self.starts, numbers, side="right") - 1
+        t = numbers - self.starts[which]
+        out: dict[str, np.ndarray] = {}
         for field in self.fields:
-            if field.per_state:
-                rows, is_pad = history_rows(t, self.history)
-            else:
-                rows, is_pad = chunk_rows(t, self.horizon, episode.length)
-            values = self.cache.field_rows(episode.path, episode.index, field, rows)
+            steps = self.history if field.per_state else self.horizon
+            rows, is_pad = window_rows(t, self._lengths[which], steps, per_state=field.per_state)
+            values = self.cache.gather(self._where, np.repeat(which, steps), field, rows.reshape(-1))
+            values = values.reshape(len(t), steps, *field.shape)
             if field.name == "actions":
-                values = pad_actions(values, is_pad, control_mode=self.control_mode(episode), how=self.options.action_pad)
+                values = pad_action_batch(values, is_pad, self._zero_pads[which])
             out[field.name], out[f"{field.name}_is_pad"] = values, is_pad
-        out["episode"], out["step"] = number, t
+        out["episode"], out["step"] = which, t
         return out
+
+    @staticmethod
+    def collate(batch: list[dict[str, Any]]) -> dict[str, Any]:
+        """A DataLoader's `collate_fn` for this set: the tensors torch's default collate makes, straight from the
+        arrays of a batch read at once (`SampleBatch`); any other list of samples through the default collate."""
+        if isinstance(batch, SampleBatch):
+            return {k: torch.from_numpy(v) for k, v in batch.arrays.items()}
+        return torch.utils.data.default_collate(batch)
 
     def control_mode(self, episode: EpisodeRef) -> str | None:
         """The control mode `episode`'s actions were given in."""
