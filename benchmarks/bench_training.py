@@ -18,7 +18,8 @@ one run.
    it loads the whole file first, which its building time, imports included, is printed apart) and against
    LeRobot's `LeRobotDataset` on the `simreel export --to lerobot` copy of the same recording, with
    `delta_timestamps` giving the same windows (fps 20), run in LeRobot's venv (`make lerobot-env`; skipped, saying
-   so, without it).
+   so, without it). The same on camera windows of the export's rgb recording, against ManiSkill's dataset only
+   (LeRobot's video decoders do not run in its venv here).
 3. Memory: the peak RSS of a fresh process that builds each dataset and reads every sample once, for the recording
    and for one with ``--scale`` times its episodes.
 
@@ -37,6 +38,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -175,6 +177,20 @@ LOADERS = (("ManiSkillTrajectoryDataset, single frames", "maniskill", 1, 1),
 """(label, kind, history, horizon) of each loader measured."""
 
 
+def _rates(loaders: Sequence[tuple[str, str, int, int]], path_of: Callable[[str], Path]) -> dict[str, float]:
+    """Each loader's samples/s over the recording `path_of(kind)`, printed, and its ratio to ManiSkill's."""
+    rates = {}
+    for label, kind, history, horizon in loaders:
+        n, built, took, _ = _loader(kind, path_of(kind), history, horizon)
+        rates[label] = n / (took - built)
+        print(f"  {label:44s} {rates[label]:9.0f} samples/s ({n} samples in {took - built:.2f} s; building it "
+              f"{built:.2f} s, imports included)")
+    base = rates["ManiSkillTrajectoryDataset, single frames"]
+    print(f"  RecordingDataset single frames {rates['RecordingDataset, history 1, horizon 1'] / base:.2f}x "
+          "ManiSkill's samples/s")
+    return rates
+
+
 def bench_loader(small: Path, large: Path, scale: int) -> None:
     print(f"DataLoader over state windows (batch 64, one process, one pass; {_episode_count(small)} episodes x "
           f"{STEPS} steps):")
@@ -182,18 +198,10 @@ def bench_loader(small: Path, large: Path, scale: int) -> None:
     if LEROBOT_PYTHON.exists():
         subprocess.run([SIMREEL, "export", str(small), "--to", "lerobot", str(exported)], check=True,
                        capture_output=True)
-    rates = {}
-    for label, kind, history, horizon in LOADERS:
-        if kind == "lerobot" and not LEROBOT_PYTHON.exists():
-            print(f"  {label:44s} not run: no LeRobot venv at {LEROBOT_PYTHON} (make lerobot-env)")
-            continue
-        n, built, took, rss = _loader(kind, exported if kind == "lerobot" else small, history, horizon)
-        rates[label] = n / (took - built)
-        print(f"  {label:44s} {rates[label]:9.0f} samples/s ({n} samples in {took - built:.2f} s; building it "
-              f"{built:.2f} s, imports included)")
-    base = rates["ManiSkillTrajectoryDataset, single frames"]
-    print(f"  RecordingDataset single frames {rates['RecordingDataset, history 1, horizon 1'] / base:.2f}x "
-          "ManiSkill's samples/s")
+    loaders = [loader for loader in LOADERS if loader[1] != "lerobot" or LEROBOT_PYTHON.exists()]
+    if len(loaders) < len(LOADERS):
+        print(f"  LeRobotDataset not run: no LeRobot venv at {LEROBOT_PYTHON} (make lerobot-env)")
+    rates = _rates(loaders, lambda kind: exported if kind == "lerobot" else small)
     for window in ("history 1, horizon 1", "history 2, horizon 8"):
         if f"LeRobotDataset, {window}" in rates:
             print(f"  RecordingDataset {window}: {rates[f'RecordingDataset, {window}'] / rates[f'LeRobotDataset, {window}']:.2f}x "
@@ -205,6 +213,19 @@ def bench_loader(small: Path, large: Path, scale: int) -> None:
         rss = [_loader(kind, path, 2 if kind == "simreel" else 1, 8 if kind == "simreel" else 1)[3]
                for path in (small, large)]
         print(f"  {label:44s} {rss[0]:7.0f} -> {rss[1]:7.0f} MiB ({rss[1] / rss[0]:.2f}x)")
+
+
+RGB_LOADERS = (("ManiSkillTrajectoryDataset, single frames", "maniskill", 1, 1),
+               ("RecordingDataset, history 1, horizon 1", "simreel", 1, 1),
+               ("RecordingDataset, history 2, horizon 8", "simreel", 2, 8))
+"""The loaders measured on camera windows (LeRobot's decoders do not run in its venv here: no torchcodec for the CPU
+torch, and torchvision 0.28 has no VideoReader for its PyAV path)."""
+
+
+def bench_rgb_loader(rec: Path) -> None:
+    print(f"DataLoader over rgb windows (128x128 camera, batch 64, one process, one pass; {_episode_count(rec)} "
+          f"episodes x {STEPS} steps; LeRobotDataset not run: its video decoders do not run in its venv here):")
+    _rates(RGB_LOADERS, lambda kind: rec)
 
 
 def main() -> None:
@@ -225,6 +246,8 @@ def main() -> None:
             bench_export(folder, rec, args.rounds, args.workers)
         if args.skip_loader:
             return
+        if not args.skip_export:
+            bench_rgb_loader(rec)
         small = _record(folder / "state.h5", args.state_episodes)
         large = _record(folder / "state_x.h5", args.state_episodes * args.scale)
         bench_loader(small, large, args.scale)
