@@ -13,9 +13,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import progress_bar, write_json_report
+from simreel.cli.common import QUIET, progress_bar, write_json_report
 from simreel.errors import UsageError
-from simreel.options.declare import add_arguments, changed_on_command_line, cli_names, from_arguments
+from simreel.options.declare import (
+    add_arguments,
+    add_option,
+    changed_on_command_line,
+    cli_names,
+    from_arguments,
+)
 from simreel.replay.convert.options import ConvertOptions
 
 __all__ = ["add_parser", "run"]
@@ -42,7 +48,7 @@ def add_parser(sub: Any) -> None:
     g = p.add_argument_group("conversion (verified)")
     add_arguments(g, ConvertOptions, only=[n for n in cli_names(ConvertOptions) if n not in _EVERY_CONVERT])
     g.add_argument("--report", default=None, metavar="REPORT.json", help="write the JSON report here (per-step errors)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_option(p, "quiet", QUIET, False)
     add_arguments(p, ConvertOptions, only=["imports", "trust_recorded_imports"])
     p.set_defaults(run=run)
 

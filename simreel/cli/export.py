@@ -6,10 +6,10 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from simreel.cli.common import progress_bar
+from simreel.cli.common import QUIET, progress_bar
 from simreel.cli.export_rendered import RENDER_OPTIONS, export_rendered, render_options
 from simreel.errors import UsageError
-from simreel.options.declare import add_arguments, from_arguments
+from simreel.options.declare import add_arguments, add_option, from_arguments
 from simreel.replay.convert.options import ConvertOptions
 from simreel.training.lerobot.options import FORMATS, ExportOptions
 
@@ -35,7 +35,7 @@ def add_parser(sub: Any) -> None:
                    help=f"the format ({', '.join(FORMATS)}) and the folder to write (a new one, or a dataset of that "
                         "format with --overwrite)")
     add_arguments(p, ExportOptions)
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_option(p, "quiet", QUIET, False)
     add_arguments(p, ConvertOptions, only=RENDER_OPTIONS)
     p.set_defaults(run=run)
 

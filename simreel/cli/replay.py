@@ -9,10 +9,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from simreel.cli.common import progress_bar, stopped_saying
+from simreel.cli.common import QUIET, progress_bar, stopped_saying
 from simreel.errors import UsageError
 from simreel.options.declare import (
     add_arguments,
+    add_option,
     changed_on_command_line,
     cli_names,
     from_arguments,
@@ -40,7 +41,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--resume", default=None, metavar="REPORT.json",
                    help="finish the run that wrote REPORT.json (interrupted, killed): replay only the episodes it "
                         "has no verdict for, with its recordings and options (not a run with -o)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_option(p, "quiet", QUIET, False)
     p.set_defaults(run=run)
 
 

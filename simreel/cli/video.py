@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 from simreel.cli.common import (
+    QUIET,
     GivenOnce,
     add_import_option,
     mode_choices,
@@ -15,6 +16,7 @@ from simreel.cli.common import (
     refuse_tolerances_without_compare,
 )
 from simreel.errors import UsageError
+from simreel.options.declare import add_option
 
 __all__ = ["add_parser", "run"]
 
@@ -45,7 +47,7 @@ def add_parser(sub: Any) -> None:
                         "default: a replay or conversion of PATH is judged with the tolerances that judged it when "
                         "it was written, any other file with actions'")
     p.add_argument("--overwrite", action="store_true", help="replace existing videos")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_option(p, "quiet", QUIET, False)
     add_import_option(p, reads_recordings=True)
     p.set_defaults(run=run)
 
