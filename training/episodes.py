@@ -19,7 +19,7 @@ from simreel.model.meta import RecordingMeta
 from simreel.training.options import EpisodeChoice
 from simreel.verdicts.report_file import read_verdicts
 
-__all__ = ["EpisodeRef", "SourceFile", "select_episodes", "split_episodes", "chosen_episodes"]
+__all__ = ["EpisodeRef", "SourceFile", "select_episodes", "split_episodes", "chosen_episodes", "episode_count"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +75,16 @@ def select_episodes(inputs: Sequence[str | Path], *, report: str | Path | None =
         kept = f" with the verdict {' or '.join(keep)} in {report}" if report is not None else " with steps"
         raise UsageError(f"no episode{kept} in {', '.join(map(str, inputs))}")
     return episodes, files
+
+
+def episode_count(paths: Sequence[str | Path]) -> int:
+    """How many episodes the recordings `paths` hold, with or without steps (what a report's verdicts left out is
+    this less what was chosen)."""
+    total = 0
+    for path in paths:
+        with open_reader(path) as reader:
+            total += len(reader.episodes)
+    return total
 
 
 def split_episodes(episodes: Sequence[EpisodeRef], split: str | None, *, val_fraction: float,

@@ -52,7 +52,7 @@ def export_rendered(inputs: Sequence[str], out: str, options: ExportOptions, ren
     """Convert the chosen episodes of `inputs` with `render` (`ConvertOptions`), export the verified ones to `out`;
     prints the summary and returns the exit status (1 when an episode failed its conversion check)."""
     from simreel.replay.run.output import ScratchFolder
-    from simreel.training.episodes import select_episodes
+    from simreel.training.episodes import episode_count, select_episodes
     from simreel.training.lerobot.export import check_export_target
 
     target = check_export_target(out, overwrite=options.overwrite)  # before anything is converted
@@ -70,7 +70,7 @@ def export_rendered(inputs: Sequence[str], out: str, options: ExportOptions, ren
             return 1
         done = _Rendered(options, files, {(e.path, e.index): e.verdict for e in chosen}, rendered)
         summary = _export(done, target)
-    left_by_report = _all_episodes(files) - len(chosen) if options.report is not None else 0
+    left_by_report = episode_count(list(files)) - len(chosen) if options.report is not None else 0
     print(dataclasses.replace(summary, sources=list(by_file), left_out=left_by_report).summary())
     checked = rendered[0].conversion["checked"]
     print(f"re-rendered: {render.obs_mode} observations of {sum(len(r.written) for r in rendered)} episode(s) from "
@@ -179,11 +179,3 @@ def _key(path: str) -> str:
 
 def _named(dropped: Sequence[tuple[str, int, str]]) -> str:
     return ", ".join(f"{shown_path(p)} episode {i} ({why})" for p, i, why in dropped)
-
-
-def _all_episodes(files: dict[str, Any]) -> int:
-    total = 0
-    for path in files:
-        with open_reader(path) as reader:
-            total += len(reader.episodes)
-    return total

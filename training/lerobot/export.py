@@ -22,10 +22,9 @@ import pyarrow.parquet as pq
 
 from simreel.datasets.inputs import file_identity, shown_path
 from simreel.errors import UsageError
-from simreel.formats import open_reader
 from simreel.io.folders import check_folder_output, staged_folder
 from simreel.options.checks import options_with
-from simreel.training.episodes import EpisodeRef, SourceFile, chosen_episodes
+from simreel.training.episodes import EpisodeRef, SourceFile, chosen_episodes, episode_count
 from simreel.training.features import resolve_features, same_features
 from simreel.training.lerobot.frame_stats import DatasetStats
 from simreel.training.lerobot.frames import FrameLayout
@@ -96,7 +95,7 @@ def export_lerobot(inputs: str | Path | Sequence[str | Path], out: str | Path, o
     if opts.report is None:
         left_out = 0
     else:
-        left_out = sum(len(open_reader(p).episodes) for p in files) - len(episodes)
+        left_out = episode_count(list(files)) - len(episodes)
     layouts = _layouts(opts, files, episodes)
     fps = _fps(files)
     first = next(iter(layouts.values()))
